@@ -1,0 +1,211 @@
+//! Thin-lens perspective camera with a shutter interval.
+//!
+//! Conventions: right-handed world; the image's +x runs along `forward × up` and its +y
+//! (downwards in the image) along `-up`; pixel (0, 0) is the top-left corner. A sample at film
+//! position (x, y) in pixels and lens position (u, v) on the unit disk leaves the lens at
+//! `position + aperture_radius · (u · right + v · up)` towards the point that the pinhole ray
+//! through (x, y) meets on the plane of focus at distance `focus_distance` along `forward`.
+
+use std::path::Path;
+
+use glam::{Vec2, Vec3};
+
+use crate::error::SceneError;
+
+/// Which image axis the field of view spans.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum FovAxis {
+    X,
+    #[default]
+    Y,
+    /// The shorter image side (Mitsuba's `fov_axis = "smaller"`).
+    Smaller,
+    Larger,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Camera {
+    pub position: Vec3,
+    /// Unit viewing direction.
+    pub forward: Vec3,
+    /// Unit up vector, orthogonal to `forward`.
+    pub up: Vec3,
+    /// Unit right vector, `forward × up`.
+    pub right: Vec3,
+    /// Full field of view in degrees along `fov_axis`.
+    pub fov_deg: f32,
+    pub fov_axis: FovAxis,
+    /// Lens radius in world units; 0 is a pinhole.
+    pub aperture_radius: f32,
+    /// Distance of the plane in focus along `forward`.
+    pub focus_distance: f32,
+    /// Shutter open and close times; ray time t in [0, 1] maps linearly onto it.
+    pub shutter: [f32; 2],
+}
+
+impl Default for Camera {
+    fn default() -> Self {
+        Camera::look_at(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 40.0, FovAxis::Y)
+    }
+}
+
+impl Camera {
+    pub fn look_at(position: Vec3, target: Vec3, up: Vec3, fov_deg: f32, fov_axis: FovAxis) -> Camera {
+        let forward = (target - position).normalize_or_zero();
+        let right = forward.cross(up).normalize_or_zero();
+        let up = right.cross(forward);
+        Camera {
+            position,
+            forward,
+            up,
+            right,
+            fov_deg,
+            fov_axis,
+            aperture_radius: 0.0,
+            focus_distance: (target - position).length().max(1e-3),
+            shutter: [0.0, 1.0],
+        }
+    }
+
+    /// A camera on the +z side of `bounds` looking along -z, far enough that the bounding
+    /// sphere fits the field of view on the shorter image side.
+    pub fn framing(bounds: &(Vec3, Vec3), _aspect: f32) -> Camera {
+        let (lo, hi) = *bounds;
+        let centre = 0.5 * (lo + hi);
+        let radius = (0.5 * (hi - lo).length()).max(1e-3);
+        let fov: f32 = 40.0;
+        let distance = radius / (0.5 * fov.to_radians()).sin();
+        Camera::look_at(centre + Vec3::new(0.0, 0.0, distance), centre, Vec3::Y, fov, FovAxis::Smaller)
+    }
+
+    pub fn has_lens(&self) -> bool {
+        self.aperture_radius > 0.0
+    }
+
+    pub fn validate(&self, source: &Path) -> Result<(), SceneError> {
+        let finite = self.position.is_finite() && self.forward.is_finite() && self.up.is_finite();
+        if !finite || self.forward.length_squared() < 0.5 || self.right.length_squared() < 0.5 {
+            return Err(SceneError::new(
+                source,
+                "camera",
+                "position, look_at and up must be finite, distinct, and up must not be parallel to the view direction",
+            ));
+        }
+        if !(self.fov_deg > 0.0 && self.fov_deg < 180.0) {
+            return Err(SceneError::new(source, "camera.fov", "must be in (0, 180) degrees"));
+        }
+        if !(self.aperture_radius >= 0.0 && self.aperture_radius.is_finite()) {
+            return Err(SceneError::new(source, "camera.aperture_radius", "must be finite and >= 0"));
+        }
+        if !(self.focus_distance > 0.0 && self.focus_distance.is_finite()) {
+            return Err(SceneError::new(source, "camera.focus_distance", "must be finite and > 0"));
+        }
+        if !(self.shutter[0].is_finite() && self.shutter[1].is_finite() && self.shutter[0] <= self.shutter[1]) {
+            return Err(SceneError::new(source, "camera.shutter", "must be finite with open <= close"));
+        }
+        Ok(())
+    }
+
+    /// tan of half the field of view along x and y for an image of the given size.
+    pub fn tan_half_fov(&self, width: u32, height: u32) -> Vec2 {
+        let t = (0.5 * self.fov_deg.to_radians()).tan();
+        let (w, h) = (width.max(1) as f32, height.max(1) as f32);
+        let along_x = match self.fov_axis {
+            FovAxis::X => true,
+            FovAxis::Y => false,
+            FovAxis::Smaller => w <= h,
+            FovAxis::Larger => w > h,
+        };
+        if along_x {
+            Vec2::new(t, t * h / w)
+        } else {
+            Vec2::new(t * w / h, t)
+        }
+    }
+
+    /// Primary ray through film position `film` (pixels, origin top-left) and `lens` (a point
+    /// on the unit disk). Returns origin and unit direction.
+    pub fn generate_ray(&self, film: Vec2, lens: Vec2, width: u32, height: u32) -> (Vec3, Vec3) {
+        let tan = self.tan_half_fov(width, height);
+        let ndc_x = 2.0 * film.x / width as f32 - 1.0;
+        let ndc_y = 1.0 - 2.0 * film.y / height as f32;
+        let pinhole_dir = self.forward + self.right * (ndc_x * tan.x) + self.up * (ndc_y * tan.y);
+        if self.aperture_radius <= 0.0 {
+            return (self.position, pinhole_dir.normalize());
+        }
+        let focus_point = self.position + pinhole_dir * self.focus_distance;
+        let origin = self.position + (self.right * lens.x + self.up * lens.y) * self.aperture_radius;
+        (origin, (focus_point - origin).normalize())
+    }
+
+    /// Camera-space depth (distance along `forward`) of a world-space point.
+    pub fn depth(&self, p: Vec3) -> f32 {
+        (p - self.position).dot(self.forward)
+    }
+}
+
+/// Maps the unit square onto the unit disk preserving stratification (Shirley-Chiu).
+pub fn concentric_disk(square: Vec2) -> Vec2 {
+    let offset = 2.0 * square - Vec2::ONE;
+    if offset.x == 0.0 && offset.y == 0.0 {
+        return Vec2::ZERO;
+    }
+    let (r, theta) = if offset.x.abs() > offset.y.abs() {
+        (offset.x, std::f32::consts::FRAC_PI_4 * (offset.y / offset.x))
+    } else {
+        (offset.y, std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (offset.x / offset.y))
+    };
+    Vec2::new(r * theta.cos(), r * theta.sin())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn centre_pixel_looks_forward_and_corners_span_the_fov() {
+        let cam = Camera::look_at(Vec3::ZERO, Vec3::new(0.0, 0.0, 1.0), Vec3::Y, 90.0, FovAxis::Y);
+        let (_, d) = cam.generate_ray(Vec2::new(50.0, 50.0), Vec2::ZERO, 100, 100);
+        assert!((d - Vec3::Z).length() < 1e-6);
+        // Top edge centre: 45 degrees up.
+        let (_, d) = cam.generate_ray(Vec2::new(50.0, 0.0), Vec2::ZERO, 100, 100);
+        assert!((d.y - std::f32::consts::FRAC_1_SQRT_2).abs() < 1e-6);
+        // Image right is forward x up = -x for a camera looking down +z.
+        let (_, d) = cam.generate_ray(Vec2::new(100.0, 50.0), Vec2::ZERO, 100, 100);
+        assert!(d.x < -0.7);
+    }
+
+    #[test]
+    fn smaller_axis_fov_applies_to_the_short_side() {
+        let cam = Camera::look_at(Vec3::ZERO, Vec3::Z, Vec3::Y, 60.0, FovAxis::Smaller);
+        let wide = cam.tan_half_fov(200, 100);
+        let tall = cam.tan_half_fov(100, 200);
+        let t = (30f32).to_radians().tan();
+        assert!((wide.y - t).abs() < 1e-6 && (wide.x - 2.0 * t).abs() < 1e-6);
+        assert!((tall.x - t).abs() < 1e-6 && (tall.y - 2.0 * t).abs() < 1e-6);
+    }
+
+    #[test]
+    fn thin_lens_rays_converge_on_the_focus_plane() {
+        let mut cam = Camera::look_at(Vec3::ZERO, Vec3::Z, Vec3::Y, 40.0, FovAxis::Y);
+        cam.aperture_radius = 0.5;
+        cam.focus_distance = 3.0;
+        let film = Vec2::new(30.0, 70.0);
+        let (o1, d1) = cam.generate_ray(film, Vec2::new(0.9, 0.0), 100, 100);
+        let (o2, d2) = cam.generate_ray(film, Vec2::new(-0.3, -0.6), 100, 100);
+        let p1 = o1 + d1 * ((3.0 - o1.z) / d1.z);
+        let p2 = o2 + d2 * ((3.0 - o2.z) / d2.z);
+        assert!((p1 - p2).length() < 1e-5, "{p1} vs {p2}");
+    }
+
+    #[test]
+    fn concentric_disk_stays_inside_the_unit_disk() {
+        for i in 0..=20 {
+            for j in 0..=20 {
+                let p = concentric_disk(Vec2::new(i as f32 / 20.0, j as f32 / 20.0));
+                assert!(p.length() <= 1.0 + 1e-6);
+            }
+        }
+    }
+}

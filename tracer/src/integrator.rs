@@ -1,0 +1,325 @@
+//! Unidirectional path tracing with next-event estimation and multiple importance sampling.
+//!
+//! At every vertex one emitter is chosen by power and a shadow ray traced (NEE), and one
+//! direction is drawn from the BSDF; light reached by either strategy is weighted with the
+//! power heuristic against the other strategy's density (delta lights take NEE alone). Paths
+//! longer than three bounces continue with Russian roulette on the throughput. Radiance is
+//! split into `direct` (emission seen by the camera plus light reaching the first surface
+//! straight from an emitter) and `indirect` (everything else).
+
+use glam::{Vec2, Vec3};
+
+use crate::accel::{Accel, Hit};
+use crate::bsdf::{Bsdf, Frame};
+use crate::camera::concentric_disk;
+use crate::lights::{triangle_at, triangle_emission, LightSampler};
+use crate::sampler::Sampler;
+use crate::scene::Scene;
+
+/// What one camera sample measured.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PathSample {
+    pub direct: Vec3,
+    pub indirect: Vec3,
+    /// First-hit data (zero when the camera ray escapes).
+    pub first_hit: Option<FirstHit>,
+    /// Rays traced (closest-hit plus shadow).
+    pub rays: u32,
+}
+
+impl PathSample {
+    pub fn radiance(&self) -> Vec3 {
+        self.direct + self.indirect
+    }
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+pub struct FirstHit {
+    pub albedo: Vec3,
+    pub normal: Vec3,
+    pub position: Vec3,
+    /// Distance along the camera's forward axis.
+    pub depth: f32,
+}
+
+/// Kind of a traced ray, for the benchmark's replay.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RayKind {
+    Closest,
+    Shadow,
+}
+
+/// A traced ray, recorded for replay against raw Embree.
+#[derive(Clone, Copy, Debug)]
+pub struct RecordedRay {
+    pub origin: Vec3,
+    pub direction: Vec3,
+    pub t_max: f32,
+    pub time: f32,
+    pub kind: RayKind,
+}
+
+/// Receives every ray the integrator traces; the no-op recorder compiles away.
+pub trait RayRecorder {
+    fn record(&mut self, ray: RecordedRay);
+}
+
+pub struct NoRecording;
+
+impl RayRecorder for NoRecording {
+    #[inline(always)]
+    fn record(&mut self, _ray: RecordedRay) {}
+}
+
+impl RayRecorder for Vec<RecordedRay> {
+    fn record(&mut self, ray: RecordedRay) {
+        self.push(ray);
+    }
+}
+
+/// Local geometry and material at a hit, oriented towards the outgoing direction.
+pub struct SurfacePoint {
+    pub position: Vec3,
+    /// Unit geometric normal on the side of `wo`.
+    pub geometric_normal: Vec3,
+    /// Unit shading normal on the side of `wo`.
+    pub shading_normal: Vec3,
+    /// Whether `wo` leaves through the triangle's front face (counter-clockwise winding).
+    pub front_face: bool,
+    pub uv: Vec2,
+    pub bsdf: Bsdf,
+    /// Offset applied to ray origins leaving this point.
+    pub epsilon: f32,
+}
+
+impl SurfacePoint {
+    pub fn new(scene: &Scene, hit: &Hit, wo: Vec3, time: f32) -> SurfacePoint {
+        let mesh = &scene.meshes[hit.mesh as usize];
+        let [a, b, c] = triangle_at(scene, hit.mesh, hit.triangle, time);
+        let (u, v) = (hit.barycentric.x, hit.barycentric.y);
+        let w = 1.0 - u - v;
+        let position = a * w + b * u + c * v;
+        let winding_normal = (b - a).cross(c - a).normalize_or_zero();
+        let front_face = winding_normal.dot(wo) >= 0.0;
+        let geometric_normal = if front_face { winding_normal } else { -winding_normal };
+        let [ia, ib, ic] = mesh.indices[hit.triangle as usize];
+        let mut shading_normal = match &mesh.normals {
+            Some(n) => {
+                let interpolated = n[ia as usize] * w + n[ib as usize] * u + n[ic as usize] * v;
+                let interpolated = interpolated.normalize_or_zero();
+                if interpolated == Vec3::ZERO {
+                    geometric_normal
+                } else if interpolated.dot(geometric_normal) < 0.0 {
+                    -interpolated
+                } else {
+                    interpolated
+                }
+            }
+            None => geometric_normal,
+        };
+        // A shading normal that hides wo would make the surface black; fall back.
+        if shading_normal.dot(wo) <= 1e-4 {
+            shading_normal = geometric_normal;
+        }
+        let uv = match &mesh.uvs {
+            Some(uvs) => uvs[ia as usize] * w + uvs[ib as usize] * u + uvs[ic as usize] * v,
+            None => Vec2::ZERO,
+        };
+        let material = &scene.materials[mesh.material as usize];
+        let mut base_color = material.base_color;
+        if let Some(t) = &material.base_color_texture {
+            base_color *= scene.textures[t.index as usize].sample(t.apply(uv)).truncate();
+        }
+        let (mut metallic, mut roughness) = (material.metallic, material.roughness);
+        if let Some(t) = &material.metallic_roughness_texture {
+            let texel = scene.textures[t.index as usize].sample(t.apply(uv));
+            roughness *= texel.y;
+            metallic *= texel.z;
+        }
+        let scale = position.abs().max_element().max(a.abs().max_element());
+        SurfacePoint {
+            position,
+            geometric_normal,
+            shading_normal,
+            front_face,
+            uv,
+            bsdf: Bsdf::new(base_color, metallic, roughness, material.specular),
+            epsilon: (scale + 1e-3) * 2e-5,
+        }
+    }
+
+    /// Origin for a ray leaving towards `direction`, pushed off the surface on that side.
+    #[inline]
+    pub fn spawn_origin(&self, direction: Vec3) -> Vec3 {
+        let side = if direction.dot(self.geometric_normal) >= 0.0 { 1.0 } else { -1.0 };
+        self.position + self.geometric_normal * (self.epsilon * side)
+    }
+}
+
+#[inline]
+fn power_heuristic(pdf_a: f32, pdf_b: f32) -> f32 {
+    let a2 = pdf_a * pdf_a;
+    let b2 = pdf_b * pdf_b;
+    if a2.is_infinite() {
+        return 1.0;
+    }
+    if a2 + b2 > 0.0 {
+        a2 / (a2 + b2)
+    } else {
+        0.0
+    }
+}
+
+/// Adds `value` to the direct or indirect bucket, dropping non-finite values.
+#[inline]
+fn accumulate(sample: &mut PathSample, value: Vec3, is_direct: bool) {
+    if !value.is_finite() {
+        return;
+    }
+    if is_direct {
+        sample.direct += value;
+    } else {
+        sample.indirect += value;
+    }
+}
+
+pub struct Integrator<'a> {
+    pub scene: &'a Scene,
+    pub accel: &'a Accel,
+    pub lights: &'a LightSampler,
+    pub max_bounces: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Integrator<'_> {
+    /// Traces one camera path through pixel (px, py).
+    pub fn trace<R: RayRecorder>(&self, px: u32, py: u32, sampler: &mut Sampler, recorder: &mut R) -> PathSample {
+        let scene = self.scene;
+        let camera = &scene.camera;
+        let film = sampler.next_2d();
+        let film = Vec2::new(px as f32 + film[0], py as f32 + film[1]);
+        let lens = if camera.has_lens() { concentric_disk(Vec2::from(sampler.next_2d())) } else { Vec2::ZERO };
+        let time = if scene.has_motion() { sampler.next_1d() } else { 0.0 };
+        let (mut origin, mut direction) = camera.generate_ray(film, lens, self.width, self.height);
+
+        let mut sample = PathSample::default();
+        let mut throughput = Vec3::ONE;
+        let mut previous_bsdf_pdf = 0.0f32;
+        let mut previous_position = origin;
+
+        for bounce in 0..=self.max_bounces {
+            // Light that arrives at the first surface straight from an emitter is "direct".
+            let emission_is_direct = bounce <= 1;
+            sample.rays += 1;
+            recorder.record(RecordedRay { origin, direction, t_max: f32::INFINITY, time, kind: RayKind::Closest });
+            let Some(hit) = self.accel.intersect(origin, direction, 0.0, f32::INFINITY, time) else {
+                if scene.environment.max_element() > 0.0 {
+                    let weight = if bounce == 0 {
+                        1.0
+                    } else {
+                        power_heuristic(previous_bsdf_pdf, self.lights.pdf_environment())
+                    };
+                    accumulate(&mut sample, throughput * scene.environment * weight, emission_is_direct);
+                }
+                break;
+            };
+            let wo = -direction;
+            let surface = SurfacePoint::new(scene, &hit, wo, time);
+
+            if bounce == 0 {
+                sample.first_hit = Some(FirstHit {
+                    albedo: surface.bsdf.albedo(),
+                    normal: surface.shading_normal,
+                    position: surface.position,
+                    depth: camera.depth(surface.position),
+                });
+            }
+
+            let winding_normal = if surface.front_face { surface.geometric_normal } else { -surface.geometric_normal };
+            let emitted = triangle_emission(scene, hit.mesh, hit.triangle, hit.barycentric, winding_normal, wo);
+            if emitted != Vec3::ZERO {
+                let weight = if bounce == 0 {
+                    1.0
+                } else {
+                    let light_pdf = self.lights.pdf_triangle(
+                        scene,
+                        hit.mesh,
+                        hit.triangle,
+                        time,
+                        previous_position,
+                        surface.position,
+                    );
+                    power_heuristic(previous_bsdf_pdf, light_pdf)
+                };
+                accumulate(&mut sample, throughput * emitted * weight, emission_is_direct);
+            }
+            if bounce == self.max_bounces {
+                break;
+            }
+
+            let frame = Frame::new(surface.shading_normal);
+            let wo_local = frame.to_local(wo);
+            let [u_light_select, u_lobe] = sampler.next_2d();
+            let u_light = sampler.next_2d();
+            let u_bsdf = sampler.next_2d();
+            let [u_roulette, _] = sampler.next_2d();
+
+            // Next-event estimation.
+            if let Some(light) = self.lights.sample(scene, surface.position, time, u_light_select, u_light) {
+                let wi_local = frame.to_local(light.wi);
+                // Reject light from below the geometric surface (light leaking through).
+                if light.wi.dot(surface.geometric_normal) > 0.0 {
+                    let f = surface.bsdf.eval(wo_local, wi_local);
+                    if f != Vec3::ZERO {
+                        let shadow_origin = surface.spawn_origin(light.wi);
+                        let t_max = if light.distance.is_finite() {
+                            ((shadow_origin - surface.position).length() + light.distance) * (1.0 - 1e-4)
+                                - surface.epsilon
+                        } else {
+                            f32::INFINITY
+                        };
+                        sample.rays += 1;
+                        recorder.record(RecordedRay {
+                            origin: shadow_origin,
+                            direction: light.wi,
+                            t_max,
+                            time,
+                            kind: RayKind::Shadow,
+                        });
+                        if t_max > 0.0 && !self.accel.occluded(shadow_origin, light.wi, 0.0, t_max, time) {
+                            let weight = match light.pdf {
+                                Some(light_pdf) => power_heuristic(light_pdf, surface.bsdf.pdf(wo_local, wi_local)),
+                                None => 1.0,
+                            };
+                            accumulate(&mut sample, throughput * f * light.weighted_radiance * weight, bounce == 0);
+                        }
+                    }
+                }
+            }
+
+            // Continue the path by BSDF sampling.
+            let Some(bsdf_sample) = surface.bsdf.sample(wo_local, u_lobe, u_bsdf) else {
+                break;
+            };
+            let wi = frame.to_world(bsdf_sample.wi);
+            if wi.dot(surface.geometric_normal) <= 0.0 {
+                break;
+            }
+            throughput *= bsdf_sample.weight;
+            previous_bsdf_pdf = bsdf_sample.pdf;
+            previous_position = surface.position;
+            origin = surface.spawn_origin(wi);
+            direction = wi;
+
+            if bounce >= 3 {
+                let survive = throughput.max_element().min(0.95);
+                if !(survive > 0.0) || u_roulette >= survive {
+                    break;
+                }
+                throughput /= survive;
+            }
+        }
+        sample
+    }
+}

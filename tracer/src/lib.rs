@@ -1,0 +1,25 @@
+//! The lfr path tracer: scene loading (TOML, OBJ, glTF), an Embree 3 accelerator, a
+//! unidirectional path tracer with next-event estimation and MIS, and image output.
+//!
+//! Data flow: `scene::Scene::load` → `accel::Accel::build` → `render::render` → `output`.
+
+// `!(x > 0.0)` is used on purpose throughout: unlike `x <= 0.0` it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+pub mod accel;
+pub mod bsdf;
+pub mod camera;
+pub mod error;
+pub mod integrator;
+pub mod lights;
+pub mod output;
+pub mod render;
+pub mod sampler;
+pub mod scene;
+pub mod texture;
+
+pub use accel::Accel;
+pub use camera::Camera;
+pub use error::{RenderError, SceneError};
+pub use render::{render, Frame, RenderSettings};
+pub use scene::Scene;

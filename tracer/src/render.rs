@@ -1,0 +1,308 @@
+//! The frame loop: pixels in 16×16 tiles, tiles in parallel on a rayon pool whose threads all
+//! run with flush-to-zero and denormals-are-zero (Embree's recommendation). Every sample's
+//! random numbers depend only on (seed, pixel, sample index), and each pixel is accumulated by
+//! one thread in sample order, so the image is bit-identical for any thread count.
+
+use std::time::Instant;
+
+use glam::Vec3;
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+
+use crate::accel::Accel;
+use crate::error::RenderError;
+use crate::integrator::{Integrator, NoRecording, RayRecorder, RecordedRay};
+use crate::lights::LightSampler;
+use crate::sampler::Sampler;
+use crate::scene::Scene;
+
+const TILE: u32 = 16;
+
+#[derive(Clone, Debug)]
+pub struct RenderSettings {
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    pub seed: u32,
+    pub max_bounces: u32,
+    /// Worker threads; 0 = all cores.
+    pub threads: usize,
+    pub progress: bool,
+}
+
+impl RenderSettings {
+    /// The scene's own resolution, spp and bounce limit.
+    pub fn from_scene(scene: &Scene) -> RenderSettings {
+        RenderSettings {
+            width: scene.width,
+            height: scene.height,
+            spp: scene.spp,
+            seed: 0,
+            max_bounces: scene.max_bounces,
+            threads: 0,
+            progress: false,
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), RenderError> {
+        if self.width == 0 || self.height == 0 {
+            return Err(RenderError::Settings("--width and --height must be at least 1".into()));
+        }
+        if self.width > 1 << 15 || self.height > 1 << 15 {
+            return Err(RenderError::Settings("--width and --height must be at most 32768".into()));
+        }
+        if self.spp == 0 {
+            return Err(RenderError::Settings("--spp must be at least 1".into()));
+        }
+        Ok(())
+    }
+}
+
+/// Per-pixel results, row-major from the top-left, all linear.
+#[derive(Clone, Debug, Default)]
+pub struct Frame {
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    /// Mean radiance.
+    pub beauty: Vec<Vec3>,
+    pub direct: Vec<Vec3>,
+    pub indirect: Vec<Vec3>,
+    /// Mean first-hit albedo, normal and position over the samples that hit a surface.
+    pub albedo: Vec<Vec3>,
+    pub normal: Vec<Vec3>,
+    pub position: Vec<Vec3>,
+    /// Mean camera-space depth of the first hit; 0 where no sample hit anything.
+    pub depth: Vec<f32>,
+    /// Variance of the beauty mean (sample variance / spp), per channel.
+    pub variance: Vec<Vec3>,
+    /// Samples whose radiance was NaN or infinite and was dropped.
+    pub invalid_samples: u64,
+    pub rays: u64,
+    pub seconds: f64,
+}
+
+impl Frame {
+    pub fn pixel_count(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+}
+
+/// Per-pixel accumulator in double precision.
+#[derive(Clone, Copy, Default)]
+struct PixelSum {
+    sum: [f64; 3],
+    sum_sq: [f64; 3],
+    direct: [f64; 3],
+    indirect: [f64; 3],
+    albedo: Vec3,
+    normal: Vec3,
+    position: Vec3,
+    depth: f64,
+    hits: u32,
+    invalid: u32,
+}
+
+struct TileResult {
+    x0: u32,
+    y0: u32,
+    width: u32,
+    pixels: Vec<PixelSum>,
+    rays: u64,
+}
+
+fn render_tile<R: RayRecorder>(
+    integrator: &Integrator,
+    settings: &RenderSettings,
+    x0: u32,
+    y0: u32,
+    recorder: &mut R,
+) -> TileResult {
+    let x1 = (x0 + TILE).min(settings.width);
+    let y1 = (y0 + TILE).min(settings.height);
+    let mut pixels = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+    let mut rays = 0u64;
+    for py in y0..y1 {
+        for px in x0..x1 {
+            let mut acc = PixelSum::default();
+            for index in 0..settings.spp {
+                let mut sampler = Sampler::new(settings.seed, px, py, index);
+                let sample = integrator.trace(px, py, &mut sampler, recorder);
+                rays += sample.rays as u64;
+                let radiance = sample.radiance();
+                if !radiance.is_finite() {
+                    acc.invalid += 1;
+                    continue;
+                }
+                for c in 0..3 {
+                    let v = radiance[c] as f64;
+                    acc.sum[c] += v;
+                    acc.sum_sq[c] += v * v;
+                    acc.direct[c] += sample.direct[c] as f64;
+                    acc.indirect[c] += sample.indirect[c] as f64;
+                }
+                if let Some(first) = sample.first_hit {
+                    acc.hits += 1;
+                    acc.albedo += first.albedo;
+                    acc.normal += first.normal;
+                    acc.position += first.position;
+                    acc.depth += first.depth as f64;
+                }
+            }
+            pixels.push(acc);
+        }
+    }
+    TileResult { x0, y0, width: x1 - x0, pixels, rays }
+}
+
+fn tiles(settings: &RenderSettings) -> Vec<(u32, u32)> {
+    let mut tiles = Vec::new();
+    for y in (0..settings.height).step_by(TILE as usize) {
+        for x in (0..settings.width).step_by(TILE as usize) {
+            tiles.push((x, y));
+        }
+    }
+    tiles
+}
+
+/// A rayon pool whose workers run with FTZ/DAZ set.
+pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool, RenderError> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .start_handler(|_| embree3::enable_ftz_and_daz())
+        .build()
+        .map_err(|e| RenderError::Settings(format!("cannot start {threads} threads: {e}")))
+}
+
+fn progress_bar(settings: &RenderSettings, len: u64, message: &str) -> ProgressBar {
+    if !settings.progress {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template("{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} tiles (eta {eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.set_message(message.to_string());
+    bar
+}
+
+/// Renders the scene; the accelerator is built by the caller so it can be reused.
+pub fn render(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result<Frame, RenderError> {
+    settings.validate()?;
+    let lights = LightSampler::new(scene);
+    let integrator = Integrator {
+        scene,
+        accel,
+        lights: &lights,
+        max_bounces: settings.max_bounces,
+        width: settings.width,
+        height: settings.height,
+    };
+    let tile_list = tiles(settings);
+    let bar = progress_bar(settings, tile_list.len() as u64, "render");
+    let pool = thread_pool(settings.threads)?;
+    let start = Instant::now();
+    let results: Vec<TileResult> = pool.install(|| {
+        tile_list
+            .par_iter()
+            .map(|&(x, y)| {
+                let tile = render_tile(&integrator, settings, x, y, &mut NoRecording);
+                bar.inc(1);
+                tile
+            })
+            .collect()
+    });
+    let seconds = start.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    Ok(assemble(settings, results, seconds))
+}
+
+/// Traces the same paths as `render` and returns every ray, in a deterministic order (for
+/// replaying them against raw Embree in the benchmark).
+pub fn record_rays(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result<Vec<RecordedRay>, RenderError> {
+    settings.validate()?;
+    let lights = LightSampler::new(scene);
+    let integrator = Integrator {
+        scene,
+        accel,
+        lights: &lights,
+        max_bounces: settings.max_bounces,
+        width: settings.width,
+        height: settings.height,
+    };
+    let pool = thread_pool(settings.threads)?;
+    let per_tile: Vec<Vec<RecordedRay>> = pool.install(|| {
+        tiles(settings)
+            .par_iter()
+            .map(|&(x, y)| {
+                let mut rays = Vec::new();
+                render_tile(&integrator, settings, x, y, &mut rays);
+                rays
+            })
+            .collect()
+    });
+    Ok(per_tile.into_iter().flatten().collect())
+}
+
+fn assemble(settings: &RenderSettings, results: Vec<TileResult>, seconds: f64) -> Frame {
+    let n = settings.width as usize * settings.height as usize;
+    let mut frame = Frame {
+        width: settings.width,
+        height: settings.height,
+        spp: settings.spp,
+        beauty: vec![Vec3::ZERO; n],
+        direct: vec![Vec3::ZERO; n],
+        indirect: vec![Vec3::ZERO; n],
+        albedo: vec![Vec3::ZERO; n],
+        normal: vec![Vec3::ZERO; n],
+        position: vec![Vec3::ZERO; n],
+        depth: vec![0.0; n],
+        variance: vec![Vec3::ZERO; n],
+        invalid_samples: 0,
+        rays: 0,
+        seconds,
+    };
+    for tile in results {
+        frame.rays += tile.rays;
+        for (i, acc) in tile.pixels.iter().enumerate() {
+            let x = tile.x0 + i as u32 % tile.width;
+            let y = tile.y0 + i as u32 / tile.width;
+            let p = (y * settings.width + x) as usize;
+            frame.invalid_samples += acc.invalid as u64;
+            let valid = (settings.spp - acc.invalid) as f64;
+            if valid > 0.0 {
+                let mut mean = [0.0f32; 3];
+                let mut variance = [0.0f32; 3];
+                for c in 0..3 {
+                    let m = acc.sum[c] / valid;
+                    mean[c] = m as f32;
+                    if valid > 1.0 {
+                        let sample_variance = ((acc.sum_sq[c] - valid * m * m) / (valid - 1.0)).max(0.0);
+                        variance[c] = (sample_variance / valid) as f32;
+                    }
+                }
+                frame.beauty[p] = Vec3::from(mean);
+                frame.variance[p] = Vec3::from(variance);
+                frame.direct[p] = Vec3::new(
+                    (acc.direct[0] / valid) as f32,
+                    (acc.direct[1] / valid) as f32,
+                    (acc.direct[2] / valid) as f32,
+                );
+                frame.indirect[p] = Vec3::new(
+                    (acc.indirect[0] / valid) as f32,
+                    (acc.indirect[1] / valid) as f32,
+                    (acc.indirect[2] / valid) as f32,
+                );
+            }
+            if acc.hits > 0 {
+                let h = acc.hits as f32;
+                frame.albedo[p] = acc.albedo / h;
+                frame.normal[p] = acc.normal.normalize_or_zero();
+                frame.position[p] = acc.position / h;
+                frame.depth[p] = (acc.depth / acc.hits as f64) as f32;
+            }
+        }
+    }
+    frame
+}

@@ -1,0 +1,365 @@
+//! The in-memory scene: meshes, materials, textures, lights, camera and render settings.
+//!
+//! Every loader (TOML description, OBJ, glTF) produces these types; the accelerator
+//! (`accel`), the light sampler (`lights`) and the integrator read them. All geometry is in
+//! world space: node hierarchies and per-mesh transforms are flattened at load time (Debian's
+//! Embree allows one instance level only, and a flat scene is the fastest to trace anyway).
+
+pub mod description;
+pub mod gltf;
+pub mod obj;
+pub mod shapes;
+
+use std::path::{Path, PathBuf};
+
+use glam::{Vec2, Vec3};
+
+use crate::camera::Camera;
+use crate::error::SceneError;
+use crate::texture::{Texture, TextureRef};
+
+/// A triangle mesh in world space with one material.
+#[derive(Clone, Debug, Default)]
+pub struct Mesh {
+    /// Name for messages (file and object name).
+    pub name: String,
+    /// World-space vertex positions at shutter open.
+    pub positions: Vec<Vec3>,
+    /// Per-vertex shading normals (world space, unit length), if the source had them.
+    pub normals: Option<Vec<Vec3>>,
+    /// Per-vertex texture coordinates.
+    pub uvs: Option<Vec<Vec2>>,
+    /// Triangles as indices into the vertex arrays.
+    pub indices: Vec<[u32; 3]>,
+    /// Index into [`Scene::materials`].
+    pub material: u32,
+    /// World-space translation of the whole mesh from shutter open to shutter close
+    /// (linear motion). Zero for static meshes.
+    pub motion: Vec3,
+}
+
+impl Mesh {
+    pub fn is_moving(&self) -> bool {
+        self.motion != Vec3::ZERO
+    }
+
+    /// Area of triangle `i` at shutter open.
+    pub fn triangle_area(&self, i: usize) -> f32 {
+        let [a, b, c] = self.indices[i];
+        let (a, b, c) = (self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]);
+        0.5 * (b - a).cross(c - a).length()
+    }
+}
+
+/// Where a material's alpha (cut-out) comes from.
+#[derive(Clone, Debug)]
+pub struct AlphaMask {
+    /// Texture holding the coverage.
+    pub texture: TextureRef,
+    /// Channel of the texture read as coverage (3 = alpha, 0 = red/grey).
+    pub channel: usize,
+    /// Multiplier applied to the texture value (glTF base colour factor alpha).
+    pub factor: f32,
+    /// A hit is kept where coverage >= cutoff.
+    pub cutoff: f32,
+}
+
+/// The metallic-roughness material model (glTF 2.0), used for every source format.
+#[derive(Clone, Debug)]
+pub struct Material {
+    pub name: String,
+    /// Linear base colour factor.
+    pub base_color: Vec3,
+    /// Multiplied into `base_color`; sRGB-encoded texels are decoded to linear on lookup.
+    pub base_color_texture: Option<TextureRef>,
+    pub metallic: f32,
+    /// Perceptual roughness in [0, 1]; the GGX alpha is its square.
+    pub roughness: f32,
+    /// glTF metallicRoughness texture: roughness in green, metallic in blue.
+    pub metallic_roughness_texture: Option<TextureRef>,
+    /// Dielectric specular weight: 1 for glTF and glossy OBJ materials, 0 for a pure Lambertian
+    /// surface (OBJ without Ks, the Cornell box walls).
+    pub specular: f32,
+    /// Emitted radiance (linear RGB), already multiplied by any emissive strength.
+    pub emission: Vec3,
+    pub emission_texture: Option<TextureRef>,
+    /// Emit from both faces; otherwise only from the front face (counter-clockwise winding).
+    pub two_sided_emission: bool,
+    pub alpha: Option<AlphaMask>,
+}
+
+impl Default for Material {
+    fn default() -> Self {
+        Material {
+            name: "default".into(),
+            base_color: Vec3::splat(0.8),
+            base_color_texture: None,
+            metallic: 0.0,
+            roughness: 1.0,
+            metallic_roughness_texture: None,
+            specular: 1.0,
+            emission: Vec3::ZERO,
+            emission_texture: None,
+            two_sided_emission: false,
+            alpha: None,
+        }
+    }
+}
+
+impl Material {
+    pub fn is_emissive(&self) -> bool {
+        self.emission.max_element() > 0.0
+    }
+}
+
+/// Lights that are not geometry.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PunctualLight {
+    /// Radiant intensity `intensity` (W/sr per RGB channel) in every direction.
+    Point { position: Vec3, intensity: Vec3 },
+    /// A point light restricted to a cone with a smooth falloff between the inner and outer
+    /// cone angles (radians), as in `KHR_lights_punctual`.
+    Spot { position: Vec3, direction: Vec3, intensity: Vec3, inner_cone: f32, outer_cone: f32 },
+    /// Light from infinitely far away travelling along `direction`; `irradiance` is the
+    /// irradiance on a surface facing the light.
+    Directional { direction: Vec3, irradiance: Vec3 },
+}
+
+/// Everything the tracer needs to render.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// The file the scene came from (for messages), or `<builtin>`.
+    pub source: PathBuf,
+    pub meshes: Vec<Mesh>,
+    pub materials: Vec<Material>,
+    pub textures: Vec<Texture>,
+    pub lights: Vec<PunctualLight>,
+    pub camera: Camera,
+    /// Radiance of rays that leave the scene.
+    pub environment: Vec3,
+    pub width: u32,
+    pub height: u32,
+    /// Samples per pixel when the command line does not say.
+    pub spp: u32,
+    /// Maximum path length in bounces when the command line does not say.
+    pub max_bounces: u32,
+    /// Warnings collected while loading (unsupported features skipped, degenerate triangles).
+    pub warnings: Vec<String>,
+}
+
+impl Scene {
+    /// An empty scene with a default camera.
+    pub fn empty(source: impl Into<PathBuf>) -> Scene {
+        Scene {
+            source: source.into(),
+            meshes: Vec::new(),
+            materials: vec![Material::default()],
+            textures: Vec::new(),
+            lights: Vec::new(),
+            camera: Camera::default(),
+            environment: Vec3::ZERO,
+            width: 256,
+            height: 256,
+            spp: 16,
+            max_bounces: 64,
+            warnings: Vec::new(),
+        }
+    }
+
+    /// Loads a scene from a TOML description, a glTF file or an OBJ file (by extension).
+    pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).unwrap_or_default();
+        let mut scene = match ext.as_str() {
+            "toml" => description::load(path)?,
+            "gltf" | "glb" => {
+                let mut scene = Scene::empty(path);
+                let imported = gltf::load(path, &mut scene)?;
+                if let Some(camera) = imported.camera {
+                    scene.camera = camera;
+                }
+                scene
+            }
+            "obj" => {
+                let mut scene = Scene::empty(path);
+                obj::load(path, &mut scene, &obj::ObjOptions::default())?;
+                scene.camera = Camera::framing(&scene.bounds(), scene.aspect());
+                scene
+            }
+            _ => {
+                return Err(SceneError::new(
+                    path,
+                    "extension",
+                    "unknown scene format (expected .toml, .gltf, .glb or .obj)",
+                ))
+            }
+        };
+        scene.validate()?;
+        Ok(scene)
+    }
+
+    pub fn aspect(&self) -> f32 {
+        self.width as f32 / self.height.max(1) as f32
+    }
+
+    /// World-space bounds of all geometry over the whole shutter (min, max).
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        for mesh in &self.meshes {
+            for &p in &mesh.positions {
+                lo = lo.min(p).min(p + mesh.motion);
+                hi = hi.max(p).max(p + mesh.motion);
+            }
+        }
+        if lo.x > hi.x {
+            (Vec3::ZERO, Vec3::ZERO)
+        } else {
+            (lo, hi)
+        }
+    }
+
+    /// Whether any mesh moves during the shutter.
+    pub fn has_motion(&self) -> bool {
+        self.meshes.iter().any(Mesh::is_moving)
+    }
+
+    /// Checks the invariants the tracer relies on; removes degenerate triangles with a
+    /// warning, rejects non-finite data with an error naming the field.
+    pub fn validate(&mut self) -> Result<(), SceneError> {
+        let source = self.source.clone();
+        if self.width == 0 || self.height == 0 {
+            return Err(SceneError::new(&source, "resolution", "width and height must be at least 1"));
+        }
+        if self.width > 1 << 15 || self.height > 1 << 15 {
+            return Err(SceneError::new(&source, "resolution", "width and height must be at most 32768"));
+        }
+        if !self.environment.is_finite() || self.environment.min_element() < 0.0 {
+            return Err(SceneError::new(&source, "environment", "must be finite and non-negative"));
+        }
+        self.camera.validate(&source)?;
+        for (i, m) in self.materials.iter().enumerate() {
+            let field = |f: &str| format!("material[{i}] '{}'.{f}", m.name);
+            if !m.base_color.is_finite() || m.base_color.min_element() < 0.0 {
+                return Err(SceneError::new(&source, field("base_color"), "must be finite and non-negative"));
+            }
+            if !(0.0..=1.0).contains(&m.metallic) {
+                return Err(SceneError::new(&source, field("metallic"), "must be in [0, 1]"));
+            }
+            if !(0.0..=1.0).contains(&m.roughness) {
+                return Err(SceneError::new(&source, field("roughness"), "must be in [0, 1]"));
+            }
+            if !m.emission.is_finite() || m.emission.min_element() < 0.0 {
+                return Err(SceneError::new(&source, field("emission"), "must be finite and non-negative"));
+            }
+            for t in [&m.base_color_texture, &m.metallic_roughness_texture, &m.emission_texture]
+                .into_iter()
+                .flatten()
+                .chain(m.alpha.as_ref().map(|a| &a.texture))
+            {
+                if t.index as usize >= self.textures.len() {
+                    return Err(SceneError::new(&source, field("texture"), "texture index out of range"));
+                }
+            }
+        }
+        for (i, light) in self.lights.iter().enumerate() {
+            let ok = match light {
+                PunctualLight::Point { position, intensity } => {
+                    position.is_finite() && intensity.is_finite() && intensity.min_element() >= 0.0
+                }
+                PunctualLight::Spot { position, direction, intensity, inner_cone, outer_cone } => {
+                    position.is_finite()
+                        && direction.is_finite()
+                        && direction.length_squared() > 0.0
+                        && intensity.is_finite()
+                        && intensity.min_element() >= 0.0
+                        && inner_cone.is_finite()
+                        && outer_cone.is_finite()
+                        && *inner_cone >= 0.0
+                        && inner_cone <= outer_cone
+                }
+                PunctualLight::Directional { direction, irradiance } => {
+                    direction.is_finite()
+                        && direction.length_squared() > 0.0
+                        && irradiance.is_finite()
+                        && irradiance.min_element() >= 0.0
+                }
+            };
+            if !ok {
+                return Err(SceneError::new(
+                    &source,
+                    format!("light[{i}]"),
+                    "non-finite, negative or degenerate light parameters",
+                ));
+            }
+        }
+        let mut degenerate = 0usize;
+        for mesh in &mut self.meshes {
+            if mesh.material as usize >= self.materials.len() {
+                return Err(SceneError::new(
+                    &source,
+                    format!("mesh '{}'.material", mesh.name),
+                    "material index out of range",
+                ));
+            }
+            if let Some(i) = mesh.positions.iter().position(|p| !p.is_finite()) {
+                return Err(SceneError::new(
+                    &source,
+                    format!("mesh '{}'.positions[{i}]", mesh.name),
+                    "vertex position is NaN or infinite",
+                ));
+            }
+            if !mesh.motion.is_finite() {
+                return Err(SceneError::new(&source, format!("mesh '{}'.motion", mesh.name), "must be finite"));
+            }
+            let n = mesh.positions.len() as u32;
+            if let Some(t) = mesh.indices.iter().position(|t| t.iter().any(|&v| v >= n)) {
+                return Err(SceneError::new(
+                    &source,
+                    format!("mesh '{}'.indices[{t}]", mesh.name),
+                    "vertex index out of range",
+                ));
+            }
+            if let Some(normals) = &mut mesh.normals {
+                if normals.len() != mesh.positions.len() {
+                    return Err(SceneError::new(
+                        &source,
+                        format!("mesh '{}'.normals", mesh.name),
+                        "count differs from positions",
+                    ));
+                }
+                // Non-finite or zero normals fall back to the geometric normal at shading time.
+                for nrm in normals.iter_mut() {
+                    let len = nrm.length();
+                    *nrm = if len.is_finite() && len > 0.0 { *nrm / len } else { Vec3::ZERO };
+                }
+            }
+            if let Some(uvs) = &mut mesh.uvs {
+                if uvs.len() != mesh.positions.len() {
+                    return Err(SceneError::new(
+                        &source,
+                        format!("mesh '{}'.uvs", mesh.name),
+                        "count differs from positions",
+                    ));
+                }
+                for uv in uvs.iter_mut() {
+                    if !uv.is_finite() {
+                        *uv = Vec2::ZERO;
+                    }
+                }
+            }
+            let before = mesh.indices.len();
+            let positions = &mesh.positions;
+            mesh.indices.retain(|&[a, b, c]| {
+                let (a, b, c) = (positions[a as usize], positions[b as usize], positions[c as usize]);
+                let cross = (b - a).cross(c - a);
+                cross.length_squared() > 0.0 && cross.is_finite()
+            });
+            degenerate += before - mesh.indices.len();
+        }
+        self.meshes.retain(|m| !m.indices.is_empty());
+        if degenerate > 0 {
+            self.warnings.push(format!("removed {degenerate} degenerate (zero-area) triangles"));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,298 @@
+//! Wavefront OBJ/MTL loader.
+//!
+//! Material mapping onto the metallic-roughness model:
+//! - `Kd` (× `map_Kd`, sRGB) is the diffuse colour. A material without `Ks` (or with `Ks 0 0 0`)
+//!   is pure Lambertian (specular weight 0): that is what OBJ scenes like the Cornell boxes mean.
+//! - `Ks`/`Ns` make it glossy: metallic = lum(Ks) / (lum(Kd) + lum(Ks)) and base colour
+//!   = min(Kd + Ks, 1), so the diffuse part reflects about Kd and the specular part about Ks.
+//!   The Phong exponent maps to a microfacet width by the usual Beckmann correspondence
+//!   α = sqrt(2 / (Ns + 2)), and glTF roughness = sqrt(α) (GGX α is roughness²).
+//!   Ns 0 → roughness 1; Ns 40 → 0.46; Ns 1000 → 0.2; Ns 10⁶ → 0.035.
+//! - `Ke` is emitted radiance (one-sided, front face by winding).
+//! - `map_d` is an alpha cut-out at coverage 0.5 (its alpha channel when it has one,
+//!   otherwise its grey value).
+//! - Missing normals are computed with a 60° crease angle (see `shapes::compute_normals`).
+//! - Texture v is flipped (OBJ's origin is bottom-left, our textures' top-left).
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use glam::{Mat4, Vec2, Vec3};
+
+use super::shapes::compute_normals;
+use super::{AlphaMask, Material, Mesh, Scene};
+use crate::error::SceneError;
+use crate::texture::{Texture, TextureRef};
+
+#[derive(Clone, Debug)]
+pub struct ObjOptions {
+    /// Object-to-world transform applied to positions and normals.
+    pub transform: Mat4,
+    /// Use this scene material for every face, ignoring the MTL.
+    pub material_override: Option<u32>,
+    /// Replace MTL materials by name with scene materials.
+    pub material_map: HashMap<String, u32>,
+    /// World-space linear motion over the shutter for every mesh of the file.
+    pub motion: Vec3,
+}
+
+impl Default for ObjOptions {
+    fn default() -> Self {
+        ObjOptions {
+            transform: Mat4::IDENTITY,
+            material_override: None,
+            material_map: HashMap::new(),
+            motion: Vec3::ZERO,
+        }
+    }
+}
+
+/// The glTF-style roughness for a Phong exponent.
+pub fn phong_exponent_to_roughness(ns: f32) -> f32 {
+    let ns = if ns.is_finite() { ns.max(0.0) } else { 0.0 };
+    let alpha = (2.0 / (ns + 2.0)).sqrt();
+    alpha.sqrt().clamp(0.0, 1.0)
+}
+
+fn luminance(c: [f32; 3]) -> f32 {
+    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+}
+
+struct TextureCache<'a> {
+    scene: &'a mut Scene,
+    loaded: HashMap<(PathBuf, bool), u32>,
+}
+
+impl TextureCache<'_> {
+    fn get(&mut self, path: &Path, srgb: bool, obj: &Path, field: &str) -> Result<u32, SceneError> {
+        if let Some(&i) = self.loaded.get(&(path.to_path_buf(), srgb)) {
+            return Ok(i);
+        }
+        let texture = Texture::load(path, srgb, obj, field)?;
+        self.scene.textures.push(texture);
+        let index = self.scene.textures.len() as u32 - 1;
+        self.loaded.insert((path.to_path_buf(), srgb), index);
+        Ok(index)
+    }
+}
+
+fn convert_material(
+    m: &tobj::Material,
+    dir: &Path,
+    mtl_path: &Path,
+    cache: &mut TextureCache,
+) -> Result<Material, SceneError> {
+    let kd = m.diffuse.unwrap_or([0.8, 0.8, 0.8]);
+    let ks = m.specular.unwrap_or([0.0; 3]);
+    let field = |f: &str| format!("material '{}'.{f}", m.name);
+    let mut material = Material { name: m.name.clone(), ..Material::default() };
+    if luminance(ks) > 0.0 {
+        let metallic = luminance(ks) / (luminance(kd) + luminance(ks));
+        material.metallic = metallic.clamp(0.0, 1.0);
+        material.base_color = Vec3::new(kd[0] + ks[0], kd[1] + ks[1], kd[2] + ks[2]).min(Vec3::ONE);
+        material.roughness = phong_exponent_to_roughness(m.shininess.unwrap_or(0.0));
+        material.specular = 1.0;
+    } else {
+        material.base_color = Vec3::from(kd);
+        material.roughness = 1.0;
+        material.specular = 0.0;
+    }
+    if let Some(ke) = m.emissive {
+        material.emission = Vec3::from(ke).max(Vec3::ZERO);
+    }
+    if let Some(name) = m.diffuse_texture.as_ref().filter(|s| !s.is_empty()) {
+        let index = cache.get(&dir.join(name.replace('\\', "/")), true, mtl_path, &field("map_Kd"))?;
+        material.base_color_texture = Some(TextureRef::new(index));
+    }
+    if let Some(name) = m.dissolve_texture.as_ref().filter(|s| !s.is_empty()) {
+        let index = cache.get(&dir.join(name.replace('\\', "/")), false, mtl_path, &field("map_d"))?;
+        let texture = &cache.scene.textures[index as usize];
+        let has_alpha = texture.texels.iter().any(|t| t[3] != 255);
+        material.alpha = Some(AlphaMask {
+            texture: TextureRef::new(index),
+            channel: if has_alpha { 3 } else { 0 },
+            factor: 1.0,
+            cutoff: 0.5,
+        });
+    }
+    for key in ["map_Ks", "map_Ns", "map_bump", "bump", "norm"] {
+        if m.unknown_param.contains_key(key) {
+            cache.scene.warnings.push(format!("{}: {} ignored (not supported)", mtl_path.display(), field(key)));
+        }
+    }
+    Ok(material)
+}
+
+/// Appends the meshes (one per OBJ model and material) and materials of `path` to `scene`.
+pub fn load(path: &Path, scene: &mut Scene, options: &ObjOptions) -> Result<(), SceneError> {
+    if !path.is_file() {
+        return Err(SceneError::new(path, "file", "OBJ file not found"));
+    }
+    let load_options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
+    let (models, materials) =
+        tobj::load_obj(path, &load_options).map_err(|e| SceneError::new(path, "obj", format!("cannot parse: {e}")))?;
+    let dir = path.parent().unwrap_or(Path::new("."));
+
+    // Materials from the MTL, unless the whole file is overridden.
+    let mut material_index: Vec<u32> = Vec::new();
+    if options.material_override.is_none() {
+        let materials = match materials {
+            Ok(m) => m,
+            Err(e) => {
+                let references_mtl = std::fs::read_to_string(path).map(|s| s.contains("mtllib")).unwrap_or(false);
+                if references_mtl {
+                    return Err(SceneError::new(path, "mtllib", format!("cannot load the material library: {e}")));
+                }
+                Vec::new()
+            }
+        };
+        let mtl_path = path.with_extension("mtl");
+        let mut cache = TextureCache { scene, loaded: HashMap::new() };
+        for m in &materials {
+            if let Some(&mapped) = options.material_map.get(&m.name) {
+                material_index.push(mapped);
+                continue;
+            }
+            let material = convert_material(m, dir, &mtl_path, &mut cache)?;
+            cache.scene.materials.push(material);
+            material_index.push(cache.scene.materials.len() as u32 - 1);
+        }
+    }
+
+    let normal_matrix = options.transform.inverse().transpose();
+    let flips_winding = options.transform.determinant() < 0.0;
+    for model in models {
+        let m = &model.mesh;
+        if m.indices.is_empty() {
+            continue;
+        }
+        let material = match options.material_override {
+            Some(i) => i,
+            None => match m.material_id {
+                Some(id) => *material_index.get(id).ok_or_else(|| {
+                    SceneError::new(path, format!("object '{}'.usemtl", model.name), "material not found")
+                })?,
+                None => 0,
+            },
+        };
+        let positions: Vec<Vec3> = m
+            .positions
+            .chunks_exact(3)
+            .map(|p| options.transform.transform_point3(Vec3::new(p[0], p[1], p[2])))
+            .collect();
+        let normals = (m.normals.len() == m.positions.len() && !m.normals.is_empty()).then(|| {
+            m.normals
+                .chunks_exact(3)
+                .map(|n| normal_matrix.transform_vector3(Vec3::new(n[0], n[1], n[2])).normalize_or_zero())
+                .collect()
+        });
+        let uvs = (m.texcoords.len() / 2 == m.positions.len() / 3 && !m.texcoords.is_empty())
+            .then(|| m.texcoords.chunks_exact(2).map(|t| Vec2::new(t[0], 1.0 - t[1])).collect());
+        let indices = m
+            .indices
+            .chunks_exact(3)
+            .map(|t| if flips_winding { [t[0], t[2], t[1]] } else { [t[0], t[1], t[2]] })
+            .collect();
+        let mut mesh = Mesh {
+            name: format!("{}:{}", path.display(), model.name),
+            positions,
+            normals,
+            uvs,
+            indices,
+            material,
+            motion: options.motion,
+        };
+        if mesh.normals.is_none() && mesh.positions.iter().all(|p| p.is_finite()) {
+            compute_normals(&mut mesh, 60.0);
+        }
+        scene.meshes.push(mesh);
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn phong_mapping_is_monotone_and_bounded() {
+        assert_eq!(phong_exponent_to_roughness(0.0), 1.0);
+        let mut previous = 1.0;
+        for ns in [1.0, 10.0, 40.0, 100.0, 1000.0, 1e6] {
+            let r = phong_exponent_to_roughness(ns);
+            assert!(r < previous && r > 0.0);
+            previous = r;
+        }
+        assert!((phong_exponent_to_roughness(40.0) - (2.0f32 / 42.0).sqrt().sqrt()).abs() < 1e-6);
+        assert_eq!(phong_exponent_to_roughness(f32::NAN), 1.0);
+    }
+
+    #[test]
+    fn loads_a_quad_with_materials_and_flips_uv() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("q.mtl"),
+            "newmtl lamp\nKd 0 0 0\nKe 5 4 3\nnewmtl shiny\nKd 0.5 0.5 0.5\nKs 0.5 0.5 0.5\nNs 40\n",
+        )
+        .unwrap();
+        std::fs::write(
+            dir.path().join("q.obj"),
+            "mtllib q.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n\
+             usemtl lamp\nf 1/1 2/2 3/3 4/4\no second\nusemtl shiny\nf 1/1 3/3 4/4\n",
+        )
+        .unwrap();
+        let mut scene = Scene::empty("test");
+        load(&dir.path().join("q.obj"), &mut scene, &ObjOptions::default()).unwrap();
+        assert_eq!(scene.meshes.len(), 2);
+        let lamp = &scene.materials[scene.meshes[0].material as usize];
+        assert_eq!(lamp.emission, Vec3::new(5.0, 4.0, 3.0));
+        assert_eq!(lamp.specular, 0.0);
+        let shiny = &scene.materials[scene.meshes[1].material as usize];
+        assert!((shiny.metallic - 0.5).abs() < 1e-6);
+        assert_eq!(shiny.base_color, Vec3::ONE);
+        assert_eq!(scene.meshes[0].indices.len(), 2);
+        // v flipped: vertex 0 had vt (0, 0).
+        let uvs = scene.meshes[0].uvs.as_ref().unwrap();
+        assert!(uvs.iter().any(|uv| *uv == Vec2::new(0.0, 1.0)));
+        // Normals were computed and face +z (counter-clockwise quad).
+        assert!(scene.meshes[0].normals.as_ref().unwrap().iter().all(|n| (n.z - 1.0).abs() < 1e-6));
+    }
+
+    #[test]
+    fn missing_texture_and_missing_file_name_the_culprit() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("t.mtl"), "newmtl m\nKd 1 1 1\nmap_Kd nothere.png\n").unwrap();
+        std::fs::write(dir.path().join("t.obj"), "mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m\nf 1 2 3\n")
+            .unwrap();
+        let mut scene = Scene::empty("test");
+        let err = load(&dir.path().join("t.obj"), &mut scene, &ObjOptions::default()).unwrap_err();
+        assert!(err.to_string().contains("nothere.png"), "{err}");
+        assert!(err.field.contains("map_Kd"), "{err}");
+        let err = load(&dir.path().join("absent.obj"), &mut scene, &ObjOptions::default()).unwrap_err();
+        assert!(err.to_string().contains("absent.obj"));
+    }
+
+    #[test]
+    fn malformed_obj_is_an_error_not_a_panic() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("bad.obj"), "v 0 0 zero\nf 1 2 3\n").unwrap();
+        let mut scene = Scene::empty("test");
+        assert!(load(&dir.path().join("bad.obj"), &mut scene, &ObjOptions::default()).is_err());
+        std::fs::write(dir.path().join("oob.obj"), "v 0 0 0\nf 1 2 7\n").unwrap();
+        assert!(load(&dir.path().join("oob.obj"), &mut scene, &ObjOptions::default()).is_err());
+    }
+
+    #[test]
+    fn nan_vertex_is_rejected_by_validation_with_the_field_named() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("nan.obj"), "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+        let mut scene = Scene::empty("nan-test");
+        match load(&dir.path().join("nan.obj"), &mut scene, &ObjOptions::default()) {
+            Err(_) => {} // the parser may refuse "nan" outright, which is fine too
+            Ok(()) => {
+                let err = scene.validate().unwrap_err();
+                assert!(err.field.contains("positions"), "{err}");
+            }
+        }
+    }
+}

@@ -1,0 +1,243 @@
+//! Shapes authored in scene descriptions: polygons, boxes and tessellated spheres, plus the
+//! normal computation shared with the OBJ loader.
+
+use glam::{Vec2, Vec3};
+
+use super::Mesh;
+
+/// A planar convex polygon, fan-triangulated; counter-clockwise vertices face the viewer.
+pub fn polygon(name: &str, corners: &[Vec3], material: u32) -> Mesh {
+    let indices = (1..corners.len().saturating_sub(1)).map(|i| [0, i as u32, i as u32 + 1]).collect();
+    Mesh {
+        name: name.to_string(),
+        positions: corners.to_vec(),
+        normals: None,
+        uvs: None,
+        indices,
+        material,
+        motion: Vec3::ZERO,
+    }
+}
+
+/// An axis-aligned box with outward-facing triangles.
+pub fn axis_aligned_box(name: &str, min: Vec3, max: Vec3, material: u32) -> Mesh {
+    let corner = |i: u32| {
+        Vec3::new(
+            if i & 1 != 0 { max.x } else { min.x },
+            if i & 2 != 0 { max.y } else { min.y },
+            if i & 4 != 0 { max.z } else { min.z },
+        )
+    };
+    // Faces as corner indices, counter-clockwise seen from outside.
+    let faces: [[u32; 4]; 6] = [
+        [0, 4, 6, 2], // -x
+        [1, 3, 7, 5], // +x
+        [0, 1, 5, 4], // -y
+        [2, 6, 7, 3], // +y
+        [0, 2, 3, 1], // -z
+        [4, 5, 7, 6], // +z
+    ];
+    let mut positions = Vec::new();
+    let mut indices = Vec::new();
+    for face in faces {
+        let base = positions.len() as u32;
+        positions.extend(face.iter().map(|&c| corner(c)));
+        indices.push([base, base + 1, base + 2]);
+        indices.push([base, base + 2, base + 3]);
+    }
+    Mesh { name: name.to_string(), positions, normals: None, uvs: None, indices, material, motion: Vec3::ZERO }
+}
+
+/// An icosphere: an icosahedron subdivided `subdivisions` times, with smooth normals and
+/// outward-facing triangles.
+pub fn sphere(name: &str, center: Vec3, radius: f32, subdivisions: u32, material: u32) -> Mesh {
+    let t = (1.0 + 5f32.sqrt()) / 2.0;
+    let mut unit: Vec<Vec3> = [
+        [-1.0, t, 0.0],
+        [1.0, t, 0.0],
+        [-1.0, -t, 0.0],
+        [1.0, -t, 0.0],
+        [0.0, -1.0, t],
+        [0.0, 1.0, t],
+        [0.0, -1.0, -t],
+        [0.0, 1.0, -t],
+        [t, 0.0, -1.0],
+        [t, 0.0, 1.0],
+        [-t, 0.0, -1.0],
+        [-t, 0.0, 1.0],
+    ]
+    .iter()
+    .map(|&p| Vec3::from(p).normalize())
+    .collect();
+    let mut faces: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..subdivisions.min(8) {
+        let mut midpoint = std::collections::HashMap::new();
+        let mut split = |a: u32, b: u32, unit: &mut Vec<Vec3>| -> u32 {
+            *midpoint.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                unit.push((unit[a as usize] + unit[b as usize]).normalize());
+                unit.len() as u32 - 1
+            })
+        };
+        let mut next = Vec::with_capacity(faces.len() * 4);
+        for [a, b, c] in faces {
+            let ab = split(a, b, &mut unit);
+            let bc = split(b, c, &mut unit);
+            let ca = split(c, a, &mut unit);
+            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        faces = next;
+    }
+    // The face list above winds counter-clockwise seen from outside.
+    let indices = faces;
+    Mesh {
+        name: name.to_string(),
+        positions: unit.iter().map(|&n| center + n * radius).collect(),
+        normals: Some(unit),
+        uvs: None,
+        indices,
+        material,
+        motion: Vec3::ZERO,
+    }
+}
+
+/// Gives a mesh without normals per-corner normals: the area-weighted average of the normals
+/// of the faces around each vertex whose normal is within `crease_degrees` of the corner's
+/// own face. Hard edges (box corners) stay hard, curved scans (the bunny) become smooth.
+/// Vertices are split per corner, so uvs are duplicated alongside.
+pub fn compute_normals(mesh: &mut Mesh, crease_degrees: f32) {
+    if mesh.normals.is_some() {
+        return;
+    }
+    let cos_crease = crease_degrees.to_radians().cos();
+    let face_normals: Vec<Vec3> = mesh
+        .indices
+        .iter()
+        .map(|&[a, b, c]| {
+            let (a, b, c) = (mesh.positions[a as usize], mesh.positions[b as usize], mesh.positions[c as usize]);
+            (b - a).cross(c - a) // length = 2 × area: area weighting for free
+        })
+        .collect();
+    let mut faces_of_vertex: Vec<Vec<u32>> = vec![Vec::new(); mesh.positions.len()];
+    for (f, tri) in mesh.indices.iter().enumerate() {
+        for &v in tri {
+            faces_of_vertex[v as usize].push(f as u32);
+        }
+    }
+    let mut positions = Vec::with_capacity(mesh.indices.len() * 3);
+    let mut normals = Vec::with_capacity(mesh.indices.len() * 3);
+    let mut uvs: Option<Vec<Vec2>> = mesh.uvs.as_ref().map(|_| Vec::with_capacity(mesh.indices.len() * 3));
+    let mut indices = Vec::with_capacity(mesh.indices.len());
+    for (f, tri) in mesh.indices.iter().enumerate() {
+        let own = face_normals[f].normalize_or_zero();
+        let base = positions.len() as u32;
+        for &v in tri {
+            let mut sum = Vec3::ZERO;
+            for &g in &faces_of_vertex[v as usize] {
+                let n = face_normals[g as usize];
+                if n.normalize_or_zero().dot(own) >= cos_crease {
+                    sum += n;
+                }
+            }
+            let n = sum.normalize_or_zero();
+            normals.push(if n == Vec3::ZERO { own } else { n });
+            positions.push(mesh.positions[v as usize]);
+            if let (Some(out), Some(src)) = (&mut uvs, &mesh.uvs) {
+                out.push(src[v as usize]);
+            }
+        }
+        indices.push([base, base + 1, base + 2]);
+    }
+    mesh.positions = positions;
+    mesh.normals = Some(normals);
+    mesh.uvs = uvs;
+    mesh.indices = indices;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn total_area(mesh: &Mesh) -> f32 {
+        (0..mesh.indices.len()).map(|i| mesh.triangle_area(i)).sum()
+    }
+
+    fn winding_normal(mesh: &Mesh, i: usize) -> Vec3 {
+        let [a, b, c] = mesh.indices[i];
+        let (a, b, c) = (mesh.positions[a as usize], mesh.positions[b as usize], mesh.positions[c as usize]);
+        (b - a).cross(c - a)
+    }
+
+    #[test]
+    fn box_has_the_right_area_and_faces_outwards() {
+        let min = Vec3::new(-1.0, 0.0, 2.0);
+        let max = Vec3::new(1.0, 3.0, 5.0);
+        let b = axis_aligned_box("b", min, max, 0);
+        assert!((total_area(&b) - 2.0 * (2.0 * 3.0 + 2.0 * 3.0 + 3.0 * 3.0)).abs() < 1e-4);
+        let centre = 0.5 * (min + max);
+        for i in 0..b.indices.len() {
+            let p = b.positions[b.indices[i][0] as usize];
+            assert!(winding_normal(&b, i).dot(p - centre) > 0.0, "face {i} points inwards");
+        }
+    }
+
+    #[test]
+    fn icosphere_converges_to_the_sphere_area_and_faces_outwards() {
+        let s = sphere("s", Vec3::new(1.0, 2.0, 3.0), 2.0, 4, 0);
+        let exact = 4.0 * std::f32::consts::PI * 4.0;
+        let area = total_area(&s);
+        assert!(area < exact && area > 0.99 * exact, "{area} vs {exact}");
+        for i in 0..s.indices.len() {
+            let p = s.positions[s.indices[i][0] as usize];
+            assert!(winding_normal(&s, i).dot(p - Vec3::new(1.0, 2.0, 3.0)) > 0.0);
+        }
+    }
+
+    #[test]
+    fn computed_normals_keep_box_edges_hard_and_smooth_a_sphere() {
+        let mut b = axis_aligned_box("b", Vec3::ZERO, Vec3::ONE, 0);
+        compute_normals(&mut b, 60.0);
+        let normals = b.normals.as_ref().unwrap();
+        for (i, tri) in b.indices.iter().enumerate() {
+            let face = winding_normal(&b, i).normalize();
+            for &v in tri {
+                assert!((normals[v as usize] - face).length() < 1e-5);
+            }
+        }
+        let mut s = sphere("s", Vec3::ZERO, 1.0, 3, 0);
+        s.normals = None;
+        compute_normals(&mut s, 60.0);
+        let normals = s.normals.as_ref().unwrap();
+        for (p, n) in s.positions.iter().zip(normals) {
+            assert!(n.dot(p.normalize()) > 0.999);
+        }
+    }
+
+    #[test]
+    fn polygon_fan_covers_a_square() {
+        let q = polygon("q", &[Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y], 0);
+        assert_eq!(q.indices.len(), 2);
+        assert!((total_area(&q) - 1.0).abs() < 1e-6);
+        assert!(winding_normal(&q, 0).z > 0.0);
+    }
+}
