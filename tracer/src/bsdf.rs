@@ -5,7 +5,7 @@
 //!
 //! f = (1 − m)(1 − F_d(ωo·n)) · base/π + [(1 − m) F_d(ωo·h) + m F_m(ωo·h)] · D G₂ / (4 |ωo·n| |ωi·n|)
 //!
-//! with F_d = s · Schlick(0.04, ·) for the dielectric (s is the material's specular factor,
+//! with F_d = s · Schlick(F0, ·), F0 = ((ior − 1)/(ior + 1))² (0.04 by default), for the dielectric (s is the material's specular factor,
 //! 1 in glTF, 0 for a pure Lambertian surface) and F_m = Schlick(base, ωo·h) for the metal.
 //! The surface is two-sided: callers pass directions in a local frame whose +z is the shading
 //! normal flipped towards ωo.
@@ -31,6 +31,8 @@ pub struct Bsdf {
     pub alpha: f32,
     /// Dielectric specular weight (1 for glTF materials, 0 for pure Lambertian).
     pub specular: f32,
+    /// Dielectric reflectance at normal incidence, ((ior − 1)/(ior + 1))².
+    pub f0: f32,
 }
 
 /// A direction drawn from the BSDF.
@@ -120,13 +122,21 @@ fn reflect(wo: Vec3, h: Vec3) -> Vec3 {
 }
 
 impl Bsdf {
+    /// glTF parameters with the default dielectric (ior 1.5, F0 = 0.04).
     pub fn new(base_color: Vec3, metallic: f32, roughness: f32, specular: f32) -> Bsdf {
+        Bsdf::with_ior(base_color, metallic, roughness, specular, 1.5)
+    }
+
+    pub fn with_ior(base_color: Vec3, metallic: f32, roughness: f32, specular: f32, ior: f32) -> Bsdf {
         let roughness = if roughness.is_finite() { roughness.clamp(0.0, 1.0) } else { 1.0 };
+        let ior = if ior.is_finite() { ior.max(1.0) } else { 1.5 };
+        let r = (ior - 1.0) / (ior + 1.0);
         Bsdf {
             base_color: base_color.max(Vec3::ZERO),
             metallic: metallic.clamp(0.0, 1.0),
             alpha: (roughness * roughness).max(MIN_ALPHA),
             specular: specular.clamp(0.0, 1.0),
+            f0: r * r,
         }
     }
 
@@ -140,7 +150,7 @@ impl Bsdf {
     #[inline]
     fn fresnel(&self, cos_oh: f32) -> (f32, Vec3) {
         let w = schlick_weight(cos_oh);
-        let f_dielectric = self.specular * (0.04 + 0.96 * w);
+        let f_dielectric = self.specular * (self.f0 + (1.0 - self.f0) * w);
         let f_metal = self.base_color + (Vec3::ONE - self.base_color) * w;
         (f_dielectric, f_metal)
     }

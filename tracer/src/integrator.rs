@@ -143,7 +143,7 @@ impl SurfacePoint {
             shading_normal,
             front_face,
             uv,
-            bsdf: Bsdf::new(base_color, metallic, roughness, material.specular),
+            bsdf: Bsdf::with_ior(base_color, metallic, roughness, material.specular, material.ior),
             epsilon: (scale + 1e-3) * 2e-5,
         }
     }

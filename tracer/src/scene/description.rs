@@ -113,6 +113,9 @@ struct MaterialDesc {
     /// Dielectric specular weight; 0 = pure Lambertian.
     #[serde(default = "one")]
     specular: f32,
+    /// Index of refraction of the dielectric coat (1.5 gives F0 = 0.04).
+    #[serde(default = "default_ior")]
+    ior: f32,
     #[serde(default)]
     emission: [f32; 3],
     #[serde(default)]
@@ -121,6 +124,9 @@ struct MaterialDesc {
 
 fn default_base() -> [f32; 3] {
     [0.8, 0.8, 0.8]
+}
+fn default_ior() -> f32 {
+    1.5
 }
 fn one() -> f32 {
     1.0
@@ -267,6 +273,7 @@ pub fn parse(text: &str, path: &Path) -> Result<Scene, SceneError> {
             metallic: m.metallic,
             roughness: m.roughness,
             specular: m.specular,
+            ior: m.ior,
             emission: Vec3::from(m.emission),
             two_sided_emission: m.two_sided_emission,
             ..Material::default()

@@ -583,6 +583,7 @@ impl<'a> Importer<'a> {
             metallic_roughness_texture,
             // glTF dielectrics always have the Fresnel-weighted specular layer.
             specular: 1.0,
+            ior: 1.5,
             emission: Vec3::from(material.emissive_factor()) * material.emissive_strength().unwrap_or(1.0),
             emission_texture,
             two_sided_emission: material.double_sided(),

@@ -80,6 +80,8 @@ pub struct Material {
     /// Dielectric specular weight: 1 for glTF and glossy OBJ materials, 0 for a pure Lambertian
     /// surface (OBJ without Ks, the Cornell box walls).
     pub specular: f32,
+    /// Index of refraction of the dielectric coat: F0 = ((ior − 1)/(ior + 1))², 1.5 → 0.04.
+    pub ior: f32,
     /// Emitted radiance (linear RGB), already multiplied by any emissive strength.
     pub emission: Vec3,
     pub emission_texture: Option<TextureRef>,
@@ -98,6 +100,7 @@ impl Default for Material {
             roughness: 1.0,
             metallic_roughness_texture: None,
             specular: 1.0,
+            ior: 1.5,
             emission: Vec3::ZERO,
             emission_texture: None,
             two_sided_emission: false,
@@ -247,6 +250,12 @@ impl Scene {
             }
             if !(0.0..=1.0).contains(&m.roughness) {
                 return Err(SceneError::new(&source, field("roughness"), "must be in [0, 1]"));
+            }
+            if !(0.0..=1.0).contains(&m.specular) {
+                return Err(SceneError::new(&source, field("specular"), "must be in [0, 1]"));
+            }
+            if !(m.ior >= 1.0 && m.ior.is_finite()) {
+                return Err(SceneError::new(&source, field("ior"), "must be finite and >= 1"));
             }
             if !m.emission.is_finite() || m.emission.min_element() < 0.0 {
                 return Err(SceneError::new(&source, field("emission"), "must be finite and non-negative"));
