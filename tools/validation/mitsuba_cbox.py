@@ -532,7 +532,10 @@ def cmd_compare(args) -> int:
     ya, yb = float(ma @ LUMA), float(mb @ LUMA)
     # Standard error of the image-mean difference (pixels are independent).
     se = np.sqrt((va_ + vb_).sum(axis=(0, 1))) / npix
-    se_y = math.sqrt(float(((va_ + vb_) @ (LUMA ** 2)).sum())) / npix
+    # The EXRs carry no R/G/B covariances; the channels of one path are almost perfectly
+    # correlated (measured: summing L_i^2 var_i underestimates the luminance sd by ~1.45x), so
+    # use the perfect-correlation value sd_Y = sum_i L_i sd_i per pixel.
+    se_y = math.sqrt(float(((np.sqrt(va_) @ LUMA) ** 2 + (np.sqrt(vb_) @ LUMA) ** 2).sum())) / npix
     rel_px = np.abs(a - b) / (b + 0.01)
     lum_a, lum_b = a @ LUMA, b @ LUMA
     rel_px_y = np.abs(lum_a - lum_b) / (lum_b + 0.01)

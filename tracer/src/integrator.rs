@@ -273,9 +273,10 @@ impl Integrator<'_> {
                     let f = surface.bsdf.eval(wo_local, wi_local);
                     if f != Vec3::ZERO {
                         let shadow_origin = surface.spawn_origin(light.wi);
+                        // Stop short of the light's own surface by a relative margin.
                         let t_max = if light.distance.is_finite() {
-                            ((shadow_origin - surface.position).length() + light.distance) * (1.0 - 1e-4)
-                                - surface.epsilon
+                            let light_point = surface.position + light.wi * light.distance;
+                            (light_point - shadow_origin).length() * (1.0 - 2e-4)
                         } else {
                             f32::INFINITY
                         };

@@ -1,0 +1,55 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+use tracer::scene::description;
+use tracer::{Accel, Frame, RenderSettings, Scene};
+
+/// Parses a TOML scene description given inline (paths relative to the project root).
+pub fn scene_from_toml(text: &str) -> Scene {
+    let mut scene = description::parse(text, &project_root().join("scenes/inline-test.toml")).expect("test scene parses");
+    scene.validate().expect("test scene is valid");
+    scene
+}
+
+pub fn project_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The third-party scene folder: $LFR_SCENES or ../shared/scenes. Panics (fails the test) when
+/// it is missing: these tests must never be skipped silently.
+pub fn shared_scenes() -> PathBuf {
+    let dir = match std::env::var_os("LFR_SCENES") {
+        Some(d) if !d.is_empty() => PathBuf::from(d),
+        _ => project_root().join("../shared/scenes"),
+    };
+    assert!(dir.join("README.md").is_file(), "the shared scenes are missing at {} (set LFR_SCENES)", dir.display());
+    dir
+}
+
+pub fn render(scene: &Scene, width: u32, height: u32, spp: u32, seed: u32) -> Frame {
+    render_with_threads(scene, width, height, spp, seed, 0)
+}
+
+pub fn render_with_threads(scene: &Scene, width: u32, height: u32, spp: u32, seed: u32, threads: usize) -> Frame {
+    let accel = Accel::build(scene).expect("accelerator builds");
+    let mut settings = RenderSettings::from_scene(scene);
+    settings.width = width;
+    settings.height = height;
+    settings.spp = spp;
+    settings.seed = seed;
+    settings.threads = threads;
+    tracer::render(scene, &accel, &settings).expect("render succeeds")
+}
+
+pub fn mean(values: &[Vec3]) -> Vec3 {
+    values.iter().copied().sum::<Vec3>() / values.len() as f32
+}
+
+/// Channel `name` of an EXR file.
+pub fn exr_channel(path: &Path, name: &str) -> Vec<f32> {
+    let (_, _, channels) = tracer::output::read_exr(path).expect("EXR reads");
+    channels.into_iter().find(|(n, _)| n == name).unwrap_or_else(|| panic!("no channel {name}")).1
+}
