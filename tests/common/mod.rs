@@ -9,7 +9,8 @@ use tracer::{Accel, Frame, RenderSettings, Scene};
 
 /// Parses a TOML scene description given inline (paths relative to the project root).
 pub fn scene_from_toml(text: &str) -> Scene {
-    let mut scene = description::parse(text, &project_root().join("scenes/inline-test.toml")).expect("test scene parses");
+    let mut scene =
+        description::parse(text, &project_root().join("scenes/inline-test.toml")).expect("test scene parses");
     scene.validate().expect("test scene is valid");
     scene
 }

@@ -239,7 +239,6 @@ impl Scene {
         if !self.environment.is_finite() || self.environment.min_element() < 0.0 {
             return Err(SceneError::new(&source, "environment", "must be finite and non-negative"));
         }
-        self.camera.validate(&source)?;
         for (i, m) in self.materials.iter().enumerate() {
             let field = |f: &str| format!("material[{i}] '{}'.{f}", m.name);
             if !m.base_color.is_finite() || m.base_color.min_element() < 0.0 {
@@ -366,6 +365,8 @@ impl Scene {
             degenerate += before - mesh.indices.len();
         }
         self.meshes.retain(|m| !m.indices.is_empty());
+        // After the meshes: a camera framed around NaN geometry is a symptom, not the cause.
+        self.camera.validate(&source)?;
         if degenerate > 0 {
             self.warnings.push(format!("removed {degenerate} degenerate (zero-area) triangles"));
         }

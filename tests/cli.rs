@@ -1,0 +1,205 @@
+//! The `lfr` command end to end: every scene file renders, and bad input gives a clear error
+//! naming the file and field, a non-zero exit, no panic and no output file.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use common::{exr_channel, project_root, shared_scenes};
+
+fn lfr(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_lfr"))
+        .args(args)
+        .current_dir(project_root())
+        .env("LFR_SCENES", shared_scenes())
+        .output()
+        .expect("lfr runs")
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Runs `lfr render` on `scene` expecting failure; checks the message and that nothing was written.
+fn expect_render_error(scene: &Path, extra: &[&str], must_mention: &[&str]) {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.exr");
+    let mut args = vec!["render", "--scene", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet"];
+    args.extend_from_slice(extra);
+    let result = lfr(&args);
+    let message = stderr(&result);
+    assert!(!result.status.success(), "expected failure for {}: {message}", scene.display());
+    assert!(!message.contains("panicked"), "panic instead of an error: {message}");
+    for needle in must_mention {
+        assert!(message.contains(needle), "error should mention {needle:?}: {message}");
+    }
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "no partial output may be left");
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn default_scene_renders_with_all_layers() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("cornell.exr");
+    let result =
+        lfr(&["render", "--out", out.to_str().unwrap(), "--width", "24", "--height", "24", "--spp", "2", "--quiet"]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    let stdout = String::from_utf8_lossy(&result.stdout);
+    assert!(stdout.contains("Mrays/s") && stdout.contains("s "), "prints time and ray rate: {stdout}");
+    assert!(dir.path().join("cornell.png").is_file());
+    let (w, h, channels) = tracer::output::read_exr(&out).unwrap();
+    assert_eq!((w, h), (24, 24));
+    let names: Vec<&str> = channels.iter().map(|(n, _)| n.as_str()).collect();
+    for layer in
+        ["R", "G", "B", "direct.R", "indirect.B", "albedo.G", "normal.X", "depth.Z", "position.Y", "variance.R"]
+    {
+        assert!(names.contains(&layer), "missing {layer} in {names:?}");
+    }
+    // The box fills the view but for the outermost columns, which look past its front edge.
+    let depth = exr_channel(&out, "depth.Z");
+    assert!(depth.iter().filter(|d| **d > 0.0).count() >= 24 * 22, "{depth:?}");
+}
+
+#[test]
+fn every_scene_file_renders() {
+    for name in ["cornell", "cbox-mitsuba", "sponza", "veach-mis", "roughness-sweep", "monkeys", "bunny"] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join(format!("{name}.exr"));
+        let scene = format!("scenes/{name}.toml");
+        let result = lfr(&[
+            "render",
+            "--scene",
+            &scene,
+            "--out",
+            out.to_str().unwrap(),
+            "--width",
+            "32",
+            "--height",
+            "24",
+            "--spp",
+            "1",
+            "--quiet",
+        ]);
+        assert!(result.status.success(), "{name}: {}", stderr(&result));
+        let beauty = exr_channel(&out, "G");
+        assert!(beauty.iter().all(|v| v.is_finite()), "{name}: non-finite pixels");
+        assert!(beauty.iter().any(|v| *v > 0.0), "{name}: the image is black");
+    }
+}
+
+#[test]
+fn gltf_and_obj_files_render_directly() {
+    let scenes = shared_scenes();
+    for file in ["glossy-monkeys/Suzanne/glTF/Suzanne.gltf", "cornell-box-mcguire/CornellBox-Original.obj"] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("x.exr");
+        let path = scenes.join(file);
+        let result = lfr(&[
+            "render",
+            "--scene",
+            path.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--spp",
+            "1",
+            "--quiet",
+        ]);
+        assert!(result.status.success(), "{file}: {}", stderr(&result));
+    }
+}
+
+#[test]
+fn missing_and_malformed_scenes_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    expect_render_error(&dir.path().join("nothere.toml"), &[], &["nothere.toml"]);
+    let malformed = write(dir.path(), "malformed.toml", "[render\nwidth = 3\n");
+    expect_render_error(&malformed, &[], &["malformed.toml", "line"]);
+    let wrong_type =
+        write(dir.path(), "wrongtype.toml", "[camera]\nposition = [0, 0]\nlook_at = [0, 0, 1]\nfov = 40\n");
+    expect_render_error(&wrong_type, &[], &["wrongtype.toml", "position"]);
+    let missing_mesh = write(dir.path(), "mesh.toml", "[[mesh]]\nfile = \"gone.obj\"\n");
+    expect_render_error(&missing_mesh, &[], &["gone.obj"]);
+    let bad_ext = write(dir.path(), "scene.xyz", "");
+    expect_render_error(&bad_ext, &[], &["scene.xyz", "extension"]);
+}
+
+#[test]
+fn impossible_parameters_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let ok = write(dir.path(), "ok.toml", "[render]\nenvironment = [1, 1, 1]\n");
+    expect_render_error(&ok, &["--spp", "0"], &["spp"]);
+    expect_render_error(&ok, &["--width", "0"], &["width"]);
+    let zero_res = write(dir.path(), "zero.toml", "[render]\nheight = 0\n");
+    expect_render_error(&zero_res, &[], &["zero.toml", "resolution"]);
+    let fov = write(dir.path(), "fov.toml", "[camera]\nposition = [0, 0, 1]\nlook_at = [0, 0, 0]\nfov = 180\n");
+    expect_render_error(&fov, &[], &["fov.toml", "camera.fov"]);
+    let same = write(dir.path(), "same.toml", "[camera]\nposition = [0, 0, 0]\nlook_at = [0, 0, 0]\nfov = 40\n");
+    expect_render_error(&same, &[], &["same.toml", "camera"]);
+    let negative = write(
+        dir.path(),
+        "neg.toml",
+        "[[material]]\nname = \"m\"\nbase_color = [-1, 0, 0]\n[[mesh]]\nshape = \"box\"\nmin = [0,0,0]\nmax = [1,1,1]\nmaterial = \"m\"\n",
+    );
+    expect_render_error(&negative, &[], &["neg.toml", "base_color"]);
+}
+
+#[test]
+fn nan_vertices_degenerate_triangles_and_missing_textures() {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "nan.obj", "v 0 0 0\nv 1 0 0\nv 0 1e999 0\nf 1 2 3\n");
+    let nan = write(dir.path(), "nan.toml", "[[mesh]]\nfile = \"nan.obj\"\n");
+    expect_render_error(&nan, &[], &["nan.toml", "positions"]);
+
+    // Degenerate triangles are dropped with a warning; the render succeeds.
+    write(dir.path(), "degenerate.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n");
+    let degenerate =
+        write(dir.path(), "degenerate.toml", "[render]\nenvironment = [1,1,1]\n[[mesh]]\nfile = \"degenerate.obj\"\n");
+    let out = dir.path().join("degenerate.exr");
+    let result = lfr(&["render", "--scene", degenerate.to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet"]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    assert!(stderr(&result).contains("degenerate"), "{}", stderr(&result));
+    std::fs::remove_file(&out).unwrap();
+    std::fs::remove_file(out.with_extension("png")).unwrap();
+
+    write(dir.path(), "tex.mtl", "newmtl m\nKd 1 1 1\nmap_Kd missing_texture.png\n");
+    write(dir.path(), "tex.obj", "mtllib tex.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m\nf 1 2 3\n");
+    let tex = write(dir.path(), "tex.toml", "[[mesh]]\nfile = \"tex.obj\"\n");
+    expect_render_error(&tex, &[], &["missing_texture.png", "map_Kd"]);
+}
+
+#[test]
+fn unsupported_required_gltf_extension_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let gltf = write(
+        dir.path(),
+        "draco.gltf",
+        r#"{"asset":{"version":"2.0"},"extensionsUsed":["KHR_draco_mesh_compression"],"extensionsRequired":["KHR_draco_mesh_compression"],"scenes":[{"nodes":[]}],"scene":0}"#,
+    );
+    expect_render_error(&gltf, &[], &["draco.gltf", "KHR_draco_mesh_compression"]);
+}
+
+#[test]
+fn output_must_be_exr_and_unwritable_output_fails_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let result = lfr(&["render", "--out", dir.path().join("x.png").to_str().unwrap(), "--quiet"]);
+    assert!(!result.status.success());
+    assert!(stderr(&result).contains(".exr"));
+    // A directory in the way of the output file.
+    let blocked = dir.path().join("blocked.exr");
+    std::fs::create_dir(&blocked).unwrap();
+    let result =
+        lfr(&["render", "--out", blocked.to_str().unwrap(), "--width", "4", "--height", "4", "--spp", "1", "--quiet"]);
+    assert!(!result.status.success());
+    assert!(stderr(&result).contains("blocked.exr"), "{}", stderr(&result));
+    assert!(!stderr(&result).contains("panicked"));
+}
