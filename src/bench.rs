@@ -27,7 +27,7 @@ pub struct BenchArgs {
     width: u32,
     #[arg(long, default_value_t = 256)]
     height: u32,
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 16)]
     spp: u32,
     /// Timed repetitions; the best is reported.
     #[arg(long, default_value_t = 3)]

@@ -186,6 +186,10 @@ impl Bsdf {
         if wo.z <= 0.0 || wi.z <= 0.0 {
             return Vec3::ZERO;
         }
+        if !self.has_specular() {
+            // Pure Lambertian: no Fresnel, no half vector.
+            return self.diffuse_color() * (FRAC_1_PI * wi.z);
+        }
         let h = (wo + wi).normalize_or_zero();
         if h == Vec3::ZERO {
             return Vec3::ZERO;
@@ -197,9 +201,6 @@ impl Bsdf {
         // coat, diffuse directions have ωo·h near 1 while the coat reflects F(ωo·n) ≈ 0.5.)
         let (fd_normal, _) = self.fresnel(wo.z);
         let diffuse = self.diffuse_color() * ((1.0 - fd_normal) * FRAC_1_PI * wi.z);
-        if !self.has_specular() {
-            return diffuse;
-        }
         let dv = ggx_d(h, self.alpha) * smith_g2(wo, wi, self.alpha) / (4.0 * wo.z);
         let spec_color = Vec3::splat((1.0 - self.metallic) * fd) + fm * self.metallic;
         diffuse + spec_color * dv

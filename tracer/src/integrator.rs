@@ -236,8 +236,13 @@ impl Integrator<'_> {
                 });
             }
 
+            let material = &scene.materials[scene.meshes[hit.mesh as usize].material as usize];
             let winding_normal = if surface.front_face { surface.geometric_normal } else { -surface.geometric_normal };
-            let emitted = triangle_emission(scene, hit.mesh, hit.triangle, hit.barycentric, winding_normal, wo);
+            let emitted = if material.is_emissive() {
+                triangle_emission(scene, hit.mesh, hit.triangle, hit.barycentric, winding_normal, wo)
+            } else {
+                Vec3::ZERO
+            };
             if emitted != Vec3::ZERO {
                 let weight = if bounce == 0 {
                     1.0

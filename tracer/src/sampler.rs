@@ -49,9 +49,10 @@ fn sobol_dim0(index: u32) -> u32 {
     index.reverse_bits()
 }
 
-/// Second Sobol' dimension (primitive polynomial x + 1, direction numbers v_k = v_{k-1} ^ (v_{k-1} >> 1)).
-#[inline]
-fn sobol_dim1(mut index: u32) -> u32 {
+/// Second Sobol' dimension (primitive polynomial x + 1, direction numbers
+/// v_k = v_{k-1} ^ (v_{k-1} >> 1)), by the bit-by-bit definition (reference for the tables).
+#[cfg(test)]
+fn sobol_dim1_reference(mut index: u32) -> u32 {
     let mut v: u32 = 1 << 31;
     let mut result = 0;
     while index != 0 {
@@ -62,6 +63,48 @@ fn sobol_dim1(mut index: u32) -> u32 {
         v ^= v >> 1;
     }
     result
+}
+
+/// The generator matrix is linear over GF(2), so the image of an index is the XOR of the images
+/// of its four bytes: four tables of 256 entries, built at compile time.
+const SOBOL_DIM1_TABLES: [[u32; 256]; 4] = {
+    let mut directions = [0u32; 32];
+    let mut v: u32 = 1 << 31;
+    let mut k = 0;
+    while k < 32 {
+        directions[k] = v;
+        v ^= v >> 1;
+        k += 1;
+    }
+    let mut tables = [[0u32; 256]; 4];
+    let mut byte = 0;
+    while byte < 4 {
+        let mut value = 0;
+        while value < 256 {
+            let mut result = 0u32;
+            let mut bit = 0;
+            while bit < 8 {
+                if value & (1 << bit) != 0 {
+                    result ^= directions[byte * 8 + bit];
+                }
+                bit += 1;
+            }
+            tables[byte][value] = result;
+            value += 1;
+        }
+        byte += 1;
+    }
+    tables
+};
+
+/// Second Sobol' dimension.
+#[inline]
+fn sobol_dim1(index: u32) -> u32 {
+    let t = &SOBOL_DIM1_TABLES;
+    t[0][(index & 0xff) as usize]
+        ^ t[1][((index >> 8) & 0xff) as usize]
+        ^ t[2][((index >> 16) & 0xff) as usize]
+        ^ t[3][(index >> 24) as usize]
 }
 
 #[inline]
@@ -121,6 +164,16 @@ mod tests {
                 seen.insert((x >> (4 - log_x), y >> (4 - log_y)));
             }
             assert_eq!(seen.len(), 16, "interval shape 2^{log_x} x 2^{log_y}");
+        }
+    }
+
+    #[test]
+    fn table_driven_sobol_matches_the_definition() {
+        let mut x = 1u32;
+        for i in 0..10_000u32 {
+            x = hash_u32(x ^ i);
+            assert_eq!(sobol_dim1(x), sobol_dim1_reference(x));
+            assert_eq!(sobol_dim1(i), sobol_dim1_reference(i));
         }
     }
 

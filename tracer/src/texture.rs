@@ -75,11 +75,9 @@ impl Texture {
         Texture { name: "constant".into(), width: 1, height: 1, srgb, texels: vec![rgba] }
     }
 
-    fn texel(&self, x: i64, y: i64) -> Vec4 {
-        let w = self.width as i64;
-        let h = self.height as i64;
-        let x = x.rem_euclid(w) as usize;
-        let y = y.rem_euclid(h) as usize;
+    /// Texel (x, y) with 0 <= x < width and 0 <= y < height, decoded to linear.
+    #[inline]
+    fn texel(&self, x: usize, y: usize) -> Vec4 {
         let t = self.texels[y * self.width as usize + x];
         let a = t[3] as f32 / 255.0;
         if self.srgb {
@@ -101,15 +99,28 @@ impl Texture {
         // Keep coordinates in a range where f32 keeps sub-texel precision.
         let u = u - u.floor();
         let v = v - v.floor();
-        let x = u * self.width as f32 - 0.5;
-        let y = v * self.height as f32 - 0.5;
-        let x0 = x.floor();
-        let y0 = y.floor();
-        let fx = x - x0;
-        let fy = y - y0;
-        let (x0, y0) = (x0 as i64, y0 as i64);
-        let a = self.texel(x0, y0).lerp(self.texel(x0 + 1, y0), fx);
-        let b = self.texel(x0, y0 + 1).lerp(self.texel(x0 + 1, y0 + 1), fx);
+        let (w, h) = (self.width as usize, self.height as usize);
+        let x = u * w as f32 - 0.5;
+        let y = v * h as f32 - 0.5;
+        let fx = x - x.floor();
+        let fy = y - y.floor();
+        // x.floor() is in [-1, w - 1] (u < 1 up to rounding): wrap without a division.
+        let wrap = |i: f32, n: usize| -> usize {
+            let i = i as isize;
+            if i < 0 {
+                n - 1
+            } else if i as usize >= n {
+                0
+            } else {
+                i as usize
+            }
+        };
+        let x0 = wrap(x.floor(), w);
+        let y0 = wrap(y.floor(), h);
+        let x1 = if x0 + 1 == w { 0 } else { x0 + 1 };
+        let y1 = if y0 + 1 == h { 0 } else { y0 + 1 };
+        let a = self.texel(x0, y0).lerp(self.texel(x1, y0), fx);
+        let b = self.texel(x0, y1).lerp(self.texel(x1, y1), fx);
         a.lerp(b, fy)
     }
 }
@@ -126,6 +137,35 @@ mod tests {
         assert!((c.x - 0.215_860_5).abs() < 1e-5);
         assert_eq!(c.y, 1.0);
         assert_eq!(c.z, 0.0);
+    }
+
+    /// Straightforward bilinear lookup with `rem_euclid` wrapping: the reference for `sample`.
+    fn reference_sample(t: &Texture, uv: Vec2) -> Vec4 {
+        let x = (uv.x - uv.x.floor()) * t.width as f32 - 0.5;
+        let y = (uv.y - uv.y.floor()) * t.height as f32 - 0.5;
+        let texel = |i: i64, j: i64| {
+            let i = i.rem_euclid(t.width as i64) as usize;
+            let j = j.rem_euclid(t.height as i64) as usize;
+            t.texel(i, j)
+        };
+        let (x0, y0) = (x.floor() as i64, y.floor() as i64);
+        let (fx, fy) = (x - x.floor(), y - y.floor());
+        let a = texel(x0, y0).lerp(texel(x0 + 1, y0), fx);
+        let b = texel(x0, y0 + 1).lerp(texel(x0 + 1, y0 + 1), fx);
+        a.lerp(b, fy)
+    }
+
+    #[test]
+    fn fast_wrapping_matches_the_reference_lookup() {
+        let raw: Vec<u8> = (0..3 * 2 * 4).map(|i| (i * 37 % 256) as u8).collect();
+        let t = Texture::from_rgba8("t".into(), 3, 2, true, raw);
+        for i in -50..50 {
+            for j in -20..20 {
+                let uv = Vec2::new(i as f32 * 0.0731, j as f32 * 0.1173);
+                let (a, b) = (t.sample(uv), reference_sample(&t, uv));
+                assert!((a - b).abs().max_element() < 1e-5, "{uv}: {a} vs {b}");
+            }
+        }
     }
 
     #[test]

@@ -177,9 +177,13 @@ impl Scene {
             "gltf" | "glb" => {
                 let mut scene = Scene::empty(path);
                 let imported = gltf::load(path, &mut scene)?;
-                if let Some(camera) = imported.camera {
-                    scene.camera = camera;
+                if let Some(aspect) = imported.aspect_ratio.filter(|a| a.is_finite() && *a > 0.0) {
+                    scene.width = ((scene.height as f32 * aspect).round() as u32).max(1);
                 }
+                scene.camera = match imported.camera {
+                    Some(camera) => camera,
+                    None => Camera::framing(&scene.bounds(), scene.aspect()),
+                };
                 scene
             }
             "obj" => {
