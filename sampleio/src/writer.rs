@@ -1,0 +1,263 @@
+//! The streaming writer: samples go out one at a time, in pixel-major order, through a buffered
+//! temporary file beside the destination that is renamed into place only once complete.
+
+use std::ffi::OsString;
+use std::fs::{self, File};
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use crate::error::{Result, SampleError};
+use crate::header::{Header, HeaderSpec, FORMAT_VERSION, MAGIC, MAX_HEADER_LEN, TRAILER_MAGIC};
+
+/// Buffer between the writer and the file.
+const BUFFER_BYTES: usize = 1 << 20;
+
+/// Writes one sample file. Create it with [`SampleWriter::create`], push exactly
+/// `header().sample_count` samples, then [`finish`](Self::finish).
+///
+/// The writer holds one record and the CRC state of the current chunk (plus 4 bytes per finished
+/// chunk), never the samples. Any error aborts it: later calls fail with
+/// [`SampleError::Aborted`] and no file is produced. Dropping a writer that was not finished
+/// removes its temporary file.
+#[derive(Debug)]
+pub struct SampleWriter {
+    path: PathBuf,
+    tmp: PathBuf,
+    out: Option<BufWriter<File>>,
+    header: Header,
+    /// CRC-32 of the header text, for the trailer.
+    header_crc: u32,
+    /// The record `push` assembles; bytes no field covers stay zero.
+    record: Vec<u8>,
+    pushed: u64,
+    in_chunk: u32,
+    chunk_hasher: crc32fast::Hasher,
+    chunk_crcs: Vec<u32>,
+    aborted: bool,
+    finished: bool,
+}
+
+/// `<dir>/<name>.<pid>.tmp` for `<dir>/<name>`.
+fn temporary_path(path: &Path) -> Option<PathBuf> {
+    let mut name: OsString = path.file_name()?.to_owned();
+    name.push(format!(".{}.tmp", std::process::id()));
+    Some(path.with_file_name(name))
+}
+
+impl SampleWriter {
+    /// Validates the header, computes the field layout and starts writing to
+    /// `<path>.<pid>.tmp` beside `path`.
+    pub fn create(path: &Path, header: HeaderSpec) -> Result<SampleWriter> {
+        let header = header.to_header().map_err(|e| e.at(path))?;
+        let header_bytes = header.to_padded_json();
+        if header_bytes.len() as u64 > MAX_HEADER_LEN {
+            return Err(SampleError::Invalid {
+                path: path.to_path_buf(),
+                field: "header".into(),
+                message: format!("{} bytes of header text exceed {MAX_HEADER_LEN}", header_bytes.len()),
+            });
+        }
+        let tmp = temporary_path(path).ok_or_else(|| SampleError::Invalid {
+            path: path.to_path_buf(),
+            field: "path".into(),
+            message: "the path has no file name".into(),
+        })?;
+        let file = File::create(&tmp).map_err(|e| SampleError::io(&tmp, "create", e))?;
+        let mut writer = SampleWriter {
+            path: path.to_path_buf(),
+            tmp,
+            out: Some(BufWriter::with_capacity(BUFFER_BYTES, file)),
+            record: vec![0; header.record_size as usize],
+            header_crc: crc32fast::hash(&header_bytes),
+            header,
+            pushed: 0,
+            in_chunk: 0,
+            chunk_hasher: crc32fast::Hasher::new(),
+            chunk_crcs: Vec::new(),
+            aborted: false,
+            finished: false,
+        };
+        let mut preamble = Vec::with_capacity(16);
+        preamble.extend_from_slice(&MAGIC);
+        preamble.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+        preamble.extend_from_slice(&(header_bytes.len() as u32).to_le_bytes());
+        writer.write(&preamble)?;
+        writer.write(&header_bytes)?;
+        Ok(writer)
+    }
+
+    /// The header being written (with computed offsets and record size).
+    pub fn header(&self) -> &Header {
+        &self.header
+    }
+
+    /// The destination path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Samples pushed so far.
+    pub fn pushed(&self) -> u64 {
+        self.pushed
+    }
+
+    fn fail(&mut self, e: SampleError) -> SampleError {
+        self.aborted = true;
+        e
+    }
+
+    fn check_open(&mut self) -> Result<()> {
+        if self.aborted {
+            return Err(SampleError::Aborted { path: self.path.clone() });
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, bytes: &[u8]) -> Result<()> {
+        let Some(out) = self.out.as_mut() else {
+            return Err(self.fail(SampleError::Aborted { path: self.path.clone() }));
+        };
+        if let Err(e) = out.write_all(bytes) {
+            let e = SampleError::io(&self.tmp, "write", e);
+            return Err(self.fail(e));
+        }
+        Ok(())
+    }
+
+    /// Pushes the next sample: one value per component, fields in header order. Values are
+    /// converted to the fields' types: f16 by rounding to nearest, integers by rounding to the
+    /// nearest integer (ties away from zero) with a range check (NaN, infinities and values
+    /// outside the type's range are errors); float fields store NaN and infinities as given.
+    pub fn push(&mut self, values: &[f32]) -> Result<()> {
+        self.check_open()?;
+        let expected = self.header.values_per_sample();
+        if values.len() != expected {
+            let e = SampleError::WrongLength {
+                path: self.path.clone(),
+                sample: self.pushed,
+                what: "values",
+                expected,
+                actual: values.len(),
+            };
+            return Err(self.fail(e));
+        }
+        let mut record = std::mem::take(&mut self.record);
+        let mut values = values.iter();
+        for field in &self.header.fields {
+            for component in 0..field.components {
+                // The length was checked above.
+                let &value = values.next().expect("one value per component");
+                let range = field.component_range(component as usize);
+                if !field.ty.encode(value, &mut record[range]) {
+                    let e = SampleError::ValueOutOfRange {
+                        path: self.path.clone(),
+                        sample: self.pushed,
+                        field: field.name.clone(),
+                        component,
+                        value,
+                        ty: field.ty,
+                    };
+                    self.record = record;
+                    return Err(self.fail(e));
+                }
+            }
+        }
+        let result = self.push_checked_record(&record);
+        self.record = record;
+        result
+    }
+
+    /// Pushes the next sample as a raw record of exactly `record_size` bytes, laid out as the
+    /// header's field offsets say (little-endian).
+    pub fn push_record(&mut self, record: &[u8]) -> Result<()> {
+        self.check_open()?;
+        if record.len() != self.record.len() {
+            let e = SampleError::WrongLength {
+                path: self.path.clone(),
+                sample: self.pushed,
+                what: "record bytes",
+                expected: self.record.len(),
+                actual: record.len(),
+            };
+            return Err(self.fail(e));
+        }
+        self.push_checked_record(record)
+    }
+
+    fn push_checked_record(&mut self, record: &[u8]) -> Result<()> {
+        if self.pushed == self.header.sample_count {
+            let e = SampleError::TooManySamples { path: self.path.clone(), expected: self.header.sample_count };
+            return Err(self.fail(e));
+        }
+        self.write(record)?;
+        self.chunk_hasher.update(record);
+        self.pushed += 1;
+        self.in_chunk += 1;
+        if self.in_chunk == self.header.chunk_samples {
+            self.end_chunk();
+        }
+        Ok(())
+    }
+
+    fn end_chunk(&mut self) {
+        let hasher = std::mem::take(&mut self.chunk_hasher);
+        self.chunk_crcs.push(hasher.finalize());
+        self.in_chunk = 0;
+    }
+
+    /// Checks that every sample was pushed, writes the chunk table and trailer, syncs the file
+    /// to disk and renames it into place. Returns the final path. On error the temporary file
+    /// is removed and nothing is left at `path`.
+    pub fn finish(mut self) -> Result<PathBuf> {
+        self.check_open()?;
+        if self.pushed != self.header.sample_count {
+            return Err(SampleError::TooFewSamples {
+                path: self.path.clone(),
+                expected: self.header.sample_count,
+                pushed: self.pushed,
+            });
+        }
+        if self.in_chunk > 0 {
+            self.end_chunk();
+        }
+        let table: Vec<u8> = self.chunk_crcs.iter().flat_map(|c| c.to_le_bytes()).collect();
+        debug_assert_eq!(self.chunk_crcs.len() as u64, self.header.chunk_count());
+        let mut trailer = Vec::with_capacity(32);
+        trailer.extend_from_slice(&TRAILER_MAGIC);
+        trailer.extend_from_slice(&self.header.sample_count.to_le_bytes());
+        trailer.extend_from_slice(&self.header_crc.to_le_bytes());
+        trailer.extend_from_slice(&crc32fast::hash(&table).to_le_bytes());
+        trailer.extend_from_slice(&(self.chunk_crcs.len() as u64).to_le_bytes());
+        self.write(&table)?;
+        self.write(&trailer)?;
+
+        let out = self.out.take().expect("the writer is open until finished");
+        let file = out.into_inner().map_err(|e| SampleError::io(&self.tmp, "write", e.into_error()))?;
+        file.sync_all().map_err(|e| SampleError::io(&self.tmp, "sync", e))?;
+        drop(file);
+        fs::rename(&self.tmp, &self.path).map_err(|e| SampleError::io(&self.path, "rename into place", e))?;
+        self.finished = true;
+        // Make the rename durable too; not every platform can open a directory, so best effort.
+        if let Some(dir) = self.path.parent() {
+            let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
+            if let Ok(d) = File::open(dir) {
+                let _ = d.sync_all();
+            }
+        }
+        Ok(self.path.clone())
+    }
+}
+
+impl Drop for SampleWriter {
+    fn drop(&mut self) {
+        if self.finished {
+            return;
+        }
+        if let Some(out) = self.out.take() {
+            // Discard the buffered bytes instead of flushing them into a file about to go.
+            let (file, _) = out.into_parts();
+            drop(file);
+        }
+        let _ = fs::remove_file(&self.tmp);
+    }
+}
