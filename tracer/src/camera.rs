@@ -143,6 +143,47 @@ impl Camera {
     pub fn depth(&self, p: Vec3) -> f32 {
         (p - self.position).dot(self.forward)
     }
+
+    /// Camera space of the sample files: X along `right` (image +x), Y along `-up` (image +y,
+    /// downwards), Z along `forward` (depth); right-handed, origin at the lens centre.
+    pub fn to_camera_space(&self, p: Vec3) -> Vec3 {
+        self.vector_to_camera_space(p - self.position)
+    }
+
+    pub fn vector_to_camera_space(&self, v: Vec3) -> Vec3 {
+        Vec3::new(v.dot(self.right), -v.dot(self.up), v.dot(self.forward))
+    }
+
+    /// Focal lengths (fx, fy) and principal point (cx, cy) in pixels: a camera-space point
+    /// (X, Y, Z) seen from the lens centre lands on pixel (cx + fx X/Z, cy + fy Y/Z).
+    pub fn pixel_projection(&self, width: u32, height: u32) -> (Vec2, Vec2) {
+        let tan = self.tan_half_fov(width, height);
+        let focal = Vec2::new(width as f32 / (2.0 * tan.x), height as f32 / (2.0 * tan.y));
+        (focal, Vec2::new(width as f32 / 2.0, height as f32 / 2.0))
+    }
+
+    /// Constants (C1, C2) of the signed circle of confusion C(z) = C1/z + C2 in pixels: a point
+    /// at depth z seen through lens position (u, v) (unit disk, u along image +x, v along image
+    /// +y) appears shifted by (u, v)·C(z) from where the lens centre sees it. Zero without a lens.
+    pub fn circle_of_confusion(&self, width: u32, height: u32) -> (f32, f32) {
+        let (focal, _) = self.pixel_projection(width, height);
+        let a = self.aperture_radius;
+        (-focal.x * a, focal.x * a / self.focus_distance)
+    }
+
+    /// Film position (pixels) at which the ray through lens position `lens` (unit disk, as
+    /// passed to `generate_ray`) sees the world point `p`; `None` behind the lens.
+    pub fn project(&self, p: Vec3, lens: Vec2, width: u32, height: u32) -> Option<Vec2> {
+        let (focal, centre) = self.pixel_projection(width, height);
+        let point = self.to_camera_space(p);
+        if !(point.z > 0.0) {
+            return None;
+        }
+        // Lens point in camera space (v runs along -up, i.e. +Y).
+        let lens_point = Vec3::new(self.aperture_radius * lens.x, -self.aperture_radius * lens.y, 0.0);
+        let on_focus_plane = lens_point + (point - lens_point) * (self.focus_distance / point.z);
+        Some(centre + focal * Vec2::new(on_focus_plane.x, on_focus_plane.y) / self.focus_distance)
+    }
 }
 
 /// Maps the unit square onto the unit disk preserving stratification (Shirley-Chiu).
@@ -197,6 +238,36 @@ mod tests {
         let p1 = o1 + d1 * ((3.0 - o1.z) / d1.z);
         let p2 = o2 + d2 * ((3.0 - o2.z) / d2.z);
         assert!((p1 - p2).length() < 1e-5, "{p1} vs {p2}");
+    }
+
+    #[test]
+    fn projection_inverts_ray_generation_and_coc_is_the_lens_derivative() {
+        let mut cam = Camera::look_at(Vec3::new(1.0, 2.0, 3.0), Vec3::new(0.0, 1.0, -4.0), Vec3::Y, 50.0, FovAxis::X);
+        cam.aperture_radius = 0.2;
+        cam.focus_distance = 4.0;
+        let (w, h) = (120, 80);
+        let p = Vec3::new(-0.5, 0.7, -6.0);
+        let z = cam.depth(p);
+        for lens in [Vec2::ZERO, Vec2::new(0.5, -0.3), Vec2::new(-0.9, 0.1)] {
+            let film = cam.project(p, lens, w, h).unwrap();
+            // The ray through that film position and lens point passes through p.
+            let (o, d) = cam.generate_ray(film, lens, w, h);
+            let closest = o + d * (p - o).dot(d);
+            assert!((closest - p).length() < 1e-4, "{closest} vs {p}");
+        }
+        // x(u) - x(0) = u C(z) and y(v) - y(0) = v C(z) with v along image +y (= -lens.y).
+        let (c1, c2) = cam.circle_of_confusion(w, h);
+        let coc = c1 / z + c2;
+        let centre = cam.project(p, Vec2::ZERO, w, h).unwrap();
+        let shifted = cam.project(p, Vec2::new(0.6, -0.4), w, h).unwrap();
+        assert!((shifted.x - centre.x - 0.6 * coc).abs() < 1e-3, "{} vs {}", shifted.x - centre.x, 0.6 * coc);
+        assert!((shifted.y - centre.y - 0.4 * coc).abs() < 1e-3);
+        // In focus: no shift.
+        let focused = cam.position + cam.forward * 4.0 + cam.right * 0.3;
+        let a = cam.project(focused, Vec2::ZERO, w, h).unwrap();
+        let b = cam.project(focused, Vec2::new(0.9, 0.2), w, h).unwrap();
+        assert!((a - b).length() < 1e-3);
+        assert!((c1 / 4.0 + c2).abs() < 1e-4);
     }
 
     #[test]

@@ -36,10 +36,26 @@ impl PathSample {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct FirstHit {
     pub albedo: Vec3,
+    /// Shading normal, facing the camera.
     pub normal: Vec3,
+    /// Geometric normal, facing the camera.
+    pub geometric_normal: Vec3,
     pub position: Vec3,
     /// Distance along the camera's forward axis.
     pub depth: f32,
+    /// The mesh that was hit.
+    pub mesh: u32,
+}
+
+/// The camera coordinates of one sample.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CameraSample {
+    /// Film position in pixels (origin top-left).
+    pub film: Vec2,
+    /// Position on the unit lens disk (zero for a pinhole).
+    pub lens: Vec2,
+    /// Time in [0, 1] over the shutter (zero without motion).
+    pub time: f32,
 }
 
 /// Kind of a traced ray, for the benchmark's replay.
@@ -193,15 +209,35 @@ pub struct Integrator<'a> {
 }
 
 impl Integrator<'_> {
-    /// Traces one camera path through pixel (px, py).
-    pub fn trace<R: RayRecorder>(&self, px: u32, py: u32, sampler: &mut Sampler, recorder: &mut R) -> PathSample {
-        let scene = self.scene;
-        let camera = &scene.camera;
+    /// Draws the camera coordinates of one sample in pixel (px, py): film position (box
+    /// filter), lens position (only with an aperture) and time (only with motion).
+    pub fn camera_sample(&self, px: u32, py: u32, sampler: &mut Sampler) -> CameraSample {
         let film = sampler.next_2d();
         let film = Vec2::new(px as f32 + film[0], py as f32 + film[1]);
-        let lens = if camera.has_lens() { concentric_disk(Vec2::from(sampler.next_2d())) } else { Vec2::ZERO };
-        let time = if scene.has_motion() { sampler.next_1d() } else { 0.0 };
-        let (mut origin, mut direction) = camera.generate_ray(film, lens, self.width, self.height);
+        let lens =
+            if self.scene.camera.has_lens() { concentric_disk(Vec2::from(sampler.next_2d())) } else { Vec2::ZERO };
+        let time = if self.scene.has_motion() { sampler.next_1d() } else { 0.0 };
+        CameraSample { film, lens, time }
+    }
+
+    /// Traces one camera path through pixel (px, py).
+    pub fn trace<R: RayRecorder>(&self, px: u32, py: u32, sampler: &mut Sampler, recorder: &mut R) -> PathSample {
+        let camera_sample = self.camera_sample(px, py, sampler);
+        self.trace_camera_sample(&camera_sample, sampler, recorder)
+    }
+
+    /// Traces the path of a given camera sample; `sampler` supplies the path's dimensions.
+    pub fn trace_camera_sample<R: RayRecorder>(
+        &self,
+        camera_sample: &CameraSample,
+        sampler: &mut Sampler,
+        recorder: &mut R,
+    ) -> PathSample {
+        let scene = self.scene;
+        let camera = &scene.camera;
+        let time = camera_sample.time;
+        let (mut origin, mut direction) =
+            camera.generate_ray(camera_sample.film, camera_sample.lens, self.width, self.height);
 
         let mut sample = PathSample::default();
         let mut throughput = Vec3::ONE;
@@ -231,8 +267,10 @@ impl Integrator<'_> {
                 sample.first_hit = Some(FirstHit {
                     albedo: surface.bsdf.albedo(),
                     normal: surface.shading_normal,
+                    geometric_normal: surface.geometric_normal,
                     position: surface.position,
                     depth: camera.depth(surface.position),
+                    mesh: hit.mesh,
                 });
             }
 

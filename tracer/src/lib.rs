@@ -15,6 +15,7 @@ pub mod lights;
 pub mod output;
 pub mod render;
 pub mod sampler;
+pub mod samples;
 pub mod scene;
 pub mod texture;
 

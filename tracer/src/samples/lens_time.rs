@@ -1,0 +1,235 @@
+//! `lens-time` samples for the temporal light field reconstruction (Lehtinen et al. 2011,
+//! Section 3): each sample is one camera path at (x, y, u, v, t) with the depth, the 3D motion
+//! and the depth gradient of the surface it first hits, and the path's radiance.
+//!
+//! Fields, in record order (a field is present only when the scene needs it):
+//!
+//! | field | components | present | meaning |
+//! |---|---|---|---|
+//! | `x`, `y` | 1 each | always | film position in pixels, origin top-left, pixel centres at +0.5 |
+//! | `u`, `v` | 1 each | aperture > 0 | lens position on the unit disk; u along image +x, v along image +y |
+//! | `t` | 1 | moving geometry | time in [0, 1] over the shutter |
+//! | `z` | 1 | always | camera-space depth of the first hit (+inf when the ray hits nothing) |
+//! | `motion` | 3 | moving geometry | camera-space displacement (X right, Y down, Z forward) of the hit point from t = 0 to t = 1 |
+//! | `radiance` | 3 | always | path-traced radiance (linear RGB) |
+//! | `depth_gradient` | 2 | always | ∂z/∂x, ∂z/∂y in scene units per pixel at fixed (u, v, t) |
+//!
+//! With the circle of confusion C(z) = C1/z + C2 (header `camera.coc`), a sample reprojects as
+//! in the paper's Eq. 2–3; the homogeneous screen motion of Eq. 3 is v = (fx·ΔX + cx·ΔZ,
+//! fy·ΔY + cy·ΔZ, ΔZ) with the focal lengths and principal point of `pixel_to_camera`.
+
+use std::path::Path;
+
+use glam::{Vec2, Vec3};
+use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleKind};
+
+use super::{camera_header, write_samples, DumpReport, DumpSettings};
+use crate::accel::Accel;
+use crate::camera::Camera;
+use crate::error::RenderError;
+use crate::integrator::{CameraSample, Integrator, NoRecording};
+use crate::lights::LightSampler;
+use crate::sampler::Sampler;
+use crate::scene::Scene;
+
+/// Which optional fields a scene needs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LensTimeLayout {
+    pub lens: bool,
+    pub time: bool,
+}
+
+impl LensTimeLayout {
+    pub fn for_scene(scene: &Scene) -> LensTimeLayout {
+        LensTimeLayout { lens: scene.camera.has_lens(), time: scene.has_motion() }
+    }
+
+    pub fn values_per_sample(&self) -> usize {
+        2 + 2 * self.lens as usize + self.time as usize + 1 + 3 * self.time as usize + 3 + 2
+    }
+
+    pub fn header(&self, scene: &Scene, settings: &DumpSettings) -> HeaderSpec {
+        let f32_field = |name: &str, n: u32, unit: &str, meaning: &str| {
+            FieldSpec::new(name, FieldType::F32, n).unit(unit).meaning(meaning)
+        };
+        let mut spec = HeaderSpec::new(SampleKind::LensTime, settings.width, settings.height, settings.spp)
+            .field(f32_field("x", 1, "px", "film x, origin at the left edge"))
+            .field(f32_field("y", 1, "px", "film y, origin at the top edge"));
+        if self.lens {
+            spec = spec.field(f32_field("u", 1, "unit disk", "lens position along image +x")).field(f32_field(
+                "v",
+                1,
+                "unit disk",
+                "lens position along image +y",
+            ));
+        }
+        if self.time {
+            spec = spec.field(f32_field("t", 1, "shutter fraction", "time in [0, 1] over the shutter"));
+        }
+        spec = spec.field(f32_field("z", 1, "scene units", "camera-space depth of the first hit; +inf for a miss"));
+        if self.time {
+            spec = spec.field(f32_field(
+                "motion",
+                3,
+                "scene units",
+                "camera-space displacement (X right, Y down, Z forward) of the hit point over the shutter",
+            ));
+        }
+        spec = spec.field(f32_field("radiance", 3, "W/(m^2 sr)", "path-traced radiance, linear RGB")).field(f32_field(
+            "depth_gradient",
+            2,
+            "scene units/px",
+            "dz/dx and dz/dy at fixed lens and time",
+        ));
+        spec.camera = Some(camera_header(&scene.camera, settings.width, settings.height));
+        spec.scene = Some(scene.source.display().to_string());
+        spec.seed = Some(settings.seed);
+        let mut coordinates = std::collections::BTreeMap::new();
+        coordinates
+            .insert("pixel".into(), "x right, y down, origin top-left; pixel (i, j) covers [i, i+1) x [j, j+1)".into());
+        coordinates.insert("camera".into(), "X right, Y down, Z forward (depth), origin at the lens centre".into());
+        coordinates.insert("lens".into(), "unit disk; lens point = position + aperture_radius (u right - v up)".into());
+        spec.coordinates = Some(coordinates);
+        spec
+    }
+}
+
+/// ∂z/∂x and ∂z/∂y at the hit: depths where the rays through film ± half a pixel (same lens
+/// point) meet the hit's tangent plane. Clamped to |∂z| ≤ z per pixel so grazing surfaces stay
+/// finite.
+pub fn depth_gradient(
+    camera: &Camera,
+    sample: &CameraSample,
+    hit: Vec3,
+    normal: Vec3,
+    width: u32,
+    height: u32,
+) -> Vec2 {
+    let depth = camera.depth(hit);
+    let depth_at = |film: Vec2| -> Option<f32> {
+        let (origin, direction) = camera.generate_ray(film, sample.lens, width, height);
+        let denominator = normal.dot(direction);
+        if denominator.abs() < 1e-8 {
+            return None;
+        }
+        let t = normal.dot(hit - origin) / denominator;
+        (t > 0.0 && t.is_finite()).then(|| camera.depth(origin + direction * t))
+    };
+    let limit = depth.abs();
+    let derivative = |offset: Vec2| -> f32 {
+        match (depth_at(sample.film + offset * 0.5), depth_at(sample.film - offset * 0.5)) {
+            (Some(a), Some(b)) => (a - b).clamp(-limit, limit),
+            _ => 0.0,
+        }
+    };
+    Vec2::new(derivative(Vec2::X), derivative(Vec2::Y))
+}
+
+/// Writes `lens-time` samples of `scene` to `path`.
+pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) -> Result<DumpReport, RenderError> {
+    settings.validate()?;
+    let layout = LensTimeLayout::for_scene(scene);
+    let lights = LightSampler::new(scene);
+    let integrator = Integrator {
+        scene,
+        accel,
+        lights: &lights,
+        max_bounces: settings.max_bounces,
+        width: settings.width,
+        height: settings.height,
+    };
+    let camera = &scene.camera;
+    let spec = layout.header(scene, settings);
+    write_samples(path, spec, settings, layout.values_per_sample(), |x, y, values| {
+        for index in 0..settings.spp {
+            let mut sampler = Sampler::new(settings.seed, x, y, index);
+            let camera_sample = integrator.camera_sample(x, y, &mut sampler);
+            let path = integrator.trace_camera_sample(&camera_sample, &mut sampler, &mut NoRecording);
+            values.extend_from_slice(&[camera_sample.film.x, camera_sample.film.y]);
+            if layout.lens {
+                // The file's v runs along image +y, the camera's lens.y along up.
+                values.extend_from_slice(&[camera_sample.lens.x, -camera_sample.lens.y]);
+            }
+            if layout.time {
+                values.push(camera_sample.time);
+            }
+            match path.first_hit {
+                Some(hit) => {
+                    values.push(hit.depth);
+                    if layout.time {
+                        let motion = scene.meshes[hit.mesh as usize].motion;
+                        values.extend_from_slice(&camera.vector_to_camera_space(motion).to_array());
+                    }
+                    values.extend_from_slice(&path.radiance().to_array());
+                    let gradient = depth_gradient(
+                        camera,
+                        &camera_sample,
+                        hit.position,
+                        hit.geometric_normal,
+                        settings.width,
+                        settings.height,
+                    );
+                    values.extend_from_slice(&gradient.to_array());
+                }
+                None => {
+                    values.push(f32::INFINITY);
+                    if layout.time {
+                        values.extend_from_slice(&[0.0; 3]);
+                    }
+                    values.extend_from_slice(&path.radiance().to_array());
+                    values.extend_from_slice(&[0.0, 0.0]);
+                }
+            }
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::FovAxis;
+
+    #[test]
+    fn depth_gradient_of_a_fronto_parallel_plane_is_zero_and_of_a_tilted_plane_matches_finite_differences() {
+        let camera = Camera::look_at(Vec3::ZERO, Vec3::Z, Vec3::Y, 60.0, FovAxis::Y);
+        let sample = CameraSample { film: Vec2::new(20.0, 12.0), lens: Vec2::ZERO, time: 0.0 };
+        let (o, d) = camera.generate_ray(sample.film, sample.lens, 40, 30);
+        let flat_hit = o + d * (5.0 / d.z);
+        let g = depth_gradient(&camera, &sample, flat_hit, -Vec3::Z, 40, 30);
+        assert!(g.length() < 1e-5, "{g}");
+
+        // Plane through (0, 0, 5) tilted about the y axis: z = 5 + 0.5 X.
+        let normal = Vec3::new(-0.5, 0.0, 1.0).normalize();
+        let depth_of = |film: Vec2| {
+            let (o, d) = camera.generate_ray(film, Vec2::ZERO, 40, 30);
+            let t = normal.dot(Vec3::new(0.0, 0.0, 5.0) - o) / normal.dot(d);
+            (o + d * t).z
+        };
+        let hit = {
+            let (o, d) = camera.generate_ray(sample.film, Vec2::ZERO, 40, 30);
+            o + d * (normal.dot(Vec3::new(0.0, 0.0, 5.0) - o) / normal.dot(d))
+        };
+        let g = depth_gradient(&camera, &sample, hit, -normal, 40, 30);
+        let expected_x = depth_of(sample.film + Vec2::new(0.01, 0.0)) - depth_of(sample.film - Vec2::new(0.01, 0.0));
+        assert!(
+            (g.x - expected_x / 0.02).abs() < 1e-2 * expected_x.abs() / 0.02 + 1e-4,
+            "{} vs {}",
+            g.x,
+            expected_x / 0.02
+        );
+        assert!(g.y.abs() < 1e-4);
+    }
+
+    #[test]
+    fn grazing_surfaces_give_a_finite_clamped_gradient() {
+        let camera = Camera::look_at(Vec3::ZERO, Vec3::Z, Vec3::Y, 60.0, FovAxis::Y);
+        let sample = CameraSample { film: Vec2::new(20.0, 15.0), lens: Vec2::ZERO, time: 0.0 };
+        let (o, d) = camera.generate_ray(sample.film, sample.lens, 40, 30);
+        let hit = o + d * 3.0;
+        // A plane containing the view ray.
+        let normal = d.cross(Vec3::Y).normalize();
+        let g = depth_gradient(&camera, &sample, hit, normal, 40, 30);
+        assert!(g.is_finite());
+        assert!(g.x.abs() <= camera.depth(hit) + 1e-5);
+    }
+}
