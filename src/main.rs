@@ -2,6 +2,7 @@
 //! sample dumps and reconstructions) and times them.
 
 mod bench;
+mod export;
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -29,6 +30,8 @@ enum Command {
     Render(RenderArgs),
     /// Write samples for the reconstructions and external tools (docs/sample-format.md).
     Dump(DumpArgs),
+    /// Convert a sample file to the authors' public sample-buffer formats.
+    Export(export::ExportArgs),
     /// Tracer throughput against raw Embree on the same rays, and thread scaling.
     Bench(bench::BenchArgs),
 }
@@ -183,6 +186,7 @@ fn main() -> ExitCode {
     let result = match &cli.command {
         Command::Render(args) => render(args),
         Command::Dump(args) => dump(args),
+        Command::Export(args) => export::run(args),
         Command::Bench(args) => bench::run(args),
     };
     match result {
