@@ -33,7 +33,7 @@ impl PathSample {
     }
 }
 
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug)]
 pub struct FirstHit {
     pub albedo: Vec3,
     /// Shading normal, facing the camera.
@@ -45,6 +45,8 @@ pub struct FirstHit {
     pub depth: f32,
     /// The mesh that was hit.
     pub mesh: u32,
+    /// Shading parameters there.
+    pub bsdf: Bsdf,
 }
 
 /// The camera coordinates of one sample.
@@ -186,16 +188,51 @@ fn power_heuristic(pdf_a: f32, pdf_b: f32) -> f32 {
     }
 }
 
-/// Adds `value` to the direct or indirect bucket, dropping non-finite values.
-#[inline]
-fn accumulate(sample: &mut PathSample, value: Vec3, is_direct: bool) {
-    if !value.is_finite() {
-        return;
+/// Where a ray starts: a camera ray (bounce 0, no previous vertex) or a ray leaving a surface.
+#[derive(Clone, Copy, Debug)]
+pub struct PathStart {
+    pub origin: Vec3,
+    pub direction: Vec3,
+    pub time: f32,
+    /// Path vertex index of the surface this ray will hit (0 for camera rays); bounds the path
+    /// length with the integrator's `max_bounces` and starts Russian roulette at 3.
+    pub bounce: u32,
+    /// BSDF density with which the direction was drawn and the vertex it was drawn at, for
+    /// MIS against light sampling when the ray hits an emitter; `None` for camera rays.
+    pub previous: Option<(f32, Vec3)>,
+}
+
+/// Radiance arriving along a ray, split by the vertex it was emitted towards.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct TracedRay {
+    /// Emission of the first surface hit (or the environment when the ray escapes).
+    pub emitted: Vec3,
+    /// Light reflected at the first hit straight from an emitter.
+    pub direct: Vec3,
+    /// Everything else: light that bounced at least twice.
+    pub beyond: Vec3,
+    pub first_hit: Option<FirstHit>,
+    pub rays: u32,
+}
+
+impl TracedRay {
+    /// Adds a contribution emitted towards vertex `level` (0 = emission of the first hit),
+    /// dropping non-finite values.
+    #[inline]
+    fn add(&mut self, level: u32, value: Vec3) {
+        if !value.is_finite() {
+            return;
+        }
+        match level {
+            0 => self.emitted += value,
+            1 => self.direct += value,
+            _ => self.beyond += value,
+        }
     }
-    if is_direct {
-        sample.direct += value;
-    } else {
-        sample.indirect += value;
+
+    /// Radiance along the ray excluding the first hit's own emission.
+    pub fn reflected(&self) -> Vec3 {
+        self.direct + self.beyond
     }
 }
 
@@ -233,69 +270,137 @@ impl Integrator<'_> {
         sampler: &mut Sampler,
         recorder: &mut R,
     ) -> PathSample {
+        let (origin, direction) =
+            self.scene.camera.generate_ray(camera_sample.film, camera_sample.lens, self.width, self.height);
+        let ray = PathStart { origin, direction, time: camera_sample.time, bounce: 0, previous: None };
+        let traced = self.trace_ray(&ray, sampler, recorder);
+        PathSample {
+            direct: traced.emitted + traced.direct,
+            indirect: traced.beyond,
+            first_hit: traced.first_hit,
+            rays: traced.rays,
+        }
+    }
+
+    /// Next-event estimation at `surface`: one emitter chosen by power, one shadow ray, the
+    /// power-heuristic weight against BSDF sampling. Returns the reflected radiance towards
+    /// `wo` (not multiplied by any path throughput).
+    pub fn next_event<R: RayRecorder>(
+        &self,
+        surface: &SurfacePoint,
+        wo: Vec3,
+        time: f32,
+        u: [f32; 3],
+        rays: &mut u32,
+        recorder: &mut R,
+    ) -> Vec3 {
+        let frame = Frame::new(surface.shading_normal);
+        let wo_local = frame.to_local(wo);
+        let (u_select, u_light) = (u[0], [u[1], u[2]]);
+        let Some(light) = self.lights.sample(self.scene, surface.position, time, u_select, u_light) else {
+            return Vec3::ZERO;
+        };
+        // Reject light from below the geometric surface (light leaking through).
+        if light.wi.dot(surface.geometric_normal) <= 0.0 {
+            return Vec3::ZERO;
+        }
+        let wi_local = frame.to_local(light.wi);
+        let f = surface.bsdf.eval(wo_local, wi_local);
+        if f == Vec3::ZERO {
+            return Vec3::ZERO;
+        }
+        let shadow_origin = surface.spawn_origin(light.wi);
+        // Stop short of the light's own surface by a relative margin.
+        let t_max = if light.distance.is_finite() {
+            let light_point = surface.position + light.wi * light.distance;
+            (light_point - shadow_origin).length() * (1.0 - 2e-4)
+        } else {
+            f32::INFINITY
+        };
+        *rays += 1;
+        recorder.record(RecordedRay { origin: shadow_origin, direction: light.wi, t_max, time, kind: RayKind::Shadow });
+        if !(t_max > 0.0) || self.accel.occluded(shadow_origin, light.wi, 0.0, t_max, time) {
+            return Vec3::ZERO;
+        }
+        let weight = match light.pdf {
+            Some(light_pdf) => power_heuristic(light_pdf, surface.bsdf.pdf(wo_local, wi_local)),
+            None => 1.0,
+        };
+        let value = f * light.weighted_radiance * weight;
+        if value.is_finite() {
+            value
+        } else {
+            Vec3::ZERO
+        }
+    }
+
+    /// Radiance arriving at `start.origin` along `start.direction`, split by where it was
+    /// emitted relative to the first surface the ray hits (see `TracedRay`).
+    pub fn trace_ray<R: RayRecorder>(&self, start: &PathStart, sampler: &mut Sampler, recorder: &mut R) -> TracedRay {
         let scene = self.scene;
         let camera = &scene.camera;
-        let time = camera_sample.time;
-        let (mut origin, mut direction) =
-            camera.generate_ray(camera_sample.film, camera_sample.lens, self.width, self.height);
-
-        let mut sample = PathSample::default();
+        let time = start.time;
+        let mut origin = start.origin;
+        let mut direction = start.direction;
+        let mut traced = TracedRay::default();
         let mut throughput = Vec3::ONE;
-        let mut previous_bsdf_pdf = 0.0f32;
-        let mut previous_position = origin;
+        let (mut previous_bsdf_pdf, mut previous_position) = match start.previous {
+            Some((pdf, position)) => (Some(pdf), position),
+            None => (None, origin),
+        };
 
-        for bounce in 0..=self.max_bounces {
-            // Light that arrives at the first surface straight from an emitter is "direct".
-            let emission_is_direct = bounce <= 1;
-            sample.rays += 1;
+        for bounce in start.bounce..=self.max_bounces {
+            // Vertex level relative to the first hit: 0 = the first hit itself.
+            let level = bounce - start.bounce;
+            traced.rays += 1;
             recorder.record(RecordedRay { origin, direction, t_max: f32::INFINITY, time, kind: RayKind::Closest });
             let Some(hit) = self.accel.intersect(origin, direction, 0.0, f32::INFINITY, time) else {
                 if scene.environment.max_element() > 0.0 {
-                    let weight = if bounce == 0 {
-                        1.0
-                    } else {
-                        power_heuristic(previous_bsdf_pdf, self.lights.pdf_environment())
+                    let weight = match previous_bsdf_pdf {
+                        None => 1.0,
+                        Some(pdf) => power_heuristic(pdf, self.lights.pdf_environment()),
                     };
-                    accumulate(&mut sample, throughput * scene.environment * weight, emission_is_direct);
+                    traced.add(level, throughput * scene.environment * weight);
                 }
                 break;
             };
             let wo = -direction;
             let surface = SurfacePoint::new(scene, &hit, wo, time);
 
-            if bounce == 0 {
-                sample.first_hit = Some(FirstHit {
+            if level == 0 {
+                traced.first_hit = Some(FirstHit {
                     albedo: surface.bsdf.albedo(),
                     normal: surface.shading_normal,
                     geometric_normal: surface.geometric_normal,
                     position: surface.position,
                     depth: camera.depth(surface.position),
                     mesh: hit.mesh,
+                    bsdf: surface.bsdf,
                 });
             }
 
             let material = &scene.materials[scene.meshes[hit.mesh as usize].material as usize];
-            let winding_normal = if surface.front_face { surface.geometric_normal } else { -surface.geometric_normal };
-            let emitted = if material.is_emissive() {
-                triangle_emission(scene, hit.mesh, hit.triangle, hit.barycentric, winding_normal, wo)
-            } else {
-                Vec3::ZERO
-            };
-            if emitted != Vec3::ZERO {
-                let weight = if bounce == 0 {
-                    1.0
-                } else {
-                    let light_pdf = self.lights.pdf_triangle(
-                        scene,
-                        hit.mesh,
-                        hit.triangle,
-                        time,
-                        previous_position,
-                        surface.position,
-                    );
-                    power_heuristic(previous_bsdf_pdf, light_pdf)
-                };
-                accumulate(&mut sample, throughput * emitted * weight, emission_is_direct);
+            if material.is_emissive() {
+                let winding_normal =
+                    if surface.front_face { surface.geometric_normal } else { -surface.geometric_normal };
+                let emitted = triangle_emission(scene, hit.mesh, hit.triangle, hit.barycentric, winding_normal, wo);
+                if emitted != Vec3::ZERO {
+                    let weight = match previous_bsdf_pdf {
+                        None => 1.0,
+                        Some(pdf) => {
+                            let light_pdf = self.lights.pdf_triangle(
+                                scene,
+                                hit.mesh,
+                                hit.triangle,
+                                time,
+                                previous_position,
+                                surface.position,
+                            );
+                            power_heuristic(pdf, light_pdf)
+                        }
+                    };
+                    traced.add(level, throughput * emitted * weight);
+                }
             }
             if bounce == self.max_bounces {
                 break;
@@ -308,39 +413,16 @@ impl Integrator<'_> {
             let u_bsdf = sampler.next_2d();
             let [u_roulette, _] = sampler.next_2d();
 
-            // Next-event estimation.
-            if let Some(light) = self.lights.sample(scene, surface.position, time, u_light_select, u_light) {
-                let wi_local = frame.to_local(light.wi);
-                // Reject light from below the geometric surface (light leaking through).
-                if light.wi.dot(surface.geometric_normal) > 0.0 {
-                    let f = surface.bsdf.eval(wo_local, wi_local);
-                    if f != Vec3::ZERO {
-                        let shadow_origin = surface.spawn_origin(light.wi);
-                        // Stop short of the light's own surface by a relative margin.
-                        let t_max = if light.distance.is_finite() {
-                            let light_point = surface.position + light.wi * light.distance;
-                            (light_point - shadow_origin).length() * (1.0 - 2e-4)
-                        } else {
-                            f32::INFINITY
-                        };
-                        sample.rays += 1;
-                        recorder.record(RecordedRay {
-                            origin: shadow_origin,
-                            direction: light.wi,
-                            t_max,
-                            time,
-                            kind: RayKind::Shadow,
-                        });
-                        if t_max > 0.0 && !self.accel.occluded(shadow_origin, light.wi, 0.0, t_max, time) {
-                            let weight = match light.pdf {
-                                Some(light_pdf) => power_heuristic(light_pdf, surface.bsdf.pdf(wo_local, wi_local)),
-                                None => 1.0,
-                            };
-                            accumulate(&mut sample, throughput * f * light.weighted_radiance * weight, bounce == 0);
-                        }
-                    }
-                }
-            }
+            let direct = self.next_event(
+                &surface,
+                wo,
+                time,
+                [u_light_select, u_light[0], u_light[1]],
+                &mut traced.rays,
+                recorder,
+            );
+            // Light reflected at this vertex straight from an emitter is one level deeper.
+            traced.add(level + 1, throughput * direct);
 
             // Continue the path by BSDF sampling.
             let Some(bsdf_sample) = surface.bsdf.sample(wo_local, u_lobe, u_bsdf) else {
@@ -351,7 +433,7 @@ impl Integrator<'_> {
                 break;
             }
             throughput *= bsdf_sample.weight;
-            previous_bsdf_pdf = bsdf_sample.pdf;
+            previous_bsdf_pdf = Some(bsdf_sample.pdf);
             previous_position = surface.position;
             origin = surface.spawn_origin(wi);
             direction = wi;
@@ -364,6 +446,6 @@ impl Integrator<'_> {
                 throughput /= survive;
             }
         }
-        sample
+        traced
     }
 }
