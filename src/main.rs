@@ -10,6 +10,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+use tracer::samples::secondary::SecondaryKind;
 use tracer::{Accel, RenderSettings, Scene};
 
 /// The embedded default scene (scenes/cornell.toml).
@@ -41,6 +42,10 @@ enum Command {
 enum DumpKind {
     /// Camera samples over pixel, lens and time for the temporal light field (TLFR).
     LensTime,
+    /// Secondary rays with their radiance for the indirect light field (ILFR).
+    Indirect,
+    /// Cosine-weighted secondary rays with their hit distance (ILFR ambient occlusion).
+    Ao,
 }
 
 #[derive(clap::Args)]
@@ -167,6 +172,12 @@ fn dump(args: &DumpArgs) -> Result<()> {
     let accel = Accel::build(&scene)?;
     let report = match args.kind {
         DumpKind::LensTime => tracer::samples::lens_time::dump(&scene, &accel, &settings, &args.out)?,
+        DumpKind::Indirect => {
+            tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::Indirect, &args.out)?
+        }
+        DumpKind::Ao => {
+            tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::AmbientOcclusion, &args.out)?
+        }
     };
     println!(
         "wrote {} samples of {} to {} in {:.3} s: {} bytes per record, {:.1} bytes per sample with header and checksums; fields: {}",

@@ -162,7 +162,7 @@ impl SurfacePoint {
             front_face,
             uv,
             bsdf: Bsdf::with_ior(base_color, metallic, roughness, material.specular, material.ior),
-            epsilon: (scale + 1e-3) * 2e-5,
+            epsilon: (scale + 1e-3) * 4e-6,
         }
     }
 

@@ -5,6 +5,7 @@
 //! of rows and the file is identical for any thread count.
 
 pub mod lens_time;
+pub mod secondary;
 
 use std::path::Path;
 use std::time::Instant;

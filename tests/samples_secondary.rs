@@ -1,0 +1,192 @@
+//! `indirect` and `ao` sample dumps: the samples reproduce the rendered image (Eq. 1 of the
+//! indirect light field paper with one secondary ray per primary hit), their geometry is
+//! consistent, ambient-occlusion distances follow the cosine distribution in closed form, and
+//! fields appear only when the scene needs them.
+
+mod common;
+
+use common::{exr_channel, project_root, scene_from_toml, shared_scenes};
+use glam::Vec3;
+use sampleio::SampleFile;
+use tracer::samples::secondary::{decode_octahedral, dump, SecondaryKind};
+use tracer::samples::DumpSettings;
+use tracer::{Accel, Scene};
+
+fn dump_file(
+    scene: &Scene,
+    kind: SecondaryKind,
+    size: (u32, u32),
+    spp: u32,
+    seed: u32,
+) -> (tempfile::TempDir, SampleFile) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("samples.lfrs");
+    let accel = Accel::build(scene).unwrap();
+    let settings = DumpSettings {
+        width: size.0,
+        height: size.1,
+        spp,
+        seed,
+        max_bounces: scene.max_bounces,
+        threads: 0,
+        progress: false,
+    };
+    dump(scene, &accel, &settings, kind, &path).unwrap();
+    let file = SampleFile::open(&path).unwrap();
+    (dir, file)
+}
+
+fn names(file: &SampleFile) -> Vec<String> {
+    file.fields().iter().map(|f| f.name.clone()).collect()
+}
+
+fn vec3(column: &[f32], i: usize) -> Vec3 {
+    Vec3::new(column[3 * i], column[3 * i + 1], column[3 * i + 2])
+}
+
+fn octahedral(column: &[f32], i: usize) -> Vec3 {
+    decode_octahedral([column[2 * i], column[2 * i + 1]])
+}
+
+/// For a Lambertian primary hit, BSDF sampling is cosine sampling and the path weight is the
+/// albedo, so direct + albedo · L is the path-traced estimate of each sample: its mean must
+/// match the stored 16,384-spp reference of the same scene.
+#[test]
+fn indirect_samples_reproduce_the_reference_image() {
+    let scene = scene_from_toml(include_str!("../scenes/cornell.toml"));
+    let (_dir, file) = dump_file(&scene, SecondaryKind::Indirect, (32, 32), 64, 77);
+    assert_eq!(
+        names(&file),
+        [
+            "x",
+            "y",
+            "direction",
+            "radiance",
+            "origin",
+            "hit",
+            "origin_normal",
+            "hit_normal",
+            "albedo",
+            "direct",
+            "secondary_albedo",
+            "secondary_direct"
+        ],
+        "a static, diffuse pinhole scene needs no lens, time, motion or bandwidth fields"
+    );
+    assert!(file.header().record_size <= 120);
+    let (radiance, albedo, direct) =
+        (file.column("radiance").unwrap(), file.column("albedo").unwrap(), file.column("direct").unwrap());
+    let n = file.len();
+    let mut sum = [0.0f64; 3];
+    let mut sum_sq = [0.0f64; 3];
+    for i in 0..n {
+        let estimate = vec3(&direct, i) + vec3(&albedo, i) * vec3(&radiance, i);
+        assert!(estimate.is_finite());
+        for c in 0..3 {
+            sum[c] += estimate[c] as f64;
+            sum_sq[c] += (estimate[c] as f64).powi(2);
+        }
+    }
+    let reference = project_root().join("tests/data/cornell-32-reference.exr");
+    for (c, channel) in ["R", "G", "B"].iter().enumerate() {
+        let mean = sum[c] / n as f64;
+        let standard_error = ((sum_sq[c] / n as f64 - mean * mean) / n as f64).sqrt();
+        let values = exr_channel(&reference, channel);
+        let reference_mean = values.iter().map(|&v| v as f64).sum::<f64>() / values.len() as f64;
+        let z = (mean - reference_mean) / standard_error;
+        assert!(z.abs() < 4.0, "channel {channel}: samples {mean} vs reference {reference_mean} (z = {z})");
+    }
+}
+
+#[test]
+fn secondary_geometry_is_consistent() {
+    let scene = scene_from_toml(include_str!("../scenes/cornell.toml"));
+    let (_dir, file) = dump_file(&scene, SecondaryKind::Indirect, (16, 16), 8, 5);
+    let (direction, origin, hit) =
+        (file.column("direction").unwrap(), file.column("origin").unwrap(), file.column("hit").unwrap());
+    let (origin_normal, hit_normal, secondary_direct, radiance) = (
+        file.column("origin_normal").unwrap(),
+        file.column("hit_normal").unwrap(),
+        file.column("secondary_direct").unwrap(),
+        file.column("radiance").unwrap(),
+    );
+    let mut hits = 0;
+    for i in 0..file.len() {
+        let (o, h, w) = (vec3(&origin, i), vec3(&hit, i), octahedral(&direction, i));
+        let (n_o, n_h) = (octahedral(&origin_normal, i), octahedral(&hit_normal, i));
+        if n_o == Vec3::ZERO {
+            continue; // the outermost columns look past the box's front edge
+        }
+        assert!((n_o.length() - 1.0).abs() < 1e-4);
+        assert!(w.dot(n_o) > -1e-3, "the secondary ray leaves above the surface");
+        if n_h == Vec3::ZERO {
+            continue; // escaped through the open front
+        }
+        hits += 1;
+        // h lies on the ray up to the origin offset (about 1e-3 mm here) and direction quantisation.
+        let distance = (h - o).length();
+        let off_ray = ((h - o) - w * distance).length();
+        assert!(off_ray < 1e-2 + 1e-3 * distance, "h is {off_ray} mm off the ray at distance {distance}");
+        assert!(n_h.dot(-w) > -1e-3, "the hit normal faces the ray's origin");
+        // The part of L reflected straight from the light cannot exceed L.
+        let (l, sd) = (vec3(&radiance, i), vec3(&secondary_direct, i));
+        assert!(sd.cmple(l + Vec3::splat(1e-4)).all(), "secondary direct {sd} > radiance {l}");
+    }
+    assert!(hits > file.len() / 2);
+}
+
+/// Between two parallel planes H apart, a cosine-weighted ray from the floor always hits the
+/// ceiling, at distance H / cos θ, and P(distance < r) = P(cos θ > H / r) = 1 − (H / r)².
+#[test]
+fn ambient_occlusion_distances_follow_the_cosine_distribution() {
+    let scene = scene_from_toml(
+        r#"
+        [render]
+        [camera]
+        position = [0, 0.5, 0]
+        look_at = [0, 0, 0]
+        up = [0, 0, 1]
+        fov = 30
+        [[mesh]]
+        shape = "polygon"
+        points = [[-200, 0, -200], [-200, 0, 200], [200, 0, 200], [200, 0, -200]]
+        [[mesh]]
+        shape = "polygon"
+        points = [[-200, 1, -200], [200, 1, -200], [200, 1, 200], [-200, 1, 200]]
+        "#,
+    );
+    let (_dir, file) = dump_file(&scene, SecondaryKind::AmbientOcclusion, (16, 16), 64, 9);
+    assert_eq!(names(&file), ["x", "y", "direction", "distance", "origin", "hit", "origin_normal", "hit_normal"]);
+    let (distance, direction) = (file.column("distance").unwrap(), file.column("direction").unwrap());
+    let mut within_two = 0usize;
+    for (i, &d) in distance.iter().enumerate() {
+        let cos_theta = octahedral(&direction, i).y;
+        // Planes 200 wide: rays flatter than cos = 1/200 may escape past the edge.
+        if !d.is_finite() {
+            assert!(cos_theta < 0.01);
+            continue;
+        }
+        assert!((d * cos_theta - 1.0).abs() < 2e-3, "distance {d} at cos {cos_theta}");
+        within_two += (d < 2.0) as usize;
+    }
+    let fraction = within_two as f64 / file.len() as f64;
+    // 1 - (1/2)^2 = 0.75; 16384 stratified samples.
+    assert!((fraction - 0.75).abs() < 0.01, "{fraction}");
+}
+
+#[test]
+fn lens_motion_and_gloss_add_their_fields_within_120_bytes() {
+    let _ = shared_scenes();
+    let scene = Scene::load(&project_root().join("scenes/monkeys-defocus-motion.toml")).unwrap();
+    let (_dir, file) = dump_file(&scene, SecondaryKind::Indirect, (24, 16), 2, 1);
+    let fields = names(&file);
+    for name in ["u", "v", "t", "origin_motion", "hit_motion", "bandwidth"] {
+        assert!(fields.iter().any(|f| f == name), "missing {name} in {fields:?}");
+    }
+    assert!(file.header().record_size <= 120, "ILFR target: {} bytes", file.header().record_size);
+    let bandwidth = file.column("bandwidth").unwrap();
+    assert!(bandwidth.iter().all(|k| k.is_finite() && *k >= 0.0));
+    assert!(bandwidth.iter().any(|&k| k > 0.0), "the metal heads and floor are glossy");
+    let (_dir, ao) = dump_file(&scene, SecondaryKind::AmbientOcclusion, (24, 16), 2, 1);
+    assert!(!names(&ao).iter().any(|f| f == "bandwidth" || f == "radiance"));
+}

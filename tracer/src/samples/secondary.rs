@@ -1,0 +1,448 @@
+//! `indirect` and `ao` samples for the indirect light field reconstruction (Lehtinen et al.
+//! 2012, Section 2.1): each sample is one secondary ray, from the primary hit o of a camera
+//! ray at (x, y, u, v, t) in direction ω drawn from o's BSDF (`indirect`) or cosine-weighted
+//! (`ao`), to its hit h.
+//!
+//! Paper tuple s : {x, y, u, v, t, ω} ↦ {L, o, h, n_o, n_h, v_o, v_h, κ}, plus primary albedo,
+//! primary direct light, secondary albedo and secondary direct light. Fields in record order
+//! (present only when the scene needs them):
+//!
+//! | field | type × n | present | meaning |
+//! |---|---|---|---|
+//! | `x`, `y` | f32 | always | film position, pixels |
+//! | `u`, `v` | f32 | aperture | lens position on the unit disk (u image +x, v image +y) |
+//! | `t` | f32 | motion | time in [0, 1] |
+//! | `direction` | u16 × 2 | always | ω, world space, octahedral (see `encode_octahedral`) |
+//! | `radiance` | f32 × 3 | `indirect` | L: radiance arriving at o from ω, without the emission of h itself |
+//! | `distance` | f32 | `ao` | distance from o to h; +inf when the ray escapes |
+//! | `origin` | f32 × 3 | always | o, world space |
+//! | `hit` | f32 × 3 | always | h, world space; equal to o when the ray escapes |
+//! | `origin_normal`, `hit_normal` | u16 × 2 | always | shading normals at o and h facing the ray's origin side, octahedral; (0, 0) → zero for a miss |
+//! | `origin_motion`, `hit_motion` | f16 × 3 | motion | world-space displacement over the shutter of o and h |
+//! | `bandwidth` | f16 | glossy `indirect` | κ of the von Mises-Fisher lobe at h (Eq. 2); 0 for diffuse |
+//! | `albedo` | f16 × 3 | `indirect` | reflectance at o (demodulation) |
+//! | `direct` | f32 × 3 | `indirect` | direct light at o towards the camera (emission of o, next-event estimation at o, and emitters hit by this ray, MIS-weighted) |
+//! | `secondary_albedo` | f16 × 3 | `indirect` | reflectance at h |
+//! | `secondary_direct` | f32 × 3 | `indirect` | the part of L that h reflects straight from emitters |
+//!
+//! Samples whose camera ray escapes have o = h = 0, distance 0 (`ao`), zero normals, and only
+//! `direct` (the environment) set.
+//!
+//! κ for our GGX lobes: the paper takes κ = 4·sqrt(1/r) for pbrt's Blinn roughness r, whose
+//! exponent is n = 1/r. The Beckmann correspondence α = sqrt(2/(n + 2)) gives n = 2/α² − 2, so
+//! κ = 4·sqrt(2/α² − 2) for α = roughness². A surface counts as glossy when its specular lobe
+//! reflects more than its diffuse lobe at normal incidence; otherwise κ = 0. κ is stored as f16
+//! and clamped to its largest finite value 65504 (a lobe 0.004 rad wide: a mirror at any
+//! resolution we use).
+
+use std::path::Path;
+
+use glam::{Vec2, Vec3};
+use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleKind};
+
+use super::{camera_header, write_samples, DumpReport, DumpSettings};
+use crate::accel::Accel;
+use crate::bsdf::{luminance, sample_cosine_hemisphere, Bsdf, Frame};
+use crate::error::RenderError;
+use crate::integrator::{FirstHit, Integrator, NoRecording, PathStart, TracedRay};
+use crate::lights::LightSampler;
+use crate::sampler::Sampler;
+use crate::scene::Scene;
+
+/// Which of the two secondary-ray kinds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SecondaryKind {
+    Indirect,
+    AmbientOcclusion,
+}
+
+/// Octahedral encoding of a unit vector into two integers in 1..=65535 (stored exactly as u16
+/// by the writer); a zero or non-finite vector encodes as (0, 0), which no unit vector uses.
+pub fn encode_octahedral(n: Vec3) -> [f32; 2] {
+    let l1 = n.x.abs() + n.y.abs() + n.z.abs();
+    if !(l1 > 0.0) || !l1.is_finite() {
+        return [0.0, 0.0];
+    }
+    let mut p = Vec2::new(n.x, n.y) / l1;
+    if n.z < 0.0 {
+        p = (Vec2::ONE - Vec2::new(p.y.abs(), p.x.abs())) * Vec2::new(sign(p.x), sign(p.y));
+    }
+    // [-1, 1] → [1, 65535]: 0 is reserved for "no vector".
+    let quantize = |v: f32| ((v.clamp(-1.0, 1.0) + 1.0) * 0.5 * 65534.0).round() + 1.0;
+    [quantize(p.x), quantize(p.y)]
+}
+
+fn sign(v: f32) -> f32 {
+    if v >= 0.0 {
+        1.0
+    } else {
+        -1.0
+    }
+}
+
+/// Inverse of `encode_octahedral`: (0, 0) decodes to the zero vector.
+pub fn decode_octahedral(q: [f32; 2]) -> Vec3 {
+    if q[0] == 0.0 && q[1] == 0.0 {
+        return Vec3::ZERO;
+    }
+    let p = Vec2::new((q[0] - 1.0) / 65534.0 * 2.0 - 1.0, (q[1] - 1.0) / 65534.0 * 2.0 - 1.0);
+    let z = 1.0 - p.x.abs() - p.y.abs();
+    let (x, y) = if z < 0.0 { ((1.0 - p.y.abs()) * sign(p.x), (1.0 - p.x.abs()) * sign(p.y)) } else { (p.x, p.y) };
+    Vec3::new(x, y, z).normalize()
+}
+
+/// The angular bandwidth κ at a surface (see the module documentation).
+pub fn bandwidth(bsdf: &Bsdf) -> f32 {
+    let specular = (1.0 - bsdf.metallic) * bsdf.specular * bsdf.f0 + bsdf.metallic * luminance(bsdf.base_color);
+    let diffuse = (1.0 - bsdf.metallic) * (1.0 - bsdf.specular * bsdf.f0) * luminance(bsdf.base_color);
+    if !(specular > diffuse) {
+        return 0.0;
+    }
+    let alpha2 = bsdf.alpha * bsdf.alpha;
+    let exponent = (2.0 / alpha2 - 2.0).max(0.0);
+    (4.0 * exponent.sqrt()).min(65504.0)
+}
+
+/// Which optional fields a scene needs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SecondaryLayout {
+    pub kind: SecondaryKind,
+    pub lens: bool,
+    pub time: bool,
+    pub bandwidth: bool,
+}
+
+impl SecondaryLayout {
+    pub fn for_scene(scene: &Scene, kind: SecondaryKind) -> SecondaryLayout {
+        let glossy = scene.materials.iter().any(|m| {
+            let bsdf = Bsdf::with_ior(m.base_color, m.metallic, m.roughness, m.specular, m.ior);
+            // Textured roughness or metalness may make any part of the surface glossy.
+            bandwidth(&bsdf) > 0.0 || m.metallic_roughness_texture.is_some()
+        });
+        SecondaryLayout {
+            kind,
+            lens: scene.camera.has_lens(),
+            time: scene.has_motion(),
+            bandwidth: kind == SecondaryKind::Indirect && glossy,
+        }
+    }
+
+    fn indirect(&self) -> bool {
+        self.kind == SecondaryKind::Indirect
+    }
+
+    pub fn fields(&self) -> Vec<FieldSpec> {
+        let f = |name: &str, ty: FieldType, n: u32, unit: &str, meaning: &str| {
+            FieldSpec::new(name, ty, n).unit(unit).meaning(meaning)
+        };
+        let octahedral = "octahedral u16 pair, 0 = none; see docs/sample-format.md";
+        let mut fields = vec![f("x", FieldType::F32, 1, "px", "film x"), f("y", FieldType::F32, 1, "px", "film y")];
+        if self.lens {
+            fields.push(f("u", FieldType::F32, 1, "unit disk", "lens position along image +x"));
+            fields.push(f("v", FieldType::F32, 1, "unit disk", "lens position along image +y"));
+        }
+        if self.time {
+            fields.push(f("t", FieldType::F32, 1, "shutter fraction", "time in [0, 1]"));
+        }
+        fields.push(f("direction", FieldType::U16, 2, octahedral, "secondary ray direction, world space"));
+        if self.indirect() {
+            fields.push(f(
+                "radiance",
+                FieldType::F32,
+                3,
+                "W/(m^2 sr)",
+                "radiance arriving at the origin from the direction, without the hit's emission",
+            ));
+        } else {
+            fields.push(f(
+                "distance",
+                FieldType::F32,
+                1,
+                "scene units",
+                "distance to the secondary hit; +inf for a miss",
+            ));
+        }
+        fields.push(f("origin", FieldType::F32, 3, "scene units", "primary hit o, world space"));
+        fields.push(f("hit", FieldType::F32, 3, "scene units", "secondary hit h, world space; o for a miss"));
+        fields.push(f("origin_normal", FieldType::U16, 2, octahedral, "shading normal at o"));
+        fields.push(f("hit_normal", FieldType::U16, 2, octahedral, "shading normal at h, facing o"));
+        if self.time {
+            fields.push(f(
+                "origin_motion",
+                FieldType::F16,
+                3,
+                "scene units",
+                "world displacement of o over the shutter",
+            ));
+            fields.push(f("hit_motion", FieldType::F16, 3, "scene units", "world displacement of h over the shutter"));
+        }
+        if self.bandwidth {
+            fields.push(f("bandwidth", FieldType::F16, 1, "", "von Mises-Fisher concentration kappa at h; 0 diffuse"));
+        }
+        if self.indirect() {
+            fields.push(f("albedo", FieldType::F16, 3, "", "reflectance at o"));
+            fields.push(f("direct", FieldType::F32, 3, "W/(m^2 sr)", "direct light at o towards the camera"));
+            fields.push(f("secondary_albedo", FieldType::F16, 3, "", "reflectance at h"));
+            fields.push(f(
+                "secondary_direct",
+                FieldType::F32,
+                3,
+                "W/(m^2 sr)",
+                "part of radiance reflected at h straight from emitters",
+            ));
+        }
+        fields
+    }
+
+    pub fn values_per_sample(&self) -> usize {
+        self.fields().iter().map(|f| f.components as usize).sum()
+    }
+}
+
+/// Writes `indirect` or `ao` samples of `scene` to `path`.
+pub fn dump(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &DumpSettings,
+    kind: SecondaryKind,
+    path: &Path,
+) -> Result<DumpReport, RenderError> {
+    settings.validate()?;
+    let layout = SecondaryLayout::for_scene(scene, kind);
+    let lights = LightSampler::new(scene);
+    let integrator = Integrator {
+        scene,
+        accel,
+        lights: &lights,
+        max_bounces: settings.max_bounces,
+        width: settings.width,
+        height: settings.height,
+    };
+    let mut spec = HeaderSpec::new(
+        match kind {
+            SecondaryKind::Indirect => SampleKind::Indirect,
+            SecondaryKind::AmbientOcclusion => SampleKind::Ao,
+        },
+        settings.width,
+        settings.height,
+        settings.spp,
+    );
+    spec.fields = layout.fields();
+    spec.camera = Some(camera_header(&scene.camera, settings.width, settings.height));
+    spec.scene = Some(scene.source.display().to_string());
+    spec.seed = Some(settings.seed);
+    let mut coordinates = std::collections::BTreeMap::new();
+    coordinates.insert("world".into(), "the scene's world space (right-handed)".into());
+    coordinates.insert(
+        "octahedral".into(),
+        "q in 1..=65535 per component: p = (q - 1) / 65534 * 2 - 1; z = 1 - |p.x| - |p.y|; if z < 0: (x, y) = ((1 - |p.y|) sign p.x, (1 - |p.x|) sign p.y) else (x, y) = p; normalise; q = (0, 0) means no vector".into(),
+    );
+    spec.coordinates = Some(coordinates);
+    let values = layout.values_per_sample();
+    write_samples(path, spec, settings, values, |x, y, out| {
+        for index in 0..settings.spp {
+            let mut sampler = Sampler::new(settings.seed, x, y, index);
+            let sample = trace_secondary(&integrator, &layout, x, y, &mut sampler);
+            debug_assert_eq!(sample.len(), values);
+            out.extend_from_slice(&sample);
+        }
+    })
+}
+
+/// One secondary-ray sample as the record's values, in field order.
+fn trace_secondary(
+    integrator: &Integrator,
+    layout: &SecondaryLayout,
+    x: u32,
+    y: u32,
+    sampler: &mut Sampler,
+) -> Vec<f32> {
+    let scene = integrator.scene;
+    let camera_sample = integrator.camera_sample(x, y, sampler);
+    let time = camera_sample.time;
+    let (origin, direction) =
+        scene.camera.generate_ray(camera_sample.film, camera_sample.lens, integrator.width, integrator.height);
+    let mut values = Vec::with_capacity(layout.values_per_sample());
+    values.extend_from_slice(&[camera_sample.film.x, camera_sample.film.y]);
+    if layout.lens {
+        values.extend_from_slice(&[camera_sample.lens.x, -camera_sample.lens.y]);
+    }
+    if layout.time {
+        values.push(time);
+    }
+
+    // The primary vertex: what the camera ray hits, its emission and its direct light.
+    let mut rays = 0;
+    let Some(hit) = integrator.accel.intersect(origin, direction, 0.0, f32::INFINITY, time) else {
+        // Camera ray escapes: the environment is all there is.
+        push_miss(&mut values, layout, scene.environment);
+        return values;
+    };
+    let wo = -direction;
+    let surface = crate::integrator::SurfacePoint::new(scene, &hit, wo, time);
+    let frame = Frame::new(surface.shading_normal);
+    let wo_local = frame.to_local(wo);
+    let emitted_at_origin = {
+        let material = &scene.materials[scene.meshes[hit.mesh as usize].material as usize];
+        if material.is_emissive() {
+            let winding = if surface.front_face { surface.geometric_normal } else { -surface.geometric_normal };
+            crate::lights::triangle_emission(scene, hit.mesh, hit.triangle, hit.barycentric, winding, wo)
+        } else {
+            Vec3::ZERO
+        }
+    };
+    let [u_select, u_lobe] = sampler.next_2d();
+    let u_light = sampler.next_2d();
+    let u_direction = sampler.next_2d();
+    let _roulette = sampler.next_2d(); // the camera path's dimension layout, kept for the secondary path
+    let direct_at_origin = if layout.indirect() {
+        integrator.next_event(&surface, wo, time, [u_select, u_light[0], u_light[1]], &mut rays, &mut NoRecording)
+    } else {
+        Vec3::ZERO
+    };
+
+    // The secondary ray: BSDF-sampled (indirect) or cosine-weighted (ambient occlusion).
+    let (wi, weight, pdf) = match layout.kind {
+        SecondaryKind::Indirect => match surface.bsdf.sample(wo_local, u_lobe, u_direction) {
+            Some(s) => (frame.to_world(s.wi), s.weight, s.pdf),
+            None => (Vec3::ZERO, Vec3::ZERO, 0.0),
+        },
+        SecondaryKind::AmbientOcclusion => {
+            let local = sample_cosine_hemisphere(u_direction);
+            (frame.to_world(local), Vec3::ONE, local.z * std::f32::consts::FRAC_1_PI)
+        }
+    };
+    let valid_direction = pdf > 0.0 && wi.dot(surface.geometric_normal) > 0.0;
+    let secondary = if valid_direction {
+        let start = PathStart {
+            origin: surface.spawn_origin(wi),
+            direction: wi,
+            time,
+            bounce: 1,
+            previous: Some((pdf, surface.position)),
+        };
+        match layout.kind {
+            SecondaryKind::Indirect => integrator.trace_ray(&start, sampler, &mut NoRecording),
+            SecondaryKind::AmbientOcclusion => {
+                // Only the first hit matters: trace one ray.
+                let mut traced = TracedRay::default();
+                if let Some(h) = integrator.accel.intersect(start.origin, wi, 0.0, f32::INFINITY, time) {
+                    let s = crate::integrator::SurfacePoint::new(scene, &h, -wi, time);
+                    traced.first_hit = Some(FirstHit {
+                        albedo: s.bsdf.albedo(),
+                        normal: s.shading_normal,
+                        geometric_normal: s.geometric_normal,
+                        position: s.position,
+                        depth: 0.0,
+                        mesh: h.mesh,
+                        bsdf: s.bsdf,
+                    });
+                }
+                traced
+            }
+        }
+    } else {
+        TracedRay::default()
+    };
+
+    values.extend_from_slice(&encode_octahedral(if valid_direction { wi } else { Vec3::ZERO }));
+    let secondary_hit = secondary.first_hit;
+    match layout.kind {
+        SecondaryKind::Indirect => values.extend_from_slice(&secondary.reflected().to_array()),
+        SecondaryKind::AmbientOcclusion => values.push(match &secondary_hit {
+            Some(h) => (h.position - surface.position).length(),
+            None => f32::INFINITY,
+        }),
+    }
+    values.extend_from_slice(&surface.position.to_array());
+    values.extend_from_slice(&secondary_hit.map_or(surface.position, |h| h.position).to_array());
+    values.extend_from_slice(&encode_octahedral(surface.shading_normal));
+    values.extend_from_slice(&encode_octahedral(secondary_hit.map_or(Vec3::ZERO, |h| h.normal)));
+    if layout.time {
+        values.extend_from_slice(&scene.meshes[hit.mesh as usize].motion.to_array());
+        values
+            .extend_from_slice(&secondary_hit.map_or(Vec3::ZERO, |h| scene.meshes[h.mesh as usize].motion).to_array());
+    }
+    if layout.bandwidth {
+        values.push(secondary_hit.map_or(0.0, |h| bandwidth(&h.bsdf)));
+    }
+    if layout.indirect() {
+        let direct = emitted_at_origin + direct_at_origin + weight * secondary.emitted;
+        values.extend_from_slice(&surface.bsdf.albedo().to_array());
+        values.extend_from_slice(&finite_or_zero(direct).to_array());
+        values.extend_from_slice(&secondary_hit.map_or(Vec3::ZERO, |h| h.bsdf.albedo()).to_array());
+        values.extend_from_slice(&secondary.direct.to_array());
+    }
+    values
+}
+
+fn finite_or_zero(v: Vec3) -> Vec3 {
+    if v.is_finite() {
+        v
+    } else {
+        Vec3::ZERO
+    }
+}
+
+/// Values of a sample whose camera ray hits nothing.
+fn push_miss(values: &mut Vec<f32>, layout: &SecondaryLayout, environment: Vec3) {
+    values.extend_from_slice(&[0.0, 0.0]); // direction: none
+    if layout.indirect() {
+        values.extend_from_slice(&[0.0; 3]);
+    } else {
+        values.push(0.0);
+    }
+    values.extend_from_slice(&[0.0; 6]); // origin, hit
+    values.extend_from_slice(&[0.0; 4]); // normals: none
+    if layout.time {
+        values.extend_from_slice(&[0.0; 6]);
+    }
+    if layout.bandwidth {
+        values.push(0.0);
+    }
+    if layout.indirect() {
+        values.extend_from_slice(&[0.0; 3]);
+        values.extend_from_slice(&environment.to_array());
+        values.extend_from_slice(&[0.0; 6]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn octahedral_round_trip_is_accurate_everywhere() {
+        let mut worst = 0.0f32;
+        for i in 0..64 {
+            for j in 0..32 {
+                let phi = i as f32 / 64.0 * std::f32::consts::TAU;
+                let theta = j as f32 / 31.0 * std::f32::consts::PI;
+                let n = Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
+                let q = encode_octahedral(n);
+                assert!(q.iter().all(|&v| (1.0..=65535.0).contains(&v) && v.fract() == 0.0));
+                // Chord length: the angle for small errors, without acos's f32 cancellation.
+                worst = worst.max((decode_octahedral(q) - n).length());
+            }
+        }
+        assert!(worst < 1e-4, "worst angular error {worst} rad");
+        assert_eq!(encode_octahedral(Vec3::ZERO), [0.0, 0.0]);
+        assert_eq!(decode_octahedral([0.0, 0.0]), Vec3::ZERO);
+        assert_eq!(encode_octahedral(Vec3::splat(f32::NAN)), [0.0, 0.0]);
+    }
+
+    #[test]
+    fn bandwidth_is_zero_for_diffuse_and_grows_with_gloss() {
+        assert_eq!(bandwidth(&Bsdf::new(Vec3::splat(0.7), 0.0, 1.0, 0.0)), 0.0);
+        assert_eq!(bandwidth(&Bsdf::new(Vec3::splat(0.7), 0.0, 0.2, 1.0)), 0.0, "a coated diffuse surface");
+        let rough = bandwidth(&Bsdf::new(Vec3::splat(0.9), 1.0, 0.7, 1.0));
+        let glossy = bandwidth(&Bsdf::new(Vec3::splat(0.9), 1.0, 0.3, 1.0));
+        let mirror = bandwidth(&Bsdf::new(Vec3::splat(0.9), 1.0, 1e-3, 1.0));
+        assert!(0.0 < rough && rough < glossy && glossy < mirror);
+        assert_eq!(mirror, 65504.0);
+        // pbrt roughness r = 0.01 (exponent 100) through the Beckmann correspondence: kappa = 40.
+        let alpha = (2.0f32 / 102.0).sqrt();
+        let k = bandwidth(&Bsdf::new(Vec3::splat(0.9), 1.0, alpha.sqrt(), 1.0));
+        assert!((k - 40.0).abs() < 0.01, "{k}");
+    }
+}
