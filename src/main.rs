@@ -46,6 +46,8 @@ enum DumpKind {
     Indirect,
     /// Cosine-weighted secondary rays with their hit distance (ILFR ambient occlusion).
     Ao,
+    /// Per-pixel guide buffers for the guided image filter, as a multi-layer EXR.
+    Guide,
 }
 
 #[derive(clap::Args)]
@@ -174,6 +176,12 @@ fn dump(args: &DumpArgs) -> Result<()> {
         DumpKind::LensTime => tracer::samples::lens_time::dump(&scene, &accel, &settings, &args.out)?,
         DumpKind::Indirect => {
             tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::Indirect, &args.out)?
+        }
+        DumpKind::Guide => {
+            if args.out.extension().and_then(|e| e.to_str()).map(|e| e.eq_ignore_ascii_case("exr")) != Some(true) {
+                anyhow::bail!("--out {}: guide buffers are written as an .exr file", args.out.display());
+            }
+            tracer::samples::guide::dump(&scene, &accel, &settings, &args.out)?
         }
         DumpKind::Ao => {
             tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::AmbientOcclusion, &args.out)?

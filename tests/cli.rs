@@ -203,3 +203,57 @@ fn output_must_be_exr_and_unwritable_output_fails_cleanly() {
     assert!(stderr(&result).contains("blocked.exr"), "{}", stderr(&result));
     assert!(!stderr(&result).contains("panicked"));
 }
+
+#[test]
+fn every_sample_kind_dumps_from_its_scene_and_reads_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        ("scenes/cornell.toml", "indirect", "c-indirect.lfrs"),
+        ("scenes/cornell.toml", "ao", "c-ao.lfrs"),
+        ("scenes/cornell.toml", "guide", "c-guide.exr"),
+        ("scenes/monkeys-defocus-motion.toml", "lens-time", "m-lens-time.lfrs"),
+    ];
+    for (scene, kind, name) in cases {
+        let out = dir.path().join(name);
+        let result = lfr(&[
+            "dump",
+            "--scene",
+            scene,
+            "--kind",
+            kind,
+            "--spp",
+            "2",
+            "--width",
+            "20",
+            "--height",
+            "12",
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+        ]);
+        assert!(result.status.success(), "{kind}: {}", stderr(&result));
+        let stdout = String::from_utf8_lossy(&result.stdout);
+        assert!(stdout.contains("bytes per sample"), "{kind}: prints bytes per sample: {stdout}");
+        if kind == "guide" {
+            let (w, h, channels) = tracer::output::read_exr(&out).unwrap();
+            assert_eq!((w, h), (20, 12));
+            for layer in ["normal.X", "depth.Z", "albedo.R", "direct.G", "indirect.B", "indirect_variance.R"] {
+                assert!(channels.iter().any(|(n, _)| n == layer), "guide lacks {layer}");
+            }
+        } else {
+            let file = sampleio::SampleFile::open(&out).unwrap();
+            assert_eq!(file.len(), 20 * 12 * 2);
+            // The numpy reader agrees on the header.
+            let python = Command::new("python3")
+                .args([project_root().join("docs/tools/read_samples.py").to_str().unwrap(), out.to_str().unwrap()])
+                .output()
+                .expect("python3 runs");
+            assert!(python.status.success(), "{}", String::from_utf8_lossy(&python.stderr));
+            assert!(String::from_utf8_lossy(&python.stdout).contains(&format!("kind {kind}")));
+        }
+    }
+    // A guide must be an EXR.
+    let result = lfr(&["dump", "--kind", "guide", "--spp", "1", "--out", dir.path().join("g.lfrs").to_str().unwrap()]);
+    assert!(!result.status.success());
+    assert!(stderr(&result).contains(".exr"));
+}

@@ -190,3 +190,52 @@ fn lens_motion_and_gloss_add_their_fields_within_120_bytes() {
     let (_dir, ao) = dump_file(&scene, SecondaryKind::AmbientOcclusion, (24, 16), 2, 1);
     assert!(!names(&ao).iter().any(|f| f == "bandwidth" || f == "radiance"));
 }
+
+/// In the furnace (white Lambertian sphere in a uniform environment E), the light leaving every
+/// guide hit is E: direct (environment seen straight) plus indirect (via the sphere) add up to E.
+#[test]
+fn guide_buffers_in_the_furnace_add_up_to_the_environment() {
+    let scene = scene_from_toml(
+        r#"
+        [render]
+        max_bounces = 1000
+        environment = [0.5, 1.0, 2.0]
+        [camera]
+        position = [0, 0, 4]
+        look_at = [0, 0, 0]
+        fov = 20
+        [[material]]
+        name = "white"
+        base_color = [1, 1, 1]
+        specular = 0
+        [[mesh]]
+        shape = "sphere"
+        center = [0, 0, 0]
+        radius = 1
+        subdivisions = 5
+        material = "white"
+        "#,
+    );
+    let accel = Accel::build(&scene).unwrap();
+    let settings =
+        DumpSettings { width: 12, height: 12, spp: 256, seed: 2, max_bounces: 1000, threads: 0, progress: false };
+    let guide = tracer::samples::guide::guide_buffers(&scene, &accel, &settings).unwrap();
+    let environment = Vec3::new(0.5, 1.0, 2.0);
+    let mut hits = 0;
+    for i in 0..(12 * 12) {
+        if guide.depth[i] == 0.0 {
+            assert_eq!(guide.direct[i], environment, "a miss sees the environment");
+            continue;
+        }
+        hits += 1;
+        // The guide ray goes through the pixel centre: its hit is on the unit sphere.
+        assert!((guide.position[i].length() - 1.0).abs() < 2e-3);
+        assert!(guide.normal[i].dot(guide.position[i].normalize()) > 0.999);
+        assert!((guide.depth[i] - (4.0 - guide.position[i].z)).abs() < 1e-3);
+        let total = guide.direct[i] + guide.indirect[i];
+        let sigma = guide.indirect_variance[i].max(Vec3::splat(1e-6)).powf(0.5);
+        let error = (total - environment).abs();
+        assert!(error.cmplt(5.0 * sigma + 0.02 * environment).all(), "pixel {i}: {total} vs {environment}");
+    }
+    assert!(hits > 40);
+}

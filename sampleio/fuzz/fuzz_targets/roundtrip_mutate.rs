@@ -29,8 +29,8 @@ use std::path::{Path, PathBuf};
 use libfuzzer_sys::arbitrary::{Result, Unstructured};
 use libfuzzer_sys::fuzz_target;
 use sampleio::{
-    Camera, Coc, FieldSpec, FieldType, FovAxis, Header, HeaderSpec, LightGeometry, SampleError, SampleFile,
-    SampleKind, SampleWriter, MAGIC, TRAILER_MAGIC,
+    Camera, Coc, FieldSpec, FieldType, FovAxis, Header, HeaderSpec, LightGeometry, SampleError, SampleFile, SampleKind,
+    SampleWriter, MAGIC, TRAILER_MAGIC,
 };
 use sampleio_fuzz::{assert_same_header, check_error, crc32, decode, exercise, same, scratch_file};
 use serde_json::{json, Value};
@@ -139,15 +139,18 @@ fn json_value(u: &mut Unstructured, depth: u32) -> Result<Value> {
 fn spec(u: &mut Unstructured) -> Result<(HeaderSpec, bool)> {
     let wild = u.ratio(1u8, 32u8)?;
     let kind = *u.choose(&SampleKind::ALL)?;
-    let mut dim = |u: &mut Unstructured, max: u32| -> Result<u32> {
+    // Wild sizes are invalid whichever of width, height and spp they land on (so that a valid
+    // file never needs millions of samples).
+    let dim = |u: &mut Unstructured, max: u32| -> Result<u32> {
         if wild && u.ratio(1u8, 4u8)? {
-            Ok(*u.choose(&[0, 65537, 1 << 20, (1 << 20) + 1, u32::MAX])?)
+            Ok(*u.choose(&[0, (1 << 20) + 1, u32::MAX])?)
         } else {
             u.int_in_range(1..=max)
         }
     };
     let big = u.ratio(1u8, 16u8)?;
-    let (width, height, spp) = if big { (dim(u, 16)?, dim(u, 8)?, dim(u, 8)?) } else { (dim(u, 4)?, dim(u, 4)?, dim(u, 4)?) };
+    let (width, height, spp) =
+        if big { (dim(u, 16)?, dim(u, 8)?, dim(u, 8)?) } else { (dim(u, 4)?, dim(u, 4)?, dim(u, 4)?) };
     let mut spec = HeaderSpec::new(kind, width, height, spp);
     let n = u64::from(width) * u64::from(height) * u64::from(spp);
     spec.chunk_samples = match u.int_in_range(0..=3)? {
@@ -506,7 +509,7 @@ fn run(u: &mut Unstructured) -> Result<()> {
         if len == 0 {
             break;
         }
-        let data_now = if header_edited { 16 + u32_at(&m, 12) as usize } else { parts.data };
+        let data_now = if header_edited && len >= 16 { 16 + u32_at(&m, 12) as usize } else { parts.data };
         let table_now = data_now + (parts.table - parts.data);
         let regions = [
             (0, 16),
@@ -560,6 +563,7 @@ fn run(u: &mut Unstructured) -> Result<()> {
             }
         }
     }
+    let before_fix = m.clone();
     let fix = u.int_in_range(0..=2u8)?;
     match fix {
         1 => fix_checksums(&mut m, &parts),
@@ -632,8 +636,8 @@ fn run(u: &mut Unstructured) -> Result<()> {
             }
         }
     }
-    if fix == 1 && !header_edited && !resized && m.len() == bytes.len() {
-        let diffs: Vec<usize> = (0..m.len()).filter(|&i| m[i] != bytes[i]).collect();
+    if fix == 1 && !header_edited && !resized && before_fix.len() == bytes.len() {
+        let diffs: Vec<usize> = (0..m.len()).filter(|&i| before_fix[i] != bytes[i]).collect();
         if diffs.iter().all(|&i| i >= parts.data && i < parts.table) {
             // Only the data changed and the checksums were recomputed: a valid file.
             let f = checked.as_ref().expect("data changed, checksums fixed: open must accept");
@@ -685,36 +689,52 @@ fn edit_header(u: &mut Unstructured, m: &[u8], data: usize) -> Result<Vec<u8>> {
     };
     let n = v["sample_count"].as_u64().unwrap_or(1);
     let fields = v["fields"].as_array().map_or(0, Vec::len);
-    const TOP: [&str; 11] =
-        ["width", "height", "spp", "sample_count", "record_size", "chunk_samples", "version", "seed", "kind", "format", "order"];
+    const TOP: [&str; 11] = [
+        "width",
+        "height",
+        "spp",
+        "sample_count",
+        "record_size",
+        "chunk_samples",
+        "version",
+        "seed",
+        "kind",
+        "format",
+        "order",
+    ];
     const FIELD: [&str; 6] = ["name", "type", "components", "offset", "meaning", "unit"];
     for _ in 0..u.int_in_range(1..=3u8)? {
         let i = u.int_in_range(0..=fields.saturating_sub(1))?;
         match u.int_in_range(0..=10u8)? {
             0 => v[*u.choose(&TOP[..8])?] = header_number(u, n)?,
-            1 => v["fields"][i][*u.choose(&FIELD[2..4])?] = header_number(u, n)?,
-            2 => v["fields"][i]["type"] = json!(*u.choose(&["f32", "f16", "u32", "u16", "u8", "f64", "i8", ""])?),
-            3 => v["fields"][i]["name"] = json!(text(u, 8)?),
+            1 => set(field_mut(&mut v, i), u.choose(&FIELD[2..4])?, header_number(u, n)?),
+            2 => {
+                let ty = *u.choose(&["f32", "f16", "u32", "u16", "u8", "f64", "i8", ""])?;
+                set(field_mut(&mut v, i), "type", json!(ty));
+            }
+            3 => set(field_mut(&mut v, i), "name", json!(text(u, 8)?)),
             4 => {
                 let key = *u.choose(&TOP)?;
                 v.as_object_mut().map(|o| o.remove(key));
             }
             5 => {
                 let key = *u.choose(&FIELD)?;
-                v["fields"][i].as_object_mut().map(|o| o.remove(key));
+                field_mut(&mut v, i).map(|o| o.remove(key));
             }
             6 => {
                 let target = *u.choose(&["", "fields", "camera", "light", "coc"])?;
                 let key = text(u, 6)?;
-                match target {
-                    "" => v[key] = json!(1),
-                    "fields" => v["fields"][i][key] = json!(1),
-                    "coc" => v["camera"]["coc"][key] = json!(1),
-                    t => v[t][key] = json!(1),
-                }
+                let obj = match target {
+                    "" => v.as_object_mut(),
+                    "fields" => field_mut(&mut v, i),
+                    "coc" => object_at(&mut v, &["camera", "coc"]),
+                    t => object_at(&mut v, &[t]),
+                };
+                set(obj, &key, json!(1));
             }
             7 => {
-                if let Some(list) = v["fields"].as_array_mut() {
+                if let Some(list) = v.get_mut("fields").and_then(Value::as_array_mut) {
+                    let i = i.min(list.len().saturating_sub(1));
                     match u.int_in_range(0..=3u8)? {
                         0 if !list.is_empty() => {
                             let f = list[i].clone();
@@ -734,7 +754,16 @@ fn edit_header(u: &mut Unstructured, m: &[u8], data: usize) -> Result<Vec<u8>> {
             }
             8 => {
                 let key = *u.choose(&["kind", "format", "order"])?;
-                v[key] = json!(*u.choose(&["lens-time", "light", "indirect", "ao", "volume", "lfr-samples", "pixel-major", "x"])?);
+                v[key] = json!(*u.choose(&[
+                    "lens-time",
+                    "light",
+                    "indirect",
+                    "ao",
+                    "volume",
+                    "lfr-samples",
+                    "pixel-major",
+                    "x"
+                ])?);
             }
             9 => {
                 // Deep nesting where anything goes, and where nothing may be nested.
@@ -765,6 +794,30 @@ fn edit_header(u: &mut Unstructured, m: &[u8], data: usize) -> Result<Vec<u8>> {
     Ok(out)
 }
 
+/// Field `i` of the header, if there is such an object.
+fn field_mut(v: &mut Value, i: usize) -> Option<&mut serde_json::Map<String, Value>> {
+    v.get_mut("fields")?.as_array_mut()?.get_mut(i)?.as_object_mut()
+}
+
+/// The object at `path` (made where missing or null), if the path leads through objects.
+fn object_at<'a>(v: &'a mut Value, path: &[&str]) -> Option<&'a mut serde_json::Map<String, Value>> {
+    let mut at = v;
+    for key in path {
+        let map = at.as_object_mut()?;
+        at = map.entry(key.to_string()).or_insert(Value::Null);
+        if at.is_null() {
+            *at = json!({});
+        }
+    }
+    at.as_object_mut()
+}
+
+fn set(obj: Option<&mut serde_json::Map<String, Value>>, key: &str, value: Value) {
+    if let Some(obj) = obj {
+        obj.insert(key.to_string(), value);
+    }
+}
+
 /// The layout `m`'s own header claims, if it parses and stays small.
 fn claimed(m: &[u8]) -> Option<(usize, usize, usize, usize)> {
     let h = u32_at(m, 12) as usize;
@@ -773,7 +826,12 @@ fn claimed(m: &[u8]) -> Option<(usize, usize, usize, usize)> {
     let n = v["sample_count"].as_u64()?;
     let rs = v["record_size"].as_u64()?;
     let chunk = v.get("chunk_samples").map_or(Some(65536), Value::as_u64)?;
-    (n.checked_mul(rs)? <= 1 << 20 && chunk >= 1).then_some((16 + h, n as usize, rs as usize, chunk as usize))
+    (n <= 1 << 16 && rs <= 1 << 16 && n * rs <= 1 << 20 && chunk >= 1).then_some((
+        16 + h,
+        n as usize,
+        rs as usize,
+        chunk as usize,
+    ))
 }
 
 fn write_tail(out: &mut Vec<u8>, data: usize, n: usize, rs: usize, chunk: usize) {

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use sampleio::{Field, FieldType, Header, SampleError, SampleFile};
+use sampleio::{FieldType, Header, SampleError, SampleFile};
 
 /// The per-process scratch directory: `$SAMPLEIO_FUZZ_TMP/sampleio-fuzz-<pid>`, where
 /// `SAMPLEIO_FUZZ_TMP` defaults to `/dev/shm` (tmpfs: the writer's `sync_all` costs nothing
@@ -129,7 +129,11 @@ pub fn exercise(file: &SampleFile) {
                 assert_eq!(v.to_bits(), column[i * k + c].to_bits(), "value vs column, sample {i} `{}`", f.name);
                 let at = f.offset as usize + c * f.ty.size();
                 let want = decode(f.ty, &record[at..at + f.ty.size()]);
-                assert!(same(f64::from(v), want as f32 as f64), "value({i}, `{}`, {c}) = {v}, bytes say {want}", f.name);
+                assert!(
+                    same(f64::from(v), want as f32 as f64),
+                    "value({i}, `{}`, {c}) = {v}, bytes say {want}",
+                    f.name
+                );
                 let v64 = file.value_f64(i, f, c);
                 assert!(same(v64, want), "value_f64({i}, `{}`, {c}) = {v64}, bytes say {want}", f.name);
             }
@@ -222,11 +226,6 @@ pub fn crc32(bytes: &[u8]) -> u32 {
         }
     }
     !crc
-}
-
-/// Which field, if any, covers byte `at` of a record.
-pub fn covering_field(fields: &[Field], at: usize) -> Option<&Field> {
-    fields.iter().find(|f| (f.offset as usize..f.end() as usize).contains(&at))
 }
 
 #[cfg(test)]

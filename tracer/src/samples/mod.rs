@@ -4,6 +4,7 @@
 //! parallel and writes them in pixel-major order, so that memory stays bounded by one batch
 //! of rows and the file is identical for any thread count.
 
+pub mod guide;
 pub mod lens_time;
 pub mod secondary;
 

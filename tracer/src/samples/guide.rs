@@ -1,0 +1,200 @@
+//! `guide` buffers for the guided image filter (Bauszat, Eisemann, Magnor 2011, Section 3):
+//! one guide ray per pixel through the pixel centre (lens centre, shutter open) records the
+//! surface it hits, and the direct and indirect light at that very point are estimated with
+//! `spp` samples each, so the noisy indirect map is aligned with its guide.
+//!
+//! Layers of the multi-layer EXR:
+//!
+//! | channels | meaning |
+//! |---|---|
+//! | `normal.X,Y,Z` | world-space shading normal at the guide hit, facing the camera (0 for a miss) |
+//! | `depth.Z` | camera-space depth of the guide hit (0 for a miss) |
+//! | `position.X,Y,Z` | world-space guide hit |
+//! | `albedo.R,G,B` | reflectance at the guide hit |
+//! | `direct.R,G,B` | emission of the hit plus light reflected straight from emitters, mean of `spp` estimates (the environment for a miss) |
+//! | `indirect.R,G,B` | light reflected after at least one more bounce, mean of `spp` estimates (noisy: the filter's input) |
+//! | `indirect_variance.R,G,B` | variance of that mean |
+
+use std::path::Path;
+use std::time::Instant;
+
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+use super::{DumpReport, DumpSettings};
+use crate::accel::Accel;
+use crate::bsdf::Frame;
+use crate::error::RenderError;
+use crate::integrator::{Integrator, NoRecording, PathStart, SurfacePoint};
+use crate::lights::{triangle_emission, LightSampler};
+use crate::output::{write_exr, Layer};
+use crate::sampler::Sampler;
+use crate::scene::Scene;
+
+/// The guide buffers of one image.
+#[derive(Clone, Debug, Default)]
+pub struct GuideBuffers {
+    pub width: u32,
+    pub height: u32,
+    pub normal: Vec<Vec3>,
+    pub depth: Vec<f32>,
+    pub position: Vec<Vec3>,
+    pub albedo: Vec<Vec3>,
+    pub direct: Vec<Vec3>,
+    pub indirect: Vec<Vec3>,
+    pub indirect_variance: Vec<Vec3>,
+}
+
+struct GuidePixel {
+    normal: Vec3,
+    depth: f32,
+    position: Vec3,
+    albedo: Vec3,
+    direct: Vec3,
+    indirect: Vec3,
+    indirect_variance: Vec3,
+}
+
+fn guide_pixel(integrator: &Integrator, settings: &DumpSettings, x: u32, y: u32) -> GuidePixel {
+    let scene = integrator.scene;
+    let film = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+    let (origin, direction) = scene.camera.generate_ray(film, Vec2::ZERO, settings.width, settings.height);
+    let Some(hit) = integrator.accel.intersect(origin, direction, 0.0, f32::INFINITY, 0.0) else {
+        return GuidePixel {
+            normal: Vec3::ZERO,
+            depth: 0.0,
+            position: Vec3::ZERO,
+            albedo: Vec3::ZERO,
+            direct: scene.environment,
+            indirect: Vec3::ZERO,
+            indirect_variance: Vec3::ZERO,
+        };
+    };
+    let wo = -direction;
+    let surface = SurfacePoint::new(scene, &hit, wo, 0.0);
+    let frame = Frame::new(surface.shading_normal);
+    let wo_local = frame.to_local(wo);
+    let material = &scene.materials[scene.meshes[hit.mesh as usize].material as usize];
+    let emitted = if material.is_emissive() {
+        let winding = if surface.front_face { surface.geometric_normal } else { -surface.geometric_normal };
+        triangle_emission(scene, hit.mesh, hit.triangle, hit.barycentric, winding, wo)
+    } else {
+        Vec3::ZERO
+    };
+    let mut direct_sum = Vec3::ZERO;
+    let mut indirect_sum = [0.0f64; 3];
+    let mut indirect_sum_sq = [0.0f64; 3];
+    let mut rays = 0;
+    for index in 0..settings.spp {
+        let mut sampler = Sampler::new(settings.seed, x, y, index);
+        let [u_select, u_lobe] = sampler.next_2d();
+        let u_light = sampler.next_2d();
+        let u_bsdf = sampler.next_2d();
+        let _roulette = sampler.next_2d();
+        let mut direct =
+            integrator.next_event(&surface, wo, 0.0, [u_select, u_light[0], u_light[1]], &mut rays, &mut NoRecording);
+        let mut indirect = Vec3::ZERO;
+        if let Some(sample) = surface.bsdf.sample(wo_local, u_lobe, u_bsdf) {
+            let wi = frame.to_world(sample.wi);
+            if wi.dot(surface.geometric_normal) > 0.0 && integrator.max_bounces > 0 {
+                let start = PathStart {
+                    origin: surface.spawn_origin(wi),
+                    direction: wi,
+                    time: 0.0,
+                    bounce: 1,
+                    previous: Some((sample.pdf, surface.position)),
+                };
+                let traced = integrator.trace_ray(&start, &mut sampler, &mut NoRecording);
+                direct += sample.weight * traced.emitted;
+                indirect = sample.weight * traced.reflected();
+            }
+        }
+        if direct.is_finite() {
+            direct_sum += direct;
+        }
+        let indirect = if indirect.is_finite() { indirect } else { Vec3::ZERO };
+        for c in 0..3 {
+            indirect_sum[c] += indirect[c] as f64;
+            indirect_sum_sq[c] += (indirect[c] as f64).powi(2);
+        }
+    }
+    let n = settings.spp as f64;
+    let mean = indirect_sum.map(|s| s / n);
+    let variance = [0, 1, 2].map(|c| {
+        if settings.spp > 1 {
+            (((indirect_sum_sq[c] - n * mean[c] * mean[c]) / (n - 1.0)).max(0.0) / n) as f32
+        } else {
+            0.0
+        }
+    });
+    GuidePixel {
+        normal: surface.shading_normal,
+        depth: scene.camera.depth(surface.position),
+        position: surface.position,
+        albedo: surface.bsdf.albedo(),
+        direct: emitted + direct_sum / settings.spp as f32,
+        indirect: Vec3::new(mean[0] as f32, mean[1] as f32, mean[2] as f32),
+        indirect_variance: Vec3::from(variance),
+    }
+}
+
+/// Computes the guide buffers.
+pub fn guide_buffers(scene: &Scene, accel: &Accel, settings: &DumpSettings) -> Result<GuideBuffers, RenderError> {
+    settings.validate()?;
+    let lights = LightSampler::new(scene);
+    let integrator = Integrator {
+        scene,
+        accel,
+        lights: &lights,
+        max_bounces: settings.max_bounces,
+        width: settings.width,
+        height: settings.height,
+    };
+    let pool = crate::render::thread_pool(settings.threads)?;
+    let pixels: Vec<GuidePixel> = pool.install(|| {
+        (0..settings.width * settings.height)
+            .into_par_iter()
+            .map(|i| guide_pixel(&integrator, settings, i % settings.width, i / settings.width))
+            .collect()
+    });
+    Ok(GuideBuffers {
+        width: settings.width,
+        height: settings.height,
+        normal: pixels.iter().map(|p| p.normal).collect(),
+        depth: pixels.iter().map(|p| p.depth).collect(),
+        position: pixels.iter().map(|p| p.position).collect(),
+        albedo: pixels.iter().map(|p| p.albedo).collect(),
+        direct: pixels.iter().map(|p| p.direct).collect(),
+        indirect: pixels.iter().map(|p| p.indirect).collect(),
+        indirect_variance: pixels.iter().map(|p| p.indirect_variance).collect(),
+    })
+}
+
+/// Writes the guide buffers of `scene` as a multi-layer EXR.
+pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) -> Result<DumpReport, RenderError> {
+    let start = Instant::now();
+    let buffers = guide_buffers(scene, accel, settings)?;
+    let split = |name: &'static str, data: &[Vec3], labels: [&'static str; 3]| Layer {
+        name,
+        channels: (0..3).map(|c| (labels[c], data.iter().map(|v| v[c]).collect())).collect(),
+    };
+    let layers = vec![
+        split("normal", &buffers.normal, ["X", "Y", "Z"]),
+        Layer { name: "depth", channels: vec![("Z", buffers.depth.clone())] },
+        split("position", &buffers.position, ["X", "Y", "Z"]),
+        split("albedo", &buffers.albedo, ["R", "G", "B"]),
+        split("direct", &buffers.direct, ["R", "G", "B"]),
+        split("indirect", &buffers.indirect, ["R", "G", "B"]),
+        split("indirect_variance", &buffers.indirect_variance, ["R", "G", "B"]),
+    ];
+    write_exr(path, settings.width, settings.height, &layers)?;
+    let bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    let samples = settings.width as u64 * settings.height as u64 * settings.spp as u64;
+    Ok(DumpReport {
+        samples,
+        bytes,
+        record_size: 16 * 4,
+        fields: layers.iter().map(|l| l.name.to_string()).collect(),
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
