@@ -42,6 +42,8 @@ enum Command {
 enum DumpKind {
     /// Camera samples over pixel, lens and time for the temporal light field (TLFR).
     LensTime,
+    /// Rays from a planar area light towards the visible points, for TLFR soft shadows.
+    Light,
     /// Secondary rays with their radiance for the indirect light field (ILFR).
     Indirect,
     /// Cosine-weighted secondary rays with their hit distance (ILFR ambient occlusion).
@@ -174,6 +176,7 @@ fn dump(args: &DumpArgs) -> Result<()> {
     let accel = Accel::build(&scene)?;
     let report = match args.kind {
         DumpKind::LensTime => tracer::samples::lens_time::dump(&scene, &accel, &settings, &args.out)?,
+        DumpKind::Light => tracer::samples::light::dump(&scene, &accel, &settings, &args.out)?,
         DumpKind::Indirect => {
             tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::Indirect, &args.out)?
         }

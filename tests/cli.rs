@@ -210,6 +210,7 @@ fn every_sample_kind_dumps_from_its_scene_and_reads_back() {
     let cases = [
         ("scenes/cornell.toml", "indirect", "c-indirect.lfrs"),
         ("scenes/cornell.toml", "ao", "c-ao.lfrs"),
+        ("scenes/cornell.toml", "light", "c-light.lfrs"),
         ("scenes/cornell.toml", "guide", "c-guide.exr"),
         ("scenes/monkeys-defocus-motion.toml", "lens-time", "m-lens-time.lfrs"),
     ];

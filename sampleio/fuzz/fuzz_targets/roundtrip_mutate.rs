@@ -104,7 +104,7 @@ fn camera(u: &mut Unstructured, wild: bool) -> Result<Camera> {
 }
 
 fn light(u: &mut Unstructured, wild: bool) -> Result<LightGeometry> {
-    let mut opt3 = |u: &mut Unstructured| -> Result<Option<[f64; 3]>> {
+    let opt3 = |u: &mut Unstructured| -> Result<Option<[f64; 3]>> {
         Ok(if u.arbitrary()? { Some(vec3(u, wild)?) } else { None })
     };
     Ok(LightGeometry {
@@ -305,7 +305,6 @@ fn u64_at(b: &[u8], at: usize) -> u64 {
 struct Parts {
     data: usize,
     table: usize,
-    trailer: usize,
     records: usize,
     record_size: usize,
     chunk_samples: usize,
@@ -359,7 +358,7 @@ fn check_bytes(bytes: &[u8], header: &Header, records: &[Vec<u8>]) -> Parts {
     assert_eq!(u32_at(bytes, trailer + 16), crc32(text), "header CRC");
     assert_eq!(u32_at(bytes, trailer + 20), crc32(&bytes[table..trailer]), "table CRC");
     assert_eq!(u64_at(bytes, trailer + 24), c as u64);
-    Parts { data, table, trailer, records: n, record_size: rs, chunk_samples: chunk }
+    Parts { data, table, records: n, record_size: rs, chunk_samples: chunk }
 }
 
 fn run(u: &mut Unstructured) -> Result<()> {
@@ -743,7 +742,10 @@ fn edit_header(u: &mut Unstructured, m: &[u8], data: usize) -> Result<Vec<u8>> {
                         1 if !list.is_empty() => {
                             list.remove(i);
                         }
-                        2 if list.len() > 1 => list.swap(i, u.int_in_range(0..=list.len() - 1)?),
+                        2 if list.len() > 1 => {
+                            let j = u.int_in_range(0..=list.len() - 1)?;
+                            list.swap(i, j);
+                        }
                         _ => {
                             let new = json!({"name": text(u, 6)?, "type": "u8", "components": 1,
                                 "offset": header_number(u, n)?, "meaning": "", "unit": ""});

@@ -108,7 +108,7 @@ pub fn exercise(file: &SampleFile) {
     assert_eq!(h.sample_count, u64::from(h.width) * u64::from(h.height) * u64::from(h.spp));
     assert!(h.chunk_samples >= 1);
     let rs = h.record_size as usize;
-    assert!(rs >= 4 && rs % 4 == 0, "record size {rs}");
+    assert!(rs >= 4 && rs.is_multiple_of(4), "record size {rs}");
     assert_eq!(file.data().len(), n * rs, "data() length");
     assert_eq!(file.data_offset() % 64, 0, "data offset {}", file.data_offset());
     assert_eq!(file.fields(), &h.fields[..]);

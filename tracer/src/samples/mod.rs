@@ -6,6 +6,7 @@
 
 pub mod guide;
 pub mod lens_time;
+pub mod light;
 pub mod secondary;
 
 use std::path::Path;
