@@ -22,18 +22,42 @@
 //! - `CoC coefficients (coc radius = C0/w+C1)`: our C1, C2 (pixels), zero for a pinhole.
 //! - Rows are written from our top row (y = 0) down, as our `y` runs; their reader takes the
 //!   samples' own (x, y), so only their image display could be flipped, not the reconstruction.
+//!
+//! ILFR 2.2 (`jtlehtin/indirect-light-field-reconstruction`, README "Sample Buffer Format"): a
+//! text header with the CoC coefficients and a 4×4 pixel-to-camera matrix, and 39 float32 per
+//! sample: `x, y, w, u, v, t, r, g, b`, then the 3-vectors `pri_mv, pri_normal, albedo,
+//! sec_origin, sec_hitpoint, sec_mv, sec_normal, direct, sec_albedo, sec_direct`.
+//! - `w` is the angular bandwidth κ (their README: "unintuitive naming (w) ... for historical
+//!   reasons"); 0 when our file has no `bandwidth` field (all-diffuse scene).
+//! - Vectors are in *their* camera space: pbrt's left-handed x right, y up, z forward, origin at
+//!   the lens centre. Ours is (right, down, forward), so y flips. Their README calls normals and
+//!   motion vectors camera-space; for `sec_origin` and `sec_hitpoint` it does not say, and we
+//!   assume camera space too, so all ten vectors share one frame.
+//! - The pixel-to-camera matrix maps (x, y, ·, 1) to the point on the plane z = 1 seen from the
+//!   lens centre: rows (1/fx, 0, 0, −cx/fx), (0, −1/fy, 0, cy/fy), (0, 0, 0, 1), (0, 0, 0, 1);
+//!   their last row encodes a depth range we do not have.
+//! - `sec_albedo` is "path throughput at the secondary hit" in their README; we write the
+//!   secondary hit's reflectance (`secondary_albedo`), the throughput of a diffuse bounce there.
+//! - A secondary ray that escaped gets `sec_hitpoint` 1e6 scene units away along its direction
+//!   (the format has no miss marker), `sec_normal` 0; a camera ray that escaped gets zeros and
+//!   only `direct` (the environment).
 
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use glam::{Mat3, Vec3};
 use sampleio::{SampleFile, SampleKind};
+use tracer::samples::secondary::decode_octahedral;
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 pub enum ExportFormat {
     /// Lehtinen et al. 2011 sample buffers, version 1.3 (from `lens-time` samples).
     #[value(name = "tlfr-1.3")]
     Tlfr13,
+    /// Lehtinen et al. 2012 sample buffers, version 2.2 (from `indirect` samples).
+    #[value(name = "ilfr-2.2")]
+    Ilfr22,
 }
 
 #[derive(clap::Args)]
@@ -50,6 +74,7 @@ pub fn run(args: &ExportArgs) -> Result<()> {
     let file = SampleFile::open(&args.samples)?;
     match args.format {
         ExportFormat::Tlfr13 => write_tlfr_1_3(&file, &args.out)?,
+        ExportFormat::Ilfr22 => write_ilfr_2_2(&file, &args.out)?,
     }
     println!("wrote {} samples to {} ({:?})", file.len(), args.out.display(), args.format);
     Ok(())
@@ -117,6 +142,103 @@ pub fn write_tlfr_1_3(file: &SampleFile, out: &Path) -> Result<()> {
                     gradient[2 * i],
                     gradient[2 * i + 1],
                 ];
+                for value in entry {
+                    writer.write_all(&value.to_le_bytes())?;
+                }
+            }
+            writer.into_inner().map_err(|e| e.into_error())?.sync_all()
+        };
+        write().map_err(|e| e.to_string())
+    })?;
+    tracer::output::write_atomically(&header_path, |tmp| std::fs::write(tmp, &header_text).map_err(|e| e.to_string()))?;
+    Ok(())
+}
+
+/// Writes an ILFR 2.2 binary sample buffer and its `.header`.
+pub fn write_ilfr_2_2(file: &SampleFile, out: &Path) -> Result<()> {
+    let header = file.header();
+    if header.kind != SampleKind::Indirect {
+        bail!("{}: ILFR 2.2 needs indirect samples, this file holds {:?}", file.path().display(), header.kind);
+    }
+    let camera =
+        header.camera.as_ref().with_context(|| format!("{}: no camera in the header", file.path().display()))?;
+    let column = |name: &str| -> Result<Option<Vec<f32>>> {
+        match file.field(name) {
+            Some(_) => Ok(Some(file.column(name)?)),
+            None => Ok(None),
+        }
+    };
+    let required = |name: &str| -> Result<Vec<f32>> {
+        column(name)?.with_context(|| format!("{}: field `{name}` missing", file.path().display()))
+    };
+    let (x, y, direction, radiance) = (required("x")?, required("y")?, required("direction")?, required("radiance")?);
+    let (origin, hit, origin_normal, hit_normal) =
+        (required("origin")?, required("hit")?, required("origin_normal")?, required("hit_normal")?);
+    let (albedo, direct, secondary_albedo, secondary_direct) =
+        (required("albedo")?, required("direct")?, required("secondary_albedo")?, required("secondary_direct")?);
+    let (u, v, t) = (column("u")?, column("v")?, column("t")?);
+    let (origin_motion, hit_motion, bandwidth) =
+        (column("origin_motion")?, column("hit_motion")?, column("bandwidth")?);
+
+    // World to their camera space (right, up, forward).
+    let w2c = camera.world_to_camera;
+    let row = |r: usize| Vec3::new(w2c[r][0] as f32, w2c[r][1] as f32, w2c[r][2] as f32);
+    let rotation = Mat3::from_cols(row(0), -row(1), row(2)).transpose();
+    let translation = Vec3::new(w2c[0][3] as f32, -(w2c[1][3] as f32), w2c[2][3] as f32);
+    let to_camera_point = |p: Vec3| rotation * p + translation;
+    let to_camera_vector = |v: Vec3| rotation * v;
+    let m = camera.pixel_to_camera;
+    let (fx, fy) = (1.0 / m[0][0], 1.0 / m[1][1]);
+    let (cx, cy) = (-m[0][2] * fx, -m[1][2] * fy);
+    let matrix = [1.0 / fx, 0.0, 0.0, -cx / fx, 0.0, -1.0 / fy, 0.0, cy / fy, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    let matrix_text: Vec<String> = matrix.iter().map(|v| format!("{:.6}", v)).collect();
+    let header_text = format!(
+        "Version 2.2\nWidth {}\nHeight {}\nSamples per pixel {}\nCoC coefficients (coc radius = C0/w+C1): {:.6},{:.6}\nPixel-to-camera matrix: {}\nEncoding = binary\nx,y,w,u,v,t,r,g,b,pri_mv(3d),pri_normal(3d),albedo(3d),sec_origin(3d),sec_hitpoint(3d),sec_mv(3d),sec_normal(3d),direct(3d),sec_albedo(3d),sec_direct(3d)\n",
+        header.width,
+        header.height,
+        header.spp,
+        camera.coc.c1,
+        camera.coc.c2,
+        matrix_text.join(",")
+    );
+    let mut header_path = out.as_os_str().to_os_string();
+    header_path.push(".header");
+    let header_path = PathBuf::from(header_path);
+    let vec3 = |c: &[f32], i: usize| Vec3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]);
+    let octahedral = |c: &[f32], i: usize| decode_octahedral([c[2 * i], c[2 * i + 1]]);
+
+    tracer::output::write_atomically(out, |tmp| {
+        let write = || -> std::io::Result<()> {
+            let mut writer = BufWriter::with_capacity(1 << 20, std::fs::File::create(tmp)?);
+            for i in 0..file.len() {
+                let n_o = octahedral(&origin_normal, i);
+                let camera_ray_hit = n_o != Vec3::ZERO;
+                let mut entry = [0.0f32; 39];
+                entry[0] = x[i];
+                entry[1] = y[i];
+                entry[2] = bandwidth.as_ref().map_or(0.0, |b| b[i]);
+                entry[3] = u.as_ref().map_or(0.0, |u| u[i]);
+                entry[4] = v.as_ref().map_or(0.0, |v| v[i]);
+                entry[5] = t.as_ref().map_or(0.0, |t| t[i]);
+                entry[6..9].copy_from_slice(&vec3(&radiance, i).to_array());
+                let put = |entry: &mut [f32; 39], slot: usize, value: Vec3| {
+                    entry[9 + 3 * slot..12 + 3 * slot].copy_from_slice(&value.to_array())
+                };
+                put(&mut entry, 7, vec3(&direct, i));
+                if camera_ray_hit {
+                    let o = vec3(&origin, i);
+                    let n_h = octahedral(&hit_normal, i);
+                    let h = if n_h == Vec3::ZERO { o + octahedral(&direction, i) * 1e6 } else { vec3(&hit, i) };
+                    put(&mut entry, 0, origin_motion.as_ref().map_or(Vec3::ZERO, |m| to_camera_vector(vec3(m, i))));
+                    put(&mut entry, 1, to_camera_vector(n_o));
+                    put(&mut entry, 2, vec3(&albedo, i));
+                    put(&mut entry, 3, to_camera_point(o));
+                    put(&mut entry, 4, to_camera_point(h));
+                    put(&mut entry, 5, hit_motion.as_ref().map_or(Vec3::ZERO, |m| to_camera_vector(vec3(m, i))));
+                    put(&mut entry, 6, to_camera_vector(n_h));
+                    put(&mut entry, 8, vec3(&secondary_albedo, i));
+                    put(&mut entry, 9, vec3(&secondary_direct, i));
+                }
                 for value in entry {
                     writer.write_all(&value.to_le_bytes())?;
                 }

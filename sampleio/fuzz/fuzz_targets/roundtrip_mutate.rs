@@ -152,7 +152,7 @@ fn spec(u: &mut Unstructured) -> Result<(HeaderSpec, bool)> {
     let (width, height, spp) =
         if big { (dim(u, 16)?, dim(u, 8)?, dim(u, 8)?) } else { (dim(u, 4)?, dim(u, 4)?, dim(u, 4)?) };
     let mut spec = HeaderSpec::new(kind, width, height, spp);
-    let n = u64::from(width) * u64::from(height) * u64::from(spp);
+    let n = u64::from(width).saturating_mul(u64::from(height)).saturating_mul(u64::from(spp));
     spec.chunk_samples = match u.int_in_range(0..=3)? {
         0 => sampleio::DEFAULT_CHUNK_SAMPLES,
         1 => *u.choose(&[1, u32::MAX, if wild { 0 } else { 2 }])?,
