@@ -70,6 +70,26 @@ pub struct ExportArgs {
     out: PathBuf,
 }
 
+/// A field's values, or `None` when the file leaves the field out.
+fn optional_column(file: &SampleFile, name: &str) -> Result<Option<Vec<f32>>> {
+    match file.field(name) {
+        Some(_) => Ok(Some(file.column(name)?)),
+        None => Ok(None),
+    }
+}
+
+/// A field's values; an error naming the file when it is missing.
+fn required_column(file: &SampleFile, name: &str) -> Result<Vec<f32>> {
+    optional_column(file, name)?.with_context(|| format!("{}: field `{name}` missing", file.path().display()))
+}
+
+/// `OUT.header` beside `OUT`.
+fn header_path(out: &Path) -> PathBuf {
+    let mut path = out.as_os_str().to_os_string();
+    path.push(".header");
+    PathBuf::from(path)
+}
+
 pub fn run(args: &ExportArgs) -> Result<()> {
     let file = SampleFile::open(&args.samples)?;
     match args.format {
@@ -91,15 +111,8 @@ pub fn write_tlfr_1_3(file: &SampleFile, out: &Path) -> Result<()> {
     }
     let camera =
         header.camera.as_ref().with_context(|| format!("{}: no camera in the header", file.path().display()))?;
-    let column = |name: &str| -> Result<Option<Vec<f32>>> {
-        match file.field(name) {
-            Some(_) => Ok(Some(file.column(name)?)),
-            None => Ok(None),
-        }
-    };
-    let required = |name: &str| -> Result<Vec<f32>> {
-        column(name)?.with_context(|| format!("{}: field `{name}` missing", file.path().display()))
-    };
+    let column = |name: &str| optional_column(file, name);
+    let required = |name: &str| required_column(file, name);
     let (x, y, z, radiance, gradient) =
         (required("x")?, required("y")?, required("z")?, required("radiance")?, required("depth_gradient")?);
     let (u, v, t, motion) = (column("u")?, column("v")?, column("t")?, column("motion")?);
@@ -111,9 +124,7 @@ pub fn write_tlfr_1_3(file: &SampleFile, out: &Path) -> Result<()> {
         "Version 1.3\nWidth {}\nHeight {}\nSamples per pixel {}\nMotion model: affine\nCoC coefficients (coc radius = C0/w+C1): {},{}\nEncoding = binary\nx,y,z/w,w,u,v,t,r,g,b,a,mv_x,mv_y,mv_w,dwdx,dwdy\n",
         header.width, header.height, header.spp, camera.coc.c1 as f32, camera.coc.c2 as f32
     );
-    let mut header_path = out.as_os_str().to_os_string();
-    header_path.push(".header");
-    let header_path = PathBuf::from(header_path);
+    let header_path = header_path(out);
 
     tracer::output::write_atomically(out, |tmp| {
         let write = || -> std::io::Result<()> {
@@ -162,15 +173,8 @@ pub fn write_ilfr_2_2(file: &SampleFile, out: &Path) -> Result<()> {
     }
     let camera =
         header.camera.as_ref().with_context(|| format!("{}: no camera in the header", file.path().display()))?;
-    let column = |name: &str| -> Result<Option<Vec<f32>>> {
-        match file.field(name) {
-            Some(_) => Ok(Some(file.column(name)?)),
-            None => Ok(None),
-        }
-    };
-    let required = |name: &str| -> Result<Vec<f32>> {
-        column(name)?.with_context(|| format!("{}: field `{name}` missing", file.path().display()))
-    };
+    let column = |name: &str| optional_column(file, name);
+    let required = |name: &str| required_column(file, name);
     let (x, y, direction, radiance) = (required("x")?, required("y")?, required("direction")?, required("radiance")?);
     let (origin, hit, origin_normal, hit_normal) =
         (required("origin")?, required("hit")?, required("origin_normal")?, required("hit_normal")?);
@@ -201,9 +205,7 @@ pub fn write_ilfr_2_2(file: &SampleFile, out: &Path) -> Result<()> {
         camera.coc.c2,
         matrix_text.join(",")
     );
-    let mut header_path = out.as_os_str().to_os_string();
-    header_path.push(".header");
-    let header_path = PathBuf::from(header_path);
+    let header_path = header_path(out);
     let vec3 = |c: &[f32], i: usize| Vec3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]);
     let octahedral = |c: &[f32], i: usize| decode_octahedral([c[2 * i], c[2 * i + 1]]);
 

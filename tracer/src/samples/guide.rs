@@ -142,14 +142,7 @@ fn guide_pixel(integrator: &Integrator, settings: &DumpSettings, x: u32, y: u32)
 pub fn guide_buffers(scene: &Scene, accel: &Accel, settings: &DumpSettings) -> Result<GuideBuffers, RenderError> {
     settings.validate()?;
     let lights = LightSampler::new(scene);
-    let integrator = Integrator {
-        scene,
-        accel,
-        lights: &lights,
-        max_bounces: settings.max_bounces,
-        width: settings.width,
-        height: settings.height,
-    };
+    let integrator = super::integrator(scene, accel, &lights, settings);
     let pool = crate::render::thread_pool(settings.threads)?;
     let pixels: Vec<GuidePixel> = pool.install(|| {
         (0..settings.width * settings.height)

@@ -27,7 +27,7 @@ use super::{camera_header, write_samples, DumpReport, DumpSettings};
 use crate::accel::Accel;
 use crate::camera::Camera;
 use crate::error::RenderError;
-use crate::integrator::{CameraSample, Integrator, NoRecording};
+use crate::integrator::{CameraSample, NoRecording};
 use crate::lights::LightSampler;
 use crate::sampler::Sampler;
 use crate::scene::Scene;
@@ -130,14 +130,7 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) 
     settings.validate()?;
     let layout = LensTimeLayout::for_scene(scene);
     let lights = LightSampler::new(scene);
-    let integrator = Integrator {
-        scene,
-        accel,
-        lights: &lights,
-        max_bounces: settings.max_bounces,
-        width: settings.width,
-        height: settings.height,
-    };
+    let integrator = super::integrator(scene, accel, &lights, settings);
     let camera = &scene.camera;
     let spec = layout.header(scene, settings);
     write_samples(path, spec, settings, layout.values_per_sample(), |x, y, values| {

@@ -34,7 +34,7 @@ use super::{camera_header, write_samples, DumpReport, DumpSettings};
 use crate::accel::Accel;
 use crate::camera::Camera;
 use crate::error::RenderError;
-use crate::integrator::{CameraSample, Integrator};
+use crate::integrator::CameraSample;
 use crate::lights::{triangle_at, LightSampler};
 use crate::sampler::Sampler;
 use crate::scene::Scene;
@@ -180,14 +180,7 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) 
     let emission = scene.materials[scene.meshes[light.mesh as usize].material as usize].emission;
     let time_field = scene.has_motion();
     let lights = LightSampler::new(scene);
-    let integrator = Integrator {
-        scene,
-        accel,
-        lights: &lights,
-        max_bounces: settings.max_bounces,
-        width: settings.width,
-        height: settings.height,
-    };
+    let integrator = super::integrator(scene, accel, &lights, settings);
     let f = |name: &str, n: u32, unit: &str, meaning: &str| {
         FieldSpec::new(name, FieldType::F32, n).unit(unit).meaning(meaning)
     };

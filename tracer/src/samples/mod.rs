@@ -16,8 +16,12 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use sampleio::{HeaderSpec, SampleWriter};
 
+use crate::accel::Accel;
 use crate::camera::{Camera, FovAxis};
 use crate::error::RenderError;
+use crate::integrator::Integrator;
+use crate::lights::LightSampler;
+use crate::scene::Scene;
 
 /// Settings shared by every dump.
 #[derive(Clone, Debug)]
@@ -41,6 +45,23 @@ impl DumpSettings {
             return Err(RenderError::Settings("--spp must be in 1..=1048576".into()));
         }
         Ok(())
+    }
+}
+
+/// The path integrator the dumps share, at the dump's resolution and path length.
+pub fn integrator<'a>(
+    scene: &'a Scene,
+    accel: &'a Accel,
+    lights: &'a LightSampler,
+    settings: &DumpSettings,
+) -> Integrator<'a> {
+    Integrator {
+        scene,
+        accel,
+        lights,
+        max_bounces: settings.max_bounces,
+        width: settings.width,
+        height: settings.height,
     }
 }
 

@@ -210,14 +210,7 @@ pub fn dump(
     settings.validate()?;
     let layout = SecondaryLayout::for_scene(scene, kind);
     let lights = LightSampler::new(scene);
-    let integrator = Integrator {
-        scene,
-        accel,
-        lights: &lights,
-        max_bounces: settings.max_bounces,
-        width: settings.width,
-        height: settings.height,
-    };
+    let integrator = super::integrator(scene, accel, &lights, settings);
     let mut spec = HeaderSpec::new(
         match kind {
             SecondaryKind::Indirect => SampleKind::Indirect,
