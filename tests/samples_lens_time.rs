@@ -191,3 +191,21 @@ fn dumps_are_byte_identical_for_any_thread_count() {
     let (_b, two) = dump(&scene, 12, 10, 3, 2);
     assert_eq!(std::fs::read(one).unwrap(), std::fs::read(two).unwrap());
 }
+
+#[test]
+fn glossy_scenes_add_the_brdf_bandwidth_within_64_bytes() {
+    let _ = common::shared_scenes();
+    let scene = Scene::load(&common::project_root().join("scenes/monkeys-defocus-motion.toml")).unwrap();
+    let (_dir, path) = dump(&scene, 24, 16, 2, 0);
+    let file = SampleFile::open(&path).unwrap();
+    assert_eq!(field_names(&file), ["x", "y", "u", "v", "t", "z", "motion", "radiance", "depth_gradient", "bandwidth"]);
+    assert!(file.header().record_size <= 64, "{} bytes", file.header().record_size);
+    let (bandwidth, z) = (file.column("bandwidth").unwrap(), file.column("z").unwrap());
+    for (k, z) in bandwidth.iter().zip(&z) {
+        assert!(k.is_finite() && *k >= 0.0);
+        if !z.is_finite() {
+            assert_eq!(*k, 0.0, "a miss has no BRDF");
+        }
+    }
+    assert!(bandwidth.iter().any(|&k| k > 0.0), "the metal heads and floor are glossy");
+}

@@ -13,6 +13,7 @@
 //! | `motion` | 3 | moving geometry | camera-space displacement (X right, Y down, Z forward) of the hit point from t = 0 to t = 1 |
 //! | `radiance` | 3 | always | path-traced radiance (linear RGB) |
 //! | `depth_gradient` | 2 | always | ∂z/∂x, ∂z/∂y in scene units per pixel at fixed (u, v, t) |
+//! | `bandwidth` | 1 | glossy materials | κ of the BRDF lobe at the hit (as for `indirect` samples, `secondary::bandwidth`); 0 for diffuse and misses; for the bandwidth-weighted reconstruction of TLFR Fig. 14 |
 //!
 //! With the circle of confusion C(z) = C1/z + C2 (header `camera.coc`), a sample reprojects as
 //! in the paper's Eq. 2–3; the homogeneous screen motion of Eq. 3 is v = (fx·ΔX + cx·ΔZ,
@@ -37,15 +38,20 @@ use crate::scene::Scene;
 pub struct LensTimeLayout {
     pub lens: bool,
     pub time: bool,
+    pub bandwidth: bool,
 }
 
 impl LensTimeLayout {
     pub fn for_scene(scene: &Scene) -> LensTimeLayout {
-        LensTimeLayout { lens: scene.camera.has_lens(), time: scene.has_motion() }
+        LensTimeLayout {
+            lens: scene.camera.has_lens(),
+            time: scene.has_motion(),
+            bandwidth: super::secondary::scene_is_glossy(scene),
+        }
     }
 
     pub fn values_per_sample(&self) -> usize {
-        2 + 2 * self.lens as usize + self.time as usize + 1 + 3 * self.time as usize + 3 + 2
+        2 + 2 * self.lens as usize + self.time as usize + 1 + 3 * self.time as usize + 3 + 2 + self.bandwidth as usize
     }
 
     pub fn header(&self, scene: &Scene, settings: &DumpSettings) -> HeaderSpec {
@@ -81,6 +87,13 @@ impl LensTimeLayout {
             "scene units/px",
             "dz/dx and dz/dy at fixed lens and time",
         ));
+        if self.bandwidth {
+            spec = spec.field(
+                FieldSpec::new("bandwidth", FieldType::F16, 1)
+                    .unit("")
+                    .meaning("von Mises-Fisher concentration kappa of the BRDF at the hit; 0 diffuse"),
+            );
+        }
         spec.camera = Some(camera_header(&scene.camera, settings.width, settings.height));
         spec.scene = Some(scene.source.display().to_string());
         spec.seed = Some(settings.seed);
@@ -163,6 +176,9 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) 
                         settings.height,
                     );
                     values.extend_from_slice(&gradient.to_array());
+                    if layout.bandwidth {
+                        values.push(super::secondary::bandwidth(&hit.bsdf));
+                    }
                 }
                 None => {
                     values.push(f32::INFINITY);
@@ -171,6 +187,9 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) 
                     }
                     values.extend_from_slice(&path.radiance().to_array());
                     values.extend_from_slice(&[0.0, 0.0]);
+                    if layout.bandwidth {
+                        values.push(0.0);
+                    }
                 }
             }
         }

@@ -103,6 +103,15 @@ pub fn bandwidth(bsdf: &Bsdf) -> f32 {
     (4.0 * exponent.sqrt()).min(65504.0)
 }
 
+/// Whether any material may be glossy (κ > 0 somewhere): textured roughness or metalness may
+/// make any part of a surface glossy.
+pub fn scene_is_glossy(scene: &Scene) -> bool {
+    scene.materials.iter().any(|m| {
+        let bsdf = Bsdf::with_ior(m.base_color, m.metallic, m.roughness, m.specular, m.ior);
+        bandwidth(&bsdf) > 0.0 || m.metallic_roughness_texture.is_some()
+    })
+}
+
 /// Which optional fields a scene needs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SecondaryLayout {
@@ -114,11 +123,7 @@ pub struct SecondaryLayout {
 
 impl SecondaryLayout {
     pub fn for_scene(scene: &Scene, kind: SecondaryKind) -> SecondaryLayout {
-        let glossy = scene.materials.iter().any(|m| {
-            let bsdf = Bsdf::with_ior(m.base_color, m.metallic, m.roughness, m.specular, m.ior);
-            // Textured roughness or metalness may make any part of the surface glossy.
-            bandwidth(&bsdf) > 0.0 || m.metallic_roughness_texture.is_some()
-        });
+        let glossy = scene_is_glossy(scene);
         SecondaryLayout {
             kind,
             lens: scene.camera.has_lens(),
