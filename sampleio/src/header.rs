@@ -483,7 +483,11 @@ impl HeaderSpec {
             width: self.width,
             height: self.height,
             spp: self.spp,
-            sample_count: u64::from(self.width) * u64::from(self.height) * u64::from(self.spp),
+            // Saturating: an overflowing product is rejected by `validate` below, never a panic.
+            sample_count: u64::from(self.width)
+                .checked_mul(u64::from(self.height))
+                .and_then(|n| n.checked_mul(u64::from(self.spp)))
+                .unwrap_or(u64::MAX),
             order: SampleOrder::PixelMajor,
             record_size,
             fields,
@@ -509,6 +513,33 @@ mod tests {
         HeaderSpec::new(SampleKind::LensTime, 4, 3, 2)
             .field(FieldSpec::new("x", FieldType::F32, 1))
             .field(FieldSpec::new("radiance", FieldType::F16, 3))
+    }
+
+    /// Fuzz finding F2 (docs/fuzzing.md): an overflowing width × height × spp is an error.
+    #[test]
+    fn overflowing_sample_count_is_an_error_not_a_panic() {
+        let huge =
+            HeaderSpec::new(SampleKind::Ao, u32::MAX, u32::MAX, u32::MAX).field(FieldSpec::new("x", FieldType::F32, 1));
+        assert!(huge.to_header().is_err());
+    }
+
+    /// Fuzz finding F1 (docs/fuzzing.md): header numbers read back bit for bit.
+    #[test]
+    fn header_floats_round_trip_exactly() {
+        let mut extra = serde_json::Map::new();
+        for (i, v) in
+            [0.9856906946328695f64, 4.089549438285546e-41, 2.2595105365949866e-38, 1.0 / 3.0].iter().enumerate()
+        {
+            extra.insert(format!("v{i}"), serde_json::json!(v));
+        }
+        let mut spec = spec();
+        spec.extra = Some(serde_json::Value::Object(extra.clone()));
+        let header = spec.to_header().unwrap();
+        let parsed = Header::from_json(&header.to_padded_json()).unwrap();
+        let back = parsed.extra.unwrap();
+        for (key, value) in &extra {
+            assert_eq!(back[key].as_f64().unwrap().to_bits(), value.as_f64().unwrap().to_bits(), "{key}");
+        }
     }
 
     #[test]
