@@ -90,6 +90,40 @@ fn header_path(out: &Path) -> PathBuf {
     PathBuf::from(path)
 }
 
+/// Focal lengths and principal point (fx, fy, cx, cy) in pixels from the header's
+/// `pixel_to_camera` matrix.
+pub fn pixel_projection(camera: &sampleio::Camera) -> (f64, f64, f64, f64) {
+    let m = camera.pixel_to_camera;
+    let (fx, fy) = (1.0 / m[0][0], 1.0 / m[1][1]);
+    (fx, fy, -m[0][2] * fx, -m[1][2] * fy)
+}
+
+/// Streams `count` records of N little-endian float32 each into `out` and the text header into
+/// `OUT.header`, both written atomically.
+fn write_float_records<const N: usize>(
+    out: &Path,
+    header_text: &str,
+    count: usize,
+    record: impl Fn(usize) -> [f32; N],
+) -> Result<()> {
+    tracer::output::write_atomically(out, |tmp| {
+        let write = || -> std::io::Result<()> {
+            let mut writer = BufWriter::with_capacity(1 << 20, std::fs::File::create(tmp)?);
+            for i in 0..count {
+                for value in record(i) {
+                    writer.write_all(&value.to_le_bytes())?;
+                }
+            }
+            writer.into_inner().map_err(|e| e.into_error())?.sync_all()
+        };
+        write().map_err(|e| e.to_string())
+    })?;
+    tracer::output::write_atomically(&header_path(out), |tmp| {
+        std::fs::write(tmp, header_text).map_err(|e| e.to_string())
+    })?;
+    Ok(())
+}
+
 pub fn run(args: &ExportArgs) -> Result<()> {
     let file = SampleFile::open(&args.samples)?;
     match args.format {
@@ -116,53 +150,38 @@ pub fn write_tlfr_1_3(file: &SampleFile, out: &Path) -> Result<()> {
     let (x, y, z, radiance, gradient) =
         (required("x")?, required("y")?, required("z")?, required("radiance")?, required("depth_gradient")?);
     let (u, v, t, motion) = (column("u")?, column("v")?, column("t")?, column("motion")?);
-    let m = camera.pixel_to_camera;
-    let (fx, fy) = (1.0 / m[0][0], 1.0 / m[1][1]);
-    let (cx, cy) = (-m[0][2] * fx, -m[1][2] * fy);
+    let (fx, fy, cx, cy) = pixel_projection(camera);
 
     let header_text = format!(
         "Version 1.3\nWidth {}\nHeight {}\nSamples per pixel {}\nMotion model: affine\nCoC coefficients (coc radius = C0/w+C1): {},{}\nEncoding = binary\nx,y,z/w,w,u,v,t,r,g,b,a,mv_x,mv_y,mv_w,dwdx,dwdy\n",
         header.width, header.height, header.spp, camera.coc.c1 as f32, camera.coc.c2 as f32
     );
-    let header_path = header_path(out);
 
-    tracer::output::write_atomically(out, |tmp| {
-        let write = || -> std::io::Result<()> {
-            let mut writer = BufWriter::with_capacity(1 << 20, std::fs::File::create(tmp)?);
-            for i in 0..file.len() {
-                let w = if z[i].is_finite() { z[i] } else { TLFR_MISS_DEPTH };
-                let (dx, dy, dz) = match &motion {
-                    Some(mv) => (mv[3 * i] as f64, mv[3 * i + 1] as f64, mv[3 * i + 2] as f64),
-                    None => (0.0, 0.0, 0.0),
-                };
-                let entry: [f32; 16] = [
-                    x[i],
-                    y[i],
-                    1.0 - 2e-3 / w,
-                    w,
-                    u.as_ref().map_or(0.0, |u| u[i]),
-                    v.as_ref().map_or(0.0, |v| v[i]),
-                    t.as_ref().map_or(0.0, |t| t[i]),
-                    radiance[3 * i],
-                    radiance[3 * i + 1],
-                    radiance[3 * i + 2],
-                    1.0,
-                    (fx * dx + cx * dz) as f32,
-                    (fy * dy + cy * dz) as f32,
-                    dz as f32,
-                    gradient[2 * i],
-                    gradient[2 * i + 1],
-                ];
-                for value in entry {
-                    writer.write_all(&value.to_le_bytes())?;
-                }
-            }
-            writer.into_inner().map_err(|e| e.into_error())?.sync_all()
+    write_float_records(out, &header_text, file.len(), |i| {
+        let w = if z[i].is_finite() { z[i] } else { TLFR_MISS_DEPTH };
+        let (dx, dy, dz) = match &motion {
+            Some(mv) => (mv[3 * i] as f64, mv[3 * i + 1] as f64, mv[3 * i + 2] as f64),
+            None => (0.0, 0.0, 0.0),
         };
-        write().map_err(|e| e.to_string())
-    })?;
-    tracer::output::write_atomically(&header_path, |tmp| std::fs::write(tmp, &header_text).map_err(|e| e.to_string()))?;
-    Ok(())
+        [
+            x[i],
+            y[i],
+            1.0 - 2e-3 / w,
+            w,
+            u.as_ref().map_or(0.0, |u| u[i]),
+            v.as_ref().map_or(0.0, |v| v[i]),
+            t.as_ref().map_or(0.0, |t| t[i]),
+            radiance[3 * i],
+            radiance[3 * i + 1],
+            radiance[3 * i + 2],
+            1.0,
+            (fx * dx + cx * dz) as f32,
+            (fy * dy + cy * dz) as f32,
+            dz as f32,
+            gradient[2 * i],
+            gradient[2 * i + 1],
+        ]
+    })
 }
 
 /// Writes an ILFR 2.2 binary sample buffer and its `.header`.
@@ -191,9 +210,7 @@ pub fn write_ilfr_2_2(file: &SampleFile, out: &Path) -> Result<()> {
     let translation = Vec3::new(w2c[0][3] as f32, -(w2c[1][3] as f32), w2c[2][3] as f32);
     let to_camera_point = |p: Vec3| rotation * p + translation;
     let to_camera_vector = |v: Vec3| rotation * v;
-    let m = camera.pixel_to_camera;
-    let (fx, fy) = (1.0 / m[0][0], 1.0 / m[1][1]);
-    let (cx, cy) = (-m[0][2] * fx, -m[1][2] * fy);
+    let (fx, fy, cx, cy) = pixel_projection(camera);
     let matrix = [1.0 / fx, 0.0, 0.0, -cx / fx, 0.0, -1.0 / fy, 0.0, cy / fy, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
     let matrix_text: Vec<String> = matrix.iter().map(|v| format!("{:.6}", v)).collect();
     let header_text = format!(
@@ -205,50 +222,38 @@ pub fn write_ilfr_2_2(file: &SampleFile, out: &Path) -> Result<()> {
         camera.coc.c2,
         matrix_text.join(",")
     );
-    let header_path = header_path(out);
     let vec3 = |c: &[f32], i: usize| Vec3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]);
     let octahedral = |c: &[f32], i: usize| decode_octahedral([c[2 * i], c[2 * i + 1]]);
 
-    tracer::output::write_atomically(out, |tmp| {
-        let write = || -> std::io::Result<()> {
-            let mut writer = BufWriter::with_capacity(1 << 20, std::fs::File::create(tmp)?);
-            for i in 0..file.len() {
-                let n_o = octahedral(&origin_normal, i);
-                let camera_ray_hit = n_o != Vec3::ZERO;
-                let mut entry = [0.0f32; 39];
-                entry[0] = x[i];
-                entry[1] = y[i];
-                entry[2] = bandwidth.as_ref().map_or(0.0, |b| b[i]);
-                entry[3] = u.as_ref().map_or(0.0, |u| u[i]);
-                entry[4] = v.as_ref().map_or(0.0, |v| v[i]);
-                entry[5] = t.as_ref().map_or(0.0, |t| t[i]);
-                entry[6..9].copy_from_slice(&vec3(&radiance, i).to_array());
-                let put = |entry: &mut [f32; 39], slot: usize, value: Vec3| {
-                    entry[9 + 3 * slot..12 + 3 * slot].copy_from_slice(&value.to_array())
-                };
-                put(&mut entry, 7, vec3(&direct, i));
-                if camera_ray_hit {
-                    let o = vec3(&origin, i);
-                    let n_h = octahedral(&hit_normal, i);
-                    let h = if n_h == Vec3::ZERO { o + octahedral(&direction, i) * 1e6 } else { vec3(&hit, i) };
-                    put(&mut entry, 0, origin_motion.as_ref().map_or(Vec3::ZERO, |m| to_camera_vector(vec3(m, i))));
-                    put(&mut entry, 1, to_camera_vector(n_o));
-                    put(&mut entry, 2, vec3(&albedo, i));
-                    put(&mut entry, 3, to_camera_point(o));
-                    put(&mut entry, 4, to_camera_point(h));
-                    put(&mut entry, 5, hit_motion.as_ref().map_or(Vec3::ZERO, |m| to_camera_vector(vec3(m, i))));
-                    put(&mut entry, 6, to_camera_vector(n_h));
-                    put(&mut entry, 8, vec3(&secondary_albedo, i));
-                    put(&mut entry, 9, vec3(&secondary_direct, i));
-                }
-                for value in entry {
-                    writer.write_all(&value.to_le_bytes())?;
-                }
-            }
-            writer.into_inner().map_err(|e| e.into_error())?.sync_all()
+    write_float_records(out, &header_text, file.len(), |i| {
+        let n_o = octahedral(&origin_normal, i);
+        let camera_ray_hit = n_o != Vec3::ZERO;
+        let mut entry = [0.0f32; 39];
+        entry[0] = x[i];
+        entry[1] = y[i];
+        entry[2] = bandwidth.as_ref().map_or(0.0, |b| b[i]);
+        entry[3] = u.as_ref().map_or(0.0, |u| u[i]);
+        entry[4] = v.as_ref().map_or(0.0, |v| v[i]);
+        entry[5] = t.as_ref().map_or(0.0, |t| t[i]);
+        entry[6..9].copy_from_slice(&vec3(&radiance, i).to_array());
+        let put = |entry: &mut [f32; 39], slot: usize, value: Vec3| {
+            entry[9 + 3 * slot..12 + 3 * slot].copy_from_slice(&value.to_array())
         };
-        write().map_err(|e| e.to_string())
-    })?;
-    tracer::output::write_atomically(&header_path, |tmp| std::fs::write(tmp, &header_text).map_err(|e| e.to_string()))?;
-    Ok(())
+        put(&mut entry, 7, vec3(&direct, i));
+        if camera_ray_hit {
+            let o = vec3(&origin, i);
+            let n_h = octahedral(&hit_normal, i);
+            let h = if n_h == Vec3::ZERO { o + octahedral(&direction, i) * 1e6 } else { vec3(&hit, i) };
+            put(&mut entry, 0, origin_motion.as_ref().map_or(Vec3::ZERO, |m| to_camera_vector(vec3(m, i))));
+            put(&mut entry, 1, to_camera_vector(n_o));
+            put(&mut entry, 2, vec3(&albedo, i));
+            put(&mut entry, 3, to_camera_point(o));
+            put(&mut entry, 4, to_camera_point(h));
+            put(&mut entry, 5, hit_motion.as_ref().map_or(Vec3::ZERO, |m| to_camera_vector(vec3(m, i))));
+            put(&mut entry, 6, to_camera_vector(n_h));
+            put(&mut entry, 8, vec3(&secondary_albedo, i));
+            put(&mut entry, 9, vec3(&secondary_direct, i));
+        }
+        entry
+    })
 }

@@ -52,41 +52,12 @@ enum DumpKind {
     Guide,
 }
 
+/// What both `render` and `dump` take: the scene and how to trace it.
 #[derive(clap::Args)]
-struct DumpArgs {
-    /// Scene file; the embedded Cornell box when omitted.
-    #[arg(long)]
-    scene: Option<PathBuf>,
-    #[arg(long, value_enum)]
-    kind: DumpKind,
-    /// Samples per pixel.
-    #[arg(long)]
-    spp: u32,
-    #[arg(long)]
-    width: Option<u32>,
-    #[arg(long)]
-    height: Option<u32>,
-    #[arg(long, default_value_t = 0)]
-    seed: u32,
-    #[arg(long)]
-    max_bounces: Option<u32>,
-    #[arg(long, default_value_t = 0)]
-    threads: usize,
-    /// Output sample file (conventionally .lfrs).
-    #[arg(long)]
-    out: PathBuf,
-    #[arg(long)]
-    quiet: bool,
-}
-
-#[derive(clap::Args)]
-struct RenderArgs {
+struct TraceArgs {
     /// Scene file (.toml, .gltf, .glb, .obj); the embedded Cornell box when omitted.
     #[arg(long)]
     scene: Option<PathBuf>,
-    /// Samples per pixel (default: the scene's).
-    #[arg(long)]
-    spp: Option<u32>,
     #[arg(long)]
     width: Option<u32>,
     #[arg(long)]
@@ -99,12 +70,35 @@ struct RenderArgs {
     /// Worker threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
-    /// Output EXR; the PNG preview goes beside it.
-    #[arg(long)]
-    out: PathBuf,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+}
+
+#[derive(clap::Args)]
+struct DumpArgs {
+    #[command(flatten)]
+    trace: TraceArgs,
+    #[arg(long, value_enum)]
+    kind: DumpKind,
+    /// Samples per pixel.
+    #[arg(long)]
+    spp: u32,
+    /// Output sample file (conventionally .lfrs; .exr for guide buffers).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(clap::Args)]
+struct RenderArgs {
+    #[command(flatten)]
+    trace: TraceArgs,
+    /// Samples per pixel (default: the scene's).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Output EXR; the PNG preview goes beside it.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 /// Loads a scene file, or the embedded default when `path` is `None`.
@@ -128,15 +122,16 @@ fn render(args: &RenderArgs) -> Result<()> {
         anyhow::bail!("--out {}: the output must be an .exr file", args.out.display());
     }
     let load_start = Instant::now();
-    let scene = load_scene(args.scene.as_deref())?;
+    let trace = &args.trace;
+    let scene = load_scene(trace.scene.as_deref())?;
     let mut settings = RenderSettings::from_scene(&scene);
-    settings.width = args.width.unwrap_or(settings.width);
-    settings.height = args.height.unwrap_or(settings.height);
+    settings.width = trace.width.unwrap_or(settings.width);
+    settings.height = trace.height.unwrap_or(settings.height);
     settings.spp = args.spp.unwrap_or(settings.spp);
-    settings.max_bounces = args.max_bounces.unwrap_or(settings.max_bounces);
-    settings.seed = args.seed;
-    settings.threads = args.threads;
-    settings.progress = !args.quiet;
+    settings.max_bounces = trace.max_bounces.unwrap_or(settings.max_bounces);
+    settings.seed = trace.seed;
+    settings.threads = trace.threads;
+    settings.progress = !trace.quiet;
     settings.validate()?;
     let accel = Accel::build(&scene)?;
     let setup = load_start.elapsed().as_secs_f64();
@@ -162,15 +157,16 @@ fn render(args: &RenderArgs) -> Result<()> {
 }
 
 fn dump(args: &DumpArgs) -> Result<()> {
-    let scene = load_scene(args.scene.as_deref())?;
+    let trace = &args.trace;
+    let scene = load_scene(trace.scene.as_deref())?;
     let settings = tracer::samples::DumpSettings {
-        width: args.width.unwrap_or(scene.width),
-        height: args.height.unwrap_or(scene.height),
+        width: trace.width.unwrap_or(scene.width),
+        height: trace.height.unwrap_or(scene.height),
         spp: args.spp,
-        seed: args.seed,
-        max_bounces: args.max_bounces.unwrap_or(scene.max_bounces),
-        threads: args.threads,
-        progress: !args.quiet,
+        seed: trace.seed,
+        max_bounces: trace.max_bounces.unwrap_or(scene.max_bounces),
+        threads: trace.threads,
+        progress: !trace.quiet,
     };
     settings.validate()?;
     let accel = Accel::build(&scene)?;

@@ -49,6 +49,20 @@ pub struct FirstHit {
     pub bsdf: Bsdf,
 }
 
+impl FirstHit {
+    pub fn new(surface: &SurfacePoint, mesh: u32, depth: f32) -> FirstHit {
+        FirstHit {
+            albedo: surface.bsdf.albedo(),
+            normal: surface.shading_normal,
+            geometric_normal: surface.geometric_normal,
+            position: surface.position,
+            depth,
+            mesh,
+            bsdf: surface.bsdf,
+        }
+    }
+}
+
 /// The camera coordinates of one sample.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct CameraSample {
@@ -164,6 +178,17 @@ impl SurfacePoint {
             bsdf: Bsdf::with_ior(base_color, metallic, roughness, material.specular, material.ior),
             epsilon: (scale + 1e-3) * 4e-6,
         }
+    }
+
+    /// Radiance the surface emits towards `wo` (zero for non-emissive materials; one-sided
+    /// emitters only from their front face).
+    pub fn emission(&self, scene: &Scene, hit: &Hit, wo: Vec3) -> Vec3 {
+        let material = &scene.materials[scene.meshes[hit.mesh as usize].material as usize];
+        if !material.is_emissive() {
+            return Vec3::ZERO;
+        }
+        let winding_normal = if self.front_face { self.geometric_normal } else { -self.geometric_normal };
+        triangle_emission(scene, hit.mesh, hit.triangle, hit.barycentric, winding_normal, wo)
     }
 
     /// Origin for a ray leaving towards `direction`, pushed off the surface on that side.
@@ -368,39 +393,26 @@ impl Integrator<'_> {
             let surface = SurfacePoint::new(scene, &hit, wo, time);
 
             if level == 0 {
-                traced.first_hit = Some(FirstHit {
-                    albedo: surface.bsdf.albedo(),
-                    normal: surface.shading_normal,
-                    geometric_normal: surface.geometric_normal,
-                    position: surface.position,
-                    depth: camera.depth(surface.position),
-                    mesh: hit.mesh,
-                    bsdf: surface.bsdf,
-                });
+                traced.first_hit = Some(FirstHit::new(&surface, hit.mesh, camera.depth(surface.position)));
             }
 
-            let material = &scene.materials[scene.meshes[hit.mesh as usize].material as usize];
-            if material.is_emissive() {
-                let winding_normal =
-                    if surface.front_face { surface.geometric_normal } else { -surface.geometric_normal };
-                let emitted = triangle_emission(scene, hit.mesh, hit.triangle, hit.barycentric, winding_normal, wo);
-                if emitted != Vec3::ZERO {
-                    let weight = match previous_bsdf_pdf {
-                        None => 1.0,
-                        Some(pdf) => {
-                            let light_pdf = self.lights.pdf_triangle(
-                                scene,
-                                hit.mesh,
-                                hit.triangle,
-                                time,
-                                previous_position,
-                                surface.position,
-                            );
-                            power_heuristic(pdf, light_pdf)
-                        }
-                    };
-                    traced.add(level, throughput * emitted * weight);
-                }
+            let emitted = surface.emission(scene, &hit, wo);
+            if emitted != Vec3::ZERO {
+                let weight = match previous_bsdf_pdf {
+                    None => 1.0,
+                    Some(pdf) => {
+                        let light_pdf = self.lights.pdf_triangle(
+                            scene,
+                            hit.mesh,
+                            hit.triangle,
+                            time,
+                            previous_position,
+                            surface.position,
+                        );
+                        power_heuristic(pdf, light_pdf)
+                    }
+                };
+                traced.add(level, throughput * emitted * weight);
             }
             if bounce == self.max_bounces {
                 break;

@@ -26,7 +26,7 @@ use crate::accel::Accel;
 use crate::bsdf::Frame;
 use crate::error::RenderError;
 use crate::integrator::{Integrator, NoRecording, PathStart, SurfacePoint};
-use crate::lights::{triangle_emission, LightSampler};
+use crate::lights::LightSampler;
 use crate::output::{write_exr, Layer};
 use crate::sampler::Sampler;
 use crate::scene::Scene;
@@ -74,13 +74,7 @@ fn guide_pixel(integrator: &Integrator, settings: &DumpSettings, x: u32, y: u32)
     let surface = SurfacePoint::new(scene, &hit, wo, 0.0);
     let frame = Frame::new(surface.shading_normal);
     let wo_local = frame.to_local(wo);
-    let material = &scene.materials[scene.meshes[hit.mesh as usize].material as usize];
-    let emitted = if material.is_emissive() {
-        let winding = if surface.front_face { surface.geometric_normal } else { -surface.geometric_normal };
-        triangle_emission(scene, hit.mesh, hit.triangle, hit.barycentric, winding, wo)
-    } else {
-        Vec3::ZERO
-    };
+    let emitted = surface.emission(scene, &hit, wo);
     let mut direct_sum = Vec3::ZERO;
     let mut indirect_sum = [0.0f64; 3];
     let mut indirect_sum_sq = [0.0f64; 3];

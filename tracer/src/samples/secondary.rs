@@ -280,15 +280,7 @@ fn trace_secondary(
     let surface = crate::integrator::SurfacePoint::new(scene, &hit, wo, time);
     let frame = Frame::new(surface.shading_normal);
     let wo_local = frame.to_local(wo);
-    let emitted_at_origin = {
-        let material = &scene.materials[scene.meshes[hit.mesh as usize].material as usize];
-        if material.is_emissive() {
-            let winding = if surface.front_face { surface.geometric_normal } else { -surface.geometric_normal };
-            crate::lights::triangle_emission(scene, hit.mesh, hit.triangle, hit.barycentric, winding, wo)
-        } else {
-            Vec3::ZERO
-        }
-    };
+    let emitted_at_origin = surface.emission(scene, &hit, wo);
     let [u_select, u_lobe] = sampler.next_2d();
     let u_light = sampler.next_2d();
     let u_direction = sampler.next_2d();
@@ -326,15 +318,7 @@ fn trace_secondary(
                 let mut traced = TracedRay::default();
                 if let Some(h) = integrator.accel.intersect(start.origin, wi, 0.0, f32::INFINITY, time) {
                     let s = crate::integrator::SurfacePoint::new(scene, &h, -wi, time);
-                    traced.first_hit = Some(FirstHit {
-                        albedo: s.bsdf.albedo(),
-                        normal: s.shading_normal,
-                        geometric_normal: s.geometric_normal,
-                        position: s.position,
-                        depth: 0.0,
-                        mesh: h.mesh,
-                        bsdf: s.bsdf,
-                    });
+                    traced.first_hit = Some(FirstHit::new(&s, h.mesh, 0.0));
                 }
                 traced
             }
