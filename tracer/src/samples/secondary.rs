@@ -18,7 +18,7 @@
 //! | `origin` | f32 × 3 | always | o, world space |
 //! | `hit` | f32 × 3 | always | h, world space; equal to o when the ray escapes |
 //! | `origin_normal`, `hit_normal` | u16 × 2 | always | shading normals at o and h facing the ray's origin side, octahedral; (0, 0) → zero for a miss |
-//! | `origin_motion`, `hit_motion` | f16 × 3 | motion | world-space displacement over the shutter of o and h |
+//! | `origin_motion`, `hit_motion` | f16 × 3 | motion | world-space displacement over the shutter of o and h (f32 when a mesh moves further than 60000 units) |
 //! | `bandwidth` | f16 | glossy `indirect` | κ of the von Mises-Fisher lobe at h (Eq. 2); 0 for diffuse |
 //! | `albedo` | f16 × 3 | `indirect` | reflectance at o (demodulation) |
 //! | `direct` | f32 × 3 | `indirect` | direct light at o towards the camera (emission of o, next-event estimation at o, and emitters hit by this ray, MIS-weighted) |
@@ -119,7 +119,12 @@ pub struct SecondaryLayout {
     pub lens: bool,
     pub time: bool,
     pub bandwidth: bool,
+    /// Motion vectors are stored as f16 unless a mesh moves further than f16 can hold.
+    pub motion_type: FieldType,
 }
+
+/// Largest motion stored as f16 (its largest finite value is 65504).
+const F16_MOTION_LIMIT: f32 = 60000.0;
 
 impl SecondaryLayout {
     pub fn for_scene(scene: &Scene, kind: SecondaryKind) -> SecondaryLayout {
@@ -129,6 +134,11 @@ impl SecondaryLayout {
             lens: scene.camera.has_lens(),
             time: scene.has_motion(),
             bandwidth: kind == SecondaryKind::Indirect && glossy,
+            motion_type: if scene.meshes.iter().all(|m| m.motion.abs().max_element() <= F16_MOTION_LIMIT) {
+                FieldType::F16
+            } else {
+                FieldType::F32
+            },
         }
     }
 
@@ -174,12 +184,18 @@ impl SecondaryLayout {
         if self.time {
             fields.push(f(
                 "origin_motion",
-                FieldType::F16,
+                self.motion_type,
                 3,
                 "scene units",
                 "world displacement of o over the shutter",
             ));
-            fields.push(f("hit_motion", FieldType::F16, 3, "scene units", "world displacement of h over the shutter"));
+            fields.push(f(
+                "hit_motion",
+                self.motion_type,
+                3,
+                "scene units",
+                "world displacement of h over the shutter",
+            ));
         }
         if self.bandwidth {
             fields.push(f("bandwidth", FieldType::F16, 1, "", "von Mises-Fisher concentration kappa at h; 0 diffuse"));
