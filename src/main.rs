@@ -2,6 +2,7 @@
 //! sample dumps and reconstructions) and times them.
 
 mod bench;
+mod compare;
 mod export;
 
 use std::path::{Path, PathBuf};
@@ -35,6 +36,9 @@ enum Command {
     Export(export::ExportArgs),
     /// Tracer throughput against raw Embree on the same rays, and thread scaling.
     Bench(bench::BenchArgs),
+    /// Error against run time for path tracing and reconstruction methods, against a cached
+    /// high-spp reference: results.json, report.md, images and plots (docs/compare.md).
+    Compare(compare::CompareArgs),
 }
 
 /// Sample kinds `lfr dump` writes.
@@ -206,6 +210,7 @@ fn main() -> ExitCode {
         Command::Dump(args) => dump(args),
         Command::Export(args) => export::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::Compare(args) => compare::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,5 +1,15 @@
 //! Reconstructions and baselines. Every method reads its input through `sampleio` and never
-//! reaches into the tracer. The methods arrive with their issues (guided filter, temporal light
-//! field, indirect light field); this crate is the place they live.
+//! reaches into the tracer. `method` holds the trait and registry `lfr compare` runs them
+//! through; `metrics` the error measures every comparison reports.
 
+pub mod box_filter;
+pub mod flip;
+pub mod image;
+pub mod method;
+pub mod metrics;
+pub mod oidn;
+pub mod python;
+
+pub use image::Image;
+pub use method::{Effect, Method};
 pub use sampleio;

@@ -21,9 +21,13 @@
 //! | `origin_motion`, `hit_motion` | f16 × 3 | motion | world-space displacement over the shutter of o and h (f32 when a mesh moves further than 60000 units) |
 //! | `bandwidth` | f16 | glossy `indirect` | κ of the von Mises-Fisher lobe at h (Eq. 2); 0 for diffuse |
 //! | `albedo` | f16 × 3 | `indirect` | reflectance at o (demodulation) |
+//! | `weight` | f16 × 3 | glossy `indirect` | BSDF sampling weight f·\|cos\|/pdf of ω at o; for a Lambertian o it equals `albedo`, so it is left out of all-diffuse scenes |
 //! | `direct` | f32 × 3 | `indirect` | direct light at o towards the camera (emission of o, next-event estimation at o, and emitters hit by this ray, MIS-weighted) |
 //! | `secondary_albedo` | f16 × 3 | `indirect` | reflectance at h |
-//! | `secondary_direct` | f32 × 3 | `indirect` | the part of L that h reflects straight from emitters |
+//! | `secondary_direct` | f16 × 3 | `indirect` | the part of L that h reflects straight from emitters (clamped to ±65504) |
+//!
+//! The pixel's estimate from one sample is `direct + weight · radiance` (`albedo` for
+//! `weight` in all-diffuse scenes). f16 values are clamped to the largest finite f16, 65504.
 //!
 //! Samples whose camera ray escapes have o = h = 0, distance 0 (`ao`), zero normals, and only
 //! `direct` (the environment) set.
@@ -119,6 +123,8 @@ pub struct SecondaryLayout {
     pub lens: bool,
     pub time: bool,
     pub bandwidth: bool,
+    /// The BSDF sampling weight at o (glossy scenes; it equals `albedo` for Lambertian o).
+    pub weight: bool,
     /// Motion vectors are stored as f16 unless a mesh moves further than f16 can hold.
     pub motion_type: FieldType,
 }
@@ -134,6 +140,7 @@ impl SecondaryLayout {
             lens: scene.camera.has_lens(),
             time: scene.has_motion(),
             bandwidth: kind == SecondaryKind::Indirect && glossy,
+            weight: kind == SecondaryKind::Indirect && glossy,
             motion_type: if scene.meshes.iter().all(|m| m.motion.abs().max_element() <= F16_MOTION_LIMIT) {
                 FieldType::F16
             } else {
@@ -202,11 +209,20 @@ impl SecondaryLayout {
         }
         if self.indirect() {
             fields.push(f("albedo", FieldType::F16, 3, "", "reflectance at o"));
+            if self.weight {
+                fields.push(f(
+                    "weight",
+                    FieldType::F16,
+                    3,
+                    "",
+                    "BSDF sampling weight f |cos| / pdf of the direction at o",
+                ));
+            }
             fields.push(f("direct", FieldType::F32, 3, "W/(m^2 sr)", "direct light at o towards the camera"));
             fields.push(f("secondary_albedo", FieldType::F16, 3, "", "reflectance at h"));
             fields.push(f(
                 "secondary_direct",
-                FieldType::F32,
+                FieldType::F16,
                 3,
                 "W/(m^2 sr)",
                 "part of radiance reflected at h straight from emitters",
@@ -260,6 +276,90 @@ pub fn dump(
             debug_assert_eq!(sample.len(), values);
             out.extend_from_slice(&sample);
         }
+    })
+}
+
+/// Ambient occlusion per pixel, from exactly the samples an `ao` dump with the same settings
+/// would write: the fraction of a pixel's samples whose cosine-weighted secondary ray travels
+/// at least `radius` (or escapes). A sample whose camera ray escapes counts as unoccluded (1):
+/// nothing occludes the background. Also returns what a denoiser takes as auxiliary buffers:
+/// the mean first-hit normal and an albedo of 1 wherever a surface was hit.
+#[derive(Clone, Debug)]
+pub struct AmbientOcclusionFrame {
+    pub width: u32,
+    pub height: u32,
+    pub visibility: Vec<f32>,
+    pub normal: Vec<Vec3>,
+    pub albedo: Vec<Vec3>,
+    pub seconds: f64,
+}
+
+/// Whether an `ao` sample counts as unoccluded at `radius`: its camera ray escaped (no origin
+/// normal) or its secondary ray reached at least `radius`.
+pub fn ao_visible(distance: f32, origin_normal_present: bool, radius: f32) -> bool {
+    !origin_normal_present || distance >= radius
+}
+
+pub fn ambient_occlusion_frame(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &DumpSettings,
+    radius: f32,
+) -> Result<AmbientOcclusionFrame, RenderError> {
+    settings.validate()?;
+    if !(radius.is_finite() && radius > 0.0) {
+        return Err(RenderError::Settings(format!("the ambient-occlusion radius must be positive, got {radius}")));
+    }
+    let layout = SecondaryLayout::for_scene(scene, SecondaryKind::AmbientOcclusion);
+    let offset_of = |name: &str| {
+        let mut offset = 0;
+        for field in layout.fields() {
+            if field.name == name {
+                return offset;
+            }
+            offset += field.components as usize;
+        }
+        unreachable!("ao samples always have {name}")
+    };
+    let (distance_at, normal_at) = (offset_of("distance"), offset_of("origin_normal"));
+    let lights = LightSampler::new(scene);
+    let integrator = super::integrator(scene, accel, &lights, settings);
+    let pool = crate::render::thread_pool(settings.threads)?;
+    let start = std::time::Instant::now();
+    let rows: Vec<Vec<(f32, Vec3, Vec3)>> = pool.install(|| {
+        use rayon::prelude::*;
+        (0..settings.height)
+            .into_par_iter()
+            .map(|y| {
+                (0..settings.width)
+                    .map(|x| {
+                        let (mut visible, mut normal, mut hits) = (0u32, Vec3::ZERO, 0u32);
+                        for index in 0..settings.spp {
+                            let mut sampler = Sampler::new(settings.seed, x, y, index);
+                            let values = trace_secondary(&integrator, &layout, x, y, &mut sampler);
+                            let has_normal = values[normal_at] != 0.0 || values[normal_at + 1] != 0.0;
+                            visible += ao_visible(values[distance_at], has_normal, radius) as u32;
+                            if has_normal {
+                                normal += decode_octahedral([values[normal_at], values[normal_at + 1]]);
+                                hits += 1;
+                            }
+                        }
+                        let spp = settings.spp as f32;
+                        let albedo = if hits > 0 { Vec3::ONE } else { Vec3::ZERO };
+                        (visible as f32 / spp, normal.normalize_or_zero(), albedo)
+                    })
+                    .collect()
+            })
+            .collect()
+    });
+    let pixels: Vec<(f32, Vec3, Vec3)> = rows.into_iter().flatten().collect();
+    Ok(AmbientOcclusionFrame {
+        width: settings.width,
+        height: settings.height,
+        visibility: pixels.iter().map(|p| p.0).collect(),
+        normal: pixels.iter().map(|p| p.1).collect(),
+        albedo: pixels.iter().map(|p| p.2).collect(),
+        seconds: start.elapsed().as_secs_f64(),
     })
 }
 
@@ -367,12 +467,23 @@ fn trace_secondary(
     if layout.indirect() {
         let direct = emitted_at_origin + direct_at_origin + weight * secondary.emitted;
         values.extend_from_slice(&surface.bsdf.albedo().to_array());
+        if layout.weight {
+            values.extend_from_slice(&clamp_f16(weight).to_array());
+        }
         values.extend_from_slice(&finite_or_zero(direct).to_array());
         values.extend_from_slice(&secondary_hit.map_or(Vec3::ZERO, |h| h.bsdf.albedo()).to_array());
-        values.extend_from_slice(&secondary.direct.to_array());
+        values.extend_from_slice(&clamp_f16(secondary.direct).to_array());
     }
     values
 }
+
+/// Non-finite → 0, then clamped to the finite f16 range.
+fn clamp_f16(v: Vec3) -> Vec3 {
+    finite_or_zero(v).clamp(Vec3::splat(-F16_MAX), Vec3::splat(F16_MAX))
+}
+
+/// The largest finite f16.
+const F16_MAX: f32 = 65504.0;
 
 fn finite_or_zero(v: Vec3) -> Vec3 {
     if v.is_finite() {
@@ -399,9 +510,12 @@ fn push_miss(values: &mut Vec<f32>, layout: &SecondaryLayout, environment: Vec3)
         values.push(0.0);
     }
     if layout.indirect() {
-        values.extend_from_slice(&[0.0; 3]);
+        values.extend_from_slice(&[0.0; 3]); // albedo
+        if layout.weight {
+            values.extend_from_slice(&[0.0; 3]);
+        }
         values.extend_from_slice(&environment.to_array());
-        values.extend_from_slice(&[0.0; 6]);
+        values.extend_from_slice(&[0.0; 6]); // secondary albedo and direct
     }
 }
 

@@ -1,0 +1,201 @@
+//! The one interface every reconstruction and baseline implements, and the registry through
+//! which `lfr compare` finds them. A method names the inputs it reads (sample files of one
+//! kind, or the path-traced frame with its albedo and normal); the harness traces those inputs,
+//! times the tracing, and hands the method their paths or buffers. The method returns the
+//! reconstructed image of the effect's layer with its own time split into preprocess and
+//! reconstruct. Later issues add their methods to `registry`.
+
+use std::path::PathBuf;
+
+use crate::image::Image;
+
+/// The effect a comparison measures: it fixes the image layer and the sample kind.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Effect {
+    /// Indirect illumination: light reflected after at least one more bounce.
+    Indirect,
+    /// Glossy reflections: the indirect layer of a scene with glossy materials.
+    Glossy,
+    /// Ambient occlusion: the fraction of cosine-weighted rays unoccluded within a radius.
+    Ao,
+    /// Depth of field: the full image through an open lens, motion disabled.
+    Dof,
+    /// Motion blur: the full image over the shutter, the lens closed.
+    Motion,
+    /// Depth of field and motion blur together.
+    DofMotion,
+    /// Area-light soft shadows: direct illumination only (emission plus one bounce).
+    SoftShadow,
+}
+
+impl Effect {
+    pub const ALL: [Effect; 7] = [
+        Effect::Indirect,
+        Effect::Glossy,
+        Effect::Ao,
+        Effect::Dof,
+        Effect::Motion,
+        Effect::DofMotion,
+        Effect::SoftShadow,
+    ];
+
+    /// The command-line name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Effect::Indirect => "indirect",
+            Effect::Glossy => "glossy",
+            Effect::Ao => "ao",
+            Effect::Dof => "dof",
+            Effect::Motion => "motion",
+            Effect::DofMotion => "dof-motion",
+            Effect::SoftShadow => "soft-shadow",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Effect> {
+        Effect::ALL.into_iter().find(|e| e.name() == name)
+    }
+
+    /// The sample kind whose per-pixel average estimates this effect's image.
+    pub fn sample_kind(self) -> sampleio::SampleKind {
+        match self {
+            Effect::Indirect | Effect::Glossy => sampleio::SampleKind::Indirect,
+            Effect::Ao => sampleio::SampleKind::Ao,
+            Effect::Dof | Effect::Motion | Effect::DofMotion | Effect::SoftShadow => sampleio::SampleKind::LensTime,
+        }
+    }
+}
+
+/// What a method reads; the harness produces it with the tracer and times it as `trace_s`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Input {
+    /// A sample file of the effect's sample kind (`Effect::sample_kind`).
+    Samples,
+    /// The path-traced image of the effect with per-pixel albedo and normal (box pixel filter).
+    Frame,
+}
+
+/// A path-traced frame: the effect's layer and the first-hit albedo and world-space normal.
+#[derive(Clone, Debug)]
+pub struct FrameInput {
+    pub color: Image,
+    pub albedo: Image,
+    pub normal: Image,
+}
+
+/// Everything a method run receives.
+#[derive(Clone, Debug)]
+pub struct Inputs<'a> {
+    pub effect: Effect,
+    pub width: u32,
+    pub height: u32,
+    /// Input samples per pixel.
+    pub spp: u32,
+    /// The sample file, when the method asked for `Input::Samples`.
+    pub samples: Option<PathBuf>,
+    /// The path-traced frame, when the method asked for `Input::Frame`.
+    pub frame: Option<&'a FrameInput>,
+    /// Ambient-occlusion radius in scene units (`Effect::Ao`).
+    pub ao_radius: f32,
+    /// Worker threads; 0 = all cores.
+    pub threads: usize,
+}
+
+/// What a method run returns.
+#[derive(Clone, Debug)]
+pub struct Output {
+    pub image: Image,
+    /// Seconds spent before reconstruction proper (reading, sorting, hierarchies, k-NN).
+    pub preprocess_s: f64,
+    /// Seconds spent reconstructing.
+    pub recon_s: f64,
+    /// Peak resident memory of an external process the method ran in (MiB), if any; the
+    /// harness measures its own process itself.
+    pub external_peak_rss_mb: Option<f64>,
+    /// Anything the report should say about this run.
+    pub notes: Vec<String>,
+}
+
+/// Why a method could not run.
+#[derive(Debug)]
+pub enum MethodError {
+    /// The method does not handle this effect.
+    Unsupported(String),
+    /// A dependency (e.g. a Python package) is missing; the harness skips the method.
+    Unavailable(String),
+    /// The input was bad or the method failed.
+    Failed(String),
+}
+
+impl std::fmt::Display for MethodError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            MethodError::Unsupported(m) => write!(f, "unsupported: {m}"),
+            MethodError::Unavailable(m) => write!(f, "unavailable: {m}"),
+            MethodError::Failed(m) => write!(f, "{m}"),
+        }
+    }
+}
+
+impl std::error::Error for MethodError {}
+
+impl From<sampleio::SampleError> for MethodError {
+    fn from(error: sampleio::SampleError) -> Self {
+        MethodError::Failed(error.to_string())
+    }
+}
+
+/// A reconstruction or baseline `lfr compare` can run.
+pub trait Method: Send + Sync {
+    /// The `--methods` name.
+    fn name(&self) -> &'static str;
+    /// One line for reports and `--help`.
+    fn description(&self) -> &'static str;
+    /// Whether it handles `effect`.
+    fn supports(&self, effect: Effect) -> bool;
+    /// What it reads.
+    fn input(&self) -> Input;
+    /// Reconstruction rays (or locations) per pixel to sweep by default; `[0]` for methods
+    /// without such a parameter.
+    fn default_recon_rays(&self) -> Vec<u32> {
+        vec![0]
+    }
+    /// `Err(reason)` when a dependency is missing; checked once before any run.
+    fn available(&self) -> Result<(), String> {
+        Ok(())
+    }
+    /// Reconstructs the effect's image from `inputs`.
+    fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError>;
+}
+
+/// Every method, in the order reports list them.
+pub fn registry() -> Vec<Box<dyn Method>> {
+    vec![Box::new(crate::box_filter::BoxFilter), Box::new(crate::oidn::Oidn::default())]
+}
+
+/// The registered method called `name`.
+pub fn find(name: &str) -> Option<Box<dyn Method>> {
+    registry().into_iter().find(|m| m.name() == name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn effect_names_round_trip() {
+        for effect in Effect::ALL {
+            assert_eq!(Effect::from_name(effect.name()), Some(effect));
+        }
+        assert_eq!(Effect::from_name("bokeh"), None);
+    }
+
+    #[test]
+    fn registry_names_are_unique() {
+        let names: Vec<_> = registry().iter().map(|m| m.name()).collect();
+        let mut sorted = names.clone();
+        sorted.sort();
+        sorted.dedup();
+        assert_eq!(sorted.len(), names.len(), "{names:?}");
+    }
+}

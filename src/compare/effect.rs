@@ -1,0 +1,166 @@
+//! What each effect means for the tracer: how the scene is set up for it (what is switched
+//! off), which estimator gives its image, and which samples the methods read.
+//!
+//! | effect | scene set-up | image (reference, ladder, `Frame` input) | samples |
+//! |---|---|---|---|
+//! | `indirect` | as given; needs `max_bounces ≥ 2` | `indirect` layer | `indirect` |
+//! | `glossy` | as given; needs a glossy material | `indirect` layer | `indirect` |
+//! | `ao` | as given | ambient visibility within the AO radius | `ao` |
+//! | `dof` | motion removed; needs an aperture | `beauty` | `lens-time` |
+//! | `motion` | lens closed; needs motion | `beauty` | `lens-time` |
+//! | `dof-motion` | needs both | `beauty` | `lens-time` |
+//! | `soft-shadow` | `max_bounces = 1` (direct light only); needs an emissive mesh | `beauty` | `lens-time` |
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{bail, Result};
+use glam::Vec3;
+use recon::method::FrameInput;
+use recon::{Effect, Image};
+use tracer::samples::secondary::{ambient_occlusion_frame, scene_is_glossy, SecondaryKind};
+use tracer::samples::DumpSettings;
+use tracer::{Accel, RenderSettings, Scene};
+
+/// Switches off what `effect` does not measure and checks the scene has what it does.
+/// Returns the path length to trace with.
+pub fn prepare_scene(effect: Effect, scene: &mut Scene, max_bounces: Option<u32>) -> Result<u32> {
+    let source = scene.source.display().to_string();
+    let mut bounces = max_bounces.unwrap_or(scene.max_bounces);
+    let needs_lens = matches!(effect, Effect::Dof | Effect::DofMotion);
+    let needs_motion = matches!(effect, Effect::Motion | Effect::DofMotion);
+    if needs_lens && !scene.camera.has_lens() {
+        bail!("{source}: --effect {} needs a camera with an aperture (camera.aperture_radius > 0)", effect.name());
+    }
+    if needs_motion && !scene.has_motion() {
+        bail!("{source}: --effect {} needs moving geometry (a mesh with `motion`)", effect.name());
+    }
+    match effect {
+        Effect::Dof => scene.meshes.iter_mut().for_each(|m| m.motion = Vec3::ZERO),
+        Effect::Motion => scene.camera.aperture_radius = 0.0,
+        Effect::SoftShadow => {
+            let emissive =
+                scene.meshes.iter().any(|m| scene.materials[m.material as usize].emission.max_element() > 0.0);
+            if !emissive {
+                bail!("{source}: --effect soft-shadow needs an area light (an emissive mesh)");
+            }
+            bounces = 1;
+        }
+        Effect::Indirect | Effect::Glossy => {
+            if bounces < 2 {
+                bail!("--effect {} needs at least 2 bounces, --max-bounces is {bounces}", effect.name());
+            }
+            if effect == Effect::Glossy && !scene_is_glossy(scene) {
+                bail!("{source}: --effect glossy needs a glossy material (specular lobe stronger than diffuse)");
+            }
+        }
+        Effect::Ao | Effect::DofMotion => {}
+    }
+    Ok(bounces)
+}
+
+/// The default ambient-occlusion radius: a tenth of the scene's bounding-box diagonal.
+pub fn default_ao_radius(scene: &Scene) -> f32 {
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for mesh in &scene.meshes {
+        for &p in &mesh.positions {
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+    }
+    let diagonal = (hi - lo).length();
+    if diagonal.is_finite() && diagonal > 0.0 {
+        0.1 * diagonal
+    } else {
+        1.0
+    }
+}
+
+/// How the effect's images are traced.
+pub struct Tracing<'a> {
+    pub scene: &'a Scene,
+    pub accel: &'a Accel,
+    pub effect: Effect,
+    pub width: u32,
+    pub height: u32,
+    pub max_bounces: u32,
+    pub ao_radius: f32,
+    pub threads: usize,
+}
+
+/// A traced image of the effect with the denoiser's auxiliary buffers and its wall time.
+pub struct Traced {
+    pub frame: FrameInput,
+    pub seconds: f64,
+}
+
+fn image_from_vec3(width: u32, height: u32, values: &[Vec3]) -> Image {
+    Image::from_pixels(width, height, values.iter().map(|v| v.to_array()).collect())
+}
+
+impl Tracing<'_> {
+    /// Path traces the effect's image at `spp` with `seed` (box pixel filter).
+    pub fn trace(&self, spp: u32, seed: u32, progress: bool) -> Result<Traced> {
+        let (width, height) = (self.width, self.height);
+        let start = Instant::now();
+        let frame = if self.effect == Effect::Ao {
+            let ao = ambient_occlusion_frame(self.scene, self.accel, &self.dump_settings(spp, seed), self.ao_radius)?;
+            FrameInput {
+                color: Image::from_pixels(width, height, ao.visibility.iter().map(|&v| [v; 3]).collect()),
+                albedo: image_from_vec3(width, height, &ao.albedo),
+                normal: image_from_vec3(width, height, &ao.normal),
+            }
+        } else {
+            let settings = RenderSettings {
+                width,
+                height,
+                spp,
+                seed,
+                max_bounces: self.max_bounces,
+                threads: self.threads,
+                progress,
+            };
+            let frame = tracer::render(self.scene, self.accel, &settings)?;
+            let color = match self.effect {
+                Effect::Indirect | Effect::Glossy => &frame.indirect,
+                _ => &frame.beauty,
+            };
+            FrameInput {
+                color: image_from_vec3(width, height, color),
+                albedo: image_from_vec3(width, height, &frame.albedo),
+                normal: image_from_vec3(width, height, &frame.normal),
+            }
+        };
+        Ok(Traced { frame, seconds: start.elapsed().as_secs_f64() })
+    }
+
+    fn dump_settings(&self, spp: u32, seed: u32) -> DumpSettings {
+        DumpSettings {
+            width: self.width,
+            height: self.height,
+            spp,
+            seed,
+            max_bounces: self.max_bounces,
+            threads: self.threads,
+            progress: false,
+        }
+    }
+
+    /// Writes the effect's samples at `spp` to `path`; returns the wall time.
+    pub fn dump(&self, spp: u32, seed: u32, path: &Path) -> Result<f64> {
+        let settings = self.dump_settings(spp, seed);
+        let start = Instant::now();
+        let (scene, accel) = (self.scene, self.accel);
+        match self.effect.sample_kind() {
+            sampleio::SampleKind::Indirect => {
+                tracer::samples::secondary::dump(scene, accel, &settings, SecondaryKind::Indirect, path)?
+            }
+            sampleio::SampleKind::Ao => {
+                tracer::samples::secondary::dump(scene, accel, &settings, SecondaryKind::AmbientOcclusion, path)?
+            }
+            sampleio::SampleKind::LensTime => tracer::samples::lens_time::dump(scene, accel, &settings, path)?,
+            sampleio::SampleKind::Light => tracer::samples::light::dump(scene, accel, &settings, path)?,
+        };
+        Ok(start.elapsed().as_secs_f64())
+    }
+}

@@ -1,0 +1,614 @@
+//! `lfr compare`: error against run time for path tracing and every requested method, on one
+//! scene and effect, against a cached high-spp reference (docs/compare.md).
+//!
+//! Flow: set the scene up for the effect (`effect`), trace or read the cached reference
+//! (`reference`), run the path-tracing ladder, then each method over input spp ×
+//! reconstruction rays with its inputs traced by the tracer and timed as `trace_s`; measure
+//! every image against the reference (`recon::metrics`, HDR-FLIP through `recon::flip`), read
+//! the verdicts off the PT curve (`verdict`), and write images, plots, `results.json`
+//! (`results`) and `report.md` (`report`).
+
+pub mod effect;
+pub mod images;
+pub mod memory;
+pub mod plot;
+pub mod reference;
+pub mod report;
+pub mod results;
+pub mod verdict;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use recon::method::{FrameInput, Input, Inputs, MethodError};
+use recon::metrics::{evaluate, psnr_db, ToneMap, PSNR_CEILING_DB};
+use recon::{Effect, Image, Method};
+use tracer::output::write_atomically;
+use tracer::Accel;
+
+use effect::{default_ao_radius, prepare_scene, Tracing};
+use results::{ReferenceInfo, Results, Run, Skipped, ToneMapInfo, Verdict};
+use verdict::{monotone_curve, psnr_at_time, time_to_psnr, CurvePoint};
+
+fn parse_effect(name: &str) -> Result<Effect, String> {
+    Effect::from_name(name)
+        .ok_or_else(|| format!("unknown effect `{name}`; one of: {}", Effect::ALL.map(|e| e.name()).join(", ")))
+}
+
+#[derive(clap::Args)]
+pub struct CompareArgs {
+    /// Scene file; the embedded Cornell box when omitted.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+    /// indirect, glossy, ao, dof, motion, dof-motion or soft-shadow.
+    #[arg(long, value_parser = parse_effect)]
+    pub effect: Effect,
+    /// Output directory (created): results.json, report.md, images/, plots.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Methods to compare, comma-separated (`lfr compare --list-methods` lists them).
+    #[arg(long, value_delimiter = ',', default_value = "box,oidn")]
+    pub methods: Vec<String>,
+    #[arg(long)]
+    pub width: Option<u32>,
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Seed of the inputs and the ladder; the reference uses two seeds derived from it.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u32,
+    /// Input samples per pixel of the methods, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "1,2,4,8,16")]
+    pub spp: Vec<u32>,
+    /// Reconstruction rays (or locations) per pixel, comma-separated; default: each method's own.
+    #[arg(long, value_delimiter = ',')]
+    pub recon_rays: Option<Vec<u32>>,
+    /// Samples per pixel of the reference (two halves of half as many).
+    #[arg(long, default_value_t = 4096)]
+    pub reference_spp: u32,
+    /// The path-tracing ladder runs 1, 2, 4, ... up to this many spp.
+    #[arg(long, default_value_t = 256)]
+    pub pt_max_spp: u32,
+    /// Path length (default: the scene's; soft-shadow always uses 1, direct light only).
+    #[arg(long)]
+    pub max_bounces: Option<u32>,
+    /// Ambient-occlusion radius in scene units (default: a tenth of the scene's diagonal).
+    #[arg(long)]
+    pub ao_radius: Option<f32>,
+    /// Exposure of the tone map for PSNR/SSIM (default: the reference's 99th-percentile
+    /// luminance maps to 1).
+    #[arg(long)]
+    pub exposure: Option<f32>,
+    /// Reference cache directory (default: $LFR_CACHE_DIR, $XDG_CACHE_HOME/lfr or ~/.cache/lfr).
+    #[arg(long)]
+    pub cache_dir: Option<PathBuf>,
+    /// Trace the reference even when a cached one exists (and replace it).
+    #[arg(long)]
+    pub no_cache: bool,
+    /// Keep the methods' input sample files in OUT/inputs.
+    #[arg(long)]
+    pub keep_samples: bool,
+    /// Worker threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// No progress bars.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// The methods named on the command line, in order, without repeats.
+fn resolve_methods(names: &[String], effect: Effect) -> Result<Vec<Box<dyn Method>>> {
+    let mut methods: Vec<Box<dyn Method>> = Vec::new();
+    for name in names.iter().map(|n| n.trim()).filter(|n| !n.is_empty()) {
+        if methods.iter().any(|m| m.name() == name) {
+            continue;
+        }
+        let Some(method) = recon::method::find(name) else {
+            let known: Vec<_> = recon::method::registry().iter().map(|m| m.name()).collect();
+            bail!("--methods: unknown method `{name}`; known: {}", known.join(", "));
+        };
+        if !method.supports(effect) {
+            bail!("--methods: {name} does not handle --effect {}", effect.name());
+        }
+        methods.push(method);
+    }
+    Ok(methods)
+}
+
+/// A measured image before its verdicts.
+struct Measured {
+    run: Run,
+    image: Image,
+}
+
+/// Scores images against the reference and writes them.
+struct Scoring<'a> {
+    dir: &'a Path,
+    reference: &'a Image,
+    tone: ToneMap,
+    layer: &'static str,
+}
+
+impl Scoring<'_> {
+    #[allow(clippy::too_many_arguments)]
+    fn measure(
+        &self,
+        method: &str,
+        input_spp: u32,
+        recon_rays: u32,
+        times: (f64, f64, f64),
+        peak_rss_mb: Option<f64>,
+        image: Image,
+        notes: Vec<String>,
+    ) -> Result<Measured> {
+        self.reference.check_same_size(&image).with_context(|| {
+            format!("{method} at {input_spp} spp returned an image of the wrong size for this comparison")
+        })?;
+        let metrics = evaluate(self.reference, &image, &self.tone)?;
+        let stem = if recon_rays > 0 {
+            format!("{method}-{input_spp}spp-{recon_rays}rays")
+        } else {
+            format!("{method}-{input_spp}spp")
+        };
+        let images = self.dir.join("images");
+        images::write_image(&images, &stem, self.layer, &image, &self.tone)?;
+        images::write_error_map(&images, &format!("{stem}-error"), self.reference, &image, &self.tone)?;
+        let (trace_s, preprocess_s, recon_s) = times;
+        let mut notes = notes;
+        if metrics.nonfinite_pixels > 0 {
+            notes.push(format!(
+                "INVALID: {} pixels are NaN or infinite; they are scored as worst-case errors and the run is left out of the verdicts",
+                metrics.nonfinite_pixels
+            ));
+        }
+        eprintln!(
+            "  {method:>10} {input_spp:>5} spp{}: {:>8.3} s, {:6.2} dB, relMSE {:.3e}, SSIM {:.4}{}",
+            if recon_rays > 0 { format!(" × {recon_rays} rays") } else { String::new() },
+            trace_s + preprocess_s + recon_s,
+            metrics.psnr_db,
+            metrics.rel_mse,
+            metrics.ssim,
+            if metrics.nonfinite_pixels > 0 { " (INVALID: non-finite pixels)" } else { "" }
+        );
+        Ok(Measured {
+            run: Run {
+                method: method.to_string(),
+                input_spp,
+                recon_rays,
+                trace_s,
+                preprocess_s,
+                recon_s,
+                total_s: trace_s + preprocess_s + recon_s,
+                psnr_db: metrics.psnr_db,
+                rel_mse: metrics.rel_mse,
+                ssim: metrics.ssim,
+                flip: None,
+                peak_rss_mb,
+                nonfinite_pixels: metrics.nonfinite_pixels,
+                valid: metrics.nonfinite_pixels == 0,
+                equal_time_psnr_gain_db: None,
+                speedup: None,
+                verdict_extrapolated: false,
+                image: format!("images/{stem}.exr"),
+                preview: format!("images/{stem}.png"),
+                error_map: format!("images/{stem}-error.png"),
+                notes,
+            },
+            image,
+        })
+    }
+}
+
+/// The ladder's sample counts: powers of two up to `max`, plus every input spp.
+fn ladder(max: u32, input_spp: &[u32]) -> Vec<u32> {
+    let mut spp: Vec<u32> = std::iter::successors(Some(1u32), |s| s.checked_mul(2)).take_while(|&s| s <= max).collect();
+    spp.extend_from_slice(input_spp);
+    spp.sort_unstable();
+    spp.dedup();
+    spp
+}
+
+/// Fills in each run's verdicts from the PT curve and sums up each method.
+fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
+    let curve = monotone_curve(
+        &runs
+            .iter()
+            .filter(|r| r.method == "pt" && r.valid)
+            .map(|r| CurvePoint { seconds: r.total_s, psnr_db: r.psnr_db })
+            .collect::<Vec<_>>(),
+    );
+    for run in runs.iter_mut().filter(|r| r.method != "pt" && r.valid) {
+        let at_time = psnr_at_time(&curve, run.total_s);
+        let to_psnr = time_to_psnr(&curve, run.psnr_db);
+        run.equal_time_psnr_gain_db = at_time.map(|r| run.psnr_db - r.value);
+        run.speedup = to_psnr.filter(|_| run.total_s > 0.0).map(|r| r.value / run.total_s);
+        run.verdict_extrapolated = at_time.is_some_and(|r| r.extrapolated) || to_psnr.is_some_and(|r| r.extrapolated);
+    }
+    let mut names: Vec<String> = Vec::new();
+    for run in runs.iter().filter(|r| r.method != "pt") {
+        if !names.contains(&run.method) {
+            names.push(run.method.clone());
+        }
+    }
+    names
+        .into_iter()
+        .map(|method| {
+            let mine: Vec<&Run> = runs.iter().filter(|r| r.method == method).collect();
+            let valid: Vec<&&Run> = mine.iter().filter(|r| r.valid && r.speedup.is_some()).collect();
+            let best = valid.iter().max_by(|a, b| a.speedup.unwrap_or(0.0).total_cmp(&b.speedup.unwrap_or(0.0)));
+            let best_gain = valid.iter().filter_map(|r| r.equal_time_psnr_gain_db).max_by(f64::total_cmp);
+            let best_psnr = valid.iter().map(|r| r.psnr_db).max_by(f64::total_cmp);
+            let summary = match best {
+                Some(run) => {
+                    let speedup = run.speedup.unwrap_or(0.0);
+                    let rays = if run.recon_rays > 0 { format!(" with {} reconstruction rays", run.recon_rays) } else { String::new() };
+                    format!(
+                        "{method} at its best ({} input spp{rays}) reaches {:.2} dB in {:.3} s; path tracing needs {:.3} s for that: {}{}",
+                        run.input_spp,
+                        run.psnr_db,
+                        run.total_s,
+                        speedup * run.total_s,
+                        if speedup >= 1.0 { format!("{speedup:.2}× faster") } else { format!("{:.2}× slower", 1.0 / speedup.max(1e-12)) },
+                        if run.verdict_extrapolated { " (PT curve extrapolated at 10 dB per decade)" } else { "" }
+                    )
+                }
+                None if mine.iter().any(|r| !r.valid) => {
+                    format!("{method}: no valid run (non-finite output pixels); no verdict")
+                }
+                None => format!("{method}: no verdict (no path-tracing curve)"),
+            };
+            Verdict {
+                method,
+                best_speedup: best.and_then(|r| r.speedup),
+                best_speedup_input_spp: best.map(|r| r.input_spp),
+                best_speedup_recon_rays: best.map(|r| r.recon_rays),
+                best_equal_time_psnr_gain_db: best_gain,
+                best_psnr_db: best_psnr,
+                summary,
+            }
+        })
+        .collect()
+}
+
+pub fn run(args: &CompareArgs) -> Result<()> {
+    let total_start = Instant::now();
+    let effect = args.effect;
+    if args.spp.is_empty() || args.spp.iter().any(|&s| s == 0 || s > 1 << 16) {
+        bail!("--spp: every input sample count must be in 1..=65536, got {:?}", args.spp);
+    }
+    if args.reference_spp < 2 || args.reference_spp > 1 << 20 {
+        bail!("--reference-spp must be in 2..=1048576, got {}", args.reference_spp);
+    }
+    if args.pt_max_spp == 0 || args.pt_max_spp > 1 << 16 {
+        bail!("--pt-max-spp must be in 1..=65536, got {}", args.pt_max_spp);
+    }
+    if let Some(rays) = &args.recon_rays {
+        if rays.is_empty() || rays.contains(&0) {
+            bail!("--recon-rays: every count must be at least 1, got {rays:?}");
+        }
+    }
+    let tone_given = match args.exposure {
+        Some(exposure) => Some(ToneMap::with_exposure(exposure).map_err(|e| anyhow::anyhow!("--exposure: {e}"))?),
+        None => None,
+    };
+    let methods = resolve_methods(&args.methods, effect)?;
+
+    let scene_text: Vec<u8> = match &args.scene {
+        Some(path) => std::fs::read(path).with_context(|| format!("reading the scene {}", path.display()))?,
+        None => crate::DEFAULT_SCENE.as_bytes().to_vec(),
+    };
+    let mut scene = crate::load_scene(args.scene.as_deref())?;
+    let max_bounces = prepare_scene(effect, &mut scene, args.max_bounces)?;
+    let (width, height) = (args.width.unwrap_or(scene.width), args.height.unwrap_or(scene.height));
+    if width == 0 || height == 0 || width > 1 << 14 || height > 1 << 14 {
+        bail!("--width and --height must be in 1..=16384, got {width}x{height}");
+    }
+    let ao_radius = match args.ao_radius {
+        Some(r) if !(r.is_finite() && r > 0.0) => bail!("--ao-radius must be positive and finite, got {r}"),
+        Some(r) => r,
+        None => default_ao_radius(&scene),
+    };
+    let accel = Accel::build(&scene)?;
+    let tracing =
+        Tracing { scene: &scene, accel: &accel, effect, width, height, max_bounces, ao_radius, threads: args.threads };
+    let progress = !args.quiet;
+    let dir = &args.out;
+    std::fs::create_dir_all(dir.join("images")).with_context(|| format!("creating {}", dir.display()))?;
+
+    // The reference.
+    let cache = reference::cache_dir(args.cache_dir.as_deref());
+    eprintln!(
+        "compare: {} --effect {} at {width}x{height}; reference {} spp (cache {})",
+        scene.source.display(),
+        effect.name(),
+        args.reference_spp,
+        cache.display()
+    );
+    let reference =
+        reference::reference(&tracing, &scene_text, args.reference_spp, args.seed, &cache, !args.no_cache, progress)?;
+    eprintln!(
+        "  reference: {} spp, {:.1} s{}",
+        reference.spp,
+        reference.seconds,
+        if reference.from_cache { " (cached)" } else { "" }
+    );
+    let (tone, exposure_source) = match tone_given {
+        Some(tone) => (tone, "given"),
+        None => (ToneMap::auto(&reference.image), "auto"),
+    };
+    let layer: &'static str = match effect {
+        Effect::Indirect | Effect::Glossy => "indirect",
+        Effect::Ao => "ao",
+        Effect::SoftShadow => "direct",
+        _ => "beauty",
+    };
+    images::write_image(&dir.join("images"), "reference", layer, &reference.image, &tone)?;
+    let half_psnr = psnr_db(&reference.half_a, &reference.half_b, &tone)?;
+    // The mean of two halves has a quarter of the squared difference of the halves as error.
+    let estimated_psnr_db = (half_psnr + 10.0 * 4f64.log10()).min(PSNR_CEILING_DB);
+
+    let per_run_peak = memory::reset_peak();
+    let context = Scoring { dir, reference: &reference.image, tone, layer };
+    let mut measured: Vec<Measured> = Vec::new();
+
+    // The path-tracing ladder; its frames are the `Frame` inputs of the methods.
+    let mut frames: BTreeMap<u32, (FrameInput, f64)> = BTreeMap::new();
+    let needs_frame = methods.iter().any(|m| m.input() == Input::Frame);
+    for spp in ladder(args.pt_max_spp, if needs_frame { &args.spp } else { &[] }) {
+        memory::reset_peak();
+        let traced = tracing.trace(spp, args.seed, false)?;
+        let peak = memory::peak_rss_mb();
+        let image = traced.frame.color.clone();
+        measured.push(context.measure("pt", spp, 0, (traced.seconds, 0.0, 0.0), peak, image, Vec::new())?);
+        if needs_frame && args.spp.contains(&spp) {
+            frames.insert(spp, (traced.frame, traced.seconds));
+        }
+    }
+
+    // The methods.
+    let inputs_dir = dir.join("inputs");
+    let mut samples: BTreeMap<u32, (PathBuf, f64)> = BTreeMap::new();
+    let mut skipped = Vec::new();
+    'methods: for method in &methods {
+        if let Err(reason) = method.available() {
+            eprintln!("skipping {}: {reason}", method.name());
+            skipped.push(Skipped { method: method.name().to_string(), reason });
+            continue;
+        }
+        let default_rays = method.default_recon_rays();
+        let rays: Vec<u32> =
+            if default_rays == [0] { vec![0] } else { args.recon_rays.clone().unwrap_or(default_rays) };
+        for &spp in &args.spp {
+            let (sample_path, frame, trace_s) = match method.input() {
+                Input::Samples => {
+                    if let std::collections::btree_map::Entry::Vacant(entry) = samples.entry(spp) {
+                        std::fs::create_dir_all(&inputs_dir)
+                            .with_context(|| format!("creating {}", inputs_dir.display()))?;
+                        let path = inputs_dir.join(format!("{}-{spp}spp.lfrs", effect.sample_kind().name()));
+                        let seconds = tracing.dump(spp, args.seed, &path)?;
+                        entry.insert((path, seconds));
+                    }
+                    let (path, seconds) = &samples[&spp];
+                    (Some(path.clone()), None, *seconds)
+                }
+                Input::Frame => {
+                    let (frame, seconds) = &frames[&spp];
+                    (None, Some(frame), *seconds)
+                }
+            };
+            let inputs =
+                Inputs { effect, width, height, spp, samples: sample_path, frame, ao_radius, threads: args.threads };
+            for &recon_rays in &rays {
+                memory::reset_peak();
+                let output = match method.run(&inputs, recon_rays) {
+                    Ok(output) => output,
+                    Err(MethodError::Unavailable(reason)) => {
+                        eprintln!("skipping {}: {reason}", method.name());
+                        skipped.push(Skipped { method: method.name().to_string(), reason });
+                        continue 'methods;
+                    }
+                    Err(error) => bail!("{} at {spp} spp: {error}", method.name()),
+                };
+                let own_peak = memory::peak_rss_mb();
+                let peak = match (own_peak, output.external_peak_rss_mb) {
+                    (Some(a), Some(b)) => Some(a.max(b)),
+                    (a, b) => a.or(b),
+                };
+                measured.push(context.measure(
+                    method.name(),
+                    spp,
+                    recon_rays,
+                    (trace_s, output.preprocess_s, output.recon_s),
+                    peak,
+                    output.image,
+                    output.notes,
+                )?);
+            }
+        }
+    }
+    if !args.keep_samples && inputs_dir.exists() {
+        std::fs::remove_dir_all(&inputs_dir).with_context(|| format!("removing {}", inputs_dir.display()))?;
+    }
+
+    // HDR-FLIP, when the Python package is there: one process for every image.
+    let flip_available = recon::flip::available();
+    if flip_available {
+        let scale = |image: &Image| {
+            let pixels = image.pixels.iter().map(|p| p.map(|v| v * tone.exposure)).collect();
+            Image::from_pixels(image.width, image.height, pixels)
+        };
+        let scaled: Vec<Image> = measured.iter().map(|m| scale(&m.image)).collect();
+        match recon::flip::hdr_flip_many(&scale(&reference.image), &scaled.iter().collect::<Vec<_>>()) {
+            Ok(Some(values)) => {
+                for (m, value) in measured.iter_mut().zip(values) {
+                    m.run.flip = Some(value);
+                }
+            }
+            Ok(None) => {}
+            Err(error) => {
+                eprintln!("warning: HDR-FLIP failed: {error}");
+                for m in &mut measured {
+                    m.run.notes.push(format!("HDR-FLIP not computed: {error}"));
+                }
+            }
+        }
+    }
+
+    let mut runs: Vec<Run> = measured.into_iter().map(|m| m.run).collect();
+    let verdicts = verdicts(&mut runs);
+    let results = Results {
+        schema: results::SCHEMA,
+        lfr_version: env!("CARGO_PKG_VERSION"),
+        scene: scene.source.display().to_string(),
+        effect: effect.name().to_string(),
+        width,
+        height,
+        seed: args.seed,
+        threads: if args.threads == 0 { rayon::current_num_threads() } else { args.threads },
+        max_bounces,
+        ao_radius: (effect == Effect::Ao).then_some(ao_radius),
+        tone_map: ToneMapInfo { exposure: tone.exposure, gamma: tone.gamma, exposure_source },
+        reference: ReferenceInfo {
+            spp: reference.spp,
+            seconds: reference.seconds,
+            seeds: reference.seeds,
+            cache_key: reference.key.clone(),
+            from_cache: reference.from_cache,
+            estimated_psnr_db,
+            image: "images/reference.exr".into(),
+        },
+        flip_available,
+        peak_rss_per_run: per_run_peak,
+        runs,
+        skipped,
+        verdicts,
+        total_seconds: total_start.elapsed().as_secs_f64(),
+    };
+
+    report::write_plot(dir, &results)?;
+    let report_path = dir.join("report.md");
+    let markdown = report::markdown(&results);
+    write_atomically(&report_path, |tmp| std::fs::write(tmp, &markdown).map_err(|e| e.to_string()))
+        .with_context(|| format!("writing {}", report_path.display()))?;
+    let json_path = dir.join("results.json");
+    let json = serde_json::to_vec_pretty(&results)?;
+    write_atomically(&json_path, |tmp| std::fs::write(tmp, &json).map_err(|e| e.to_string()))
+        .with_context(|| format!("writing {}", json_path.display()))?;
+    for verdict in &results.verdicts {
+        println!("{}", verdict.summary);
+    }
+    println!("wrote {} and {} in {:.1} s", report_path.display(), json_path.display(), results.total_seconds);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(method: &str, spp: u32, total_s: f64, psnr_db: f64, valid: bool) -> Run {
+        Run {
+            method: method.into(),
+            input_spp: spp,
+            recon_rays: 0,
+            trace_s: total_s,
+            preprocess_s: 0.0,
+            recon_s: 0.0,
+            total_s,
+            psnr_db,
+            rel_mse: 0.0,
+            ssim: 1.0,
+            flip: None,
+            peak_rss_mb: None,
+            nonfinite_pixels: if valid { 0 } else { 3 },
+            valid,
+            equal_time_psnr_gain_db: None,
+            speedup: None,
+            verdict_extrapolated: false,
+            image: String::new(),
+            preview: String::new(),
+            error_map: String::new(),
+            notes: Vec::new(),
+        }
+    }
+
+    fn scoring_in(dir: &Path, reference: &Image) -> Result<Measured> {
+        let scoring = Scoring { dir, reference, tone: ToneMap::auto(reference), layer: "beauty" };
+        let mut image = reference.clone();
+        image.set(1, 1, [f32::NAN, 0.0, 0.0]);
+        image.set(2, 1, [f32::INFINITY; 3]);
+        scoring.measure("nan-maker", 4, 0, (1.0, 0.5, 0.25), Some(10.0), image, Vec::new())
+    }
+
+    #[test]
+    fn nonfinite_outputs_are_counted_flagged_and_never_score_well() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(dir.path().join("images")).unwrap();
+        let pixels = (0..16).map(|i| [0.1 + 0.05 * i as f32; 3]).collect();
+        let reference = Image::from_pixels(4, 4, pixels);
+        let measured = scoring_in(dir.path(), &reference).unwrap();
+        let run = &measured.run;
+        assert_eq!(run.nonfinite_pixels, 2);
+        assert!(!run.valid);
+        assert!(run.psnr_db.is_finite() && run.psnr_db < 40.0, "{}", run.psnr_db);
+        assert!(run.notes.iter().any(|n| n.contains("INVALID")));
+        assert_eq!(run.total_s, 1.75);
+        assert!(dir.path().join(&run.error_map).is_file() && dir.path().join(&run.image).is_file());
+    }
+
+    #[test]
+    fn a_wrong_size_is_a_clear_error() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(dir.path().join("images")).unwrap();
+        let reference = Image::new(4, 4);
+        let scoring =
+            Scoring { dir: dir.path(), reference: &reference, tone: ToneMap::auto(&reference), layer: "beauty" };
+        let error =
+            scoring.measure("shrinker", 1, 0, (0.0, 0.0, 0.0), None, Image::new(3, 4), Vec::new()).err().unwrap();
+        let message = format!("{error:#}");
+        assert!(message.contains("shrinker") && message.contains("expected 4x4, found 3x4"), "{message}");
+        assert_eq!(std::fs::read_dir(dir.path().join("images")).unwrap().count(), 0, "nothing written");
+    }
+
+    #[test]
+    fn ladder_is_powers_of_two_plus_inputs() {
+        assert_eq!(ladder(16, &[3, 4]), vec![1, 2, 3, 4, 8, 16]);
+        assert_eq!(ladder(1, &[]), vec![1]);
+    }
+
+    #[test]
+    fn verdicts_read_the_pt_curve_and_skip_invalid_runs() {
+        // PT: 10 dB per decade through (1 s, 20 dB).
+        let mut runs = vec![
+            run("pt", 1, 1.0, 20.0, true),
+            run("pt", 10, 10.0, 30.0, true),
+            run("pt", 100, 100.0, 40.0, true),
+            // 30 dB in 1 s: PT needs 10 s → 10× faster, +10 dB at equal time.
+            run("fast", 1, 1.0, 30.0, true),
+            // Invalid: ignored for the verdicts even though its PSNR looks great.
+            run("fast", 2, 1.0, 90.0, false),
+            run("broken", 1, 1.0, 99.0, false),
+        ];
+        let verdicts = verdicts(&mut runs);
+        let fast = &runs[3];
+        assert!((fast.speedup.unwrap() - 10.0).abs() < 1e-9);
+        assert!((fast.equal_time_psnr_gain_db.unwrap() - 10.0).abs() < 1e-9);
+        assert!(!fast.verdict_extrapolated);
+        assert_eq!(runs[4].speedup, None);
+        assert_eq!(verdicts.len(), 2);
+        assert_eq!(verdicts[0].method, "fast");
+        assert!((verdicts[0].best_speedup.unwrap() - 10.0).abs() < 1e-9);
+        assert_eq!(verdicts[0].best_speedup_input_spp, Some(1));
+        assert!(verdicts[0].summary.contains("10.00× faster"), "{}", verdicts[0].summary);
+        assert_eq!(verdicts[1].best_speedup, None);
+        assert!(verdicts[1].summary.contains("no valid run"), "{}", verdicts[1].summary);
+    }
+
+    #[test]
+    fn unknown_and_repeated_methods() {
+        let error = resolve_methods(&["box".into(), "magic".into()], Effect::Indirect).err().unwrap().to_string();
+        assert!(error.contains("magic") && error.contains("box"), "{error}");
+        let methods = resolve_methods(&["box".into(), "box".into(), " ".into()], Effect::Indirect).unwrap();
+        assert_eq!(methods.len(), 1);
+    }
+}

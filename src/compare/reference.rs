@@ -1,0 +1,230 @@
+//! The reference image of a comparison: the effect traced at many samples per pixel, as two
+//! independent halves so that its own error can be estimated, with seeds derived from the
+//! comparison's seed but never equal to it. Cached under a hash of everything that determines
+//! it (scene file, geometry, effect, resolution, spp, seeds, path length, AO radius and the
+//! estimator version), so reruns and other methods' runs reuse it.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use recon::Image;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use tracer::output::{read_exr, write_atomically, write_exr, Layer};
+
+use super::effect::Tracing;
+
+/// Bumped whenever the tracer's estimators change what a reference contains.
+const ESTIMATOR_VERSION: &str = "lfr-reference/1";
+
+/// A reference: the mean of two halves, and the halves.
+pub struct Reference {
+    pub image: Image,
+    pub half_a: Image,
+    pub half_b: Image,
+    pub spp: u32,
+    pub seconds: f64,
+    pub seeds: [u32; 2],
+    pub key: String,
+    pub from_cache: bool,
+}
+
+#[derive(Serialize, Deserialize)]
+struct CacheRecord {
+    key: String,
+    spp: u32,
+    seconds: f64,
+    seeds: [u32; 2],
+}
+
+/// The two reference seeds for comparison seed `seed`: hashed, and never `seed` itself.
+pub fn reference_seeds(seed: u32) -> [u32; 2] {
+    let mix = |salt: u64| {
+        let mut z = (seed as u64) ^ salt;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^= z >> 31;
+        let s = (z >> 32) as u32;
+        if s == seed {
+            s.wrapping_add(1)
+        } else {
+            s
+        }
+    };
+    let a = mix(0x5245_4645_5245_4e41);
+    let mut b = mix(0x5245_4645_5245_4e42);
+    if b == a || b == seed {
+        b = a.wrapping_add(2);
+    }
+    [a, b]
+}
+
+/// Where references are cached: `--cache-dir`, else `$LFR_CACHE_DIR`, else
+/// `$XDG_CACHE_HOME/lfr`, else `~/.cache/lfr`, else `.lfr-cache` in the working directory.
+pub fn cache_dir(given: Option<&Path>) -> PathBuf {
+    if let Some(dir) = given {
+        return dir.to_path_buf();
+    }
+    if let Some(dir) = std::env::var_os("LFR_CACHE_DIR").filter(|d| !d.is_empty()) {
+        return PathBuf::from(dir);
+    }
+    if let Some(dir) = std::env::var_os("XDG_CACHE_HOME").filter(|d| !d.is_empty()) {
+        return PathBuf::from(dir).join("lfr");
+    }
+    if let Some(home) = std::env::var_os("HOME").filter(|d| !d.is_empty()) {
+        return PathBuf::from(home).join(".cache/lfr");
+    }
+    PathBuf::from(".lfr-cache")
+}
+
+/// The cache key: SHA-256 over the scene text, its geometry and the settings.
+pub fn cache_key(scene_text: &[u8], tracing: &Tracing, spp: u32, seeds: [u32; 2]) -> String {
+    let mut hash = Sha256::new();
+    hash.update(ESTIMATOR_VERSION.as_bytes());
+    hash.update((scene_text.len() as u64).to_le_bytes());
+    hash.update(scene_text);
+    for mesh in &tracing.scene.meshes {
+        hash.update((mesh.positions.len() as u64).to_le_bytes());
+        for p in &mesh.positions {
+            for c in p.to_array() {
+                hash.update(c.to_le_bytes());
+            }
+        }
+        for t in &mesh.indices {
+            for i in t {
+                hash.update(i.to_le_bytes());
+            }
+        }
+        hash.update(mesh.material.to_le_bytes());
+        for c in mesh.motion.to_array() {
+            hash.update(c.to_le_bytes());
+        }
+    }
+    hash.update(tracing.scene.camera.aperture_radius.to_le_bytes());
+    let settings = format!(
+        "effect={} width={} height={} spp={} seeds={:?} max_bounces={} ao_radius={}",
+        tracing.effect.name(),
+        tracing.width,
+        tracing.height,
+        spp,
+        seeds,
+        tracing.max_bounces,
+        tracing.ao_radius
+    );
+    hash.update(settings.as_bytes());
+    hash.finalize().iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn channels(image: &Image) -> Vec<(&'static str, Vec<f32>)> {
+    ["R", "G", "B"].iter().enumerate().map(|(c, name)| (*name, image.pixels.iter().map(|p| p[c]).collect())).collect()
+}
+
+fn layer_image(path: &Path, width: u32, height: u32, channels: &[(String, Vec<f32>)], layer: &str) -> Result<Image> {
+    let find = |name: &str| {
+        let full = format!("{layer}.{name}");
+        channels
+            .iter()
+            .find(|(n, _)| *n == full)
+            .map(|(_, v)| v)
+            .with_context(|| format!("{}: no channel {full}", path.display()))
+    };
+    let (r, g, b) = (find("R")?, find("G")?, find("B")?);
+    let n = width as usize * height as usize;
+    anyhow::ensure!(r.len() == n && g.len() == n && b.len() == n, "{}: channel sizes", path.display());
+    Ok(Image::from_pixels(width, height, (0..n).map(|i| [r[i], g[i], b[i]]).collect()))
+}
+
+fn mean(a: &Image, b: &Image) -> Image {
+    let pixels = a.pixels.iter().zip(&b.pixels).map(|(p, q)| [0, 1, 2].map(|c| 0.5 * (p[c] + q[c]))).collect();
+    Image::from_pixels(a.width, a.height, pixels)
+}
+
+/// Reads the cached reference for `key`, if present and readable.
+fn read_cached(dir: &Path, key: &str, width: u32, height: u32) -> Option<Reference> {
+    let record: CacheRecord = serde_json::from_slice(&std::fs::read(dir.join(format!("{key}.json"))).ok()?).ok()?;
+    if record.key != key {
+        return None;
+    }
+    let path = dir.join(format!("{key}.exr"));
+    let (w, h, channels) = read_exr(&path).ok()?;
+    if (w, h) != (width, height) {
+        return None;
+    }
+    let half_a = layer_image(&path, w, h, &channels, "half_a").ok()?;
+    let half_b = layer_image(&path, w, h, &channels, "half_b").ok()?;
+    Some(Reference {
+        image: mean(&half_a, &half_b),
+        half_a,
+        half_b,
+        spp: record.spp,
+        seconds: record.seconds,
+        seeds: record.seeds,
+        key: key.to_string(),
+        from_cache: true,
+    })
+}
+
+/// The reference for `tracing` at `spp` (even, ≥ 2): from the cache when `use_cache`, else
+/// traced and stored.
+pub fn reference(
+    tracing: &Tracing,
+    scene_text: &[u8],
+    spp: u32,
+    seed: u32,
+    dir: &Path,
+    use_cache: bool,
+    progress: bool,
+) -> Result<Reference> {
+    let seeds = reference_seeds(seed);
+    let key = cache_key(scene_text, tracing, spp, seeds);
+    if use_cache {
+        if let Some(reference) = read_cached(dir, &key, tracing.width, tracing.height) {
+            return Ok(reference);
+        }
+    }
+    let half = (spp / 2).max(1);
+    let a = tracing.trace(half, seeds[0], progress)?;
+    let b = tracing.trace(half, seeds[1], progress)?;
+    let seconds = a.seconds + b.seconds;
+    let (half_a, half_b) = (a.frame.color, b.frame.color);
+    std::fs::create_dir_all(dir).with_context(|| format!("creating the reference cache {}", dir.display()))?;
+    let exr = dir.join(format!("{key}.exr"));
+    write_exr(
+        &exr,
+        tracing.width,
+        tracing.height,
+        &[Layer { name: "half_a", channels: channels(&half_a) }, Layer { name: "half_b", channels: channels(&half_b) }],
+    )
+    .with_context(|| format!("writing the reference {}", exr.display()))?;
+    let record = CacheRecord { key: key.clone(), spp: half * 2, seconds, seeds };
+    let json = dir.join(format!("{key}.json"));
+    write_atomically(&json, |tmp| {
+        std::fs::write(tmp, serde_json::to_vec_pretty(&record).map_err(|e| e.to_string())?).map_err(|e| e.to_string())
+    })
+    .with_context(|| format!("writing {}", json.display()))?;
+    Ok(Reference {
+        image: mean(&half_a, &half_b),
+        half_a,
+        half_b,
+        spp: half * 2,
+        seconds,
+        seeds,
+        key,
+        from_cache: false,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reference_seeds_differ_from_the_input_seed_and_each_other() {
+        for seed in [0, 1, 2, 7, 12345, u32::MAX] {
+            let [a, b] = reference_seeds(seed);
+            assert!(a != seed && b != seed && a != b, "{seed}: {a} {b}");
+        }
+        assert_eq!(reference_seeds(5), reference_seeds(5));
+        assert_ne!(reference_seeds(5), reference_seeds(6));
+    }
+}

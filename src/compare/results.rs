@@ -1,0 +1,107 @@
+//! `results.json`: the machine-readable outcome of `lfr compare`. The schema is
+//! `docs/compare.schema.json`, described field by field in `docs/compare.md`; bump
+//! `SCHEMA` when a field changes meaning or disappears.
+
+use serde::Serialize;
+
+pub const SCHEMA: &str = "lfr-compare/1";
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Results {
+    pub schema: &'static str,
+    pub lfr_version: &'static str,
+    pub scene: String,
+    pub effect: String,
+    pub width: u32,
+    pub height: u32,
+    pub seed: u32,
+    pub threads: usize,
+    pub max_bounces: u32,
+    /// Scene units; only for `ao`.
+    pub ao_radius: Option<f32>,
+    pub tone_map: ToneMapInfo,
+    pub reference: ReferenceInfo,
+    /// Whether HDR-FLIP was computed (the Python package `flip-evaluator` was present).
+    pub flip_available: bool,
+    /// Whether each run's peak memory is its own (false: the process's since start).
+    pub peak_rss_per_run: bool,
+    pub runs: Vec<Run>,
+    pub skipped: Vec<Skipped>,
+    pub verdicts: Vec<Verdict>,
+    pub total_seconds: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ToneMapInfo {
+    pub exposure: f32,
+    pub gamma: f32,
+    /// `"auto"` (99th-percentile luminance of the reference → 1) or `"given"` (--exposure).
+    pub exposure_source: &'static str,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ReferenceInfo {
+    pub spp: u32,
+    /// Wall time of the reference render when it was made (also when read from the cache).
+    pub seconds: f64,
+    /// The two seeds of the two half renders; never the inputs' seed.
+    pub seeds: [u32; 2],
+    pub cache_key: String,
+    pub from_cache: bool,
+    /// PSNR of the reference itself against the truth, estimated from its two halves:
+    /// PSNR(half A, half B) + 6.02 dB. Method PSNRs near it are limited by the reference.
+    pub estimated_psnr_db: f64,
+    pub image: String,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Run {
+    /// `pt` for the path-tracing ladder, else the method's registry name.
+    pub method: String,
+    pub input_spp: u32,
+    /// Reconstruction rays or locations per pixel; 0 when the method has none.
+    pub recon_rays: u32,
+    pub trace_s: f64,
+    pub preprocess_s: f64,
+    pub recon_s: f64,
+    pub total_s: f64,
+    pub psnr_db: f64,
+    pub rel_mse: f64,
+    pub ssim: f64,
+    pub flip: Option<f64>,
+    pub peak_rss_mb: Option<f64>,
+    pub nonfinite_pixels: usize,
+    /// False when the output had non-finite pixels: its metrics then include worst-case
+    /// values for them, and it takes no part in the verdicts.
+    pub valid: bool,
+    /// Method PSNR − PT PSNR at `total_s` (null for `pt` runs).
+    pub equal_time_psnr_gain_db: Option<f64>,
+    /// PT time to reach `psnr_db` / `total_s` (null for `pt` runs).
+    pub speedup: Option<f64>,
+    /// Whether the PT curve had to be extended beyond its measured range for the verdicts.
+    pub verdict_extrapolated: bool,
+    /// Relative paths in the output directory.
+    pub image: String,
+    pub preview: String,
+    pub error_map: String,
+    pub notes: Vec<String>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Skipped {
+    pub method: String,
+    pub reason: String,
+}
+
+/// A method's best showing over its runs.
+#[derive(Clone, Debug, Serialize)]
+pub struct Verdict {
+    pub method: String,
+    /// The valid run with the highest equal-quality speedup.
+    pub best_speedup: Option<f64>,
+    pub best_speedup_input_spp: Option<u32>,
+    pub best_speedup_recon_rays: Option<u32>,
+    pub best_equal_time_psnr_gain_db: Option<f64>,
+    pub best_psnr_db: Option<f64>,
+    pub summary: String,
+}
