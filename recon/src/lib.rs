@@ -4,6 +4,7 @@
 
 pub mod box_filter;
 pub mod flip;
+pub mod guide;
 pub mod image;
 pub mod method;
 pub mod metrics;

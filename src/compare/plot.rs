@@ -75,9 +75,8 @@ fn load_font() -> bool {
         if try_register(Path::new(path)) {
             return true;
         }
-        eprintln!("warning: LFR_FONT={} is not a readable TrueType/OpenType font; trying system fonts", {
-            Path::new(path).display()
-        });
+        let shown = Path::new(path).display();
+        eprintln!("warning: LFR_FONT={shown} is not a readable TrueType/OpenType font; trying system fonts");
     }
     if FONT_PATHS.iter().any(|p| try_register(Path::new(p))) {
         return true;
