@@ -74,7 +74,9 @@ pub fn markdown(results: &Results) -> String {
         let _ = writeln!(md, "Only path tracing ran; there is no method to judge.\n");
     }
     for verdict in &r.verdicts {
-        let _ = writeln!(md, "- **{}**: {}.", verdict.method, verdict.summary);
+        // The summary starts with the method's name; set it in bold.
+        let rest = verdict.summary.strip_prefix(verdict.method.as_str()).unwrap_or(&verdict.summary);
+        let _ = writeln!(md, "- **{}**{}.", verdict.method, rest.trim_end_matches('.'));
         if let Some(gain) = verdict.best_equal_time_psnr_gain_db {
             let _ = writeln!(
                 md,
