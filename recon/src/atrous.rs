@@ -1,0 +1,881 @@
+//! `atrous`: the edge-avoiding À-Trous wavelet filter of Dammertz, Sewtz, Hanika and Lensch
+//! ("Edge-Avoiding À-Trous Wavelet Transform for fast Global Illumination Filtering", HPG
+//! 2010) — the fast approximation of the cross-bilateral filter that the guided-image-filtering
+//! paper (GI 2011, Section 4, Table 2) compares against with 4, 5 and 6 iterations, and the
+//! baseline of the indirect light field paper (SIGGRAPH 2012, Section 3.1, "Comparison methods"),
+//! which drops the colour term for its very noisy input and, for glossy scenes, adds a range
+//! term on the normal at the secondary hit ("A-Trous + secondary normal", Figure 9).
+//!
+//! Iteration `i = 0..k` convolves the current image `c_i` with the 5×5 B3-spline kernel
+//! `h = [1/16, 1/4, 3/8, 1/4, 1/16] ⊗ [1/16, 1/4, 3/8, 1/4, 1/16]` dilated by `2^i` (taps
+//! `q = p + 2^i·(a, b)`, `a, b ∈ −2..=2`), weighted by edge-stopping functions:
+//!
+//! ```text
+//! c_{i+1}(p) = Σ_q h(a,b) w_i(p,q) c_i(q) / Σ_q h(a,b) w_i(p,q)
+//! w_i(p,q)   = w_rt · w_n · w_x [· w_sn]
+//! w_rt = exp(−‖c_i(p) − c_i(q)‖² / σ_rt,i²),  σ_rt,i = 2^−i σ_rt   colour (optional)
+//! w_n  = exp(−‖n_p − n_q‖² / σ_n²)                                  primary normal
+//! w_x  = exp(−‖x_p − x_q‖² / σ_x²)                                  world position
+//! w_sn = exp(−‖s_p − s_q‖² / σ_sn²)                                 secondary-hit normal (optional)
+//! ```
+//!
+//! These are the forms of Dammertz et al. (their Eq. for `w_rt`, `w_n`, `w_x`, no factor 2 in
+//! the denominators, σ_rt halved every iteration so that coarse levels smooth only small
+//! remaining colour differences). Their GLSL listing additionally divides the normal distance
+//! by the squared step width; we follow the paper's equation, not the listing. `w_sn` takes the
+//! same form as `w_n`. Taps outside the image are skipped and the weights renormalised.
+//!
+//! Defaults (`AtrousParams::default`):
+//! - `iterations` 5: the middle of the GI 2011 comparison (4/5/6); the footprint is then
+//!   `4·(2^k − 1) + 1` = 125 pixels wide. 1..=8 are allowed.
+//! - `sigma_color` None: the indirect light field paper dropped the colour term for its very
+//!   noisy input ("using it gave worse results": on noise the colour distance stops the filter
+//!   at the noise itself and keeps fireflies); `Some(σ_rt)` enables it, as in Dammertz et al.
+//! - `sigma_normal` 0.2: normals 10° apart keep 0.47 per level, 20° apart 0.05, 90° e⁻⁵⁰.
+//!   Looser than the cross-bilateral filter's 0.1 because the term applies once per level.
+//! - `sigma_position` None: `σ_x = 2^k · d̃`, with `d̃` the median world distance between
+//!   horizontally or vertically adjacent surface pixels (the typical pixel footprint). The
+//!   widest level's taps lie up to `2^k` pixels apart, so on a fronto-parallel surface `w_x` is
+//!   e⁻¹ at the farthest tap of the last level and near 1 on earlier levels: position alone
+//!   never stops the filter from spreading over one surface, while a depth gap of 3σ_x
+//!   (≈ 10% of the depth at k = 5 with ~1 mrad pixels) weighs e⁻⁹ at every level.
+//!   If no two adjacent surface pixels lie apart, the term is off. `default_sigma_position`
+//!   returns the value.
+//! - `use_secondary_normal` false, `sigma_secondary_normal` 0.5: secondary normals are
+//!   per-pixel means over a few samples and so are themselves noisy; 0.5 tolerates that
+//!   noise while regions whose secondary hits face 90° apart still get e⁻⁸ per level.
+//!
+//! Escaped pixels (zero normal or depth ≤ 0) mix only with escaped pixels, by `h · w_rt`
+//! alone; surfaces never read them. Non-finite colour values are replaced by 0 (and the
+//! secondary normals' by 0) before filtering; guide pixels with a non-finite normal, depth or
+//! position count as escaped; all are counted in `FilterReport::sanitised_values`. The 25 taps
+//! are summed in f32 and normalised in f64, after the same power-of-two range scaling as in
+//! `bilateral` (colours beyond 2¹⁰⁰ only), so nothing non-finite reaches the output.
+//!
+//! Implementation: as `bilateral` — rows in parallel, row tiles accumulating one kernel tap at
+//! a time over contiguous structure-of-arrays slices with the branch-free `exp_neg`, so the
+//! inner loop vectorises; exponents as `Σ((a − b)/σ)²`, so colours and world positions of any
+//! scale keep their terms; weights below e⁻⁸⁰ are set to 0.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::bilateral::{
+    check_inputs, check_sigma, exp_neg, finite, is_surface, normalised_sq, range_scale, sanitised_colours, Accumulator,
+    FilterReport, MAX_EXPONENT, TILE,
+};
+use crate::guide::GuideBuffers;
+use crate::image::Image;
+
+/// The 1D B3-spline kernel; the 2D kernel is its outer product.
+pub const B3: [f32; 5] = [1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0];
+
+/// The largest allowed number of iterations (last step 128, footprint 1021 pixels).
+pub const MAX_ITERATIONS: u32 = 8;
+
+/// Parameters of `atrous`; see the module documentation for the weight formulas.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AtrousParams {
+    /// Number of levels `k`, 1..=8; level `i` uses step `2^i`.
+    pub iterations: u32,
+    /// σ_rt of the colour term at level 0 (halved every level); None disables the term.
+    pub sigma_color: Option<f32>,
+    /// σ_n of the primary-normal term.
+    pub sigma_normal: f32,
+    /// σ_x of the world-position term in scene units; None derives it from the guide
+    /// (`default_sigma_position`).
+    pub sigma_position: Option<f32>,
+    /// Add the range term on `guide.secondary_normal` (which must then be present).
+    pub use_secondary_normal: bool,
+    /// σ_sn of the secondary-normal term.
+    pub sigma_secondary_normal: f32,
+}
+
+impl Default for AtrousParams {
+    fn default() -> AtrousParams {
+        AtrousParams {
+            iterations: 5,
+            sigma_color: None,
+            sigma_normal: 0.2,
+            sigma_position: None,
+            use_secondary_normal: false,
+            sigma_secondary_normal: 0.5,
+        }
+    }
+}
+
+impl AtrousParams {
+    /// Errors unless the iteration count is in 1..=8 and every σ is positive and finite.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(1..=MAX_ITERATIONS).contains(&self.iterations) {
+            return Err(format!("iterations must be in 1..={MAX_ITERATIONS}, got {}", self.iterations));
+        }
+        if let Some(sigma) = self.sigma_color {
+            check_sigma("sigma_color", sigma)?;
+        }
+        check_sigma("sigma_normal", self.sigma_normal)?;
+        if let Some(sigma) = self.sigma_position {
+            check_sigma("sigma_position", sigma)?;
+        }
+        check_sigma("sigma_secondary_normal", self.sigma_secondary_normal)
+    }
+}
+
+/// Per-pixel geometry, one plane per component; normal, position and secondary normal are
+/// zero for escaped pixels, so that between two escaped pixels those terms vanish.
+struct Planes {
+    normal: [Vec<f32>; 3],
+    position: [Vec<f32>; 3],
+    secondary: Option<[Vec<f32>; 3]>,
+    /// 1 for a surface, 0 for an escaped pixel.
+    surface: Vec<f32>,
+}
+
+/// The factors `1/σ` of one level's terms (0: term off).
+#[derive(Clone, Copy)]
+struct Factors {
+    colour: f32,
+    normal: f32,
+    position: f32,
+    secondary: f32,
+}
+
+/// The edge-avoiding À-Trous filter of `noisy` guided by `guide`.
+pub fn atrous(noisy: &Image, guide: &GuideBuffers, params: &AtrousParams) -> Result<(Image, FilterReport), String> {
+    check_inputs(noisy, guide)?;
+    params.validate()?;
+    if params.use_secondary_normal && guide.secondary_normal.is_none() {
+        return Err("use_secondary_normal needs the guide's secondary_normal buffer, which is absent".into());
+    }
+    let (width, height) = (noisy.width as usize, noisy.height as usize);
+    let (colour, mut sanitised) = sanitised_colours(noisy);
+    if colour.is_empty() {
+        return Ok((
+            Image::from_pixels(noisy.width, noisy.height, colour),
+            FilterReport { sanitised_values: sanitised },
+        ));
+    }
+    let (planes, bad) = planes(guide, params.use_secondary_normal);
+    sanitised += bad;
+    let sigma_position = match params.sigma_position {
+        Some(sigma) => Some(sigma as f64),
+        None => sigma_position_from(&planes, width, height, params.iterations),
+    };
+
+    // Colours beyond 2^100 are scaled down by a power of two (and σ_rt with them), and back at
+    // the end, so that no sum overflows.
+    let scale = range_scale(&colour);
+    let mut current: [Vec<f32>; 3] = std::array::from_fn(|c| colour.iter().map(|p| p[c] * scale).collect());
+    let mut next: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; width * height]);
+    for level in 0..params.iterations {
+        let step = 1isize << level;
+        let factors = Factors {
+            colour: params.sigma_color.map_or(0.0, |s| inverse_sigma(s as f64 * scale as f64 / (1u32 << level) as f64)),
+            normal: inverse_sigma(params.sigma_normal as f64),
+            position: sigma_position.map_or(0.0, inverse_sigma),
+            secondary: inverse_sigma(params.sigma_secondary_normal as f64),
+        };
+        let source = &current;
+        let planes = &planes;
+        let [next_red, next_green, next_blue] = &mut next;
+        next_red
+            .par_chunks_mut(width)
+            .zip(next_green.par_chunks_mut(width))
+            .zip(next_blue.par_chunks_mut(width))
+            .enumerate()
+            .for_each(|(y, ((red, green), blue))| {
+                let mut acc = Accumulator::new();
+                for tile_start in (0..width).step_by(TILE) {
+                    let tile_end = (tile_start + TILE).min(width);
+                    acc.clear();
+                    for (b, &hy) in B3.iter().enumerate() {
+                        let yy = y as isize + (b as isize - 2) * step;
+                        if !(0..height as isize).contains(&yy) {
+                            continue;
+                        }
+                        for (a, &hx) in B3.iter().enumerate() {
+                            let dx = (a as isize - 2) * step;
+                            // Centres whose tap lands inside the image.
+                            let lo = tile_start.max((-dx).max(0) as usize);
+                            let hi = tile_end.min((width as isize - dx).max(0) as usize);
+                            if lo >= hi {
+                                continue;
+                            }
+                            let tap = Tap {
+                                p: y * width + lo,
+                                q: (yy as usize * width + lo).wrapping_add_signed(dx),
+                                len: hi - lo,
+                                h: hx * hy,
+                                offset: lo - tile_start,
+                            };
+                            if planes.secondary.is_some() {
+                                accumulate_tap::<true>(planes, source, tap, factors, &mut acc);
+                            } else {
+                                accumulate_tap::<false>(planes, source, tap, factors, &mut acc);
+                            }
+                        }
+                    }
+                    acc.write_planes(
+                        &mut red[tile_start..tile_end],
+                        &mut green[tile_start..tile_end],
+                        &mut blue[tile_start..tile_end],
+                    );
+                }
+            });
+        std::mem::swap(&mut current, &mut next);
+    }
+    let [red, green, blue] = &current;
+    let unscale = 1.0 / scale as f64;
+    let pixels =
+        red.iter().zip(green).zip(blue).map(|((&r, &g), &b)| [r, g, b].map(|c| finite(c as f64 * unscale))).collect();
+    Ok((Image::from_pixels(noisy.width, noisy.height, pixels), FilterReport { sanitised_values: sanitised }))
+}
+
+/// One kernel tap for a run of consecutive centres: centres from pixel `p`, their taps from
+/// pixel `q`, `len` of them, kernel weight `h`, accumulated from `offset` in the tile.
+#[derive(Clone, Copy)]
+struct Tap {
+    p: usize,
+    q: usize,
+    len: usize,
+    h: f32,
+    offset: usize,
+}
+
+#[inline(always)]
+fn accumulate_tap<const SECONDARY: bool>(
+    planes: &Planes,
+    colour: &[Vec<f32>; 3],
+    tap: Tap,
+    factors: Factors,
+    acc: &mut Accumulator,
+) {
+    let Tap { p, q, len, h, offset } = tap;
+    let (pc, qc) = (slices(colour, p, len), slices(colour, q, len));
+    let (pn, qn) = (slices(&planes.normal, p, len), slices(&planes.normal, q, len));
+    let (px, qx) = (slices(&planes.position, p, len), slices(&planes.position, q, len));
+    // Without the term the normal planes stand in, unread, so every slice has length `len`.
+    let secondary = planes.secondary.as_ref().unwrap_or(&planes.normal);
+    let (psn, qsn) = (slices(secondary, p, len), slices(secondary, q, len));
+    let (ps, qs) = (&planes.surface[p..p + len], &planes.surface[q..q + len]);
+    let (ar, ag) = (&mut acc.red[offset..offset + len], &mut acc.green[offset..offset + len]);
+    let (ab, aw) = (&mut acc.blue[offset..offset + len], &mut acc.weight[offset..offset + len]);
+    // ‖a − b‖² / σ², as a sum of normalised squares.
+    let term = |a: [&[f32]; 3], b: [&[f32]; 3], i: usize, inverse_sigma: f32| {
+        normalised_sq(a[0][i] - b[0][i], inverse_sigma)
+            + normalised_sq(a[1][i] - b[1][i], inverse_sigma)
+            + normalised_sq(a[2][i] - b[2][i], inverse_sigma)
+    };
+    for i in 0..len {
+        let mut exponent =
+            term(pc, qc, i, factors.colour) + term(pn, qn, i, factors.normal) + term(px, qx, i, factors.position);
+        if SECONDARY {
+            exponent += term(psn, qsn, i, factors.secondary);
+        }
+        // `<=` is false for NaN, and `min` ignores NaN, so no NaN reaches a sum.
+        let keep = (ps[i] == qs[i]) & (exponent <= MAX_EXPONENT);
+        let w = if keep { h * exp_neg(-exponent.min(MAX_EXPONENT)) } else { 0.0 };
+        ar[i] += w * qc[0][i];
+        ag[i] += w * qc[1][i];
+        ab[i] += w * qc[2][i];
+        aw[i] += w;
+    }
+}
+
+/// `len` values from `start` of each of three planes.
+#[inline(always)]
+fn slices(planes: &[Vec<f32>; 3], start: usize, len: usize) -> [&[f32]; 3] {
+    [&planes[0][start..start + len], &planes[1][start..start + len], &planes[2][start..start + len]]
+}
+
+/// The σ_x `atrous` uses when `sigma_position` is None: `2^iterations` times the median world
+/// distance between horizontally or vertically adjacent surface pixels. None when no two
+/// adjacent surface pixels lie apart (the position term is then off) or the guide is
+/// inconsistent.
+pub fn default_sigma_position(guide: &GuideBuffers, iterations: u32) -> Option<f32> {
+    if !guide.is_consistent() {
+        return None;
+    }
+    let (planes, _) = planes(guide, false);
+    sigma_position_from(&planes, guide.width as usize, guide.height as usize, iterations).map(|s| s as f32)
+}
+
+fn sigma_position_from(planes: &Planes, width: usize, height: usize, iterations: u32) -> Option<f64> {
+    // In f64: squared differences of f32 positions may overflow f32.
+    let distance = |p: usize, q: usize| {
+        planes.position.iter().map(|plane| (plane[p] as f64 - plane[q] as f64).powi(2)).sum::<f64>().sqrt()
+    };
+    let mut distances = Vec::with_capacity(2 * width * height);
+    for y in 0..height {
+        for x in 0..width {
+            let p = y * width + x;
+            if planes.surface[p] == 0.0 {
+                continue;
+            }
+            let right = (x + 1 < width).then_some(p + 1);
+            let below = (y + 1 < height).then_some(p + width);
+            for q in [right, below].into_iter().flatten() {
+                let d = distance(p, q);
+                if planes.surface[q] != 0.0 && d.is_finite() && d > 0.0 {
+                    distances.push(d);
+                }
+            }
+        }
+    }
+    if distances.is_empty() {
+        return None;
+    }
+    let middle = distances.len() / 2;
+    let median = *distances.select_nth_unstable_by(middle, f64::total_cmp).1;
+    let sigma = median * 2f64.powi(iterations as i32);
+    (sigma.is_finite() && sigma > 0.0).then_some(sigma)
+}
+
+/// The guide's geometry planes, with the secondary normals if `secondary`, and the number of
+/// non-finite values read (which make a pixel escaped, or a secondary normal component 0).
+fn planes(guide: &GuideBuffers, secondary: bool) -> (Planes, usize) {
+    let n = guide.pixel_count();
+    let mut bad_values = 0;
+    let mut planes = Planes {
+        normal: std::array::from_fn(|_| vec![0.0; n]),
+        position: std::array::from_fn(|_| vec![0.0; n]),
+        secondary: None,
+        surface: vec![0.0; n],
+    };
+    for (i, ((normal, &depth), position)) in guide.normal.iter().zip(&guide.depth).zip(&guide.position).enumerate() {
+        let bad = normal.iter().chain(position).filter(|v| !v.is_finite()).count() + usize::from(!depth.is_finite());
+        bad_values += bad;
+        if bad == 0 && is_surface(*normal, depth) {
+            for c in 0..3 {
+                planes.normal[c][i] = normal[c];
+                planes.position[c][i] = position[c];
+            }
+            planes.surface[i] = 1.0;
+        }
+    }
+    if let (true, Some(normals)) = (secondary, &guide.secondary_normal) {
+        let mut sec: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; n]);
+        for (i, normal) in normals.iter().enumerate() {
+            for c in 0..3 {
+                if !normal[c].is_finite() {
+                    bad_values += 1;
+                } else if planes.surface[i] != 0.0 {
+                    sec[c][i] = normal[c];
+                }
+            }
+        }
+        planes.secondary = Some(sec);
+    }
+    (planes, bad_values)
+}
+
+/// `1 / σ` in f64, clamped to `f32::MAX`, for `normalised_sq`.
+#[inline]
+fn inverse_sigma(sigma: f64) -> f32 {
+    (1.0 / sigma).min(f32::MAX as f64) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lcg(state: &mut u64) -> f32 {
+        *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((*state >> 40) as f32) / (1u64 << 24) as f32
+    }
+
+    /// A fronto-parallel plane at depth 2 with positions 0.01 apart.
+    fn flat_guide(width: u32, height: u32) -> GuideBuffers {
+        let n = (width * height) as usize;
+        GuideBuffers {
+            width,
+            height,
+            normal: vec![[0.0, 0.0, 1.0]; n],
+            depth: vec![2.0; n],
+            position: (0..n)
+                .map(|i| [(i % width as usize) as f32 * 0.01, (i / width as usize) as f32 * 0.01, 2.0])
+                .collect(),
+            secondary_normal: None,
+        }
+    }
+
+    /// Random normals, depths, positions and secondary normals, with a few escaped pixels.
+    fn messy_guide(width: u32, height: u32, seed: u64) -> GuideBuffers {
+        let mut state = seed;
+        let mut guide = flat_guide(width, height);
+        let mut secondary = Vec::with_capacity(guide.pixel_count());
+        for i in 0..guide.pixel_count() {
+            secondary.push([lcg(&mut state), lcg(&mut state), lcg(&mut state)]);
+            if lcg(&mut state) < 0.1 {
+                guide.normal[i] = [0.0; 3];
+                guide.depth[i] = 0.0;
+                guide.position[i] = [0.0; 3];
+            } else {
+                let n = [lcg(&mut state) - 0.5, lcg(&mut state) - 0.5, 1.0];
+                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                guide.normal[i] = n.map(|c| c / len);
+                guide.depth[i] = 0.5 + 10.0 * lcg(&mut state);
+                guide.position[i] = [lcg(&mut state), lcg(&mut state), guide.depth[i]];
+            }
+        }
+        guide.secondary_normal = Some(secondary);
+        guide
+    }
+
+    fn noise_image(width: u32, height: u32, seed: u64) -> Image {
+        let mut state = seed;
+        let pixels =
+            (0..width * height).map(|_| [lcg(&mut state), 2.0 * lcg(&mut state), lcg(&mut state) - 0.5]).collect();
+        Image::from_pixels(width, height, pixels)
+    }
+
+    fn max_abs_diff(a: &Image, b: &Image) -> f32 {
+        a.pixels.iter().zip(&b.pixels).flat_map(|(p, q)| (0..3).map(move |c| (p[c] - q[c]).abs())).fold(0.0, f32::max)
+    }
+
+    fn no_edges(iterations: u32) -> AtrousParams {
+        AtrousParams {
+            iterations,
+            sigma_color: None,
+            sigma_normal: 1e30,
+            sigma_position: Some(1e30),
+            ..Default::default()
+        }
+    }
+
+    /// One dilated B3 convolution, taps outside the image dropped and the rest renormalised,
+    /// written from the definition.
+    fn naive_b3(image: &Image, step: i64) -> Image {
+        let h = [1.0f64 / 16.0, 0.25, 0.375, 0.25, 1.0 / 16.0];
+        let (w, ht) = (image.width as i64, image.height as i64);
+        let mut out = Image::new(image.width, image.height);
+        for y in 0..ht {
+            for x in 0..w {
+                let (mut sum, mut total) = ([0.0f64; 3], 0.0f64);
+                for j in -2i64..=2 {
+                    for i in -2i64..=2 {
+                        let (qx, qy) = (x + i * step, y + j * step);
+                        if qx < 0 || qy < 0 || qx >= w || qy >= ht {
+                            continue;
+                        }
+                        let wgt = h[(i + 2) as usize] * h[(j + 2) as usize];
+                        let c = image.get(qx as u32, qy as u32);
+                        for k in 0..3 {
+                            sum[k] += wgt * c[k] as f64;
+                        }
+                        total += wgt;
+                    }
+                }
+                out.set(x as u32, y as u32, sum.map(|s| (s / total) as f32));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn constant_input_is_unchanged_everywhere() {
+        for (w, h) in [(1, 1), (2, 2), (7, 5), (41, 23)] {
+            let guide = messy_guide(w, h, 7);
+            let noisy = Image::from_pixels(w, h, vec![[0.3, 1.7, 42.0]; (w * h) as usize]);
+            for iterations in [1, 3, 5, 8] {
+                for (sigma_color, use_secondary_normal) in [(None, false), (Some(0.5), true)] {
+                    let params = AtrousParams { iterations, sigma_color, use_secondary_normal, ..Default::default() };
+                    let (out, report) = atrous(&noisy, &guide, &params).unwrap();
+                    assert_eq!(report.sanitised_values, 0);
+                    for p in &out.pixels {
+                        for (c, e) in p.iter().zip([0.3, 1.7, 42.0]) {
+                            assert!((c - e).abs() <= 1e-5 * e, "{w}x{h} k{iterations}: {p:?}");
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn one_level_without_edge_terms_is_the_b3_convolution() {
+        for (w, h) in [(1, 1), (2, 2), (3, 7), (19, 13)] {
+            let noisy = noise_image(w, h, 3);
+            // Random geometry without escaped pixels: the huge σ must make it irrelevant.
+            let mut guide = messy_guide(w, h, 5);
+            for i in 0..guide.pixel_count() {
+                if guide.depth[i] == 0.0 {
+                    guide.depth[i] = 1.0;
+                    guide.normal[i] = [0.0, 1.0, 0.0];
+                }
+            }
+            let (out, _) = atrous(&noisy, &guide, &no_edges(1)).unwrap();
+            assert!(max_abs_diff(&out, &naive_b3(&noisy, 1)) < 1e-5, "{w}x{h}");
+        }
+    }
+
+    #[test]
+    fn all_terms_match_the_formula() {
+        // Naive evaluation of the documented cascade with every term on, escaped pixels
+        // included; σ_rt halves per level.
+        let (w, h) = (17i64, 12i64);
+        let noisy = noise_image(w as u32, h as u32, 6);
+        let guide = messy_guide(w as u32, h as u32, 8);
+        let (sr, sn, sx, ss) = (0.8f64, 0.5f64, 0.7f64, 0.6f64);
+        let params = AtrousParams {
+            iterations: 3,
+            sigma_color: Some(sr as f32),
+            sigma_normal: sn as f32,
+            sigma_position: Some(sx as f32),
+            use_secondary_normal: true,
+            sigma_secondary_normal: ss as f32,
+        };
+        let (out, _) = atrous(&noisy, &guide, &params).unwrap();
+        let secondary = guide.secondary_normal.as_ref().unwrap();
+        let d2 = |a: [f32; 3], b: [f32; 3]| -> f64 { (0..3).map(|k| (a[k] as f64 - b[k] as f64).powi(2)).sum() };
+        let kernel = [1.0f64 / 16.0, 0.25, 0.375, 0.25, 1.0 / 16.0];
+        let mut current: Vec<[f64; 3]> = noisy.pixels.iter().map(|p| p.map(|c| c as f64)).collect();
+        for level in 0..3 {
+            let step = 1i64 << level;
+            let sigma_colour = sr / (1 << level) as f64;
+            let mut next = current.clone();
+            for y in 0..h {
+                for x in 0..w {
+                    let p = (y * w + x) as usize;
+                    let (mut sum, mut total) = ([0.0f64; 3], 0.0f64);
+                    for j in -2i64..=2 {
+                        for i in -2i64..=2 {
+                            let (qx, qy) = (x + i * step, y + j * step);
+                            if qx < 0 || qy < 0 || qx >= w || qy >= h {
+                                continue;
+                            }
+                            let q = (qy * w + qx) as usize;
+                            if (guide.depth[p] > 0.0) != (guide.depth[q] > 0.0) {
+                                continue;
+                            }
+                            let dc: f64 = (0..3).map(|k| (current[p][k] - current[q][k]).powi(2)).sum();
+                            let mut wgt = kernel[(i + 2) as usize] * kernel[(j + 2) as usize];
+                            wgt *= (-dc / (sigma_colour * sigma_colour)).exp();
+                            if guide.depth[p] > 0.0 {
+                                wgt *= (-d2(guide.normal[p], guide.normal[q]) / (sn * sn)).exp()
+                                    * (-d2(guide.position[p], guide.position[q]) / (sx * sx)).exp()
+                                    * (-d2(secondary[p], secondary[q]) / (ss * ss)).exp();
+                            }
+                            for k in 0..3 {
+                                sum[k] += wgt * current[q][k];
+                            }
+                            total += wgt;
+                        }
+                    }
+                    next[p] = sum.map(|s| s / total);
+                }
+            }
+            current = next;
+        }
+        for (got, expected) in out.pixels.iter().zip(&current) {
+            for k in 0..3 {
+                assert!((got[k] as f64 - expected[k]).abs() < 1e-4, "{got:?} vs {expected:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn k_levels_without_edge_terms_are_the_dilated_cascade() {
+        let (w, h) = (37, 29);
+        let noisy = noise_image(w, h, 13);
+        let guide = flat_guide(w, h);
+        for iterations in 1..=MAX_ITERATIONS {
+            let (out, _) = atrous(&noisy, &guide, &no_edges(iterations)).unwrap();
+            let mut expected = noisy.clone();
+            for level in 0..iterations {
+                expected = naive_b3(&expected, 1 << level);
+            }
+            assert!(max_abs_diff(&out, &expected) < 1e-5, "k = {iterations}");
+        }
+    }
+
+    /// A crease: a floor (normal +z) on the left meeting a wall (normal +x) on the right,
+    /// positions continuous across the crease; the floor is lit, the wall dark, plus noise.
+    fn crease(width: u32, height: u32, seed: u64) -> (GuideBuffers, Image, Image) {
+        let mut guide = flat_guide(width, height);
+        let mut truth = Image::new(width, height);
+        let half = width / 2;
+        for y in 0..height {
+            for x in 0..width {
+                let i = (y * width + x) as usize;
+                let (fx, fy) = (x as f32 * 0.01, y as f32 * 0.01);
+                if x < half {
+                    guide.normal[i] = [0.0, 0.0, 1.0];
+                    guide.position[i] = [fx, fy, 0.0];
+                    truth.set(x, y, [1.0; 3]);
+                } else {
+                    guide.normal[i] = [1.0, 0.0, 0.0];
+                    guide.position[i] = [half as f32 * 0.01, fy, fx - half as f32 * 0.01];
+                }
+            }
+        }
+        let mut state = seed;
+        let noisy = Image::from_pixels(
+            width,
+            height,
+            truth.pixels.iter().map(|p| p.map(|c| c + 0.3 * (lcg(&mut state) - 0.5))).collect(),
+        );
+        (guide, truth, noisy)
+    }
+
+    /// Mean absolute error of channel 0 over the `band` columns each side of the middle.
+    fn edge_error(image: &Image, truth: &Image, band: u32) -> f32 {
+        let (w, h) = (image.width, image.height);
+        let mut total = 0.0;
+        for y in 0..h {
+            for x in w / 2 - band..w / 2 + band {
+                total += (image.get(x, y)[0] - truth.get(x, y)[0]).abs();
+            }
+        }
+        total / (2 * band * h) as f32
+    }
+
+    #[test]
+    fn a_normal_discontinuity_is_preserved() {
+        let (guide, truth, noisy) = crease(64, 32, 21);
+        let (aware, _) = atrous(&noisy, &guide, &AtrousParams::default()).unwrap();
+        let (blind, _) = atrous(&noisy, &guide, &no_edges(5)).unwrap();
+        let (aware, plain) = (edge_error(&aware, &truth, 6), edge_error(&blind, &truth, 6));
+        assert!(plain > 0.2, "the plain cascade must blur the crease: {plain}");
+        assert!(aware < 0.1 * plain, "edge-aware error {aware} vs plain {plain}");
+    }
+
+    #[test]
+    fn the_secondary_normal_term_acts_only_where_secondary_normals_differ() {
+        // One plane; the left half's secondary hits face +y, the right half's +x.
+        let (w, h) = (48u32, 24u32);
+        let mut guide = flat_guide(w, h);
+        let mut truth = Image::new(w, h);
+        let mut secondary = vec![[0.0; 3]; guide.pixel_count()];
+        for y in 0..h {
+            for x in 0..w {
+                let left = x < w / 2;
+                secondary[(y * w + x) as usize] = if left { [0.0, 1.0, 0.0] } else { [1.0, 0.0, 0.0] };
+                truth.set(x, y, if left { [1.0; 3] } else { [0.0; 3] });
+            }
+        }
+        let mut state = 3;
+        let noisy = Image::from_pixels(
+            w,
+            h,
+            truth.pixels.iter().map(|p| p.map(|c| c + 0.3 * (lcg(&mut state) - 0.5))).collect(),
+        );
+        guide.secondary_normal = Some(secondary);
+        let without = AtrousParams::default();
+        let with = AtrousParams { use_secondary_normal: true, ..without };
+        let (plain, _) = atrous(&noisy, &guide, &without).unwrap();
+        let (extra, _) = atrous(&noisy, &guide, &with).unwrap();
+        assert!(max_abs_diff(&plain, &extra) > 0.1);
+        let (plain_error, extra_error) = (edge_error(&plain, &truth, 6), edge_error(&extra, &truth, 6));
+        assert!(extra_error < 0.2 * plain_error, "with {extra_error} vs without {plain_error}");
+
+        // All secondary normals equal: the term is exactly 1 and changes nothing.
+        guide.secondary_normal = Some(vec![[0.3, 0.4, 0.5]; guide.pixel_count()]);
+        let (extra, _) = atrous(&noisy, &guide, &with).unwrap();
+        assert_eq!(extra, plain);
+    }
+
+    #[test]
+    fn the_colour_term_keeps_colour_edges() {
+        // A sharp colour edge on one flat plane: with σ_rt the edge survives, without it blurs.
+        let (w, h) = (32u32, 8u32);
+        let pixels = (0..w * h).map(|i| if i % w < w / 2 { [1.0; 3] } else { [0.0; 3] }).collect();
+        let noisy = Image::from_pixels(w, h, pixels);
+        let guide = flat_guide(w, h);
+        let (kept, _) = atrous(&noisy, &guide, &AtrousParams { sigma_color: Some(0.3), ..Default::default() }).unwrap();
+        let (blurred, _) = atrous(&noisy, &guide, &AtrousParams::default()).unwrap();
+        assert!(max_abs_diff(&kept, &noisy) < 1e-3);
+        assert!(max_abs_diff(&blurred, &noisy) > 0.2);
+    }
+
+    #[test]
+    fn default_sigma_position_is_the_scaled_median_footprint() {
+        let guide = flat_guide(20, 10);
+        let sigma = default_sigma_position(&guide, 5).unwrap();
+        assert!((sigma - 0.32).abs() < 1e-4, "{sigma}");
+        let mut empty = flat_guide(4, 4);
+        empty.position = vec![[1.0; 3]; 16];
+        assert_eq!(default_sigma_position(&empty, 5), None);
+        // Still filters (term off) when every position coincides.
+        let (out, _) = atrous(&noise_image(4, 4, 1), &empty, &AtrousParams::default()).unwrap();
+        assert_eq!(out.nonfinite_pixels(), 0);
+    }
+
+    #[test]
+    fn tiny_images() {
+        let one = Image::from_pixels(1, 1, vec![[1.0, 2.0, 3.0]]);
+        let (out, _) = atrous(&one, &flat_guide(1, 1), &AtrousParams::default()).unwrap();
+        assert_eq!(out, one);
+        let two = noise_image(2, 2, 4);
+        let (out, _) = atrous(&two, &flat_guide(2, 2), &no_edges(8)).unwrap();
+        let mut expected = two.clone();
+        for level in 0..8 {
+            expected = naive_b3(&expected, 1 << level);
+        }
+        assert!(max_abs_diff(&out, &expected) < 1e-5);
+        let (out, _) = atrous(&Image::new(0, 0), &flat_guide(0, 0), &AtrousParams::default()).unwrap();
+        assert_eq!(out.pixel_count(), 0);
+    }
+
+    #[test]
+    fn non_finite_values_are_sanitised_and_counted() {
+        let mut noisy = noise_image(8, 8, 2);
+        noisy.set(3, 3, [f32::NAN, 1.0, f32::INFINITY]);
+        noisy.set(0, 7, [0.0, f32::NEG_INFINITY, 0.0]);
+        let mut guide = messy_guide(8, 8, 9);
+        guide.normal[10] = [f32::NAN, 0.0, 1.0];
+        guide.depth[20] = f32::INFINITY;
+        guide.position[30] = [0.0, f32::NAN, 0.0];
+        guide.secondary_normal.as_mut().unwrap()[40] = [f32::INFINITY, 0.0, 0.0];
+        let params = AtrousParams { sigma_color: Some(1.0), use_secondary_normal: true, ..Default::default() };
+        let (out, report) = atrous(&noisy, &guide, &params).unwrap();
+        assert_eq!(report.sanitised_values, 7);
+        assert_eq!(out.nonfinite_pixels(), 0);
+        // The unused secondary normals are not read, so not counted.
+        let (_, report) = atrous(&noisy, &guide, &AtrousParams::default()).unwrap();
+        assert_eq!(report.sanitised_values, 6);
+    }
+
+    #[test]
+    fn black_stays_black_and_spikes_stay_finite() {
+        let guide = messy_guide(16, 12, 4);
+        let black = Image::new(16, 12);
+        let (out, _) = atrous(&black, &guide, &AtrousParams { sigma_color: Some(0.1), ..Default::default() }).unwrap();
+        assert_eq!(out, black);
+
+        let mut spiky = noise_image(16, 12, 8);
+        spiky.set(5, 5, [1e9, 1e9, 1e9]);
+        spiky.set(6, 5, [f32::MAX, -f32::MAX, f32::MAX]);
+        for sigma_color in [None, Some(0.5)] {
+            let (out, _) = atrous(&spiky, &guide, &AtrousParams { sigma_color, ..Default::default() }).unwrap();
+            assert_eq!(out.nonfinite_pixels(), 0);
+        }
+        let huge = Image::from_pixels(4, 4, vec![[f32::MAX; 3]; 16]);
+        let (out, _) = atrous(&huge, &flat_guide(4, 4), &AtrousParams::default()).unwrap();
+        assert!(out.pixels.iter().all(|p| p.iter().all(|c| c.is_finite() && *c > 0.9 * f32::MAX)));
+    }
+
+    #[test]
+    fn values_beyond_the_summing_range_are_filtered_like_any_other() {
+        // Scaling the input and σ_rt by 2^110 (past the summing range) scales the output.
+        let noisy = noise_image(12, 9, 4);
+        let guide = messy_guide(12, 9, 5);
+        let factor = 2f32.powi(110);
+        let big = Image::from_pixels(12, 9, noisy.pixels.iter().map(|p| p.map(|c| c * factor)).collect());
+        let params = AtrousParams { iterations: 3, sigma_color: Some(0.7), ..Default::default() };
+        let big_params = AtrousParams { sigma_color: Some(0.7 * factor), ..params };
+        let (small_out, _) = atrous(&noisy, &guide, &params).unwrap();
+        let (big_out, _) = atrous(&big, &guide, &big_params).unwrap();
+        for (s, b) in small_out.pixels.iter().zip(&big_out.pixels) {
+            for k in 0..3 {
+                assert!((b[k] / factor - s[k]).abs() <= 1e-5 * (1.0 + s[k].abs()), "{s:?} vs {b:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_derived_position_sigma_makes_the_filter_scale_free() {
+        // The crease scene in units 2^80 times larger filters identically.
+        let (guide, _, noisy) = crease(40, 20, 8);
+        let mut huge = guide.clone();
+        let factor = 2f32.powi(80);
+        for x in huge.position.iter_mut() {
+            *x = x.map(|c| c * factor);
+        }
+        let (a, _) = atrous(&noisy, &guide, &AtrousParams::default()).unwrap();
+        let (b, _) = atrous(&noisy, &huge, &AtrousParams::default()).unwrap();
+        assert!(max_abs_diff(&a, &b) < 1e-6);
+        let sigma = default_sigma_position(&guide, 5).unwrap();
+        assert!((default_sigma_position(&huge, 5).unwrap() / factor - sigma).abs() < 1e-6 * sigma);
+    }
+
+    #[test]
+    fn escaped_pixels_do_not_bleed_into_surfaces() {
+        let escape = |guide: &mut GuideBuffers, x: usize, y: usize| {
+            let i = y * guide.width as usize + x;
+            guide.normal[i] = [0.0; 3];
+            guide.depth[i] = 0.0;
+            guide.position[i] = [0.0; 3];
+        };
+        // One escaped pixel amid a surface keeps its own value; the surface keeps its own.
+        let mut guide = flat_guide(5, 5);
+        escape(&mut guide, 2, 2);
+        let mut noisy = Image::from_pixels(5, 5, vec![[1.0; 3]; 25]);
+        noisy.set(2, 2, [5.0; 3]);
+        for iterations in [1, 5] {
+            let (out, _) = atrous(&noisy, &guide, &AtrousParams { iterations, ..Default::default() }).unwrap();
+            assert_eq!(out.get(2, 2), [5.0; 3]);
+            for y in 0..5 {
+                for x in 0..5 {
+                    if (x, y) != (2, 2) {
+                        assert!(out.get(x, y).iter().all(|c| (c - 1.0).abs() < 1e-6), "({x},{y}): {:?}", out.get(x, y));
+                    }
+                }
+            }
+        }
+        // Two escaped pixels (a tap apart) mix with each other only.
+        escape(&mut guide, 0, 0);
+        noisy.set(0, 0, [3.0; 3]);
+        let (out, _) = atrous(&noisy, &guide, &AtrousParams::default()).unwrap();
+        let (a, b) = (out.get(2, 2)[0], out.get(0, 0)[0]);
+        assert!(a > 3.0 && a < 5.0 && b > 3.0 && b < 5.0 && (a + b - 8.0).abs() < 1e-4, "{a} {b}");
+        for y in 0..5 {
+            for x in 0..5 {
+                if (x, y) != (2, 2) && (x, y) != (0, 0) {
+                    assert!(out.get(x, y).iter().all(|c| (c - 1.0).abs() < 1e-6), "({x},{y}): {:?}", out.get(x, y));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn mismatched_inputs_and_bad_parameters_are_errors() {
+        let noisy = noise_image(4, 3, 1);
+        let params = AtrousParams::default();
+        assert!(atrous(&noisy, &flat_guide(3, 4), &params).unwrap_err().contains("4x3"));
+        let mut inconsistent = flat_guide(4, 3);
+        inconsistent.position.pop();
+        assert!(atrous(&noisy, &inconsistent, &params).unwrap_err().contains("inconsistent"));
+        let guide = flat_guide(4, 3);
+        for iterations in [0, MAX_ITERATIONS + 1] {
+            assert!(atrous(&noisy, &guide, &AtrousParams { iterations, ..params }).unwrap_err().contains("iterations"));
+        }
+        for bad in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+            for params in [
+                AtrousParams { sigma_color: Some(bad), ..params },
+                AtrousParams { sigma_normal: bad, ..params },
+                AtrousParams { sigma_position: Some(bad), ..params },
+                AtrousParams { sigma_secondary_normal: bad, ..params },
+            ] {
+                assert!(atrous(&noisy, &guide, &params).unwrap_err().contains("positive and finite"));
+            }
+        }
+        let with = AtrousParams { use_secondary_normal: true, ..params };
+        assert!(atrous(&noisy, &guide, &with).unwrap_err().contains("secondary_normal"));
+    }
+
+    /// `cargo test --release -p recon --lib timing_atrous -- --ignored --nocapture`
+    #[test]
+    #[ignore]
+    fn timing_atrous_1024x768() {
+        let (w, h) = (1024, 768);
+        let noisy = noise_image(w, h, 1);
+        let guide = messy_guide(w, h, 2);
+        for iterations in [4, 5, 6] {
+            for (sigma_color, use_secondary_normal) in [(None, false), (Some(0.5), true)] {
+                let params = AtrousParams { iterations, sigma_color, use_secondary_normal, ..Default::default() };
+                let start = std::time::Instant::now();
+                let (out, _) = atrous(&noisy, &guide, &params).unwrap();
+                let elapsed = start.elapsed();
+                assert_eq!(out.nonfinite_pixels(), 0);
+                println!(
+                    "atrous 1024x768 {iterations} iterations (colour {}, secondary normal {}): {:.0} ms on {} threads",
+                    sigma_color.is_some(),
+                    use_secondary_normal,
+                    elapsed.as_secs_f64() * 1e3,
+                    rayon::current_num_threads()
+                );
+            }
+        }
+    }
+}
