@@ -245,3 +245,86 @@ fn bad_input_fails_cleanly_without_results() {
         assert!(!out.join("results.json").exists(), "{extra:?} left results behind");
     }
 }
+
+/// Every effect runs, and `box` (the samples read back through `sampleio`) scores what path
+/// tracing scores at the same spp: exactly for the effects whose samples are the render's own
+/// camera samples (ao, the lens-time effects), up to noise for the indirect ones, whose secondary
+/// rays draw their random numbers differently.
+#[test]
+fn every_effect_runs_and_box_matches_path_tracing() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        ("ao", "scenes/cornell.toml", true),
+        ("soft-shadow", "scenes/cornell.toml", true),
+        ("dof", "scenes/monkeys-defocus-motion.toml", true),
+        ("motion", "scenes/monkeys-defocus-motion.toml", true),
+        ("dof-motion", "scenes/monkeys-defocus-motion.toml", true),
+        ("glossy", "scenes/monkeys.toml", false),
+    ];
+    for (effect, scene, exact) in cases {
+        let out = dir.path().join(effect);
+        let result = lfr(&[
+            "compare",
+            "--effect",
+            effect,
+            "--scene",
+            scene,
+            "--width",
+            "16",
+            "--height",
+            "12",
+            "--spp",
+            "2",
+            "--reference-spp",
+            "32",
+            "--pt-max-spp",
+            "2",
+            "--methods",
+            "box",
+            "--quiet",
+            "--out",
+            out.to_str().unwrap(),
+            "--cache-dir",
+            dir.path().join("cache").to_str().unwrap(),
+        ]);
+        assert!(result.status.success(), "{effect}: {}", String::from_utf8_lossy(&result.stderr));
+        let results: Value = serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
+        check_schema(&results);
+        let psnr_of = |method: &str| {
+            let run = runs(&results, method).into_iter().find(|r| r["input_spp"] == 2).unwrap().clone();
+            number(&run["psnr_db"])
+        };
+        let (pt, boxed) = (psnr_of("pt"), psnr_of("box"));
+        if exact {
+            assert_eq!(pt, boxed, "{effect}: box must reproduce path tracing at equal spp");
+        } else {
+            assert!((pt - boxed).abs() < 2.0, "{effect}: box {boxed} dB vs path tracing {pt} dB");
+        }
+    }
+}
+
+/// The filters of the guided-filtering pipeline run through the harness on guide buffers and
+/// beat the unfiltered input at equal spp; effects they do not handle are refused.
+#[test]
+fn guide_filters_run_and_beat_the_unfiltered_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let results = tiny_compare(&out, &dir.path().join("cache"), &["--methods", "box,gif,bilateral,atrous"]);
+    check_schema(&results);
+    for method in ["gif", "bilateral", "atrous"] {
+        for run in runs(&results, method) {
+            let n = run["input_spp"].as_u64().unwrap();
+            let unfiltered = runs(&results, "box").into_iter().find(|r| r["input_spp"].as_u64() == Some(n)).unwrap();
+            assert!(
+                number(&run["psnr_db"]) > number(&unfiltered["psnr_db"]) + 3.0,
+                "{method} at {n} spp: {} dB vs unfiltered {} dB",
+                run["psnr_db"],
+                unfiltered["psnr_db"]
+            );
+            assert!(run["valid"].as_bool().unwrap());
+        }
+    }
+    let refused = lfr(&["compare", "--effect", "ao", "--methods", "gif", "--out", out.to_str().unwrap(), "--quiet"]);
+    assert!(!refused.status.success());
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("gif does not handle --effect ao"));
+}

@@ -2,9 +2,13 @@
 //! reaches into the tracer. `method` holds the trait and registry `lfr compare` runs them
 //! through; `metrics` the error measures every comparison reports.
 
+pub mod atrous;
+pub mod bilateral;
 pub mod box_filter;
+pub mod filtered_indirect;
 pub mod flip;
 pub mod guide;
+pub mod guided_filter;
 pub mod image;
 pub mod method;
 pub mod metrics;

@@ -73,6 +73,20 @@ pub enum Input {
     Samples,
     /// The path-traced image of the effect with per-pixel albedo and normal (box pixel filter).
     Frame,
+    /// Guide buffers of one guide ray per pixel centre with `spp` indirect estimates at its hit
+    /// (the guided image filter's input; effects `indirect` and `glossy` only).
+    Guide,
+}
+
+/// One guide ray per pixel through its centre: the geometry it hits, the reflectance there and
+/// the noisy outgoing indirect light estimated at that very point with `spp` paths.
+#[derive(Clone, Debug)]
+pub struct GuideInput {
+    pub guide: crate::guide::GuideBuffers,
+    pub albedo: Image,
+    /// Mean of `spp` estimates of the light the guide hit reflects after at least one more
+    /// bounce (the indirect layer at the pixel centre).
+    pub indirect: Image,
 }
 
 /// A path-traced frame: the effect's layer and the first-hit albedo and world-space normal.
@@ -95,6 +109,8 @@ pub struct Inputs<'a> {
     pub samples: Option<PathBuf>,
     /// The path-traced frame, when the method asked for `Input::Frame`.
     pub frame: Option<&'a FrameInput>,
+    /// The guide buffers, when the method asked for `Input::Guide`.
+    pub guide: Option<&'a GuideInput>,
     /// Ambient-occlusion radius in scene units (`Effect::Ao`).
     pub ao_radius: f32,
     /// Worker threads; 0 = all cores.
@@ -170,7 +186,14 @@ pub trait Method: Send + Sync {
 
 /// Every method, in the order reports list them.
 pub fn registry() -> Vec<Box<dyn Method>> {
-    vec![Box::new(crate::box_filter::BoxFilter), Box::new(crate::oidn::Oidn::default())]
+    use crate::filtered_indirect::FilteredIndirect;
+    vec![
+        Box::new(crate::box_filter::BoxFilter),
+        Box::new(crate::oidn::Oidn::default()),
+        Box::new(FilteredIndirect::gif()),
+        Box::new(FilteredIndirect::bilateral()),
+        Box::new(FilteredIndirect::atrous()),
+    ]
 }
 
 /// The registered method called `name`.

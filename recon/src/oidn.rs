@@ -249,6 +249,7 @@ mod tests {
             spp: 4,
             samples: None,
             frame: Some(frame),
+            guide: None,
             ao_radius: 1.0,
             threads: 0,
         }

@@ -16,7 +16,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Result};
 use glam::Vec3;
-use recon::method::FrameInput;
+use recon::method::{FrameInput, GuideInput};
 use recon::{Effect, Image};
 use tracer::samples::secondary::{ambient_occlusion_frame, scene_is_glossy, SecondaryKind};
 use tracer::samples::DumpSettings;
@@ -144,6 +144,32 @@ impl Tracing<'_> {
             threads: self.threads,
             progress: false,
         }
+    }
+
+    /// Traces the guide buffers with `spp` indirect estimates per guide hit; returns them and
+    /// the wall time. Only for the effects whose image is the indirect layer.
+    pub fn guide(&self, spp: u32, seed: u32) -> Result<(GuideInput, f64)> {
+        if !matches!(self.effect, Effect::Indirect | Effect::Glossy) {
+            bail!("guide buffers carry indirect light: --effect {} has no guide input", self.effect.name());
+        }
+        let start = Instant::now();
+        let buffers = tracer::samples::guide::guide_buffers(self.scene, self.accel, &self.dump_settings(spp, seed))?;
+        let seconds = start.elapsed().as_secs_f64();
+        let (width, height) = (self.width, self.height);
+        let arrays = |values: &[Vec3]| values.iter().map(|v| v.to_array()).collect::<Vec<_>>();
+        let input = GuideInput {
+            guide: recon::guide::GuideBuffers {
+                width,
+                height,
+                normal: arrays(&buffers.normal),
+                depth: buffers.depth.clone(),
+                position: arrays(&buffers.position),
+                secondary_normal: None,
+            },
+            albedo: image_from_vec3(width, height, &buffers.albedo),
+            indirect: image_from_vec3(width, height, &buffers.indirect),
+        };
+        Ok((input, seconds))
     }
 
     /// Writes the effect's samples at `spp` to `path`; returns the wall time.

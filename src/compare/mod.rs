@@ -369,6 +369,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     // The methods.
     let inputs_dir = dir.join("inputs");
     let mut samples: BTreeMap<u32, (PathBuf, f64)> = BTreeMap::new();
+    let mut guides: BTreeMap<u32, (recon::method::GuideInput, f64)> = BTreeMap::new();
     let mut skipped = Vec::new();
     'methods: for method in &methods {
         if let Err(reason) = method.available() {
@@ -380,7 +381,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         let rays: Vec<u32> =
             if default_rays == [0] { vec![0] } else { args.recon_rays.clone().unwrap_or(default_rays) };
         for &spp in &args.spp {
-            let (sample_path, frame, trace_s) = match method.input() {
+            let (sample_path, frame, guide, trace_s) = match method.input() {
                 Input::Samples => {
                     if let std::collections::btree_map::Entry::Vacant(entry) = samples.entry(spp) {
                         std::fs::create_dir_all(&inputs_dir)
@@ -390,15 +391,31 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                         entry.insert((path, seconds));
                     }
                     let (path, seconds) = &samples[&spp];
-                    (Some(path.clone()), None, *seconds)
+                    (Some(path.clone()), None, None, *seconds)
                 }
                 Input::Frame => {
                     let (frame, seconds) = &frames[&spp];
-                    (None, Some(frame), *seconds)
+                    (None, Some(frame), None, *seconds)
+                }
+                Input::Guide => {
+                    if let std::collections::btree_map::Entry::Vacant(entry) = guides.entry(spp) {
+                        entry.insert(tracing.guide(spp, args.seed)?);
+                    }
+                    let (guide, seconds) = &guides[&spp];
+                    (None, None, Some(guide), *seconds)
                 }
             };
-            let inputs =
-                Inputs { effect, width, height, spp, samples: sample_path, frame, ao_radius, threads: args.threads };
+            let inputs = Inputs {
+                effect,
+                width,
+                height,
+                spp,
+                samples: sample_path,
+                frame,
+                guide,
+                ao_radius,
+                threads: args.threads,
+            };
             for &recon_rays in &rays {
                 memory::reset_peak();
                 let output = match method.run(&inputs, recon_rays) {
