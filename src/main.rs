@@ -2,6 +2,7 @@
 //! sample dumps and reconstructions) and times them.
 
 mod bench;
+mod bench_filters;
 mod compare;
 mod export;
 
@@ -39,6 +40,9 @@ enum Command {
     /// Error against run time for path tracing and reconstruction methods, against a cached
     /// high-spp reference: results.json, report.md, images and plots (docs/compare.md).
     Compare(compare::CompareArgs),
+    /// Times the guided filter (1/3/4 guide channels, radii 8-32), A-Trous and the
+    /// cross-bilateral filter on the same guide buffers, with ratios from the same run.
+    BenchFilters(bench_filters::BenchFiltersArgs),
 }
 
 /// Sample kinds `lfr dump` writes.
@@ -211,6 +215,7 @@ fn main() -> ExitCode {
         Command::Export(args) => export::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Compare(args) => compare::run(args),
+        Command::BenchFilters(args) => bench_filters::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
