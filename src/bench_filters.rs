@@ -94,9 +94,11 @@ pub fn run(args: &BenchFiltersArgs) -> Result<()> {
 
     let mut rows: Vec<(String, String, f64)> = Vec::new();
     pool.install(|| -> Result<()> {
-        for (kind, name) in
-            [(GuideKind::GreyNormal, "1 channel"), (GuideKind::Normal, "3 channels"), (GuideKind::NormalDepth, "4 channels")]
-        {
+        for (kind, name) in [
+            (GuideKind::GreyNormal, "1 channel"),
+            (GuideKind::Normal, "3 channels"),
+            (GuideKind::NormalDepth, "4 channels"),
+        ] {
             for radius in [8, 16, 24, 32] {
                 let params = GuidedFilterParams { radius, guide: kind, ..GuidedFilterParams::default() };
                 let ms = best_of(args.repeats, || {

@@ -258,3 +258,33 @@ fn every_sample_kind_dumps_from_its_scene_and_reads_back() {
     assert!(!result.status.success());
     assert!(stderr(&result).contains(".exr"));
 }
+
+/// `lfr bench-filters` runs every filter on real guide buffers and reports ratios against its
+/// baseline from the same run (the baseline's own ratio is exactly 1).
+#[test]
+fn bench_filters_reports_ratios_from_one_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("bench.json");
+    let result = lfr(&[
+        "bench-filters",
+        "--width",
+        "48",
+        "--height",
+        "32",
+        "--repeats",
+        "1",
+        "--no-bilateral",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(result.status.success(), "{}", String::from_utf8_lossy(&result.stderr));
+    let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let rows = rows.as_array().unwrap();
+    assert_eq!(rows.len(), 12 + 3, "guided 3 guides x 4 radii, A-Trous 3 settings");
+    let baseline = rows.iter().find(|r| r["setting"] == "4 channels, radius 8").unwrap();
+    assert_eq!(baseline["ratio_to_baseline"], 1.0);
+    for row in rows {
+        let ms = row["milliseconds"].as_f64().unwrap();
+        assert!(ms.is_finite() && ms > 0.0, "{row}");
+    }
+}
