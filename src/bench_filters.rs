@@ -12,7 +12,6 @@ use recon::atrous::{atrous, AtrousParams};
 use recon::bilateral::{cross_bilateral, BilateralParams};
 use recon::filtered_indirect::demodulate;
 use recon::guided_filter::{guided_filter, GuideKind, GuidedFilterParams};
-use recon::Image;
 use serde::Serialize;
 use tracer::samples::DumpSettings;
 use tracer::Accel;
@@ -73,16 +72,9 @@ pub fn run(args: &BenchFiltersArgs) -> Result<()> {
     };
     let buffers = tracer::samples::guide::guide_buffers(&scene, &accel, &settings)?;
     let (width, height) = (args.width, args.height);
-    let rgb = |v: &[glam::Vec3]| Image::from_pixels(width, height, v.iter().map(|p| p.to_array()).collect());
-    let guide = recon::guide::GuideBuffers {
-        width,
-        height,
-        normal: buffers.normal.iter().map(|p| p.to_array()).collect(),
-        depth: buffers.depth.clone(),
-        position: buffers.position.iter().map(|p| p.to_array()).collect(),
-        secondary_normal: None,
-    };
-    let noisy = demodulate(&rgb(&buffers.indirect), &rgb(&buffers.albedo));
+    let input = crate::compare::effect::guide_input(&buffers);
+    let guide = &input.guide;
+    let noisy = demodulate(&input.indirect, &input.albedo);
     let megapixels = width as f64 * height as f64 / 1e6;
     let pool = tracer::render::thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
@@ -102,21 +94,21 @@ pub fn run(args: &BenchFiltersArgs) -> Result<()> {
             for radius in [8, 16, 24, 32] {
                 let params = GuidedFilterParams { radius, guide: kind, ..GuidedFilterParams::default() };
                 let ms = best_of(args.repeats, || {
-                    guided_filter(&noisy, &guide, &params).map(|_| ()).map_err(anyhow::Error::msg)
+                    guided_filter(&noisy, guide, &params).map(|_| ()).map_err(anyhow::Error::msg)
                 })?;
                 rows.push(("guided".into(), format!("{name}, radius {radius}"), ms));
             }
         }
         for iterations in [4, 5, 6] {
             let params = AtrousParams { iterations, ..AtrousParams::default() };
-            let ms = best_of(args.repeats, || atrous(&noisy, &guide, &params).map(|_| ()).map_err(anyhow::Error::msg))?;
+            let ms = best_of(args.repeats, || atrous(&noisy, guide, &params).map(|_| ()).map_err(anyhow::Error::msg))?;
             rows.push(("a-trous".into(), format!("{iterations} iterations"), ms));
         }
         if !args.no_bilateral {
             for radius in [16, 24, 32] {
                 let params = BilateralParams::with_radius(radius);
                 let ms =
-                    best_of(1, || cross_bilateral(&noisy, &guide, &params).map(|_| ()).map_err(anyhow::Error::msg))?;
+                    best_of(1, || cross_bilateral(&noisy, guide, &params).map(|_| ()).map_err(anyhow::Error::msg))?;
                 rows.push(("cross-bilateral".into(), format!("radius {radius}"), ms));
             }
         }

@@ -328,3 +328,27 @@ fn guide_filters_run_and_beat_the_unfiltered_input() {
     assert!(!refused.status.success());
     assert!(String::from_utf8_lossy(&refused.stderr).contains("gif does not handle --effect ao"));
 }
+
+/// Without pyoidn (here: no Python at all) `oidn` is skipped with a printed notice and a reason
+/// in results.json, and the rest of the comparison still runs.
+#[test]
+fn a_missing_denoiser_is_skipped_with_a_notice() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let result = Command::new(env!("CARGO_BIN_EXE_lfr"))
+        .args(["compare", "--effect", "indirect", "--width", "8", "--height", "8", "--spp", "1"])
+        .args(["--reference-spp", "8", "--pt-max-spp", "2", "--methods", "box,oidn", "--quiet"])
+        .args(["--out", out.to_str().unwrap(), "--cache-dir", dir.path().join("cache").to_str().unwrap()])
+        .current_dir(project_root())
+        .env("LFR_PYTHON", "/nonexistent/python3")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert!(result.status.success(), "{stderr}");
+    assert!(stderr.contains("skipping oidn"), "{stderr}");
+    let results: Value = serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
+    check_schema(&results);
+    assert!(runs(&results, "oidn").is_empty());
+    assert_eq!(results["skipped"][0]["method"], "oidn");
+    assert!(!runs(&results, "box").is_empty());
+}

@@ -98,6 +98,24 @@ fn image_from_vec3(width: u32, height: u32, values: &[Vec3]) -> Image {
     Image::from_pixels(width, height, values.iter().map(|v| v.to_array()).collect())
 }
 
+/// The tracer's guide buffers as the reconstructions' `GuideInput`.
+pub fn guide_input(buffers: &tracer::samples::guide::GuideBuffers) -> GuideInput {
+    let (width, height) = (buffers.width, buffers.height);
+    let arrays = |values: &[Vec3]| values.iter().map(|v| v.to_array()).collect::<Vec<_>>();
+    GuideInput {
+        guide: recon::guide::GuideBuffers {
+            width,
+            height,
+            normal: arrays(&buffers.normal),
+            depth: buffers.depth.clone(),
+            position: arrays(&buffers.position),
+            secondary_normal: None,
+        },
+        albedo: image_from_vec3(width, height, &buffers.albedo),
+        indirect: image_from_vec3(width, height, &buffers.indirect),
+    }
+}
+
 impl Tracing<'_> {
     /// Path traces the effect's image at `spp` with `seed` (box pixel filter).
     pub fn trace(&self, spp: u32, seed: u32, progress: bool) -> Result<Traced> {
@@ -155,20 +173,7 @@ impl Tracing<'_> {
         let start = Instant::now();
         let buffers = tracer::samples::guide::guide_buffers(self.scene, self.accel, &self.dump_settings(spp, seed))?;
         let seconds = start.elapsed().as_secs_f64();
-        let (width, height) = (self.width, self.height);
-        let arrays = |values: &[Vec3]| values.iter().map(|v| v.to_array()).collect::<Vec<_>>();
-        let input = GuideInput {
-            guide: recon::guide::GuideBuffers {
-                width,
-                height,
-                normal: arrays(&buffers.normal),
-                depth: buffers.depth.clone(),
-                position: arrays(&buffers.position),
-                secondary_normal: None,
-            },
-            albedo: image_from_vec3(width, height, &buffers.albedo),
-            indirect: image_from_vec3(width, height, &buffers.indirect),
-        };
+        let input = guide_input(&buffers);
         Ok((input, seconds))
     }
 

@@ -13,15 +13,15 @@ use super::plot;
 /// Error maps show the per-pixel RMS difference of tone-mapped values on [0, ERROR_MAP_MAX].
 pub const ERROR_MAP_MAX: f32 = 0.25;
 
+/// The image's R, G and B channels, for an EXR layer.
+pub fn rgb_channels(image: &Image) -> Vec<(&'static str, Vec<f32>)> {
+    ["R", "G", "B"].iter().enumerate().map(|(c, name)| (*name, image.pixels.iter().map(|p| p[c]).collect())).collect()
+}
+
 /// Writes `image` as `stem.exr` (layer `layer`) and `stem.png` in `dir`.
 pub fn write_image(dir: &Path, stem: &str, layer: &str, image: &Image, tone: &ToneMap) -> Result<()> {
-    let channels = ["R", "G", "B"]
-        .iter()
-        .enumerate()
-        .map(|(c, name)| (*name, image.pixels.iter().map(|p| p[c]).collect::<Vec<f32>>()))
-        .collect();
     let exr = dir.join(format!("{stem}.exr"));
-    write_exr(&exr, image.width, image.height, &[Layer { name: layer, channels }])
+    write_exr(&exr, image.width, image.height, &[Layer { name: layer, channels: rgb_channels(image) }])
         .with_context(|| format!("writing {}", exr.display()))?;
     let png = dir.join(format!("{stem}.png"));
     let bytes: Vec<u8> =

@@ -13,6 +13,7 @@ use sha2::{Digest, Sha256};
 use tracer::output::{read_exr, write_atomically, write_exr, Layer};
 
 use super::effect::Tracing;
+use super::images::rgb_channels;
 
 /// Bumped whenever the tracer's estimators change what a reference contains.
 const ESTIMATOR_VERSION: &str = "lfr-reference/1";
@@ -115,10 +116,6 @@ pub fn cache_key(scene_text: &[u8], tracing: &Tracing, spp: u32, seeds: [u32; 2]
     hash.finalize().iter().map(|b| format!("{b:02x}")).collect()
 }
 
-fn channels(image: &Image) -> Vec<(&'static str, Vec<f32>)> {
-    ["R", "G", "B"].iter().enumerate().map(|(c, name)| (*name, image.pixels.iter().map(|p| p[c]).collect())).collect()
-}
-
 fn layer_image(path: &Path, width: u32, height: u32, channels: &[(String, Vec<f32>)], layer: &str) -> Result<Image> {
     let find = |name: &str| {
         let full = format!("{layer}.{name}");
@@ -193,7 +190,10 @@ pub fn reference(
         &exr,
         tracing.width,
         tracing.height,
-        &[Layer { name: "half_a", channels: channels(&half_a) }, Layer { name: "half_b", channels: channels(&half_b) }],
+        &[
+            Layer { name: "half_a", channels: rgb_channels(&half_a) },
+            Layer { name: "half_b", channels: rgb_channels(&half_b) },
+        ],
     )
     .with_context(|| format!("writing the reference {}", exr.display()))?;
     let record = CacheRecord { key: key.clone(), spp: half * 2, seconds, seeds };
