@@ -5,6 +5,7 @@ mod bench;
 mod bench_filters;
 mod compare;
 mod export;
+mod filter;
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -43,6 +44,9 @@ enum Command {
     /// Times the guided filter (1/3/4 guide channels, radii 8-32), A-Trous and the
     /// cross-bilateral filter on the same guide buffers, with ratios from the same run.
     BenchFilters(bench_filters::BenchFiltersArgs),
+    /// Filtered path tracing (Bauszat et al. 2011): guide rays, filtered indirect light,
+    /// additional eye rays by the geometry-aware lookup, composite; a multi-layer EXR and PNG.
+    Filter(filter::FilterArgs),
 }
 
 /// Sample kinds `lfr dump` writes.
@@ -216,6 +220,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => bench::run(args),
         Command::Compare(args) => compare::run(args),
         Command::BenchFilters(args) => bench_filters::run(args),
+        Command::Filter(args) => filter::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -309,9 +309,12 @@ fn every_effect_runs_and_box_matches_path_tracing() {
 fn guide_filters_run_and_beat_the_unfiltered_input() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
-    let results = tiny_compare(&out, &dir.path().join("cache"), &["--methods", "box,gif,bilateral,atrous"]);
+    let tuned = "gif:radius=6:eps_normal=0.001:eps_depth=0.001";
+    let methods = format!("box,gif,bilateral,atrous,atrous-sn,{tuned}");
+    let results = tiny_compare(&out, &dir.path().join("cache"), &["--methods", &methods]);
     check_schema(&results);
-    for method in ["gif", "bilateral", "atrous"] {
+    assert!(out.join("images/gif_radius-6_eps_normal-0.001_eps_depth-0.001-1spp.png").is_file());
+    for method in ["gif", "bilateral", "atrous", "atrous-sn", tuned] {
         for run in runs(&results, method) {
             let n = run["input_spp"].as_u64().unwrap();
             let unfiltered = runs(&results, "box").into_iter().find(|r| r["input_spp"].as_u64() == Some(n)).unwrap();

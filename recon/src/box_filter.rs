@@ -24,7 +24,7 @@ use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
 pub struct BoxFilter;
 
 impl Method for BoxFilter {
-    fn name(&self) -> &'static str {
+    fn name(&self) -> &str {
         "box"
     }
 

@@ -7,11 +7,13 @@
 //! | 3.2 one guide ray per pixel through its centre, normal and depth recorded | `GuideInput::guide` |
 //! | 3.3 filtering the *incident* indirect illumination | `demodulate` (divide by the guide hit's albedo), `FilteredIndirect::filter_indirect`, `remodulate` |
 //! | 4 radius 24–32 px (at ~800 px) | `scaled_radius`: the radius scales with the image |
-//! | 3.2 additional eye rays with the geometry-aware lookup (Eq. 3–5) | not yet: one eye ray per pixel (the guide ray), see `docs/guided-filter.md` |
+//! | 3.2 additional eye rays with the geometry-aware lookup (Eq. 3–5), direct light per eye ray, box filter, composite | `FilteredIndirect::reconstruct` → `eye_rays::composite` |
 //!
-//! Methods: `gif` (guided image filter, normal + depth guide, `guided_filter.rs`),
-//! `bilateral` (cross-bilateral on normal and depth, `bilateral.rs`), `atrous` (edge-avoiding
-//! À-Trous, `atrous.rs`).
+//! Methods: `gif` (guided image filter, normal + depth guide, `guided_filter.rs`), `gif-normal`
+//! and `gif-grey` (the 3-channel normal and 1-channel grey-normal guides of the paper's
+//! Figure 5), `bilateral` (cross-bilateral on normal and depth, `bilateral.rs`), `atrous`
+//! (edge-avoiding À-Trous, `atrous.rs`) and `atrous-sn` (À-Trous with the extra range term on
+//! the secondary-hit normal, as the indirect light field paper's comparison used it).
 //!
 //! Demodulation: the filter smooths the light arriving at the surface, not the texture that
 //! reflects it. Where a channel's albedo is below `MIN_ALBEDO` the incident light cannot be
@@ -21,7 +23,8 @@ use std::time::Instant;
 
 use crate::atrous::{atrous, AtrousParams};
 use crate::bilateral::{cross_bilateral, BilateralParams};
-use crate::guided_filter::{guided_filter, GuidedFilterParams};
+use crate::eye_rays::{composite, Composite};
+use crate::guided_filter::{guided_filter, GuideKind, GuidedFilterParams};
 use crate::image::Image;
 use crate::method::{Effect, GuideInput, Input, Inputs, Method, MethodError, Output};
 
@@ -50,7 +53,9 @@ pub enum Filter {
 
 /// A filter of the incident indirect light, as a `Method`.
 pub struct FilteredIndirect {
-    pub name: &'static str,
+    /// The `--methods` name: the variant's, followed by its options when any were set
+    /// (`gif:radius=8:eps_normal=0.001`).
+    pub name: String,
     pub description: &'static str,
     pub filter: Filter,
 }
@@ -58,7 +63,7 @@ pub struct FilteredIndirect {
 impl FilteredIndirect {
     pub fn gif() -> FilteredIndirect {
         FilteredIndirect {
-            name: "gif",
+            name: "gif".into(),
             description:
                 "guided image filter of the incident indirect light, normal + depth guide (Bauszat et al. 2011)",
             filter: Filter::Guided(GuidedFilterParams::default()),
@@ -67,7 +72,7 @@ impl FilteredIndirect {
 
     pub fn bilateral() -> FilteredIndirect {
         FilteredIndirect {
-            name: "bilateral",
+            name: "bilateral".into(),
             description: "cross-bilateral filter of the incident indirect light on normal and depth",
             filter: Filter::Bilateral(BilateralParams::default()),
         }
@@ -75,10 +80,53 @@ impl FilteredIndirect {
 
     pub fn atrous() -> FilteredIndirect {
         FilteredIndirect {
-            name: "atrous",
+            name: "atrous".into(),
             description: "edge-avoiding À-Trous wavelet filter of the incident indirect light (Dammertz et al. 2010)",
             filter: Filter::Atrous(AtrousParams::default()),
         }
+    }
+
+    /// The guided filter with the full normal as guide (Figure 5b).
+    pub fn gif_normal() -> FilteredIndirect {
+        FilteredIndirect {
+            name: "gif-normal".into(),
+            description: "guided image filter with the 3-channel normal guide (Bauszat et al. 2011, Figure 5b)",
+            filter: Filter::Guided(GuidedFilterParams { guide: GuideKind::Normal, ..GuidedFilterParams::default() }),
+        }
+    }
+
+    /// The guided filter with a grey version of the normal as guide (Figure 5a).
+    pub fn gif_grey() -> FilteredIndirect {
+        FilteredIndirect {
+            name: "gif-grey".into(),
+            description: "guided image filter with the 1-channel grey-normal guide (Bauszat et al. 2011, Figure 5a)",
+            filter: Filter::Guided(GuidedFilterParams {
+                guide: GuideKind::GreyNormal,
+                ..GuidedFilterParams::default()
+            }),
+        }
+    }
+
+    /// À-Trous with the range term on the secondary-hit normal.
+    pub fn atrous_secondary_normal() -> FilteredIndirect {
+        FilteredIndirect {
+            name: "atrous-sn".into(),
+            description:
+                "À-Trous with an extra range term on the secondary-hit normal (Lehtinen et al. 2012's baseline)",
+            filter: Filter::Atrous(AtrousParams { use_secondary_normal: true, ..AtrousParams::default() }),
+        }
+    }
+
+    /// Every variant, in the order reports list them.
+    pub fn all() -> Vec<FilteredIndirect> {
+        vec![
+            FilteredIndirect::gif(),
+            FilteredIndirect::gif_normal(),
+            FilteredIndirect::gif_grey(),
+            FilteredIndirect::bilateral(),
+            FilteredIndirect::atrous(),
+            FilteredIndirect::atrous_secondary_normal(),
+        ]
     }
 }
 
@@ -106,8 +154,23 @@ pub fn remodulate(incident: &Image, albedo: &Image) -> Image {
 }
 
 impl FilteredIndirect {
-    /// Filters the guide input's indirect light; returns the image and the sanitised count.
+    /// Filters the guide input's indirect light at the guide hits (reflected light, one value
+    /// per pixel centre); returns the image and the sanitised count.
     pub fn filter_indirect(&self, input: &GuideInput) -> Result<(Image, usize), String> {
+        let (incident, sanitised) = self.filter_incident(input)?;
+        Ok((remodulate(&incident, &input.albedo), sanitised))
+    }
+
+    /// The whole pipeline: filters the incident light at the guide hits, then composites the
+    /// guide ray and the additional eye rays of every pixel (`eye_rays::composite`).
+    pub fn reconstruct(&self, input: &GuideInput) -> Result<(Composite, usize), String> {
+        let (incident, sanitised) = self.filter_incident(input)?;
+        let composite = composite(&input.guide, &input.albedo, &input.direct, &incident, &input.eye_rays)?;
+        Ok((composite, sanitised))
+    }
+
+    /// The filtered incident light at the guide hits (see `demodulate`).
+    pub fn filter_incident(&self, input: &GuideInput) -> Result<(Image, usize), String> {
         let incident = demodulate(&input.indirect, &input.albedo);
         let (filtered, sanitised) = match &self.filter {
             Filter::Guided(params) => {
@@ -122,13 +185,134 @@ impl FilteredIndirect {
             }
             Filter::Atrous(params) => atrous(&incident, &input.guide, params).map(|(i, r)| (i, r.sanitised_values))?,
         };
-        Ok((remodulate(&filtered, &input.albedo), sanitised))
+        Ok((filtered, sanitised))
+    }
+}
+
+/// Settings that override a variant's defaults: from `lfr filter`'s flags, or from a
+/// `--methods` entry `NAME:key=value:...` with keys `radius`, `eps_normal`, `eps_depth`,
+/// `iterations`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FilterOptions {
+    /// Window radius at an 800-pixel image (guided and cross-bilateral filters).
+    pub radius: Option<u32>,
+    /// ε of the normal channels (guided filter).
+    pub epsilon_normal: Option<f32>,
+    /// ε of the depth channel (guided filter with the normal + depth guide).
+    pub epsilon_depth: Option<f32>,
+    /// À-Trous iterations.
+    pub iterations: Option<u32>,
+}
+
+impl FilterOptions {
+    /// Parses `key=value` pairs separated by `:`.
+    pub fn parse(text: &str) -> Result<FilterOptions, String> {
+        let mut options = FilterOptions::default();
+        for pair in text.split(':').filter(|p| !p.is_empty()) {
+            let (key, value) = pair.split_once('=').ok_or_else(|| format!("`{pair}` is not key=value"))?;
+            let bad = |e: &dyn std::fmt::Display| format!("{key}={value}: {e}");
+            match key {
+                "radius" => options.radius = Some(value.parse().map_err(|e| bad(&e))?),
+                "eps_normal" => options.epsilon_normal = Some(value.parse().map_err(|e| bad(&e))?),
+                "eps_depth" => options.epsilon_depth = Some(value.parse().map_err(|e| bad(&e))?),
+                "iterations" => options.iterations = Some(value.parse().map_err(|e| bad(&e))?),
+                _ => return Err(format!("unknown option `{key}` (radius, eps_normal, eps_depth, iterations)")),
+            }
+        }
+        Ok(options)
+    }
+
+    /// The options in `parse`'s syntax, in a fixed order; empty when none is set.
+    pub fn spec(&self) -> String {
+        let mut parts = Vec::new();
+        if let Some(r) = self.radius {
+            parts.push(format!("radius={r}"));
+        }
+        if let Some(e) = self.epsilon_normal {
+            parts.push(format!("eps_normal={e}"));
+        }
+        if let Some(e) = self.epsilon_depth {
+            parts.push(format!("eps_depth={e}"));
+        }
+        if let Some(i) = self.iterations {
+            parts.push(format!("iterations={i}"));
+        }
+        parts.join(":")
+    }
+}
+
+impl FilteredIndirect {
+    /// The variant called `name` (no options).
+    pub fn named(name: &str) -> Option<FilteredIndirect> {
+        FilteredIndirect::all().into_iter().find(|f| f.name == name)
+    }
+
+    /// `NAME` or `NAME:key=value:...`: `Ok(None)` when NAME is no variant of this pipeline.
+    pub fn from_spec(spec: &str) -> Result<Option<FilteredIndirect>, String> {
+        let (name, options) = spec.split_once(':').unwrap_or((spec, ""));
+        let Some(filter) = FilteredIndirect::named(name) else {
+            return Ok(None);
+        };
+        let options = FilterOptions::parse(options).map_err(|e| format!("{name}: {e}"))?;
+        filter.with_options(&options).map(Some)
+    }
+
+    /// This variant with `options` applied and checked; its name gains the options.
+    pub fn with_options(mut self, options: &FilterOptions) -> Result<FilteredIndirect, String> {
+        let name = self.name.clone();
+        let misplaced = |option: &str| Err(format!("{option} does not apply to {name}"));
+        if options.radius == Some(0) {
+            return Err("radius must be at least 1".into());
+        }
+        for (option, value) in [("eps_normal", options.epsilon_normal), ("eps_depth", options.epsilon_depth)] {
+            if let Some(value) = value {
+                if !(value.is_finite() && value > 0.0) {
+                    return Err(format!("{option} must be positive and finite, got {value}"));
+                }
+            }
+        }
+        match &mut self.filter {
+            Filter::Guided(params) => {
+                if options.iterations.is_some() {
+                    return misplaced("iterations");
+                }
+                if options.epsilon_depth.is_some() && params.guide != GuideKind::NormalDepth {
+                    return misplaced("eps_depth");
+                }
+                params.radius = options.radius.unwrap_or(params.radius);
+                params.epsilon_normal = options.epsilon_normal.unwrap_or(params.epsilon_normal);
+                params.epsilon_depth = options.epsilon_depth.unwrap_or(params.epsilon_depth);
+            }
+            Filter::Bilateral(params) => {
+                if options.epsilon_normal.is_some() || options.epsilon_depth.is_some() {
+                    return misplaced("eps_normal/eps_depth");
+                }
+                if options.iterations.is_some() {
+                    return misplaced("iterations");
+                }
+                if let Some(radius) = options.radius {
+                    *params = BilateralParams::with_radius(radius);
+                }
+            }
+            Filter::Atrous(params) => {
+                if options.epsilon_normal.is_some() || options.epsilon_depth.is_some() || options.radius.is_some() {
+                    return misplaced("radius/eps_normal/eps_depth");
+                }
+                params.iterations = options.iterations.unwrap_or(params.iterations);
+                params.validate()?;
+            }
+        }
+        let spec = options.spec();
+        if !spec.is_empty() {
+            self.name = format!("{name}:{spec}");
+        }
+        Ok(self)
     }
 }
 
 impl Method for FilteredIndirect {
-    fn name(&self) -> &'static str {
-        self.name
+    fn name(&self) -> &str {
+        &self.name
     }
 
     fn description(&self) -> &'static str {
@@ -153,13 +337,26 @@ impl Method for FilteredIndirect {
             )));
         }
         let start = Instant::now();
-        let (image, sanitised) = self.filter_indirect(input).map_err(MethodError::Failed)?;
-        let mut notes = vec!["one eye ray per pixel (the guide ray through its centre); no additional eye rays".into()];
+        let (composite, sanitised) = self.reconstruct(input).map_err(MethodError::Failed)?;
+        let mut notes = vec![format!(
+            "{} eye rays per pixel: the guide ray through its centre and {} more with the geometry-aware lookup",
+            input.eye_rays.per_pixel + 1,
+            input.eye_rays.per_pixel
+        )];
         if sanitised > 0 {
             notes.push(format!("{sanitised} non-finite input values were replaced by 0 before filtering"));
         }
+        if composite.unmatched_eye_rays > 0 {
+            notes.push(format!(
+                "{} eye rays hit geometry that no neighbouring guide ray hit and got no indirect light",
+                composite.unmatched_eye_rays
+            ));
+        }
+        if composite.sanitised_values > 0 {
+            notes.push(format!("{} non-finite eye-ray values were replaced", composite.sanitised_values));
+        }
         Ok(Output {
-            image,
+            image: composite.indirect,
             preprocess_s: 0.0,
             recon_s: start.elapsed().as_secs_f64(),
             external_peak_rss_mb: None,
@@ -183,10 +380,44 @@ mod tests {
                 normal: vec![[0.0, 0.0, 1.0]; n],
                 depth: vec![2.0; n],
                 position: (0..n as u32).map(|i| [(i % width) as f32 * 0.01, (i / width) as f32 * 0.01, 0.0]).collect(),
-                secondary_normal: None,
+                secondary_normal: Some(vec![[0.0, 1.0, 0.0]; n]),
             },
             albedo: Image::from_pixels(width, height, vec![albedo; n]),
             indirect: Image::from_pixels(width, height, indirect),
+            direct: Image::from_pixels(width, height, vec![[0.0; 3]; n]),
+            eye_rays: crate::guide::EyeRays::default(),
+        }
+    }
+
+    #[test]
+    fn options_parse_apply_and_name_the_variant() {
+        let options = FilterOptions::parse("radius=8:eps_normal=0.001:eps_depth=0.002").unwrap();
+        assert_eq!(options.spec(), "radius=8:eps_normal=0.001:eps_depth=0.002");
+        assert_eq!(FilterOptions::parse(&options.spec()).unwrap(), options);
+        let gif = FilteredIndirect::from_spec("gif:eps_depth=0.002:radius=8:eps_normal=0.001").unwrap().unwrap();
+        assert_eq!(gif.name, "gif:radius=8:eps_normal=0.001:eps_depth=0.002", "canonical order");
+        let Filter::Guided(params) = gif.filter else { panic!("gif is the guided filter") };
+        assert_eq!((params.radius, params.epsilon_normal, params.epsilon_depth), (8, 0.001, 0.002));
+        let atrous = FilteredIndirect::from_spec("atrous-sn:iterations=4").unwrap().unwrap();
+        let Filter::Atrous(params) = atrous.filter else { panic!("atrous-sn is À-Trous") };
+        assert!(params.use_secondary_normal && params.iterations == 4);
+        assert_eq!(FilteredIndirect::from_spec("gif").unwrap().unwrap().name, "gif");
+        assert!(FilteredIndirect::from_spec("median:radius=3").unwrap().is_none());
+        for (spec, needle) in [
+            ("gif:radius", "key=value"),
+            ("gif:radius=-1", "radius=-1"),
+            ("gif:radius=0", "at least 1"),
+            ("gif:eps_normal=0", "positive"),
+            ("gif:eps_normal=inf", "positive"),
+            ("gif:sigma=2", "unknown option"),
+            ("gif:iterations=3", "does not apply"),
+            ("gif-normal:eps_depth=0.01", "does not apply"),
+            ("bilateral:eps_normal=0.1", "does not apply"),
+            ("atrous:radius=4", "does not apply"),
+            ("atrous:iterations=99", "iteration"),
+        ] {
+            let error = FilteredIndirect::from_spec(spec).err().unwrap_or_else(|| panic!("{spec} must fail"));
+            assert!(error.contains(needle), "{spec}: {error}");
         }
     }
 
@@ -231,7 +462,7 @@ mod tests {
             image.pixels.iter().map(|p| ((p[0] - truth) as f64).powi(2)).sum::<f64>() / image.pixel_count() as f64
         };
         let noisy_mse = mse(&input.indirect);
-        for method in [FilteredIndirect::gif(), FilteredIndirect::bilateral(), FilteredIndirect::atrous()] {
+        for method in FilteredIndirect::all() {
             let (image, sanitised) = method.filter_indirect(&input).unwrap();
             assert_eq!(sanitised, 0);
             let filtered_mse = mse(&image);
@@ -244,7 +475,7 @@ mod tests {
     #[test]
     fn nonfinite_indirect_is_sanitised_not_propagated() {
         let input = flat_input(8, 8, [0.5; 3], |x, _| if x == 3 { [f32::NAN, f32::INFINITY, 1.0] } else { [0.5; 3] });
-        for method in [FilteredIndirect::gif(), FilteredIndirect::bilateral(), FilteredIndirect::atrous()] {
+        for method in FilteredIndirect::all() {
             let (image, sanitised) = method.filter_indirect(&input).unwrap();
             assert!(sanitised >= 16, "{}: {sanitised}", method.name);
             assert_eq!(image.nonfinite_pixels(), 0, "{}", method.name);

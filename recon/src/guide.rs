@@ -31,3 +31,36 @@ impl GuideBuffers {
             && self.secondary_normal.as_ref().map_or(true, |s| s.len() == n)
     }
 }
+
+/// An additional eye ray (supersampling, Bauszat et al. 2011 Section 3.2): a hit at a jittered
+/// position inside its pixel whose indirect light comes from the filtered map by the
+/// geometry-aware lookup, and whose direct light was estimated for it alone.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EyeRay {
+    /// Film position in pixels from the image's top-left corner (pixel (x, y) covers
+    /// [x, x + 1) × [y, y + 1)).
+    pub film: [f32; 2],
+    /// Shading normal facing the camera; zero for a miss.
+    pub normal: [f32; 3],
+    /// Camera-space depth; 0 for a miss.
+    pub depth: f32,
+    /// Reflectance at the hit; zero for a miss.
+    pub albedo: [f32; 3],
+    /// Emitted plus directly reflected light (the environment for a miss).
+    pub direct: [f32; 3],
+}
+
+/// The additional eye rays of an image: `per_pixel` rays for each pixel, pixels row-major.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct EyeRays {
+    pub per_pixel: u32,
+    pub rays: Vec<EyeRay>,
+}
+
+impl EyeRays {
+    /// The eye rays of pixel `index` (row-major).
+    pub fn of_pixel(&self, index: usize) -> &[EyeRay] {
+        let n = self.per_pixel as usize;
+        &self.rays[index * n..(index + 1) * n]
+    }
+}

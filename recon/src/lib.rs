@@ -5,6 +5,7 @@
 pub mod atrous;
 pub mod bilateral;
 pub mod box_filter;
+pub mod eye_rays;
 pub mod filtered_indirect;
 pub mod flip;
 pub mod guide;

@@ -87,6 +87,10 @@ pub struct GuideInput {
     /// Mean of `spp` estimates of the light the guide hit reflects after at least one more
     /// bounce (the indirect layer at the pixel centre).
     pub indirect: Image,
+    /// Emitted plus directly reflected light at the guide hit (the environment for a miss).
+    pub direct: Image,
+    /// `spp − 1` additional eye rays per pixel (none at 1 spp).
+    pub eye_rays: crate::guide::EyeRays,
 }
 
 /// A path-traced frame: the effect's layer and the first-hit albedo and world-space normal.
@@ -164,7 +168,7 @@ impl From<sampleio::SampleError> for MethodError {
 /// A reconstruction or baseline `lfr compare` can run.
 pub trait Method: Send + Sync {
     /// The `--methods` name.
-    fn name(&self) -> &'static str;
+    fn name(&self) -> &str;
     /// One line for reports and `--help`.
     fn description(&self) -> &'static str;
     /// Whether it handles `effect`.
@@ -187,18 +191,23 @@ pub trait Method: Send + Sync {
 /// Every method, in the order reports list them.
 pub fn registry() -> Vec<Box<dyn Method>> {
     use crate::filtered_indirect::FilteredIndirect;
-    vec![
-        Box::new(crate::box_filter::BoxFilter),
-        Box::new(crate::oidn::Oidn::default()),
-        Box::new(FilteredIndirect::gif()),
-        Box::new(FilteredIndirect::bilateral()),
-        Box::new(FilteredIndirect::atrous()),
-    ]
+    let mut methods: Vec<Box<dyn Method>> =
+        vec![Box::new(crate::box_filter::BoxFilter), Box::new(crate::oidn::Oidn::default())];
+    methods.extend(FilteredIndirect::all().into_iter().map(|m| Box::new(m) as Box<dyn Method>));
+    methods
 }
 
-/// The registered method called `name`.
-pub fn find(name: &str) -> Option<Box<dyn Method>> {
-    registry().into_iter().find(|m| m.name() == name)
+/// The registered method `spec` names: a name, or for the filters of the filtered path-tracing
+/// pipeline also `NAME:key=value:...` (`filtered_indirect::FilterOptions`). `Ok(None)` when no
+/// method has that name; `Err` for bad options.
+pub fn find(spec: &str) -> Result<Option<Box<dyn Method>>, String> {
+    if let Some(filter) = crate::filtered_indirect::FilteredIndirect::from_spec(spec)? {
+        return Ok(Some(Box::new(filter)));
+    }
+    if spec.contains(':') {
+        return Err(format!("{spec}: only the filters (gif, bilateral, atrous and their variants) take options"));
+    }
+    Ok(registry().into_iter().find(|m| m.name() == spec))
 }
 
 #[cfg(test)]
@@ -215,7 +224,7 @@ mod tests {
 
     #[test]
     fn registry_names_are_unique() {
-        let names: Vec<_> = registry().iter().map(|m| m.name()).collect();
+        let names: Vec<_> = registry().iter().map(|m| m.name().to_string()).collect();
         let mut sorted = names.clone();
         sorted.sort();
         sorted.dedup();

@@ -95,7 +95,7 @@ fn number(value: &serde_json::Value, key: &str) -> Result<f64, MethodError> {
 }
 
 impl Method for Oidn {
-    fn name(&self) -> &'static str {
+    fn name(&self) -> &str {
         "oidn"
     }
 

@@ -109,10 +109,25 @@ pub fn guide_input(buffers: &tracer::samples::guide::GuideBuffers) -> GuideInput
             normal: arrays(&buffers.normal),
             depth: buffers.depth.clone(),
             position: arrays(&buffers.position),
-            secondary_normal: None,
+            secondary_normal: Some(arrays(&buffers.secondary_normal)),
         },
         albedo: image_from_vec3(width, height, &buffers.albedo),
         indirect: image_from_vec3(width, height, &buffers.indirect),
+        direct: image_from_vec3(width, height, &buffers.direct),
+        eye_rays: recon::guide::EyeRays {
+            per_pixel: buffers.eye_rays_per_pixel,
+            rays: buffers
+                .eye_rays
+                .iter()
+                .map(|ray| recon::guide::EyeRay {
+                    film: ray.film.to_array(),
+                    normal: ray.normal.to_array(),
+                    depth: ray.depth,
+                    albedo: ray.albedo.to_array(),
+                    direct: ray.direct.to_array(),
+                })
+                .collect(),
+        },
     }
 }
 

@@ -104,8 +104,8 @@ fn resolve_methods(names: &[String], effect: Effect) -> Result<Vec<Box<dyn Metho
         if methods.iter().any(|m| m.name() == name) {
             continue;
         }
-        let Some(method) = recon::method::find(name) else {
-            let known: Vec<_> = recon::method::registry().iter().map(|m| m.name()).collect();
+        let Some(method) = recon::method::find(name).map_err(|e| anyhow::anyhow!("--methods: {e}"))? else {
+            let known: Vec<_> = recon::method::registry().iter().map(|m| m.name().to_string()).collect();
             bail!("--methods: unknown method `{name}`; known: {}", known.join(", "));
         };
         if !method.supports(effect) {
@@ -146,10 +146,12 @@ impl Scoring<'_> {
             format!("{method} at {input_spp} spp returned an image of the wrong size for this comparison")
         })?;
         let metrics = evaluate(self.reference, &image, &self.tone)?;
+        // Method names with options (`gif:radius=8`) become `gif_radius-8` in file names.
+        let file_name = method.replace(':', "_").replace('=', "-");
         let stem = if recon_rays > 0 {
-            format!("{method}-{input_spp}spp-{recon_rays}rays")
+            format!("{file_name}-{input_spp}spp-{recon_rays}rays")
         } else {
-            format!("{method}-{input_spp}spp")
+            format!("{file_name}-{input_spp}spp")
         };
         let images = self.dir.join("images");
         images::write_image(&images, &stem, self.layer, &image, &self.tone)?;

@@ -14,6 +14,17 @@
 //! | `direct.R,G,B` | emission of the hit plus light reflected straight from emitters, mean of `spp` estimates (the environment for a miss) |
 //! | `indirect.R,G,B` | light reflected after at least one more bounce, mean of `spp` estimates (noisy: the filter's input) |
 //! | `indirect_variance.R,G,B` | variance of that mean |
+//! | `secondary_normal.X,Y,Z` | mean shading normal at the secondary hits of those paths (0 where none hit) |
+//!
+//! Additional eye rays (Section 3.2, supersampling): with `spp` = N, each pixel also gets N − 1
+//! eye rays at low-discrepancy positions inside it (box pixel filter). Each records what the
+//! geometry-aware lookup (Eq. 3–5) compares against the neighbouring guide rays (normal,
+//! depth) and what the composite needs (albedo, one direct-light estimate: emission, one
+//! next-event sample and one BSDF sample towards emitters, MIS-weighted as the path tracer's
+//! first bounce). The eye rays trace no indirect light: that comes from the filtered map. So at
+//! N spp a pixel costs N eye rays and N indirect paths, the path budget of path tracing at
+//! N spp. The eye rays live in memory only (`GuideBuffers::eye_rays`); the EXR holds the
+//! per-pixel buffers.
 
 use std::path::Path;
 use std::time::Instant;
@@ -28,7 +39,7 @@ use crate::error::RenderError;
 use crate::integrator::{Integrator, NoRecording, PathStart, SurfacePoint};
 use crate::lights::LightSampler;
 use crate::output::{write_exr, Layer};
-use crate::sampler::Sampler;
+use crate::sampler::{hash_combine, Sampler};
 use crate::scene::Scene;
 
 /// The guide buffers of one image.
@@ -43,7 +54,33 @@ pub struct GuideBuffers {
     pub direct: Vec<Vec3>,
     pub indirect: Vec<Vec3>,
     pub indirect_variance: Vec<Vec3>,
+    /// Mean shading normal (renormalised) at the secondary hits of the pixel's indirect paths;
+    /// zero where none hit anything.
+    pub secondary_normal: Vec<Vec3>,
+    /// Additional eye rays per pixel: `spp − 1`.
+    pub eye_rays_per_pixel: u32,
+    /// `eye_rays_per_pixel` eye rays of each pixel, pixels row-major.
+    pub eye_rays: Vec<EyeRay>,
 }
+
+/// An additional eye ray through a jittered position of its pixel.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EyeRay {
+    /// Film position in pixels from the image's top-left corner.
+    pub film: Vec2,
+    /// Shading normal facing the camera; zero for a miss.
+    pub normal: Vec3,
+    /// Camera-space depth; 0 for a miss.
+    pub depth: f32,
+    /// Reflectance at the hit; zero for a miss.
+    pub albedo: Vec3,
+    /// Emission of the hit plus one estimate of the light it reflects straight from emitters
+    /// (the environment for a miss).
+    pub direct: Vec3,
+}
+
+/// Sampler stream of the additional eye rays, apart from the guide hit's paths.
+const EYE_RAY_STREAM: u32 = 0x6579_6573;
 
 struct GuidePixel {
     normal: Vec3,
@@ -53,10 +90,71 @@ struct GuidePixel {
     direct: Vec3,
     indirect: Vec3,
     indirect_variance: Vec3,
+    secondary_normal: Vec3,
+    eye_rays: Vec<EyeRay>,
 }
 
-fn guide_pixel(integrator: &Integrator, settings: &DumpSettings, x: u32, y: u32) -> GuidePixel {
+/// One additional eye ray of pixel (x, y): sample `index` of the eye-ray stream. `direct_only`
+/// is the integrator limited to one bounce, so a BSDF-sampled ray only collects emission.
+fn eye_ray(
+    integrator: &Integrator,
+    direct_only: &Integrator,
+    settings: &DumpSettings,
+    x: u32,
+    y: u32,
+    index: u32,
+) -> EyeRay {
     let scene = integrator.scene;
+    let mut sampler = Sampler::new(hash_combine(settings.seed, EYE_RAY_STREAM), x, y, index);
+    let [jitter_x, jitter_y] = sampler.next_2d();
+    let film = Vec2::new(x as f32 + jitter_x, y as f32 + jitter_y);
+    let (origin, direction) = scene.camera.generate_ray(film, Vec2::ZERO, settings.width, settings.height);
+    let Some(hit) = integrator.accel.intersect(origin, direction, 0.0, f32::INFINITY, 0.0) else {
+        return EyeRay { film, direct: scene.environment, ..EyeRay::default() };
+    };
+    let wo = -direction;
+    let surface = SurfacePoint::new(scene, &hit, wo, 0.0);
+    let frame = Frame::new(surface.shading_normal);
+    let [u_select, u_lobe] = sampler.next_2d();
+    let u_light = sampler.next_2d();
+    let u_bsdf = sampler.next_2d();
+    let mut rays = 0;
+    let mut direct = surface.emission(scene, &hit, wo);
+    if integrator.max_bounces > 0 {
+        direct +=
+            integrator.next_event(&surface, wo, 0.0, [u_select, u_light[0], u_light[1]], &mut rays, &mut NoRecording);
+        if let Some(sample) = surface.bsdf.sample(frame.to_local(wo), u_lobe, u_bsdf) {
+            let wi = frame.to_world(sample.wi);
+            if wi.dot(surface.geometric_normal) > 0.0 {
+                let start = PathStart {
+                    origin: surface.spawn_origin(wi),
+                    direction: wi,
+                    time: 0.0,
+                    bounce: 1,
+                    previous: Some((sample.pdf, surface.position)),
+                };
+                direct += sample.weight * direct_only.trace_ray(&start, &mut sampler, &mut NoRecording).emitted;
+            }
+        }
+    }
+    EyeRay {
+        film,
+        normal: surface.shading_normal,
+        depth: scene.camera.depth(surface.position),
+        albedo: surface.bsdf.albedo(),
+        direct: if direct.is_finite() { direct } else { Vec3::ZERO },
+    }
+}
+
+fn guide_pixel(
+    integrator: &Integrator,
+    direct_only: &Integrator,
+    settings: &DumpSettings,
+    x: u32,
+    y: u32,
+) -> GuidePixel {
+    let scene = integrator.scene;
+    let eye_rays = (0..settings.spp - 1).map(|k| eye_ray(integrator, direct_only, settings, x, y, k)).collect();
     let film = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
     let (origin, direction) = scene.camera.generate_ray(film, Vec2::ZERO, settings.width, settings.height);
     let Some(hit) = integrator.accel.intersect(origin, direction, 0.0, f32::INFINITY, 0.0) else {
@@ -68,6 +166,8 @@ fn guide_pixel(integrator: &Integrator, settings: &DumpSettings, x: u32, y: u32)
             direct: scene.environment,
             indirect: Vec3::ZERO,
             indirect_variance: Vec3::ZERO,
+            secondary_normal: Vec3::ZERO,
+            eye_rays,
         };
     };
     let wo = -direction;
@@ -79,6 +179,7 @@ fn guide_pixel(integrator: &Integrator, settings: &DumpSettings, x: u32, y: u32)
     let mut indirect_sum = [0.0f64; 3];
     let mut indirect_sum_sq = [0.0f64; 3];
     let mut rays = 0;
+    let mut secondary_normal_sum = Vec3::ZERO;
     for index in 0..settings.spp {
         let mut sampler = Sampler::new(settings.seed, x, y, index);
         let [u_select, u_lobe] = sampler.next_2d();
@@ -99,6 +200,9 @@ fn guide_pixel(integrator: &Integrator, settings: &DumpSettings, x: u32, y: u32)
                     previous: Some((sample.pdf, surface.position)),
                 };
                 let traced = integrator.trace_ray(&start, &mut sampler, &mut NoRecording);
+                if let Some(secondary) = traced.first_hit {
+                    secondary_normal_sum += secondary.normal;
+                }
                 direct += sample.weight * traced.emitted;
                 indirect = sample.weight * traced.reflected();
             }
@@ -129,6 +233,8 @@ fn guide_pixel(integrator: &Integrator, settings: &DumpSettings, x: u32, y: u32)
         direct: emitted + direct_sum / settings.spp as f32,
         indirect: Vec3::new(mean[0] as f32, mean[1] as f32, mean[2] as f32),
         indirect_variance: Vec3::from(variance),
+        secondary_normal: secondary_normal_sum.normalize_or_zero(),
+        eye_rays,
     }
 }
 
@@ -137,11 +243,12 @@ pub fn guide_buffers(scene: &Scene, accel: &Accel, settings: &DumpSettings) -> R
     settings.validate()?;
     let lights = LightSampler::new(scene);
     let integrator = super::integrator(scene, accel, &lights, settings);
+    let direct_only = Integrator { max_bounces: 1, ..super::integrator(scene, accel, &lights, settings) };
     let pool = crate::render::thread_pool(settings.threads)?;
     let pixels: Vec<GuidePixel> = pool.install(|| {
         (0..settings.width * settings.height)
             .into_par_iter()
-            .map(|i| guide_pixel(&integrator, settings, i % settings.width, i / settings.width))
+            .map(|i| guide_pixel(&integrator, &direct_only, settings, i % settings.width, i / settings.width))
             .collect()
     });
     Ok(GuideBuffers {
@@ -154,6 +261,9 @@ pub fn guide_buffers(scene: &Scene, accel: &Accel, settings: &DumpSettings) -> R
         direct: pixels.iter().map(|p| p.direct).collect(),
         indirect: pixels.iter().map(|p| p.indirect).collect(),
         indirect_variance: pixels.iter().map(|p| p.indirect_variance).collect(),
+        secondary_normal: pixels.iter().map(|p| p.secondary_normal).collect(),
+        eye_rays_per_pixel: settings.spp - 1,
+        eye_rays: pixels.iter().flat_map(|p| p.eye_rays.iter().copied()).collect(),
     })
 }
 
@@ -173,6 +283,7 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) 
         split("direct", &buffers.direct, ["R", "G", "B"]),
         split("indirect", &buffers.indirect, ["R", "G", "B"]),
         split("indirect_variance", &buffers.indirect_variance, ["R", "G", "B"]),
+        split("secondary_normal", &buffers.secondary_normal, ["X", "Y", "Z"]),
     ];
     write_exr(path, settings.width, settings.height, &layers)?;
     let bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
@@ -180,7 +291,7 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) 
     Ok(DumpReport {
         samples,
         bytes,
-        record_size: 16 * 4,
+        record_size: 19 * 4,
         fields: layers.iter().map(|l| l.name.to_string()).collect(),
         seconds: start.elapsed().as_secs_f64(),
     })

@@ -1,0 +1,128 @@
+//! `lfr filter`: the filtered path-tracing pipeline of Bauszat, Eisemann and Magnor 2011 end to
+//! end on a scene. The tracer casts one guide ray per pixel centre and estimates the indirect
+//! light at its hit with `spp` paths, plus `spp − 1` additional eye rays per pixel with their
+//! direct light; the chosen filter smooths the incident indirect light at the guide hits; the
+//! eye rays take theirs by the geometry-aware lookup; the box-filtered composite is written as
+//! one multi-layer EXR with a PNG preview beside it.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use recon::filtered_indirect::{FilterOptions, FilteredIndirect};
+use recon::Image;
+use tracer::output::{write_exr, write_png, Layer};
+use tracer::Accel;
+
+use crate::compare::effect::guide_input;
+use crate::compare::images::rgb_channels;
+use crate::TraceArgs;
+
+#[derive(clap::Args)]
+pub struct FilterArgs {
+    #[command(flatten)]
+    trace: TraceArgs,
+    /// Eye rays and indirect paths per pixel.
+    #[arg(long, default_value_t = 4)]
+    spp: u32,
+    /// gif, gif-normal, gif-grey, bilateral, atrous or atrous-sn.
+    #[arg(long, default_value = "gif")]
+    filter: String,
+    /// Window radius at an 800-pixel image, scaled with the image (gif*, bilateral).
+    #[arg(long)]
+    radius: Option<u32>,
+    /// ε of the normal channels (gif*).
+    #[arg(long)]
+    epsilon_normal: Option<f32>,
+    /// ε of the depth channel (gif).
+    #[arg(long)]
+    epsilon_depth: Option<f32>,
+    /// À-Trous iterations (atrous*).
+    #[arg(long)]
+    iterations: Option<u32>,
+    /// Output EXR; the PNG preview goes beside it.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// The filter `args` names, with its overrides applied; errors for options it does not take.
+fn chosen_filter(args: &FilterArgs) -> Result<FilteredIndirect> {
+    let Some(method) = FilteredIndirect::named(&args.filter) else {
+        let names: Vec<String> = FilteredIndirect::all().into_iter().map(|f| f.name).collect();
+        bail!("--filter {}: unknown filter; choose one of {}", args.filter, names.join(", "));
+    };
+    for (option, value) in [("epsilon-normal", args.epsilon_normal), ("epsilon-depth", args.epsilon_depth)] {
+        if let Some(value) = value {
+            if !(value.is_finite() && value > 0.0) {
+                bail!("--{option} must be positive and finite, got {value}");
+            }
+        }
+    }
+    let options = FilterOptions {
+        radius: args.radius,
+        epsilon_normal: args.epsilon_normal,
+        epsilon_depth: args.epsilon_depth,
+        iterations: args.iterations,
+    };
+    method.with_options(&options).map_err(|e| anyhow::anyhow!("--filter {}: {e}", args.filter))
+}
+
+pub fn run(args: &FilterArgs) -> Result<()> {
+    if args.out.extension().and_then(|e| e.to_str()).map(|e| e.eq_ignore_ascii_case("exr")) != Some(true) {
+        bail!("--out {}: the output must be an .exr file", args.out.display());
+    }
+    let method = chosen_filter(args)?;
+    let trace = &args.trace;
+    let scene = crate::load_scene(trace.scene.as_deref())?;
+    let settings = tracer::samples::DumpSettings {
+        width: trace.width.unwrap_or(scene.width),
+        height: trace.height.unwrap_or(scene.height),
+        spp: args.spp,
+        seed: trace.seed,
+        max_bounces: trace.max_bounces.unwrap_or(scene.max_bounces),
+        threads: trace.threads,
+        progress: !trace.quiet,
+    };
+    settings.validate()?;
+    let accel = Accel::build(&scene)?;
+    let trace_start = Instant::now();
+    let buffers = tracer::samples::guide::guide_buffers(&scene, &accel, &settings)?;
+    let trace_s = trace_start.elapsed().as_secs_f64();
+    let input = guide_input(&buffers);
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(trace.threads).build().context("thread pool")?;
+    let filter_start = Instant::now();
+    let (composite, sanitised) = pool.install(|| method.reconstruct(&input)).map_err(anyhow::Error::msg)?;
+    let filter_s = filter_start.elapsed().as_secs_f64();
+
+    let (width, height) = (settings.width, settings.height);
+    let vec3 = |image: &Image| image.pixels.iter().map(|p| glam::Vec3::from_array(*p)).collect::<Vec<_>>();
+    let layers = vec![
+        Layer { name: "", channels: rgb_channels(&composite.beauty) },
+        Layer { name: "direct", channels: rgb_channels(&composite.direct) },
+        Layer { name: "indirect", channels: rgb_channels(&composite.indirect) },
+        Layer { name: "indirect_unfiltered", channels: rgb_channels(&input.indirect) },
+        Layer { name: "albedo", channels: rgb_channels(&input.albedo) },
+        Layer { name: "depth", channels: vec![("Z", buffers.depth.clone())] },
+    ];
+    write_exr(&args.out, width, height, &layers).with_context(|| format!("writing {}", args.out.display()))?;
+    let preview = args.out.with_extension("png");
+    write_png(&preview, width, height, &vec3(&composite.beauty), 1.0)
+        .with_context(|| format!("writing {}", preview.display()))?;
+    println!(
+        "filtered {} at {width}x{height}, {} spp with {}: tracing {trace_s:.3} s, filtering and composite {filter_s:.3} s",
+        scene.source.display(),
+        args.spp,
+        method.name,
+    );
+    if sanitised > 0 {
+        eprintln!("warning: {sanitised} non-finite indirect values were replaced by 0 before filtering");
+    }
+    if composite.unmatched_eye_rays > 0 {
+        eprintln!(
+            "note: {} eye rays hit geometry no neighbouring guide ray hit; they got no indirect light",
+            composite.unmatched_eye_rays
+        );
+    }
+    println!("wrote {} and {}", args.out.display(), preview.display());
+    Ok(())
+}
