@@ -63,6 +63,7 @@ fn chosen_filter(args: &FilterArgs) -> Result<FilteredIndirect> {
         epsilon_normal: args.epsilon_normal,
         epsilon_depth: args.epsilon_depth,
         iterations: args.iterations,
+        lookup: None,
     };
     method.with_options(&options).map_err(|e| anyhow::anyhow!("--filter {}: {e}", args.filter))
 }

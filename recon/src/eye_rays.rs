@@ -10,6 +10,7 @@
 //! | Eq. 5, `s_D,i = 1 − |D_a − D_i| / max_j |D_a − D_j|` | `most_similar_guide` |
 //! | "for all samples, the guide ray and the following samples, the direct lighting is estimated as in the default path tracing pipeline" | `EyeRay::direct`, `GuideInput::direct` |
 //! | Section 4, "a simple box reconstruction filter" | `composite` averages a pixel's eye rays with equal weights |
+//! | (for measurement) the naive reuse of the pixel's own guide ray | `Lookup::OwnPixel` |
 //!
 //! Choices the paper leaves open, and why:
 //! - The four neighbours are the guide rays (pixel centres) at the corners of the cell of the
@@ -117,6 +118,17 @@ fn sanitised(ray: &EyeRay) -> (EyeRay, usize) {
     (clean, count)
 }
 
+/// Where an additional eye ray takes its indirect light from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Lookup {
+    /// The most similar of the four neighbouring guide rays (Eq. 3–5).
+    #[default]
+    GeometryAware,
+    /// The guide ray of the eye ray's own pixel, whatever it hit: the naive reuse the paper's
+    /// lookup replaces (kept to measure what the lookup gains).
+    OwnPixel,
+}
+
 /// Combines the filtered incident light at the guide hits (`incident`, e.g. the guided
 /// filter's output on the demodulated map) with the guide rays' direct light and the
 /// additional eye rays into the final pixels (box filter over each pixel's eye rays).
@@ -126,6 +138,18 @@ pub fn composite(
     guide_direct: &Image,
     incident: &Image,
     eye_rays: &EyeRays,
+) -> Result<Composite, String> {
+    composite_with(guide, guide_albedo, guide_direct, incident, eye_rays, Lookup::GeometryAware)
+}
+
+/// `composite` with the eye rays' lookup chosen.
+pub fn composite_with(
+    guide: &GuideBuffers,
+    guide_albedo: &Image,
+    guide_direct: &Image,
+    incident: &Image,
+    eye_rays: &EyeRays,
+    lookup: Lookup,
 ) -> Result<Composite, String> {
     let (width, height) = (guide.width, guide.height);
     let count = guide.pixel_count();
@@ -164,7 +188,11 @@ pub fn composite(
                 if !is_hit(ray.normal, ray.depth) {
                     continue;
                 }
-                match most_similar_guide(guide, ray.film, ray.normal, ray.depth) {
+                let source = match lookup {
+                    Lookup::GeometryAware => most_similar_guide(guide, ray.film, ray.normal, ray.depth),
+                    Lookup::OwnPixel => Some(index).filter(|&i| is_hit(guide.normal[i], guide.depth[i])),
+                };
+                match source {
                     Some(source) => {
                         let light = reflected(incident.pixels[source], guide_albedo.pixels[source], ray.albedo);
                         indirect = [0, 1, 2].map(|c| indirect[c] + light[c]);
@@ -316,6 +344,30 @@ mod tests {
         assert!((result.indirect.pixels[3][0] - (1.0 + 1.0 + 4.0 + 4.0) / 4.0).abs() < 1e-6, "{:?}", result.indirect);
         assert_eq!(result.indirect.pixels[2][0], 1.0);
         assert_eq!(result.indirect.pixels[5][0], 4.0);
+    }
+
+    #[test]
+    fn the_own_pixel_lookup_bleeds_across_the_silhouette() {
+        // As `a_silhouette_pixel_mixes_the_two_surfaces_by_coverage`, but the eye rays of pixel 3
+        // that see the right wall take the left wall's light from their own pixel's guide ray.
+        let guide = two_walls(4, 1);
+        let incident = Image::from_pixels(4, 1, vec![[1.0; 3], [1.0; 3], [4.0; 3], [4.0; 3]]);
+        let ones = Image::from_pixels(4, 1, vec![[1.0; 3]; 4]);
+        let zeros = Image::from_pixels(4, 1, vec![[0.0; 3]; 4]);
+        let mut rays = vec![eye_ray([0.5, 0.5], [0.0, 0.0, 1.0], 2.0, 1.0, 0.0); 4];
+        rays[1] = eye_ray([1.9, 0.5], [1.0, 0.0, 0.0], 5.0, 1.0, 0.0); // pixel 1, right wall
+        for (k, ray) in rays.iter_mut().enumerate() {
+            ray.film[0] = ray.film[0].max(k as f32 + 0.5).min(k as f32 + 0.99);
+            if k >= 2 {
+                *ray = eye_ray([k as f32 + 0.5, 0.5], [1.0, 0.0, 0.0], 5.0, 1.0, 0.0);
+            }
+        }
+        let rays = EyeRays { per_pixel: 1, rays };
+        let aware = composite_with(&guide, &ones, &zeros, &incident, &rays, Lookup::GeometryAware).unwrap();
+        let naive = composite_with(&guide, &ones, &zeros, &incident, &rays, Lookup::OwnPixel).unwrap();
+        assert_eq!(aware.indirect.pixels[1][0], (1.0 + 4.0) / 2.0, "the right-wall eye ray takes pixel 2's light");
+        assert_eq!(naive.indirect.pixels[1][0], 1.0, "the naive lookup takes its own pixel's light");
+        assert_eq!(aware.indirect.pixels[3], naive.indirect.pixels[3]);
     }
 
     #[test]

@@ -23,7 +23,7 @@ use std::time::Instant;
 
 use crate::atrous::{atrous, AtrousParams};
 use crate::bilateral::{cross_bilateral, BilateralParams};
-use crate::eye_rays::{composite, Composite};
+use crate::eye_rays::{composite_with, Composite, Lookup};
 use crate::guided_filter::{guided_filter, GuideKind, GuidedFilterParams};
 use crate::image::Image;
 use crate::method::{Effect, GuideInput, Input, Inputs, Method, MethodError, Output};
@@ -58,6 +58,8 @@ pub struct FilteredIndirect {
     pub name: String,
     pub description: &'static str,
     pub filter: Filter,
+    /// How the additional eye rays find their indirect light.
+    pub lookup: Lookup,
 }
 
 impl FilteredIndirect {
@@ -67,6 +69,7 @@ impl FilteredIndirect {
             description:
                 "guided image filter of the incident indirect light, normal + depth guide (Bauszat et al. 2011)",
             filter: Filter::Guided(GuidedFilterParams::default()),
+            lookup: Lookup::GeometryAware,
         }
     }
 
@@ -75,6 +78,7 @@ impl FilteredIndirect {
             name: "bilateral".into(),
             description: "cross-bilateral filter of the incident indirect light on normal and depth",
             filter: Filter::Bilateral(BilateralParams::default()),
+            lookup: Lookup::GeometryAware,
         }
     }
 
@@ -83,6 +87,7 @@ impl FilteredIndirect {
             name: "atrous".into(),
             description: "edge-avoiding À-Trous wavelet filter of the incident indirect light (Dammertz et al. 2010)",
             filter: Filter::Atrous(AtrousParams::default()),
+            lookup: Lookup::GeometryAware,
         }
     }
 
@@ -92,6 +97,7 @@ impl FilteredIndirect {
             name: "gif-normal".into(),
             description: "guided image filter with the 3-channel normal guide (Bauszat et al. 2011, Figure 5b)",
             filter: Filter::Guided(GuidedFilterParams { guide: GuideKind::Normal, ..GuidedFilterParams::default() }),
+            lookup: Lookup::GeometryAware,
         }
     }
 
@@ -104,6 +110,7 @@ impl FilteredIndirect {
                 guide: GuideKind::GreyNormal,
                 ..GuidedFilterParams::default()
             }),
+            lookup: Lookup::GeometryAware,
         }
     }
 
@@ -114,6 +121,7 @@ impl FilteredIndirect {
             description:
                 "À-Trous with an extra range term on the secondary-hit normal (Lehtinen et al. 2012's baseline)",
             filter: Filter::Atrous(AtrousParams { use_secondary_normal: true, ..AtrousParams::default() }),
+            lookup: Lookup::GeometryAware,
         }
     }
 
@@ -165,7 +173,8 @@ impl FilteredIndirect {
     /// guide ray and the additional eye rays of every pixel (`eye_rays::composite`).
     pub fn reconstruct(&self, input: &GuideInput) -> Result<(Composite, usize), String> {
         let (incident, sanitised) = self.filter_incident(input)?;
-        let composite = composite(&input.guide, &input.albedo, &input.direct, &incident, &input.eye_rays)?;
+        let composite =
+            composite_with(&input.guide, &input.albedo, &input.direct, &incident, &input.eye_rays, self.lookup)?;
         Ok((composite, sanitised))
     }
 
@@ -202,6 +211,8 @@ pub struct FilterOptions {
     pub epsilon_depth: Option<f32>,
     /// À-Trous iterations.
     pub iterations: Option<u32>,
+    /// The additional eye rays' lookup (`lookup=own-pixel` measures the naive reuse).
+    pub lookup: Option<Lookup>,
 }
 
 impl FilterOptions {
@@ -216,7 +227,14 @@ impl FilterOptions {
                 "eps_normal" => options.epsilon_normal = Some(value.parse().map_err(|e| bad(&e))?),
                 "eps_depth" => options.epsilon_depth = Some(value.parse().map_err(|e| bad(&e))?),
                 "iterations" => options.iterations = Some(value.parse().map_err(|e| bad(&e))?),
-                _ => return Err(format!("unknown option `{key}` (radius, eps_normal, eps_depth, iterations)")),
+                "lookup" => {
+                    options.lookup = Some(match value {
+                        "geometry" => Lookup::GeometryAware,
+                        "own-pixel" => Lookup::OwnPixel,
+                        _ => return Err(bad(&"the lookup is `geometry` or `own-pixel`")),
+                    })
+                }
+                _ => return Err(format!("unknown option `{key}` (radius, eps_normal, eps_depth, iterations, lookup)")),
             }
         }
         Ok(options)
@@ -236,6 +254,12 @@ impl FilterOptions {
         }
         if let Some(i) = self.iterations {
             parts.push(format!("iterations={i}"));
+        }
+        if let Some(lookup) = self.lookup {
+            parts.push(match lookup {
+                Lookup::GeometryAware => "lookup=geometry".to_string(),
+                Lookup::OwnPixel => "lookup=own-pixel".to_string(),
+            });
         }
         parts.join(":")
     }
@@ -302,6 +326,7 @@ impl FilteredIndirect {
                 params.validate()?;
             }
         }
+        self.lookup = options.lookup.unwrap_or(self.lookup);
         let spec = options.spec();
         if !spec.is_empty() {
             self.name = format!("{name}:{spec}");
@@ -398,6 +423,9 @@ mod tests {
         assert_eq!(gif.name, "gif:radius=8:eps_normal=0.001:eps_depth=0.002", "canonical order");
         let Filter::Guided(params) = gif.filter else { panic!("gif is the guided filter") };
         assert_eq!((params.radius, params.epsilon_normal, params.epsilon_depth), (8, 0.001, 0.002));
+        let naive = FilteredIndirect::from_spec("bilateral:lookup=own-pixel").unwrap().unwrap();
+        assert_eq!((naive.name.as_str(), naive.lookup), ("bilateral:lookup=own-pixel", Lookup::OwnPixel));
+        assert_eq!(FilteredIndirect::from_spec("gif").unwrap().unwrap().lookup, Lookup::GeometryAware);
         let atrous = FilteredIndirect::from_spec("atrous-sn:iterations=4").unwrap().unwrap();
         let Filter::Atrous(params) = atrous.filter else { panic!("atrous-sn is À-Trous") };
         assert!(params.use_secondary_normal && params.iterations == 4);
@@ -415,6 +443,7 @@ mod tests {
             ("bilateral:eps_normal=0.1", "does not apply"),
             ("atrous:radius=4", "does not apply"),
             ("atrous:iterations=99", "iteration"),
+            ("gif:lookup=bilinear", "own-pixel"),
         ] {
             let error = FilteredIndirect::from_spec(spec).err().unwrap_or_else(|| panic!("{spec} must fail"));
             assert!(error.contains(needle), "{spec}: {error}");
