@@ -23,15 +23,15 @@
 //!   Ties in S (e.g. two candidates, one closer in normal, the other in depth: both S = 0) go to
 //!   the candidate whose pixel centre is nearest the eye ray's film position.
 //! - The map holds *incident* light (`filtered_indirect::demodulate`), so the eye ray's own
-//!   albedo multiplies it: texture detail between guide rays is kept. Channels in which the
-//!   chosen guide hit's albedo was below `MIN_ALBEDO` hold reflected light (not demodulated)
-//!   and are taken as they are.
+//!   albedo multiplies it: texture detail between guide rays is kept. The guide ray itself is
+//!   remodulated as `filtered_indirect::remodulated` does (its channels without albedo keep
+//!   their unfiltered value).
 //! - Non-finite eye-ray values are treated as a miss (normal, depth) or as 0 (albedo, direct)
 //!   and counted in `Composite::sanitised_values`.
 
 use rayon::prelude::*;
 
-use crate::filtered_indirect::MIN_ALBEDO;
+use crate::filtered_indirect::remodulated;
 use crate::guide::{EyeRay, EyeRays, GuideBuffers};
 use crate::image::Image;
 
@@ -129,34 +129,38 @@ pub enum Lookup {
     OwnPixel,
 }
 
-/// Combines the filtered incident light at the guide hits (`incident`, e.g. the guided
-/// filter's output on the demodulated map) with the guide rays' direct light and the
-/// additional eye rays into the final pixels (box filter over each pixel's eye rays).
-pub fn composite(
-    guide: &GuideBuffers,
-    guide_albedo: &Image,
-    guide_direct: &Image,
-    incident: &Image,
-    eye_rays: &EyeRays,
-) -> Result<Composite, String> {
-    composite_with(guide, guide_albedo, guide_direct, incident, eye_rays, Lookup::GeometryAware)
+/// What the guide rays saw: their hits, the albedo there, the direct light and the noisy
+/// (unfiltered) indirect light reflected there.
+#[derive(Clone, Copy, Debug)]
+pub struct GuideLight<'a> {
+    pub guide: &'a GuideBuffers,
+    pub albedo: &'a Image,
+    pub direct: &'a Image,
+    pub reflected: &'a Image,
 }
 
-/// `composite` with the eye rays' lookup chosen.
-pub fn composite_with(
-    guide: &GuideBuffers,
-    guide_albedo: &Image,
-    guide_direct: &Image,
+/// Combines the filtered incident light at the guide hits (`incident`, e.g. the guided
+/// filter's output on the demodulated map) with the guide rays' direct light and the
+/// additional eye rays into the final pixels (box filter over each pixel's eye rays), looking
+/// up the eye rays' indirect light as `lookup` says.
+pub fn composite(
+    guide_light: GuideLight,
     incident: &Image,
     eye_rays: &EyeRays,
     lookup: Lookup,
 ) -> Result<Composite, String> {
+    let GuideLight { guide, albedo: guide_albedo, direct: guide_direct, reflected: guide_reflected } = guide_light;
     let (width, height) = (guide.width, guide.height);
     let count = guide.pixel_count();
     if !guide.is_consistent() {
         return Err(format!("the guide buffers do not all have {width}x{height} entries"));
     }
-    for (name, image) in [("albedo", guide_albedo), ("direct", guide_direct), ("indirect", incident)] {
+    for (name, image) in [
+        ("albedo", guide_albedo),
+        ("direct", guide_direct),
+        ("reflected indirect", guide_reflected),
+        ("filtered incident", incident),
+    ] {
         if (image.width, image.height) != (width, height) || image.pixels.len() != count {
             return Err(format!("the {name} image is {}x{}, the guide {width}x{height}", image.width, image.height));
         }
@@ -173,12 +177,8 @@ pub fn composite_with(
     let pixels: Vec<([f32; 3], [f32; 3], usize, usize)> = (0..count)
         .into_par_iter()
         .map(|index| {
-            let albedo = guide_albedo.pixels[index];
-            let light = incident.pixels[index];
-            let reflected = |light: [f32; 3], guide_albedo: [f32; 3], albedo: [f32; 3]| {
-                [0, 1, 2].map(|c| if guide_albedo[c] >= MIN_ALBEDO { albedo[c] * light[c] } else { light[c] })
-            };
-            let mut indirect = reflected(light, albedo, albedo);
+            let mut indirect =
+                remodulated(incident.pixels[index], guide_albedo.pixels[index], guide_reflected.pixels[index]);
             let mut direct = guide_direct.pixels[index];
             let (mut unmatched, mut replaced) = (0, 0);
             for ray in eye_rays.of_pixel(index) {
@@ -194,8 +194,8 @@ pub fn composite_with(
                 };
                 match source {
                     Some(source) => {
-                        let light = reflected(incident.pixels[source], guide_albedo.pixels[source], ray.albedo);
-                        indirect = [0, 1, 2].map(|c| indirect[c] + light[c]);
+                        let light = incident.pixels[source];
+                        indirect = [0, 1, 2].map(|c| indirect[c] + ray.albedo[c] * light[c]);
                     }
                     None => unmatched += 1,
                 }
@@ -296,7 +296,9 @@ mod tests {
                 eye_ray([0.5, 0.5], [0.0; 3], 0.0, 0.0, 8.0),
             ],
         };
-        let result = composite(&guide, &image(0.5), &image(4.0), &image(2.0), &eye_rays).unwrap();
+        let (albedo, direct, reflected) = (image(0.5), image(4.0), image(1.0));
+        let light = GuideLight { guide: &guide, albedo: &albedo, direct: &direct, reflected: &reflected };
+        let result = composite(light, &image(2.0), &eye_rays, Lookup::GeometryAware).unwrap();
         let expected_indirect = (0.5 * 2.0 + 0.25 * 2.0 + 1.0 * 2.0 + 0.0) / 4.0;
         let expected_direct = (4.0 + 1.0 + 3.0 + 8.0) / 4.0;
         assert!((result.indirect.pixels[0][0] - expected_indirect).abs() < 1e-6);
@@ -311,10 +313,12 @@ mod tests {
         let incident = Image::from_pixels(5, 3, (0..15).map(|i| [i as f32, 1.0, 0.5]).collect());
         let albedo = Image::from_pixels(5, 3, vec![[0.5, 0.0, 1.0]; 15]);
         let direct = Image::from_pixels(5, 3, vec![[0.1; 3]; 15]);
-        let result = composite(&guide, &albedo, &direct, &incident, &EyeRays::default()).unwrap();
+        let reflected = Image::from_pixels(5, 3, vec![[0.3, 0.02, 0.4]; 15]);
+        let light = GuideLight { guide: &guide, albedo: &albedo, direct: &direct, reflected: &reflected };
+        let result = composite(light, &incident, &EyeRays::default(), Lookup::GeometryAware).unwrap();
         for (i, p) in result.indirect.pixels.iter().enumerate() {
-            // Albedo 0 in green: below MIN_ALBEDO, the value passes through.
-            assert_eq!(*p, [0.5 * i as f32, 1.0, 0.5]);
+            // Albedo 0 in green: below MIN_ALBEDO, the unfiltered reflected value stays.
+            assert_eq!(*p, [0.5 * i as f32, 0.02, 0.5]);
         }
         assert_eq!(result.direct.pixels, direct.pixels);
     }
@@ -340,7 +344,8 @@ mod tests {
                 };
             }
         }
-        let result = composite(&guide, &albedo, &direct, &incident, &EyeRays { per_pixel: 3, rays }).unwrap();
+        let light = GuideLight { guide: &guide, albedo: &albedo, direct: &direct, reflected: &incident };
+        let result = composite(light, &incident, &EyeRays { per_pixel: 3, rays }, Lookup::GeometryAware).unwrap();
         assert!((result.indirect.pixels[3][0] - (1.0 + 1.0 + 4.0 + 4.0) / 4.0).abs() < 1e-6, "{:?}", result.indirect);
         assert_eq!(result.indirect.pixels[2][0], 1.0);
         assert_eq!(result.indirect.pixels[5][0], 4.0);
@@ -363,8 +368,9 @@ mod tests {
             }
         }
         let rays = EyeRays { per_pixel: 1, rays };
-        let aware = composite_with(&guide, &ones, &zeros, &incident, &rays, Lookup::GeometryAware).unwrap();
-        let naive = composite_with(&guide, &ones, &zeros, &incident, &rays, Lookup::OwnPixel).unwrap();
+        let light = GuideLight { guide: &guide, albedo: &ones, direct: &zeros, reflected: &incident };
+        let aware = composite(light, &incident, &rays, Lookup::GeometryAware).unwrap();
+        let naive = composite(light, &incident, &rays, Lookup::OwnPixel).unwrap();
         assert_eq!(aware.indirect.pixels[1][0], (1.0 + 4.0) / 2.0, "the right-wall eye ray takes pixel 2's light");
         assert_eq!(naive.indirect.pixels[1][0], 1.0, "the naive lookup takes its own pixel's light");
         assert_eq!(aware.indirect.pixels[3], naive.indirect.pixels[3]);
@@ -380,7 +386,9 @@ mod tests {
             eye_ray([0.5, 0.5], [0.0, 0.0, 1.0], 2.0, 0.5, 1.0),
             eye_ray([1.5, 0.5], [f32::NAN, 0.0, 1.0], 2.0, f32::INFINITY, f32::NAN),
         ];
-        let result = composite(&guide, &image(0.0), &image(0.0), &image(1.0), &EyeRays { per_pixel: 1, rays }).unwrap();
+        let (zeros, ones) = (image(0.0), image(1.0));
+        let light = GuideLight { guide: &guide, albedo: &zeros, direct: &zeros, reflected: &zeros };
+        let result = composite(light, &ones, &EyeRays { per_pixel: 1, rays }, Lookup::GeometryAware).unwrap();
         assert_eq!(result.unmatched_eye_rays, 1);
         assert_eq!(result.sanitised_values, 1 + 3 + 3);
         assert_eq!(result.beauty.nonfinite_pixels(), 0);
@@ -391,9 +399,13 @@ mod tests {
         let guide = two_walls(2, 2);
         let image = |w: u32, h: u32| Image::from_pixels(w, h, vec![[0.0; 3]; (w * h) as usize]);
         let none = EyeRays::default();
-        assert!(composite(&guide, &image(2, 1), &image(2, 2), &image(2, 2), &none).is_err());
+        let (small, right) = (image(2, 1), image(2, 2));
+        let light = GuideLight { guide: &guide, albedo: &small, direct: &right, reflected: &right };
+        assert!(composite(light, &right, &none, Lookup::GeometryAware).is_err());
+        let light = GuideLight { albedo: &right, ..light };
+        assert!(composite(light, &small, &none, Lookup::GeometryAware).is_err());
         let short = EyeRays { per_pixel: 2, rays: vec![EyeRay::default(); 7] };
-        let error = composite(&guide, &image(2, 2), &image(2, 2), &image(2, 2), &short).unwrap_err();
+        let error = composite(light, &right, &short, Lookup::GeometryAware).unwrap_err();
         assert!(error.contains("7 eye rays"), "{error}");
     }
 }

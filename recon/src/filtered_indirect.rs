@@ -17,13 +17,17 @@
 //!
 //! Demodulation: the filter smooths the light arriving at the surface, not the texture that
 //! reflects it. Where a channel's albedo is below `MIN_ALBEDO` the incident light cannot be
-//! recovered; such channels pass through unfiltered (their reflected light is tiny anyway).
+//! recovered: the map gets the pixel's grey incident light from its other channels (a sensible
+//! neighbour for the filter), and the pixel's own output keeps its unfiltered reflected value
+//! (tiny anyway). An earlier version kept the reflected value in the map and passed the
+//! *filtered* value through: on Sponza's saturated banners (sRGB texels of 0 in a channel) the
+//! neighbours' incident light then came out as bright coloured speckle.
 
 use std::time::Instant;
 
 use crate::atrous::{atrous, AtrousParams};
 use crate::bilateral::{cross_bilateral, BilateralParams};
-use crate::eye_rays::{composite_with, Composite, Lookup};
+use crate::eye_rays::{composite, Composite, GuideLight, Lookup};
 use crate::guided_filter::{guided_filter, GuideKind, GuidedFilterParams};
 use crate::image::Image;
 use crate::method::{Effect, GuideInput, Input, Inputs, Method, MethodError, Output};
@@ -138,27 +142,62 @@ impl FilteredIndirect {
     }
 }
 
-/// Incident light: reflected light divided by the albedo, per channel; channels whose albedo
-/// is below `MIN_ALBEDO` keep the reflected value and are flagged.
+/// Incident light: reflected light divided by the albedo, per channel. A channel whose albedo
+/// is below `MIN_ALBEDO` cannot be demodulated; it gets the grey incident light of the
+/// pixel's other channels (their reflected sum over their albedo sum), so that its value in
+/// the map is a plausible neighbour for the filter rather than a reflected value near 0 (or,
+/// had it been divided, a huge one). Where no channel can be demodulated (black surfaces) the
+/// reflected value stays.
 pub fn demodulate(reflected: &Image, albedo: &Image) -> Image {
     let pixels = reflected
         .pixels
         .iter()
         .zip(&albedo.pixels)
-        .map(|(r, a)| [0, 1, 2].map(|c| if a[c] >= MIN_ALBEDO { r[c] / a[c] } else { r[c] }))
+        .map(|(r, a)| {
+            let (mut reflected_sum, mut albedo_sum) = (0.0, 0.0);
+            for c in (0..3).filter(|&c| a[c] >= MIN_ALBEDO) {
+                reflected_sum += r[c];
+                albedo_sum += a[c];
+            }
+            [0, 1, 2].map(|c| {
+                if a[c] >= MIN_ALBEDO {
+                    r[c] / a[c]
+                } else if albedo_sum > 0.0 {
+                    reflected_sum / albedo_sum
+                } else {
+                    r[c]
+                }
+            })
+        })
         .collect();
     Image::from_pixels(reflected.width, reflected.height, pixels)
 }
 
-/// Reflected light from filtered incident light; inverse of `demodulate`.
-pub fn remodulate(incident: &Image, albedo: &Image) -> Image {
+/// Reflected light at the guide hits from the filtered incident light: `incident × albedo` in
+/// the channels `demodulate` divided; elsewhere the unfiltered `reflected` value itself (tiny:
+/// the albedo is below `MIN_ALBEDO`; non-finite values become 0).
+pub fn remodulate(incident: &Image, albedo: &Image, reflected: &Image) -> Image {
     let pixels = incident
         .pixels
         .iter()
         .zip(&albedo.pixels)
-        .map(|(l, a)| [0, 1, 2].map(|c| if a[c] >= MIN_ALBEDO { l[c] * a[c] } else { l[c] }))
+        .zip(&reflected.pixels)
+        .map(|((l, a), r)| remodulated(*l, *a, *r))
         .collect();
     Image::from_pixels(incident.width, incident.height, pixels)
+}
+
+/// `remodulate` for one pixel.
+pub fn remodulated(incident: [f32; 3], albedo: [f32; 3], reflected: [f32; 3]) -> [f32; 3] {
+    [0, 1, 2].map(|c| {
+        if albedo[c] >= MIN_ALBEDO {
+            incident[c] * albedo[c]
+        } else if reflected[c].is_finite() {
+            reflected[c]
+        } else {
+            0.0
+        }
+    })
 }
 
 impl FilteredIndirect {
@@ -166,15 +205,20 @@ impl FilteredIndirect {
     /// per pixel centre); returns the image and the sanitised count.
     pub fn filter_indirect(&self, input: &GuideInput) -> Result<(Image, usize), String> {
         let (incident, sanitised) = self.filter_incident(input)?;
-        Ok((remodulate(&incident, &input.albedo), sanitised))
+        Ok((remodulate(&incident, &input.albedo, &input.indirect), sanitised))
     }
 
     /// The whole pipeline: filters the incident light at the guide hits, then composites the
     /// guide ray and the additional eye rays of every pixel (`eye_rays::composite`).
     pub fn reconstruct(&self, input: &GuideInput) -> Result<(Composite, usize), String> {
         let (incident, sanitised) = self.filter_incident(input)?;
-        let composite =
-            composite_with(&input.guide, &input.albedo, &input.direct, &incident, &input.eye_rays, self.lookup)?;
+        let light = GuideLight {
+            guide: &input.guide,
+            albedo: &input.albedo,
+            direct: &input.direct,
+            reflected: &input.indirect,
+        };
+        let composite = composite(light, &incident, &input.eye_rays, self.lookup)?;
         Ok((composite, sanitised))
     }
 
@@ -463,8 +507,13 @@ mod tests {
         let reflected = Image::from_pixels(2, 1, vec![[0.5, 0.2, 0.0], [1.0, 1.0, 1.0]]);
         let albedo = Image::from_pixels(2, 1, vec![[0.5, 0.0, 0.25], [1.0, 0.5, 0.1]]);
         let incident = demodulate(&reflected, &albedo);
-        assert_eq!(incident.pixels, vec![[1.0, 0.2, 0.0], [1.0, 2.0, 10.0]]);
-        let back = remodulate(&incident, &albedo);
+        // Green cannot be demodulated: it gets red and blue's grey incident light (0.5 / 0.75).
+        assert_eq!(incident.pixels[1], [1.0, 2.0, 10.0]);
+        assert_eq!(incident.pixels[0][0], 1.0);
+        assert!((incident.pixels[0][1] - 0.5 / 0.75).abs() < 1e-6 && incident.pixels[0][2] == 0.0);
+        let black = demodulate(&Image::from_pixels(1, 1, vec![[0.01; 3]]), &Image::from_pixels(1, 1, vec![[0.0; 3]]));
+        assert_eq!(black.pixels[0], [0.01; 3], "a black surface keeps its reflected value");
+        let back = remodulate(&incident, &albedo, &reflected);
         for (a, b) in back.pixels.iter().flatten().zip(reflected.pixels.iter().flatten()) {
             assert!((a - b).abs() < 1e-6);
         }
@@ -498,6 +547,28 @@ mod tests {
             assert!(filtered_mse < 0.1 * noisy_mse, "{}: MSE {noisy_mse} → {filtered_mse}", method.name);
             let mean = image.pixels.iter().map(|p| p[0] as f64).sum::<f64>() / image.pixel_count() as f64;
             assert!((mean - truth as f64).abs() < 0.02, "{}: mean {mean}", method.name);
+        }
+    }
+
+    /// A checkerboard of white and pure-red texels under uniform incident light: the red
+    /// texels' green and blue must stay dark after filtering (no speckle from neighbours).
+    #[test]
+    fn channels_without_albedo_do_not_take_the_neighbours_light() {
+        let (width, height) = (32u32, 32u32);
+        let n = (width * height) as usize;
+        let red = |i: usize| ((i as u32 % width) + (i as u32 / width)) % 2 == 0;
+        let albedo: Vec<[f32; 3]> = (0..n).map(|i| if red(i) { [0.8, 0.0, 0.0] } else { [0.8; 3] }).collect();
+        let mut input = flat_input(width, height, [0.8; 3], |_, _| [0.0; 3]);
+        input.albedo = Image::from_pixels(width, height, albedo.clone());
+        input.indirect = Image::from_pixels(width, height, albedo.iter().map(|a| a.map(|v| 2.0 * v)).collect());
+        for method in FilteredIndirect::all() {
+            let (image, _) = method.filter_indirect(&input).unwrap();
+            for (i, p) in image.pixels.iter().enumerate() {
+                let expected = albedo[i].map(|v| 2.0 * v);
+                for c in 0..3 {
+                    assert!((p[c] - expected[c]).abs() < 1e-3, "{} pixel {i}: {p:?} vs {expected:?}", method.name);
+                }
+            }
         }
     }
 
