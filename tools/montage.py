@@ -52,7 +52,7 @@ def main(argv):
         sheet.paste(tile, (x, y))
         draw.text((x + 2, y + tile.height + 3), label, fill="black")
     out.parent.mkdir(parents=True, exist_ok=True)
-    sheet.save(out)
+    sheet.save(out, quality=90) if out.suffix.lower() in (".jpg", ".jpeg") else sheet.save(out, optimize=True)
     print(f"wrote {out} ({sheet.width}x{sheet.height})")
 
 
