@@ -15,6 +15,7 @@ pub mod method;
 pub mod metrics;
 pub mod oidn;
 pub mod python;
+pub mod tlfr;
 
 pub use image::Image;
 pub use method::{Effect, Method};

@@ -1,0 +1,19 @@
+//! Temporal light field reconstruction (Lehtinen, Aila, Chen, Laine, Durand 2011, "Temporal
+//! Light Field Reconstruction for Rendering Distribution Effects"; the text is in
+//! `shared/papers/temporal-light-field-reconstruction-2011.txt`, the design in
+//! `docs/tlfr-design.md`). Issue 6, in progress: the pieces below are in; the hierarchy, the
+//! coverage test, the integration and the method are not yet.
+//!
+//! Paper → code:
+//! - Eq. 4, `C(z) = C1/z + C2`, and the refocus / aperture change of Section 6: `lens`.
+//! - Eq. 2–3, reprojection of a sample to (û, v̂, t̂), guarded where z'(t̂) nears zero or
+//!   changes sign (Section 5's "in front of the camera"): `reprojection`.
+//! - Eq. 5, SAMESURFACE with δ = sqrt(1/N) and the 0.1-pixel crossing tolerance, extended to
+//!   motion: `same_surface`.
+//! - Section 3.3, "Determining R": dispersion of the input pattern under random reprojections:
+//!   `dispersion`.
+
+pub mod dispersion;
+pub mod lens;
+pub mod reprojection;
+pub mod same_surface;
