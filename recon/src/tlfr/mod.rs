@@ -10,6 +10,7 @@
 //!   changes sign (Section 5's "in front of the camera"): `reprojection`.
 //! - Eq. 5, SAMESURFACE with δ = sqrt(1/N) and the 0.1-pixel crossing tolerance, extended to
 //!   motion: `same_surface`.
+//! - Section 3, the input: `lens-time` files read through `sampleio`: `samples`.
 //! - Section 3.3, "Determining R": dispersion of the input pattern under random reprojections:
 //!   `dispersion`.
 
@@ -17,3 +18,4 @@ pub mod dispersion;
 pub mod lens;
 pub mod reprojection;
 pub mod same_surface;
+pub mod samples;
