@@ -10,10 +10,13 @@
 //!   changes sign (Section 5's "in front of the camera"): `reprojection`.
 //! - Eq. 5, SAMESURFACE with δ = sqrt(1/N) and the 0.1-pixel crossing tolerance, extended to
 //!   motion: `same_surface`.
+//! - Section 3.3, "Determining visibility": valid triangles, coverage, the tent filter:
+//!   `coverage`.
 //! - Section 3, the input: `lens-time` files read through `sampleio`: `samples`.
 //! - Section 3.3, "Determining R": dispersion of the input pattern under random reprojections:
 //!   `dispersion`.
 
+pub mod coverage;
 pub mod dispersion;
 pub mod lens;
 pub mod reprojection;
