@@ -6,6 +6,7 @@ mod bench_filters;
 mod compare;
 mod export;
 mod filter;
+mod reconstruct;
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -47,6 +48,9 @@ enum Command {
     /// Filtered path tracing (Bauszat et al. 2011): guide rays, filtered indirect light,
     /// additional eye rays by the geometry-aware lookup, composite; a multi-layer EXR and PNG.
     Filter(filter::FilterArgs),
+    /// Temporal light field reconstruction of a lens-time sample file (depth of field, motion
+    /// blur), optionally refocused: --focus-distance D --aperture A.
+    Reconstruct(reconstruct::ReconstructArgs),
 }
 
 /// Sample kinds `lfr dump` writes.
@@ -221,6 +225,7 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare::run(args),
         Command::BenchFilters(args) => bench_filters::run(args),
         Command::Filter(args) => filter::run(args),
+        Command::Reconstruct(args) => reconstruct::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -160,3 +160,78 @@ fn tlfr_beats_the_box_filter_of_its_input_and_is_deterministic() {
     );
     assert!(one["runs"].as_array().unwrap().iter().any(|r| r["method"] == "tlfr"));
 }
+
+/// Refocusing after the fact (`lfr reconstruct --focus-distance --aperture`): samples of a
+/// static emissive square at depth 4 taken through a lens focused at 2 (a blur of about 2 px)
+/// and refocused onto the square give its sharp image: full brightness a pixel and a half inside
+/// its edges, black a pixel and a half outside; without refocusing light spills beyond them.
+#[test]
+fn refocusing_onto_the_square_makes_it_sharp() {
+    let scene = scene_from_toml(
+        &r#"
+        [render]
+        max_bounces = 0
+        [camera]
+        position = [0, 0, 0]
+        look_at = [0, 0, 1]
+        fov = 40
+        aperture_radius = 0.2
+        focus_distance = 2.0
+        [[material]]
+        name = "lamp"
+        base_color = [0, 0, 0]
+        specular = 0
+        emission = [2, 2, 2]
+        two_sided_emission = true
+        [[mesh]]
+        shape = "polygon"
+        material = "lamp"
+        points = [[-0.5, -0.5, 4], [0.5, -0.5, 4], [0.5, 0.5, 4], [-0.5, 0.5, 4]]
+        "#
+        .replace("\n        ", "\n"),
+    );
+    let (width, height) = (32u32, 32u32);
+    let (dir, path) = dump(&scene, width, height, 8);
+    let out = |name: &str| dir.path().join(name);
+    let run = |extra: &[&str], name: &str| {
+        let mut args = vec!["reconstruct", "--samples", path.to_str().unwrap(), "--locations", "32"];
+        args.extend_from_slice(extra);
+        let target = out(name);
+        args.extend_from_slice(&["--out", target.to_str().unwrap()]);
+        let result = std::process::Command::new(env!("CARGO_BIN_EXE_lfr")).args(&args).output().unwrap();
+        assert!(result.status.success(), "{}", String::from_utf8_lossy(&result.stderr));
+        assert!(out(name).with_extension("png").is_file());
+        tracer::output::read_exr(&out(name)).unwrap().2.into_iter().find(|(n, _)| n == "R").unwrap().1
+    };
+    let sharp = run(&["--focus-distance", "4", "--aperture", "0.2"], "sharp.exr");
+    let blurred = run(&[], "blurred.exr");
+    let corner = scene.camera.project(Vec3::new(0.5, 0.5, 4.0), Vec2::ZERO, width, height).unwrap();
+    let other = scene.camera.project(Vec3::new(-0.5, -0.5, 4.0), Vec2::ZERO, width, height).unwrap();
+    let (lo, hi) = (corner.min(other), corner.max(other));
+    let (mut inside, mut outside, mut blurred_edges) = (0, 0, 0);
+    for y in 0..height {
+        for x in 0..width {
+            let centre = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+            let i = (y * width + x) as usize;
+            let depth_inside = (centre - lo).min(hi - centre).min_element();
+            if depth_inside > 1.5 {
+                inside += 1;
+                assert!(sharp[i] > 1.9, "pixel ({x}, {y}) inside: {}", sharp[i]);
+            } else if depth_inside < -1.5 {
+                outside += 1;
+                assert!(sharp[i] < 0.1, "pixel ({x}, {y}) outside: {}", sharp[i]);
+            }
+            // The 2.2-px blur spills light up to two pixels beyond the edges.
+            blurred_edges += (depth_inside > -2.5 && depth_inside < -0.5 && blurred[i] > 0.1) as usize;
+        }
+    }
+    assert!(inside > 20 && outside > 100, "{inside} inside, {outside} outside");
+    assert!(blurred_edges > 8, "the unfocused reconstruction must spill beyond the edges ({blurred_edges})");
+    let bad = std::process::Command::new(env!("CARGO_BIN_EXE_lfr"))
+        .args(["reconstruct", "--samples", path.to_str().unwrap(), "--aperture", "0.1", "--out"])
+        .arg(out("bad.exr"))
+        .output()
+        .unwrap();
+    assert!(!bad.status.success() && String::from_utf8_lossy(&bad.stderr).contains("go together"));
+    assert!(!out("bad.exr").exists());
+}

@@ -85,6 +85,21 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, String> {
     })
 }
 
+/// Refocusing after the fact (paper Section 6; issue 6 item 7): every sample keeps its lens
+/// coordinate, but is seen through the lens focused at `focus_distance` with radius
+/// `aperture_radius`: moved to the lens centre with the file's C(z), then off it with the new
+/// C'(z) = c1'/z + c2' (`LensModel::refocused`), before anything is built on the samples.
+pub fn refocus(samples: &mut LensTimeSamples, focus_distance: f32, aperture_radius: f32) -> Result<(), String> {
+    let new_lens = samples.lens.refocused(focus_distance, aperture_radius)?;
+    for sample in &mut samples.samples {
+        let shift = new_lens.coc(sample.z) - samples.lens.coc(sample.z);
+        sample.x += sample.u * shift;
+        sample.y += sample.v * shift;
+    }
+    samples.lens = new_lens;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -163,6 +178,25 @@ mod tests {
             loaded.samples[0],
             LensTimeSample { x: 0.2, y: 0.5, u: 0.1, v: -0.2, t: 0.3, z: 2.0, motion: [0.5, 0.0, -0.25] }
         );
+    }
+
+    #[test]
+    fn refocusing_moves_samples_as_the_new_lens_would_have_seen_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let fields = [("x", 1), ("y", 1), ("u", 1), ("v", 1), ("z", 1), ("radiance", 3)];
+        let rows = vec![vec![0.5, 0.5, 0.5, -0.25, 2.0, 1.0, 1.0, 1.0]; 4];
+        let mut path = write(dir.path(), SampleKind::LensTime, &fields, &rows);
+        let mut loaded = read_lens_time(&SampleFile::open(&path).unwrap()).unwrap();
+        // The file is a pinhole (coc 0): refocus to distance 4 with radius 0.1, fx = 50:
+        // C'(2) = 50·0.1·(1/4 − 1/2) = −1.25 px.
+        refocus(&mut loaded, 4.0, 0.1).unwrap();
+        let s = loaded.samples[0];
+        assert!((s.x - (0.5 + 0.5 * -1.25)).abs() < 1e-6 && (s.y - (0.5 + 0.25 * 1.25)).abs() < 1e-6);
+        // Back to a pinhole restores the positions.
+        refocus(&mut loaded, 4.0, 0.0).unwrap();
+        assert!((loaded.samples[0].x - 0.5).abs() < 1e-6 && (loaded.samples[0].y - 0.5).abs() < 1e-6);
+        assert!(refocus(&mut loaded, -1.0, 0.1).is_err());
+        path.pop();
     }
 
     #[test]
