@@ -8,7 +8,7 @@
 //! Paper → code:
 //! - Section 3.3, Eq. 6, the local linear model `F_i = a_kᵀ I_i + b_k` for every pixel i of the
 //!   window w_k (a (2r+1)² square centred on k): `window_coefficients` fits (a_k, b_k) per
-//!   window and colour channel; the second stage of `filter` evaluates the model.
+//!   window and colour channel; the second stage of `filter_strip` evaluates the model.
 //! - Eq. 7, the cost `Σ_{i∈w_k} ((a_kᵀ I_i + b_k − N_i)² + ε a_k²)`: minimised per window, with
 //!   one ε per guide channel, i.e. the regulariser `Σ_j ε_j a_kj²` of He et al.'s
 //!   multi-channel form that Section 3.3 points to ("the extension for a multi-dimensional I is
@@ -16,11 +16,11 @@
 //! - Eq. 8–9, `a_k = Cov_k(I, N) / (Var_k(I) + ε)`, `b_k = E_k[N] − a_kᵀ E_k[I]`: with a d-channel
 //!   guide Cov_k is a d-vector and Var_k the d×d covariance Σ_k, so
 //!   `a_k = (Σ_k + diag ε)⁻¹ Cov_k(I, N_c)` per colour channel c (`window_coefficients`, solved
-//!   by square-root-free Cholesky, L D Lᵀ, in `solve_spd`).
+//!   by square-root-free Cholesky, L D Lᵀ).
 //! - "the coefficients are averaged for each overlapping window at each pixel": the second
-//!   stage of `filter` box-means the a and b maps, `F_i = āᵢᵀ I_i + b̄_i`.
+//!   stage of `filter_strip` box-means the a and b maps, `F_i = āᵢᵀ I_i + b̄_i`.
 //! - "linear runtime by calculating a series of mean values exploiting summed area tables":
-//!   `box_pass` computes every box mean with sliding sums, so the cost does not depend on r.
+//!   `SlidingBox` computes every box mean with sliding sums, so the cost does not depend on r.
 //! - Section 4, Figure 5 (guide dimensionality: grey normal, normal, normal + depth) and "the
 //!   values of the normal and depth map are all scaled to [0, 1]; we divided the depth map
 //!   values by a constant depending on the overall scene extent": `GuideKind`,
@@ -29,7 +29,8 @@
 //!   normals and 0.01–0.03 for the depth values": `GuidedFilterParams::default` (24, 0.01,
 //!   0.02).
 //! - Table 2 (1024×768 on a GTX 285: 16 / 71 / 80 ms for d = 1 / 3 / 4, the same for every
-//!   radius): the ignored test `tests::timing_1024x768` prints this implementation's times.
+//!   radius): `benches/guided_filter.rs` (criterion, d = 1 / 3 / 4, radius 8–32) and the ignored
+//!   test `tests::timing_1024x768` time this implementation.
 //!
 //! Choices the paper leaves open, and why:
 //! - Borders: windows are clipped to the image and every mean is taken over the pixels actually
@@ -47,20 +48,41 @@
 //! - Escaped pixels (zero normal, depth 0 in `GuideBuffers`): normal channels 0.5 (where the
 //!   zero vector maps anyway; grey 0.5) and depth 1, the far end, so the background differs
 //!   from near geometry in depth and forms a region of its own.
-//! - Precision: moment sums accumulate in f64 (the products of two f32 are exact in f64), so
-//!   `E[I²] − E[I]²` and `E[IN] − E[I]E[N]` do not cancel catastrophically even for large inputs
-//!   or images of 4096²; the per-pixel coefficients a and b are values, not sums, and are kept in
-//!   f32 (half the memory of f64) before their f64 box mean.
-//! - Memory and cost: the moment planes (8 / 14 / 21 / 29 for d = 1..=4) are never stored; each
-//!   thread slides f64 column sums over a horizontal strip, recomputing the products of the row
-//!   leaving the window instead of keeping 2r + 1 rows. Stored are only the 3d + 3 coefficient
-//!   planes (f32) and the output; all 3 colour channels go through one pass.
+//! - Precision: everything that is summed is summed in f64. The source rows (guide channels,
+//!   input colours) are converted to f64 once per row, so the products of two f32 values are
+//!   exact; the column sums slide down in f64, the horizontal window sums run along the row in
+//!   f64, and `E[I²] − E[I]²`, `E[IN] − E[I]E[N]` are formed and solved in f64. So the
+//!   differences do not cancel catastrophically even for large inputs (a 1e3 offset) or images
+//!   of 4096², and a sliding sum's rounding stays at f64 level relative to the window sums it
+//!   passes. The per-pixel coefficients a and b are values, not sums, and are kept in f32
+//!   (half the memory of f64) before their f64 box mean; the output is f32. No f32 shortcut
+//!   was taken for the sums or the solve: the speed-up below comes from layout, not precision
+//!   (an f32 solve for well-conditioned windows was tried and was slower, as its conversions
+//!   cost more than the narrower lanes saved).
+//! - Memory: no per-pixel plane of moments or coefficients is stored. The image is cut into
+//!   horizontal strips; each strip keeps f64 column sums per term (8 / 14 / 21 / 29 moments for
+//!   d = 1..=4, 3d + 3 coefficients) and slides them down, re-reading the row leaving the window
+//!   and recomputing its products instead of keeping 2r + 1 rows. Stage 1 runs r rows ahead of
+//!   stage 2 and writes its coefficient rows into a ring of 2r + 2 rows, from which stage 2
+//!   slides its sums; the r coefficient rows beyond each end of a strip are computed by both
+//!   strips that need them. (A whole coefficient image, 60 bytes per pixel at d = 4, is freshly
+//!   allocated memory whose page faults alone cost about 30 ms per megapixel here.)
+//! - Speed: the per-row work runs on structure-of-arrays rows (one row of f64 per term), so the
+//!   column updates are plain slice loops, the horizontal running sums take one add per value
+//!   with four rows in flight, and the per-pixel solve and evaluation run on blocks of `LANES`
+//!   pixels whose loop bodies are branch-free with constant-bound inner loops, all of which the
+//!   compiler vectorises. `filter_strip` is compiled for AVX-512, AVX2 and baseline x86-64 and
+//!   picked at run time (`multiversion`); the binary stays portable. Rust never fuses a multiply
+//!   and an add on its own, so every path does the same IEEE operations in the same order.
+//! - Threads: the strips are fixed by the image size and the radius (`Grid::strip_rows`), never
+//!   by the number of threads; rayon runs them in parallel. Where a strip starts decides how
+//!   its sliding sums round, so a fixed split gives the same bits for any thread count.
 //! - Numerical safety: the variances are clamped to ≥ 0 before adding ε, so Σ_k + diag ε is SPD
 //!   even for a constant (flat wall) or rank-deficient (normals in a plane) guide. In exact
 //!   arithmetic every Cholesky pivot D_jj is ≥ min ε; a pivot below half that can only come from
 //!   rounding (an ε far below the moments' precision) and the window then falls back to a = 0,
-//!   the box mean (the ε → ∞ limit), counted in `FilterReport::fallback_windows`. ε ≤ 0 or
-//!   non-finite is rejected.
+//!   the box mean (the ε → ∞ limit), counted in `FilterReport::fallback_windows`; so does a
+//!   window whose coefficients are not finite in f32. ε ≤ 0 or non-finite is rejected.
 //! - Non-finite input values are replaced by 0 and counted (`FilterReport::sanitised_values`),
 //!   never propagated; non-finite explicit guide planes are rejected (`guide_channels` never
 //!   produces them: non-finite normals count as escaped, non-finite depth as far).
@@ -256,12 +278,18 @@ pub fn guided_filter_planes(
                 plane.len()
             ));
         }
-        if let Some(i) = plane.iter().position(|v| !v.is_finite()) {
+        // A branch-free pass first (it vectorises); the position only on failure.
+        if !plane.par_chunks(1 << 16).all(|chunk| chunk.iter().fold(true, |ok, v| ok & v.is_finite())) {
+            let i = plane.iter().position(|v| !v.is_finite()).unwrap_or_default();
             return Err(format!("guide channel {j} has the non-finite value {} at pixel {i}", plane[i]));
         }
     }
 
-    let sanitised_values: usize = noisy.pixels.par_iter().map(|p| p.iter().filter(|c| !c.is_finite()).count()).sum();
+    let sanitised_values: usize = noisy
+        .pixels
+        .par_chunks(1 << 14)
+        .map(|chunk| chunk.iter().flatten().map(|c| usize::from(!c.is_finite())).sum::<usize>())
+        .sum();
     let cleaned: Option<Vec<[f32; 3]>> = (sanitised_values > 0)
         .then(|| noisy.pixels.par_iter().map(|p| p.map(|c| if c.is_finite() { c } else { 0.0 })).collect());
     let input = cleaned.as_deref().unwrap_or(&noisy.pixels);
@@ -291,6 +319,59 @@ struct Grid {
     radius: usize,
 }
 
+/// Pixels per lane block of the per-pixel work (the solve, the evaluation): written as loops over
+/// `[f64; LANES]` arrays, which the compiler turns into SIMD instructions.
+const LANES: usize = 8;
+type Lanes = [f64; LANES];
+
+/// Pixels per chunk of a row whose window sums `SlidingBox::row` hands on at once
+/// (a multiple of LANES; 32 rows of them fill 32 KiB).
+const CHUNK: usize = 128;
+
+/// Rows of box sums summed together in `box_rows`.
+const SCAN_ROWS: usize = 4;
+
+/// Strips are at least this many rows, and at least 8 r.
+const MIN_STRIP_ROWS: usize = 256;
+
+impl Grid {
+    /// Length of the per-row work arrays: the width rounded up to whole lane blocks.
+    fn padded(&self) -> usize {
+        self.width.div_ceil(LANES) * LANES
+    }
+
+    /// Rows per strip. From the image and the radius only, never from the number of threads:
+    /// where a strip starts decides how its sums are rounded, so a fixed split gives the same
+    /// bits for any thread count. Each boundary between strips costs about 3r rows of stage 1
+    /// (the r coefficient rows beyond the strip on each side, and the first window), so strips
+    /// are long: at least `MIN_STRIP_ROWS` and 8r rows, and an even number of them where there
+    /// are several (two cores share the work evenly).
+    fn strip_rows(&self) -> usize {
+        let count = self.height / MIN_STRIP_ROWS.max(8 * self.radius);
+        let count = if count >= 2 { count / 2 * 2 } else { 1 };
+        self.height.div_ceil(count)
+    }
+
+    /// Rows in the (clipped) window of row y.
+    fn window_rows(&self, y: usize) -> usize {
+        (y + self.radius).min(self.height - 1) - y.saturating_sub(self.radius) + 1
+    }
+
+    /// 1 / (columns in the clipped window of column x) per column; 0 in the padding.
+    fn inverse_columns(&self) -> Vec<f64> {
+        let Grid { width, radius, .. } = *self;
+        (0..self.padded())
+            .map(|x| {
+                if x < width {
+                    1.0 / ((x + radius).min(width - 1) - x.saturating_sub(radius) + 1) as f64
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+}
+
 /// Box-filtered values of stage 1 for a d-channel guide, per pixel: E[I_j] (d), E[I_j I_k] for
 /// j ≤ k (d(d+1)/2), E[N_c] (3), E[N_c I_j] (3d, c-major).
 const fn moment_count(d: usize) -> usize {
@@ -300,6 +381,81 @@ const fn moment_count(d: usize) -> usize {
 /// Coefficients per pixel: a_c (d values for each colour c, c-major), then b_c (3).
 const fn coefficient_count(d: usize) -> usize {
     3 * d + 3
+}
+
+/// One box-filtered quantity: the source row `.0`, or the product of source rows `.0` and `.1`.
+type Term = (usize, Option<usize>);
+
+/// Stage 1's terms (layout of `moment_count`) over the source rows I_0..I_{d−1}, N_0..N_2.
+fn moment_terms<const D: usize>() -> Vec<Term> {
+    let mut terms: Vec<Term> = (0..D).map(|j| (j, None)).collect();
+    terms.extend((0..D).flat_map(|j| (j..D).map(move |k| (j, Some(k)))));
+    terms.extend((0..3).map(|c| (D + c, None)));
+    terms.extend((0..3).flat_map(|c| (0..D).map(move |j| (D + c, Some(j)))));
+    terms
+}
+
+/// Where a box pass reads row y: its source rows, one after the other, `padded` values each
+/// (zero past the width), either written to `scratch` or stored.
+trait RowSource {
+    /// f32, or f64 holding f32 values (converted once per row rather than once per product).
+    type Value: Copy + Default + Into<f64>;
+    fn row<'a>(&'a self, y: usize, scratch: &'a mut [Self::Value]) -> &'a [Self::Value];
+}
+
+/// Stage 1's source rows: the d guide channels and the three colour channels of the input.
+struct Channels<'a> {
+    planes: &'a [Vec<f32>],
+    input: &'a [[f32; 3]],
+    width: usize,
+    padded: usize,
+}
+
+impl RowSource for Channels<'_> {
+    type Value = f64;
+
+    #[inline(always)]
+    fn row<'a>(&'a self, y: usize, scratch: &'a mut [f64]) -> &'a [f64] {
+        let (width, padded, d) = (self.width, self.padded, self.planes.len());
+        for (plane, out) in self.planes.iter().zip(scratch.chunks_exact_mut(padded)) {
+            for (out, &v) in out.iter_mut().zip(&plane[y * width..(y + 1) * width]) {
+                *out = f64::from(v);
+            }
+        }
+        let (red, rest) = scratch[d * padded..].split_at_mut(padded);
+        let (green, blue) = rest.split_at_mut(padded);
+        for (((pixel, r), g), b) in self.input[y * width..(y + 1) * width].iter().zip(red).zip(green).zip(blue) {
+            (*r, *g, *b) = (f64::from(pixel[0]), f64::from(pixel[1]), f64::from(pixel[2]));
+        }
+        scratch
+    }
+}
+
+/// Stage 2's source rows: the coefficient rows of a strip, row y in slot y mod `slots`.
+struct CoefficientRing<'a> {
+    values: &'a [f32],
+    slots: usize,
+    row_len: usize,
+}
+
+impl RowSource for CoefficientRing<'_> {
+    type Value = f32;
+
+    #[inline(always)]
+    fn row<'a>(&'a self, y: usize, _: &'a mut [f32]) -> &'a [f32] {
+        &self.values[y % self.slots * self.row_len..][..self.row_len]
+    }
+}
+
+/// What both stages share.
+struct Context<'a, const D: usize> {
+    grid: Grid,
+    planes: &'a [Vec<f32>],
+    input: &'a [[f32; 3]],
+    eps: [f64; D],
+    /// Every Cholesky pivot of Σ + diag ε is at least min ε in exact arithmetic.
+    min_pivot: f64,
+    inverse_columns: Vec<f64>,
 }
 
 /// The two stages for a d-channel guide (`M`, `Q`: `moment_count(D)`, `coefficient_count(D)`,
@@ -313,260 +469,472 @@ fn filter<const D: usize, const M: usize, const Q: usize>(
     eps: &[f64; MAX_GUIDE_CHANNELS],
 ) -> (Vec<[f32; 3]>, usize) {
     const { assert!(M == moment_count(D) && Q == coefficient_count(D)) };
-    let width = grid.width;
     let eps: [f64; D] = std::array::from_fn(|j| eps[j]);
-    // Every Cholesky pivot of Σ + diag ε is at least min ε in exact arithmetic.
-    let min_pivot = 0.5 * eps.iter().fold(f64::INFINITY, |m, &e| m.min(e));
-    let guide_row = |y: usize| -> [&[f32]; D] { std::array::from_fn(|j| &planes[j][y * width..(y + 1) * width]) };
-
-    // Stage 1 (Eq. 8–9): window means of I, I Iᵀ, N and N I → a_k, b_k.
-    let mut coef = vec![[0.0f32; Q]; grid.width * grid.height];
-    let fallback_windows = box_pass::<M, _>(
-        grid,
-        &mut coef,
-        |y, row| {
-            let guide = guide_row(y);
-            for (x, (out, noisy)) in row.iter_mut().zip(&input[y * width..(y + 1) * width]).enumerate() {
-                *out = moments::<D, M>(std::array::from_fn(|j| guide[j][x] as f64), noisy.map(f64::from));
-            }
-        },
-        |_, _, m, co| {
-            let (a, b, fallback) = match window_coefficients::<D, M>(m, &eps, min_pivot) {
-                Ok((a, b)) => (a, b, false),
-                Err(mean_n) => ([[0.0; D]; 3], mean_n, true),
-            };
-            *co = std::array::from_fn(|i| if i < 3 * D { a[i / D][i % D] } else { b[i - 3 * D] } as f32);
-            fallback
-        },
-    );
-
-    // Stage 2 (Eq. 6 averaged over the windows containing each pixel): F = ā·I + b̄.
+    let min_eps = eps.iter().fold(f64::INFINITY, |m, &e| m.min(e));
+    let context =
+        Context { grid, planes, input, eps, min_pivot: 0.5 * min_eps, inverse_columns: grid.inverse_columns() };
+    let strip = grid.strip_rows();
     let mut pixels = vec![[0.0f32; 3]; grid.width * grid.height];
-    box_pass::<Q, _>(
-        grid,
-        &mut pixels,
-        |y, row| {
-            for (out, co) in row.iter_mut().zip(&coef[y * width..(y + 1) * width]) {
-                *out = co.map(f64::from);
-            }
-        },
-        |y, x, m, pixel| {
-            let i = y * width + x;
-            let g: [f64; D] = std::array::from_fn(|j| planes[j][i] as f64);
-            *pixel = std::array::from_fn(|c| {
-                let f = (0..D).fold(m[3 * D + c], |f, j| f + m[c * D + j] * g[j]);
-                f.clamp(-(f32::MAX as f64), f32::MAX as f64) as f32
-            });
-            false
-        },
-    );
+    let fallback_windows = pixels
+        .par_chunks_mut(strip * grid.width)
+        .enumerate()
+        .map(|(s, out)| filter_strip::<D, M, Q>(&context, s * strip, out))
+        .sum();
     (pixels, fallback_windows)
 }
 
-/// The per-pixel values whose window means stage 1 needs (layout of `moment_count`); products
-/// of f32 values are exact in f64.
-#[inline(always)]
-fn moments<const D: usize, const M: usize>(g: [f64; D], n: [f64; 3]) -> [f64; M] {
-    let mut out = [0.0; M];
-    out[..D].copy_from_slice(&g);
-    let mut slot = D;
-    for (j, &gj) in g.iter().enumerate() {
-        for &gk in &g[j..] {
-            out[slot] = gj * gk;
-            slot += 1;
+/// Both stages for the strip of output rows from `y0` on (`out`: whole rows). Stage 1 runs r
+/// rows ahead of stage 2, computing the coefficient rows the strip's windows reach (r rows
+/// beyond it on either side, computed again by the neighbouring strip) into a ring of 2r + 2
+/// rows, so no coefficient image is stored (see the module's "Memory"). Returns the fallback
+/// windows among the strip's own rows. Compiled for AVX-512 and AVX2 as well, picked at run
+/// time; everything it calls in its loops is inlined into it.
+#[multiversion::multiversion(targets("x86_64+avx512f+avx512vl+avx512dq+avx512bw+avx2+fma", "x86_64+avx2+fma"))]
+fn filter_strip<const D: usize, const M: usize, const Q: usize>(
+    context: &Context<D>,
+    y0: usize,
+    out: &mut [[f32; 3]],
+) -> usize {
+    let grid = context.grid;
+    let Grid { width, height, radius } = grid;
+    let padded = grid.padded();
+    let y1 = y0 + out.len() / width;
+    let row_len = Q * padded;
+    let slots = (2 * radius + 2).min(height);
+    let mut ring = vec![0.0f32; slots * row_len];
+    let channels = Channels { planes: context.planes, input: context.input, width, padded };
+    let mut stage1 = SlidingBox::new(grid, moment_terms::<D>(), D + 3);
+    let mut stage2 = SlidingBox::new(grid, (0..Q).map(|q| (q, None)).collect(), 0);
+    let mut next_coefficient_row = y0.saturating_sub(radius);
+    let mut fallbacks = 0;
+    for (y, out) in (y0..y1).zip(out.chunks_exact_mut(width)) {
+        // Stage 1 (Eq. 8–9): window means of I, I Iᵀ, N and N I → a_k, b_k, up to row y + r.
+        while next_coefficient_row <= (y + radius).min(height - 1) {
+            let k = next_coefficient_row;
+            let inverse_rows = 1.0 / grid.window_rows(k) as f64;
+            let coefficients = &mut ring[k % slots * row_len..][..row_len];
+            stage1.row(&channels, k, |start, sums| {
+                for x0 in (start..(start + CHUNK).min(width)).step_by(LANES) {
+                    let scale = scale_block(context, x0, inverse_rows);
+                    let fell_back = coefficient_block::<D, M, Q>(sums, x0 - start, x0, &scale, context, coefficients);
+                    if (y0..y1).contains(&k) {
+                        fallbacks += fell_back[..LANES.min(width - x0)].iter().filter(|f| **f).count();
+                    }
+                }
+            });
+            next_coefficient_row += 1;
         }
+        // Stage 2 (Eq. 6 averaged over the windows containing each pixel): F = ā·I + b̄.
+        let inverse_rows = 1.0 / grid.window_rows(y) as f64;
+        let guide: [&[f32]; D] = std::array::from_fn(|j| &context.planes[j][y * width..(y + 1) * width]);
+        stage2.row(&CoefficientRing { values: &ring, slots, row_len }, y, |start, sums| {
+            for x0 in (start..(start + CHUNK).min(width)).step_by(LANES) {
+                let n = LANES.min(width - x0);
+                let mut g = [[0.0f64; LANES]; D];
+                for (g, row) in g.iter_mut().zip(&guide) {
+                    for (g, &v) in g.iter_mut().zip(&row[x0..x0 + n]) {
+                        *g = v as f64;
+                    }
+                }
+                let f = evaluate::<D, Q>(sums, x0 - start, &scale_block(context, x0, inverse_rows), &g);
+                for (l, pixel) in out[x0..x0 + n].iter_mut().enumerate() {
+                    *pixel = [f[0][l], f[1][l], f[2][l]];
+                }
+            }
+        });
     }
-    out[slot..slot + 3].copy_from_slice(&n);
-    slot += 3;
-    for &nc in &n {
-        for &gj in &g {
-            out[slot] = nc * gj;
-            slot += 1;
-        }
-    }
-    out
+    fallbacks
 }
 
-/// a_c (one d-vector per colour channel c) and b_c of one window.
-type Coefficients<const D: usize> = ([[f64; D]; 3], [f64; 3]);
+/// 1 / (pixels in the window) for the LANES columns from x0 on, in a row whose window has
+/// 1 / `inverse_rows` rows.
+#[inline(always)]
+fn scale_block<const D: usize>(context: &Context<D>, x0: usize, inverse_rows: f64) -> Lanes {
+    let mut scale = [0.0; LANES];
+    for (s, c) in scale.iter_mut().zip(&context.inverse_columns[x0..x0 + LANES]) {
+        *s = c * inverse_rows;
+    }
+    scale
+}
+
+/// Stage 1 for the LANES windows from x0 on: `window_coefficients` per lane, from the moment
+/// sums (`sums`: term-major rows of `CHUNK`, layout of `moment_count`, this block's at `at`)
+/// times `scale` (1 / pixels in the window), written as f32 to `out` (Q rows of
+/// `grid.padded()`, at x0). Returns which lanes fell back. The loop over the lanes has a
+/// branch-free body whose inner loops all have constant bounds (so they unroll completely),
+/// which lets the compiler run the lanes in SIMD.
+#[inline(always)]
+fn coefficient_block<const D: usize, const M: usize, const Q: usize>(
+    sums: &[f64],
+    at: usize,
+    x0: usize,
+    scale: &Lanes,
+    context: &Context<D>,
+    out: &mut [f32],
+) -> [bool; LANES] {
+    let padded = context.grid.padded();
+    let mut block = [[0.0f64; LANES]; M];
+    for (k, block) in block.iter_mut().enumerate() {
+        let sums = &sums[k * CHUNK + at..][..LANES];
+        for l in 0..LANES {
+            block[l] = sums[l] * scale[l];
+        }
+    }
+    let mut result = [[0.0f32; LANES]; Q];
+    let mut fell_back = [false; LANES];
+    for l in 0..LANES {
+        let mut means = [0.0f64; M];
+        for k in 0..M {
+            means[k] = block[k][l];
+        }
+        let (values, ok) = window_coefficients::<D, M, Q>(&means, &context.eps, context.min_pivot);
+        for q in 0..Q {
+            result[q][l] = values[q];
+        }
+        fell_back[l] = !ok;
+    }
+    for (row, result) in out.chunks_exact_mut(padded).zip(&result) {
+        row[x0..x0 + LANES].copy_from_slice(result);
+    }
+    fell_back
+}
 
 /// Eq. 8–9 for one window from its moments (layout of `moment_count`): per colour channel c,
-/// `a_c = (Σ + diag ε)⁻¹ (E[N_c I] − E[N_c] E[I])` and `b_c = E[N_c] − a_cᵀ E[I]`. `Err(E[N])`
-/// when the system is not numerically positive definite (a Cholesky pivot below `min_pivot`)
-/// or the result is not finite.
+/// `a_c = (Σ + diag ε)⁻¹ (E[N_c I] − E[N_c] E[I])` and `b_c = E[N_c] − a_cᵀ E[I]`, solved by the
+/// square-root-free Cholesky factorisation `Σ + diag ε = L D Lᵀ` (L unit lower triangular;
+/// without square roots the dependency chain per column is one division). Returns a_c (at
+/// c d + j) and b_c (at 3d + c) in f32, and true; or, when a pivot falls below `min_pivot` (or
+/// is not a number) or a coefficient is not finite in f32, a = 0, b = E[N] (the box mean, the
+/// ε → ∞ limit) and false. Branch-free: a failed window goes on with pivot 1 and its results
+/// are replaced at the end. Loops run over all of 0..D with conditions inside, so that their
+/// bounds are constants.
 #[inline(always)]
-fn window_coefficients<const D: usize, const M: usize>(
+#[allow(clippy::needless_range_loop)]
+fn window_coefficients<const D: usize, const M: usize, const Q: usize>(
     moments: &[f64; M],
     eps: &[f64; D],
     min_pivot: f64,
-) -> Result<Coefficients<D>, [f64; 3]> {
-    let mean_i: [f64; D] = std::array::from_fn(|j| moments[j]);
-    let mut sigma = [[0.0f64; D]; D];
+) -> ([f32; Q], bool) {
+    let mut mean_i = [0.0f64; D];
+    mean_i.copy_from_slice(&moments[..D]);
+    // Σ + diag ε; only the lower triangle (row ≥ column) is used, and becomes L.
+    let mut matrix = [[0.0f64; D]; D];
     let mut slot = D;
     for j in 0..D {
-        for k in j..D {
-            let s = moments[slot] - mean_i[j] * mean_i[k];
-            sigma[j][k] = s;
-            sigma[k][j] = s;
-            slot += 1;
+        for k in 0..D {
+            if k >= j {
+                matrix[k][j] = moments[slot] - mean_i[j] * mean_i[k];
+                slot += 1;
+            }
         }
     }
-    for (j, row) in sigma.iter_mut().enumerate() {
-        row[j] = row[j].max(0.0) + eps[j];
+    for j in 0..D {
+        matrix[j][j] = matrix[j][j].max(0.0) + eps[j];
     }
     let mean_n = [moments[slot], moments[slot + 1], moments[slot + 2]];
     slot += 3;
-    let mut a: [[f64; D]; 3] =
-        std::array::from_fn(|c| std::array::from_fn(|j| moments[slot + c * D + j] - mean_i[j] * mean_n[c]));
-    if !solve_spd(sigma, &mut a, min_pivot) {
-        return Err(mean_n);
+    let mut a = [[0.0f64; D]; 3];
+    for c in 0..3 {
+        for j in 0..D {
+            a[c][j] = moments[slot + c * D + j] - mean_i[j] * mean_n[c];
+        }
     }
-    let b: [f64; 3] = std::array::from_fn(|c| mean_n[c] - (0..D).map(|j| a[c][j] * mean_i[j]).sum::<f64>());
-    // v · 0 is 0 for finite v and NaN otherwise: one branch for all 3d + 3 values.
-    let poison = a.iter().flatten().fold(b[0] * 0.0 + b[1] * 0.0 + b[2] * 0.0, |p, v| p + v * 0.0);
-    if poison == 0.0 {
-        Ok((a, b))
-    } else {
-        Err(mean_n)
-    }
-}
 
-/// Solves `matrix · x = rhs` in place for each of the three right-hand sides by the
-/// square-root-free Cholesky factorisation `matrix = L D Lᵀ` (`matrix` symmetric positive
-/// definite; L unit lower triangular). False, leaving `rhs` unspecified, when a pivot D_jj
-/// falls below `min_pivot` or is not a number. Without square roots the dependency chain per
-/// column is one division, which matters: this solve is the per-pixel hot spot.
-#[inline(always)]
-fn solve_spd<const D: usize>(mut matrix: [[f64; D]; D], rhs: &mut [[f64; D]; 3], min_pivot: f64) -> bool {
-    // The strict lower triangle of `matrix` becomes L; `pivots` holds D, `inverse` 1 / D.
+    let mut ok = true;
     let mut pivots = [0.0f64; D];
     let mut inverse = [0.0f64; D];
     for j in 0..D {
         // L_jk D_k for k < j: row j of L D, shared by the pivot and the column below it.
-        let scaled: [f64; D] = std::array::from_fn(|k| if k < j { matrix[j][k] * pivots[k] } else { 0.0 });
-        let pivot = matrix[j][j] - (0..j).map(|k| matrix[j][k] * scaled[k]).sum::<f64>();
-        if pivot.is_nan() || pivot < min_pivot {
-            return false;
+        let mut scaled = [0.0f64; D];
+        for k in 0..D {
+            if k < j {
+                scaled[k] = matrix[j][k] * pivots[k];
+            }
         }
-        pivots[j] = pivot;
-        inverse[j] = 1.0 / pivot;
-        for row in matrix.iter_mut().skip(j + 1) {
-            let dot: f64 = (0..j).map(|k| row[k] * scaled[k]).sum();
-            row[j] = (row[j] - dot) * inverse[j];
+        let mut pivot = matrix[j][j];
+        for k in 0..D {
+            if k < j {
+                pivot -= matrix[j][k] * scaled[k];
+            }
+        }
+        ok &= pivot >= min_pivot;
+        pivots[j] = if pivot >= min_pivot { pivot } else { 1.0 };
+        inverse[j] = 1.0 / pivots[j];
+        for i in 0..D {
+            if i > j {
+                let mut v = matrix[i][j];
+                for k in 0..D {
+                    if k < j {
+                        v -= matrix[i][k] * scaled[k];
+                    }
+                }
+                matrix[i][j] = v * inverse[j];
+            }
         }
     }
-    for x in rhs.iter_mut() {
+    for x in a.iter_mut() {
         // L y = rhs, then Lᵀ x = D⁻¹ y.
         for i in 0..D {
-            let dot: f64 = (0..i).map(|k| matrix[i][k] * x[k]).sum();
-            x[i] -= dot;
+            for k in 0..D {
+                if k < i {
+                    x[i] -= matrix[i][k] * x[k];
+                }
+            }
         }
         for i in (0..D).rev() {
-            let dot: f64 = (i + 1..D).map(|k| matrix[k][i] * x[k]).sum();
-            x[i] = x[i] * inverse[i] - dot;
+            let mut v = x[i] * inverse[i];
+            for k in 0..D {
+                if k > i {
+                    v -= matrix[k][i] * x[k];
+                }
+            }
+            x[i] = v;
         }
     }
-    true
+    let mut b = mean_n;
+    for c in 0..3 {
+        for j in 0..D {
+            b[c] -= a[c][j] * mean_i[j];
+        }
+    }
+    let mut values = [0.0f32; Q];
+    for c in 0..3 {
+        for j in 0..D {
+            values[c * D + j] = a[c][j] as f32;
+        }
+        values[3 * D + c] = b[c] as f32;
+    }
+    // v · 0 is 0 for finite v and NaN otherwise: one test for all 3d + 3 values.
+    let mut poison = 0.0f32;
+    for v in values {
+        poison += v * 0.0;
+    }
+    let ok = ok & (poison == 0.0);
+    for q in 0..Q {
+        let fallback = if q < 3 * D { 0.0 } else { mean_n[q - 3 * D] as f32 };
+        values[q] = if ok { values[q] } else { fallback };
+    }
+    (values, ok)
 }
 
-/// One box-mean pass over `C` values per pixel, streamed in rows and never stored whole.
-/// `fill(y, row)` writes row y's values; `emit(y, x, mean, out)` receives the mean over the
-/// window of pixel (x, y) (clipped to the image) and writes that pixel's output, returning
-/// whether to count the pixel (the counts are summed over the image).
-///
-/// The image is split into horizontal strips, one per rayon thread. Each strip keeps the f64
-/// column sums over the rows of the current window and slides them down (add the row
-/// entering, subtract the row leaving; rows are recomputed by `fill` rather than stored), then
-/// slides a running sum along each summed row. The cost per pixel is independent of the radius;
-/// a strip pays once for its first window.
-fn box_pass<const C: usize, T: Send>(
-    grid: Grid,
-    out: &mut [T],
-    fill: impl Fn(usize, &mut [[f64; C]]) + Sync,
-    emit: impl Fn(usize, usize, &[f64; C], &mut T) -> bool + Sync,
-) -> usize {
-    let Grid { width, height, radius } = grid;
-    let strips = rayon::current_num_threads().clamp(1, height);
-    let strip_rows = height.div_ceil(strips);
-    let inverse_columns: Vec<f64> =
-        (0..width).map(|x| 1.0 / ((x + radius).min(width - 1) - x.saturating_sub(radius) + 1) as f64).collect();
-    out.par_chunks_mut(strip_rows * width)
-        .enumerate()
-        .map(|(strip, out)| {
-            let y0 = strip * strip_rows;
-            let y1 = (y0 + strip_rows).min(height);
-            let mut column = vec![[0.0f64; C]; width];
-            let mut entering = vec![[0.0f64; C]; width];
-            let mut leaving = vec![[0.0f64; C]; width];
-            for y in y0.saturating_sub(radius)..=(y0 + radius).min(height - 1) {
-                fill(y, &mut entering);
-                for (c, e) in column.iter_mut().zip(&entering) {
-                    add(c, e);
-                }
-            }
-            let mut total = 0;
-            for (y, out_row) in (y0..y1).zip(out.chunks_exact_mut(width)) {
-                let rows = (y + radius).min(height - 1) - y.saturating_sub(radius) + 1;
-                let row_scale = 1.0 / rows as f64;
-                // Slide along the row: `running` sums the columns of the window around x.
-                let mut running = [0.0f64; C];
-                for value in &column[..=radius.min(width - 1)] {
-                    add(&mut running, value);
-                }
-                for (x, (out, &inverse)) in out_row.iter_mut().zip(&inverse_columns).enumerate() {
-                    let scale = row_scale * inverse;
-                    total += emit(y, x, &running.map(|s| s * scale), out) as usize;
-                    if let Some(value) = column.get(x + radius + 1) {
-                        add(&mut running, value);
-                    }
-                    if x >= radius {
-                        sub(&mut running, &column[x - radius]);
-                    }
-                }
-                // Slide the column sums down one row.
-                if y + 1 < y1 {
-                    match (y + radius + 1 < height, y >= radius) {
-                        (true, true) => {
-                            fill(y + radius + 1, &mut entering);
-                            fill(y - radius, &mut leaving);
-                            for ((c, e), l) in column.iter_mut().zip(&entering).zip(&leaving) {
-                                for ((c, e), l) in c.iter_mut().zip(e).zip(l) {
-                                    *c += e - l;
-                                }
-                            }
-                        }
-                        (true, false) => {
-                            fill(y + radius + 1, &mut entering);
-                            for (c, e) in column.iter_mut().zip(&entering) {
-                                add(c, e);
-                            }
-                        }
-                        (false, true) => {
-                            fill(y - radius, &mut leaving);
-                            for (c, l) in column.iter_mut().zip(&leaving) {
-                                sub(c, l);
-                            }
-                        }
-                        (false, false) => {}
-                    }
-                }
-            }
-            total
-        })
-        .sum()
-}
-
+/// Stage 2 for the LANES pixels of a block: `F_c = (Σ_j S[a_cj] I_j + S[b_c]) · scale` from the
+/// coefficient sums (`sums`: Q rows of `CHUNK`, this block's at `at`) and the guide `g`.
 #[inline(always)]
-fn add<const C: usize>(target: &mut [f64; C], values: &[f64; C]) {
-    for (t, v) in target.iter_mut().zip(values) {
-        *t += v;
+fn evaluate<const D: usize, const Q: usize>(
+    sums: &[f64],
+    at: usize,
+    scale: &Lanes,
+    g: &[Lanes; D],
+) -> [[f32; LANES]; 3] {
+    let mut block = [[0.0f64; LANES]; Q];
+    for (q, block) in block.iter_mut().enumerate() {
+        block.copy_from_slice(&sums[q * CHUNK + at..][..LANES]);
+    }
+    let mut f = [[0.0f32; LANES]; 3];
+    for l in 0..LANES {
+        for c in 0..3 {
+            let mut v = block[3 * D + c][l];
+            for j in 0..D {
+                v += block[c * D + j][l] * g[j][l];
+            }
+            f[c][l] = (v * scale[l]).clamp(-(f32::MAX as f64), f32::MAX as f64) as f32;
+        }
+    }
+    f
+}
+
+/// Box sums of `terms` down consecutive rows of a strip: f64 column sums over the rows of the
+/// current window, slid down a row at a time (add the row entering, subtract the row leaving;
+/// rows are re-read from the source, products recomputed, rather than kept), then each row of
+/// them summed over the horizontal window (`box_rows`). The cost per pixel does not depend on
+/// the radius; a strip pays once for its first window.
+struct SlidingBox<T> {
+    grid: Grid,
+    terms: Vec<Term>,
+    /// Row length of `columns`: term k's column sums lie at `k * stride + r + 1 ..` (width
+    /// values), with r + 1 zeros before them and r or more after, so that `box_rows` can read
+    /// a window's columns past the image's edges.
+    stride: usize,
+    columns: Vec<f64>,
+    /// The window sums of the current chunk of the row: rows of `CHUNK`.
+    sums: Vec<f64>,
+    /// The running window sums along the row, per row of `columns`.
+    carry: Vec<f64>,
+    entering: Vec<T>,
+    leaving: Vec<T>,
+    /// The row whose window `columns` holds.
+    row: Option<usize>,
+}
+
+impl<T: Copy + Default + Into<f64>> SlidingBox<T> {
+    fn new(grid: Grid, terms: Vec<Term>, source_rows: usize) -> Self {
+        let padded = grid.padded();
+        let stride = padded + 2 * grid.radius + 1;
+        // Whole groups of `SCAN_ROWS` rows for `box_rows`; the rows past the terms stay zero.
+        let rows = terms.len().div_ceil(SCAN_ROWS) * SCAN_ROWS;
+        SlidingBox {
+            grid,
+            stride,
+            columns: vec![0.0; rows * stride],
+            sums: vec![0.0; rows * CHUNK],
+            carry: vec![0.0; rows],
+            entering: vec![T::default(); source_rows * padded],
+            leaving: vec![T::default(); source_rows * padded],
+            terms,
+            row: None,
+        }
+    }
+
+    /// Moves the column sums to row y's window (y is the row after the previous call's, or the
+    /// first) and calls `f(start, sums)` for the chunks of the row from left to right: `sums`
+    /// holds the (unscaled) window sums of pixels start.. (`CHUNK` of them, fewer at the end),
+    /// term-major rows of `CHUNK`. The column sums are updated chunk by chunk just ahead of the
+    /// horizontal sums that read them, and a chunk's sums are used at once, so both are still
+    /// in the L1 cache.
+    #[inline(always)]
+    fn row<S: RowSource<Value = T>>(&mut self, source: &S, y: usize, mut f: impl FnMut(usize, &[f64])) {
+        let Grid { width, height, radius } = self.grid;
+        let layout = Columns { padded: self.grid.padded(), stride: self.stride, offset: radius + 1 };
+        let (mut enter, mut leave) = (None, None);
+        match self.row {
+            None => {
+                for k in y.saturating_sub(radius)..=(y + radius).min(height - 1) {
+                    let row = Some(source.row(k, &mut self.entering));
+                    update_columns(&mut self.columns, layout, &self.terms, row, None, 0..width);
+                }
+            }
+            Some(previous) => {
+                debug_assert_eq!(previous + 1, y);
+                enter = (y + radius < height).then(|| source.row(y + radius, &mut self.entering));
+                leave = (y > radius).then(|| source.row(y - radius - 1, &mut self.leaving));
+            }
+        }
+        self.row = Some(y);
+        let chunk = |c: usize| c * CHUNK..((c + 1) * CHUNK).min(width);
+        let chunks = width.div_ceil(CHUNK);
+        // Chunk c's window sums reach r columns into the chunks after it.
+        let ahead = radius.div_ceil(CHUNK);
+        let mut updated = 0;
+        for c in 0..chunks {
+            while updated < chunks && updated <= c + ahead {
+                update_columns(&mut self.columns, layout, &self.terms, enter, leave, chunk(updated));
+                updated += 1;
+            }
+            if c == 0 {
+                // The window sum before pixel 0: columns 0..r.
+                for (carry, column) in self.carry.iter_mut().zip(self.columns.chunks_exact(self.stride)) {
+                    *carry = column[radius + 1..][..radius.min(width)].iter().sum();
+                }
+            }
+            box_rows(&self.columns, self.stride, chunk(c), radius, &mut self.sums, &mut self.carry);
+            f(c * CHUNK, &self.sums);
+        }
     }
 }
 
+/// Where `update_columns` finds things: source rows `padded` apart, column sums `stride` apart
+/// from `offset` on.
+#[derive(Clone, Copy)]
+struct Columns {
+    padded: usize,
+    stride: usize,
+    offset: usize,
+}
+
+/// Adds the terms of the `enter` rows to the column sums and subtracts those of the `leave`
+/// rows, for the columns `pixels`; the products of two f32 values are exact in f64.
 #[inline(always)]
-fn sub<const C: usize>(target: &mut [f64; C], values: &[f64; C]) {
-    for (t, v) in target.iter_mut().zip(values) {
-        *t -= v;
+fn update_columns<'a, T: Copy + Into<f64>>(
+    columns: &mut [f64],
+    layout: Columns,
+    terms: &[Term],
+    enter: Option<&'a [T]>,
+    leave: Option<&'a [T]>,
+    pixels: std::ops::Range<usize>,
+) {
+    fn product<'a, T: Copy + Into<f64>>(p: &'a [T], q: &'a [T]) -> impl Iterator<Item = f64> + 'a {
+        p.iter().zip(q).map(|(&p, &q)| p.into() * q.into())
+    }
+    let Columns { padded, stride, offset } = layout;
+    let (start, len) = (pixels.start, pixels.len());
+    let slice = |rows: Option<&'a [T]>, k: usize| rows.map(|rows| &rows[k * padded + start..][..len]);
+    for (column, &(p, q)) in columns.chunks_exact_mut(stride).zip(terms) {
+        let column = &mut column[offset + start..][..len];
+        match (slice(enter, p), q.and_then(|q| slice(enter, q)), slice(leave, p), q.and_then(|q| slice(leave, q))) {
+            (Some(ep), Some(eq), Some(lp), Some(lq)) => {
+                for ((c, e), l) in column.iter_mut().zip(product(ep, eq)).zip(product(lp, lq)) {
+                    *c += e - l;
+                }
+            }
+            (Some(ep), None, Some(lp), None) => {
+                for ((c, &e), &l) in column.iter_mut().zip(ep).zip(lp) {
+                    *c += e.into() - l.into();
+                }
+            }
+            (Some(ep), Some(eq), None, None) => {
+                for (c, e) in column.iter_mut().zip(product(ep, eq)) {
+                    *c += e;
+                }
+            }
+            (Some(ep), None, None, None) => {
+                for (c, &e) in column.iter_mut().zip(ep) {
+                    *c += e.into();
+                }
+            }
+            (None, None, Some(lp), Some(lq)) => {
+                for (c, l) in column.iter_mut().zip(product(lp, lq)) {
+                    *c -= l;
+                }
+            }
+            (None, None, Some(lp), None) => {
+                for (c, &l) in column.iter_mut().zip(lp) {
+                    *c -= l.into();
+                }
+            }
+            _ => {}
+        }
+    }
+}
+
+/// Sums each row of `columns` over the horizontal window clipped to the image, for the pixels
+/// `pixels`: `sums[x − start] = Σ columns[x − r ..= x + r]` (rows of `CHUNK` in `sums`; in
+/// `columns`, rows of `stride` with the column sums at r + 1 .., zeros around them), as a
+/// running sum along the row (`carry`, per row: the sum at the pixel before) that takes one
+/// step per pixel, the column entering minus the column leaving. Four rows at a time, so that
+/// the adds do not wait on each other (the arrays hold whole groups of rows).
+#[inline(always)]
+fn box_rows(
+    columns: &[f64],
+    stride: usize,
+    pixels: std::ops::Range<usize>,
+    radius: usize,
+    sums: &mut [f64],
+    carry: &mut [f64],
+) {
+    let (start, len) = (pixels.start, pixels.len());
+    for ((columns, sums), carry) in columns
+        .chunks_exact(SCAN_ROWS * stride)
+        .zip(sums.chunks_exact_mut(SCAN_ROWS * CHUNK))
+        .zip(carry.chunks_exact_mut(SCAN_ROWS))
+    {
+        let column = |k: usize| &columns[k * stride..][..stride];
+        // Pixel x gains column x + r (at x + 2r + 1) and loses column x − r − 1 (at x).
+        let enter = |k: usize| column(k)[start + 2 * radius + 1..][..len].iter();
+        let leave = |k: usize| column(k)[start..][..len].iter();
+        let mut rows = sums.chunks_exact_mut(CHUNK).map(|row| row[..len].iter_mut());
+        let mut row = || rows.next().unwrap();
+        let (o0, o1, o2, o3) = (row(), row(), row(), row());
+        let mut s = [carry[0], carry[1], carry[2], carry[3]];
+        for ((((o0, o1), (o2, o3)), ((e0, e1), (e2, e3))), ((l0, l1), (l2, l3))) in o0
+            .zip(o1)
+            .zip(o2.zip(o3))
+            .zip(enter(0).zip(enter(1)).zip(enter(2).zip(enter(3))))
+            .zip(leave(0).zip(leave(1)).zip(leave(2).zip(leave(3))))
+        {
+            s = [s[0] + (e0 - l0), s[1] + (e1 - l1), s[2] + (e2 - l2), s[3] + (e3 - l3)];
+            (*o0, *o1, *o2, *o3) = (s[0], s[1], s[2], s[3]);
+        }
+        carry.copy_from_slice(&s);
     }
 }
 
@@ -741,7 +1109,7 @@ mod tests {
         let eps = [0.01, 0.02, 0.005, 0.03];
         for radius in [0u32, 1, 3, 30] {
             let expected = naive_filter(&noisy, &planes, &eps, radius as usize);
-            // Several strip counts, including more strips than the radius and one row each.
+            // The thread count does not change the strips (`same_bits_for_any_thread_count`).
             for threads in [1, 2, 5, 17] {
                 let (found, report) = in_pool(threads, || guided_filter_planes(&noisy, &planes, &eps, radius).unwrap());
                 assert_eq!(report, FilterReport::default());
@@ -753,6 +1121,31 @@ mod tests {
             let expected = naive_filter(&noisy, &planes[..d], &eps[..d], 2);
             let (found, _) = guided_filter_planes(&noisy, &planes[..d], &eps[..d], 2).unwrap();
             assert_close(&found, &expected, 1e-4, &format!("d = {d}"));
+        }
+    }
+
+    #[test]
+    fn same_bits_for_any_thread_count() {
+        // Tall enough for several strips, which then run on different threads; the strips'
+        // boundaries (coefficient rows computed by both neighbours) match the definition.
+        let mut rng = Rng(14);
+        let (width, height) = (9u32, 1100u32);
+        let noisy = random_image(width, height, &mut rng);
+        let planes = random_planes(4, (width * height) as usize, &mut rng);
+        let eps = [0.01, 0.02, 0.005, 0.03];
+        let bits = |image: &Image| -> Vec<[u32; 3]> { image.pixels.iter().map(|p| p.map(f32::to_bits)).collect() };
+        for radius in [3u32, 40] {
+            let grid = Grid { width: width as usize, height: height as usize, radius: radius as usize };
+            assert!(grid.strip_rows() < height as usize, "radius {radius}: one strip");
+            let (one, report) = in_pool(1, || guided_filter_planes(&noisy, &planes, &eps, radius).unwrap());
+            for threads in [2, 3, 8] {
+                let (many, many_report) =
+                    in_pool(threads, || guided_filter_planes(&noisy, &planes, &eps, radius).unwrap());
+                assert!(bits(&one) == bits(&many), "radius {radius}, {threads} threads");
+                assert_eq!(report, many_report);
+            }
+            let expected = naive_filter(&noisy, &planes, &eps, radius as usize);
+            assert_close(&one, &expected, 1e-4, &format!("strips, radius {radius}"));
         }
     }
 

@@ -1,0 +1,114 @@
+//! Guided filter speed on the paper's image size (Table 2: 1024×768, d = 1 / 3 / 4, "the same
+//! for every radius"): a synthetic guide of planar pieces (floor, back wall, two boxes, a
+//! tilted panel) with normal and depth edges, and a noisy RGB input, all seeded.
+//!
+//! `cargo bench -p recon --bench guided_filter` (the target: ≤ 30 ms per megapixel for d = 4 on
+//! the project's 2-core machine, flat in the radius). Each case reports ms per run and, as
+//! throughput, pixels per second.
+
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use recon::guided_filter::guided_filter_planes;
+use recon::image::Image;
+
+const WIDTH: usize = 1024;
+const HEIGHT: usize = 768;
+
+/// SplitMix64: a tiny deterministic generator.
+struct Rng(u64);
+
+impl Rng {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1).
+    fn unit(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+fn normalize(v: [f32; 3]) -> [f32; 3] {
+    let length = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    v.map(|c| c / length)
+}
+
+/// The planar piece seen at pixel (x, y): its normal, depth and albedo.
+fn surface(x: usize, y: usize) -> ([f32; 3], f32, [f32; 3]) {
+    let (u, v) = (x as f32 / WIDTH as f32, y as f32 / HEIGHT as f32);
+    if (0.15..0.4).contains(&u) && (0.45..0.85).contains(&v) {
+        // A box's front face, then its top.
+        if v < 0.52 {
+            ([0.0, 1.0, 0.0], 3.2 + 0.5 * (v - 0.45), [0.8, 0.3, 0.2])
+        } else {
+            ([0.0, 0.0, 1.0], 3.0, [0.8, 0.3, 0.2])
+        }
+    } else if (0.55..0.8).contains(&u) && (0.35..0.8).contains(&v) {
+        // A box turned by 30°: two faces meeting at a vertical edge.
+        if u < 0.66 {
+            (normalize([-0.5, 0.0, 0.87]), 3.5 + 2.0 * (0.66 - u), [0.2, 0.6, 0.3])
+        } else {
+            (normalize([0.87, 0.0, 0.5]), 3.5 + 1.2 * (u - 0.66), [0.2, 0.6, 0.3])
+        }
+    } else if (0.82..0.95).contains(&u) && (0.1..0.4).contains(&v) {
+        // A tilted panel on the wall.
+        (normalize([-0.3, -0.4, 0.87]), 5.5 + 0.8 * (v - 0.1), [0.9, 0.9, 0.5])
+    } else if v > 0.6 {
+        // The floor, receding towards the horizon.
+        ([0.0, 1.0, 0.0], 2.0 + 4.0 * (1.0 - v) / 0.4, [0.7, 0.7, 0.7])
+    } else {
+        // The back wall.
+        ([0.0, 0.0, 1.0], 6.0, [0.75, 0.75, 0.8])
+    }
+}
+
+/// Guide planes as `guide_channels` builds them ((n + 1) / 2 per normal component, the grey
+/// normal their mean, depth over the scene extent) and a noisy input: shaded albedo times a
+/// heavy-tailed per-channel noise factor, as a few path-traced samples give.
+fn scene() -> (Image, Vec<Vec<f32>>) {
+    let mut rng = Rng(0x5EED);
+    let extent = 6.5;
+    let light = normalize([0.4, 0.8, 0.45]);
+    let mut planes: Vec<Vec<f32>> = (0..5).map(|_| Vec::with_capacity(WIDTH * HEIGHT)).collect();
+    let mut pixels = Vec::with_capacity(WIDTH * HEIGHT);
+    for y in 0..HEIGHT {
+        for x in 0..WIDTH {
+            let (n, depth, albedo) = surface(x, y);
+            let scaled = n.map(|c| (c + 1.0) * 0.5);
+            planes[0].push((scaled[0] + scaled[1] + scaled[2]) / 3.0);
+            for j in 0..3 {
+                planes[1 + j].push(scaled[j]);
+            }
+            planes[4].push((depth / extent).clamp(0.0, 1.0));
+            let shade = 0.2 + (n[0] * light[0] + n[1] * light[1] + n[2] * light[2]).max(0.0);
+            pixels.push(albedo.map(|a| a * shade * -(1.0 - rng.unit()).ln()));
+        }
+    }
+    (Image::from_pixels(WIDTH as u32, HEIGHT as u32, pixels), planes)
+}
+
+fn bench(c: &mut Criterion) {
+    let (noisy, planes) = scene();
+    let (grey, normal_depth) = (&planes[..1], &planes[1..]);
+    let mut group = c.benchmark_group("guided_filter_1024x768");
+    group.sample_size(10).warm_up_time(Duration::from_millis(500)).measurement_time(Duration::from_secs(2));
+    group.throughput(Throughput::Elements((WIDTH * HEIGHT) as u64));
+    for d in [1usize, 3, 4] {
+        let guide = if d == 1 { grey } else { &normal_depth[..d] };
+        let eps = &[0.01, 0.01, 0.01, 0.02][..d];
+        for radius in [8u32, 16, 24, 32] {
+            group.bench_with_input(BenchmarkId::new(format!("d{d}"), radius), &radius, |b, &radius| {
+                b.iter(|| guided_filter_planes(&noisy, guide, eps, radius).unwrap())
+            });
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
