@@ -75,16 +75,7 @@ pub fn run(args: &FilterArgs) -> Result<()> {
     let method = chosen_filter(args)?;
     let trace = &args.trace;
     let scene = crate::load_scene(trace.scene.as_deref())?;
-    let settings = tracer::samples::DumpSettings {
-        width: trace.width.unwrap_or(scene.width),
-        height: trace.height.unwrap_or(scene.height),
-        spp: args.spp,
-        seed: trace.seed,
-        max_bounces: trace.max_bounces.unwrap_or(scene.max_bounces),
-        threads: trace.threads,
-        progress: !trace.quiet,
-    };
-    settings.validate()?;
+    let settings = trace.dump_settings(&scene, args.spp)?;
     let accel = Accel::build(&scene)?;
     let trace_start = Instant::now();
     let buffers = tracer::samples::guide::guide_buffers(&scene, &accel, &settings)?;

@@ -172,19 +172,28 @@ fn render(args: &RenderArgs) -> Result<()> {
     Ok(())
 }
 
+impl TraceArgs {
+    /// Dump settings for `scene` at `spp` from these options (the scene's size and path length
+    /// where not given), validated.
+    fn dump_settings(&self, scene: &Scene, spp: u32) -> Result<tracer::samples::DumpSettings> {
+        let settings = tracer::samples::DumpSettings {
+            width: self.width.unwrap_or(scene.width),
+            height: self.height.unwrap_or(scene.height),
+            spp,
+            seed: self.seed,
+            max_bounces: self.max_bounces.unwrap_or(scene.max_bounces),
+            threads: self.threads,
+            progress: !self.quiet,
+        };
+        settings.validate()?;
+        Ok(settings)
+    }
+}
+
 fn dump(args: &DumpArgs) -> Result<()> {
     let trace = &args.trace;
     let scene = load_scene(trace.scene.as_deref())?;
-    let settings = tracer::samples::DumpSettings {
-        width: trace.width.unwrap_or(scene.width),
-        height: trace.height.unwrap_or(scene.height),
-        spp: args.spp,
-        seed: trace.seed,
-        max_bounces: trace.max_bounces.unwrap_or(scene.max_bounces),
-        threads: trace.threads,
-        progress: !trace.quiet,
-    };
-    settings.validate()?;
+    let settings = trace.dump_settings(&scene, args.spp)?;
     let accel = Accel::build(&scene)?;
     let report = match args.kind {
         DumpKind::LensTime => tracer::samples::lens_time::dump(&scene, &accel, &settings, &args.out)?,

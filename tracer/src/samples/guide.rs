@@ -94,6 +94,30 @@ struct GuidePixel {
     eye_rays: Vec<EyeRay>,
 }
 
+/// The ray leaving `surface` towards a BSDF sample (as the path tracer's first bounce, MIS
+/// data included) and the sample's weight; `None` when the BSDF gives no direction or it points
+/// into the surface.
+fn continuation(
+    surface: &SurfacePoint,
+    frame: &Frame,
+    wo: Vec3,
+    u_lobe: f32,
+    u_bsdf: [f32; 2],
+) -> Option<(PathStart, Vec3)> {
+    let sample = surface.bsdf.sample(frame.to_local(wo), u_lobe, u_bsdf)?;
+    let wi = frame.to_world(sample.wi);
+    (wi.dot(surface.geometric_normal) > 0.0).then(|| {
+        let start = PathStart {
+            origin: surface.spawn_origin(wi),
+            direction: wi,
+            time: 0.0,
+            bounce: 1,
+            previous: Some((sample.pdf, surface.position)),
+        };
+        (start, sample.weight)
+    })
+}
+
 /// One additional eye ray of pixel (x, y): sample `index` of the eye-ray stream. `direct_only`
 /// is the integrator limited to one bounce, so a BSDF-sampled ray only collects emission.
 fn eye_ray(
@@ -123,18 +147,8 @@ fn eye_ray(
     if integrator.max_bounces > 0 {
         direct +=
             integrator.next_event(&surface, wo, 0.0, [u_select, u_light[0], u_light[1]], &mut rays, &mut NoRecording);
-        if let Some(sample) = surface.bsdf.sample(frame.to_local(wo), u_lobe, u_bsdf) {
-            let wi = frame.to_world(sample.wi);
-            if wi.dot(surface.geometric_normal) > 0.0 {
-                let start = PathStart {
-                    origin: surface.spawn_origin(wi),
-                    direction: wi,
-                    time: 0.0,
-                    bounce: 1,
-                    previous: Some((sample.pdf, surface.position)),
-                };
-                direct += sample.weight * direct_only.trace_ray(&start, &mut sampler, &mut NoRecording).emitted;
-            }
+        if let Some((start, weight)) = continuation(&surface, &frame, wo, u_lobe, u_bsdf) {
+            direct += weight * direct_only.trace_ray(&start, &mut sampler, &mut NoRecording).emitted;
         }
     }
     EyeRay {
@@ -173,7 +187,6 @@ fn guide_pixel(
     let wo = -direction;
     let surface = SurfacePoint::new(scene, &hit, wo, 0.0);
     let frame = Frame::new(surface.shading_normal);
-    let wo_local = frame.to_local(wo);
     let emitted = surface.emission(scene, &hit, wo);
     let mut direct_sum = Vec3::ZERO;
     let mut indirect_sum = [0.0f64; 3];
@@ -189,23 +202,14 @@ fn guide_pixel(
         let mut direct =
             integrator.next_event(&surface, wo, 0.0, [u_select, u_light[0], u_light[1]], &mut rays, &mut NoRecording);
         let mut indirect = Vec3::ZERO;
-        if let Some(sample) = surface.bsdf.sample(wo_local, u_lobe, u_bsdf) {
-            let wi = frame.to_world(sample.wi);
-            if wi.dot(surface.geometric_normal) > 0.0 && integrator.max_bounces > 0 {
-                let start = PathStart {
-                    origin: surface.spawn_origin(wi),
-                    direction: wi,
-                    time: 0.0,
-                    bounce: 1,
-                    previous: Some((sample.pdf, surface.position)),
-                };
-                let traced = integrator.trace_ray(&start, &mut sampler, &mut NoRecording);
-                if let Some(secondary) = traced.first_hit {
-                    secondary_normal_sum += secondary.normal;
-                }
-                direct += sample.weight * traced.emitted;
-                indirect = sample.weight * traced.reflected();
+        let continued = continuation(&surface, &frame, wo, u_lobe, u_bsdf).filter(|_| integrator.max_bounces > 0);
+        if let Some((start, weight)) = continued {
+            let traced = integrator.trace_ray(&start, &mut sampler, &mut NoRecording);
+            if let Some(secondary) = traced.first_hit {
+                secondary_normal_sum += secondary.normal;
             }
+            direct += weight * traced.emitted;
+            indirect = weight * traced.reflected();
         }
         if direct.is_finite() {
             direct_sum += direct;
