@@ -134,6 +134,89 @@ mod tests {
         assert!(strips.iter().all(|&s| s));
     }
 
+    use crate::tlfr::index::SampleGrid;
+    use crate::tlfr::lens::LensModel;
+    use crate::tlfr::reprojection::{near_limit, LensTimeSample};
+
+    /// Jittered samples over a `size`² image, `spp` per pixel, each given depth, motion and
+    /// colour by `surface(x, y)`.
+    fn samples(
+        size: u32,
+        spp: u32,
+        surface: impl Fn(f32, f32) -> (f32, [f32; 3], [f32; 3]),
+    ) -> (Vec<LensTimeSample>, Vec<[f32; 3]>) {
+        let mut state = 7u32;
+        let mut next = move || {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (state >> 8) as f32 / (1u32 << 24) as f32
+        };
+        let (mut out, mut colours) = (Vec::new(), Vec::new());
+        for y in 0..size {
+            for x in 0..size {
+                for _ in 0..spp {
+                    let (px, py) = (x as f32 + next(), y as f32 + next());
+                    let (z, motion, colour) = surface(px, py);
+                    out.push(LensTimeSample { x: px, y: py, u: 0.0, v: 0.0, t: next(), z, motion });
+                    colours.push(colour);
+                }
+            }
+        }
+        (out, colours)
+    }
+
+    fn run(samples: &[LensTimeSample], colours: &[[f32; 3]], size: u32, lens: LensModel, time: bool) -> Image {
+        let z_near = near_limit(samples.iter().map(|s| s.z));
+        let grid = SampleGrid::build(samples, &lens, false, z_near, (size, size), 20.0, 1.0);
+        let scene = Scene { samples, radiance: colours, lens: &lens, grid: &grid, radius: 0.7, z_near, delta: 0.125 };
+        integrate(&scene, (size, size), 16, (false, time), 1, |_, _| [-1.0; 3]).0
+    }
+
+    const PINHOLE: LensModel = LensModel { c1: 0.0, c2: 0.0, fx: 16.0, fy: 16.0, cx: 8.0, cy: 8.0 };
+
+    /// Stiff cases of issue 6 item 11 with exact answers: the output is a convex combination of
+    /// the input radiance, so a constant scene must come back exactly.
+    #[test]
+    fn constant_scenes_come_back_exactly() {
+        // C = 0 (pinhole, static), one plane, one sample per pixel.
+        let (plane, colours) = samples(12, 1, |_, _| (3.0, [0.0; 3], [0.7, 0.2, 0.1]));
+        let image = run(&plane, &colours, 12, PINHOLE, false);
+        assert!(image.pixels.iter().all(|p| *p == [0.7, 0.2, 0.1]), "{:?}", image.pixels);
+        // Only misses (the environment): every pixel is its colour, nothing divides by z = ∞.
+        let (misses, colours) = samples(8, 2, |_, _| (f32::INFINITY, [0.0; 3], [0.5; 3]));
+        let image = run(&misses, &colours, 8, LensModel { c1: -4.0, c2: 1.0, ..PINHOLE }, false);
+        assert!(image.pixels.iter().all(|p| *p == [0.5; 3]));
+    }
+
+    /// A red plane at depth 1 moving through the camera plane (depth 0 at t = 0.5) in front of a
+    /// static blue one: after it has passed, no location may see red, and nothing is NaN.
+    #[test]
+    fn a_surface_passing_behind_the_camera_vanishes() {
+        let (mut both, mut colours) = samples(12, 4, |_, _| (5.0, [0.0; 3], [0.0, 0.0, 1.0]));
+        let (front, front_colours) = samples(12, 4, |_, _| (1.0, [0.0, 0.0, -2.0], [1.0, 0.0, 0.0]));
+        // The red samples were taken before they passed (t < 0.5): keep those.
+        for (s, c) in front.into_iter().zip(front_colours) {
+            if s.t < 0.45 {
+                both.push(LensTimeSample { z: 1.0 - 2.0 * s.t, ..s });
+                colours.push(c);
+            }
+        }
+        let lens = PINHOLE;
+        let z_near = near_limit(both.iter().map(|s| s.z));
+        let grid = SampleGrid::build(&both, &lens, false, z_near, (12, 12), 20.0, 1.0);
+        let scene =
+            Scene { samples: &both, radiance: &colours, lens: &lens, grid: &grid, radius: 0.7, z_near, delta: 0.125 };
+        let (mut scratch, mut stats) = (Scratch::default(), QueryStats::default());
+        for j in 0..200 {
+            let screen = [2.0 + 8.0 * radical_inverse(j, 2), 2.0 + 8.0 * radical_inverse(j, 3)];
+            let late = LensTime { u: 0.0, v: 0.0, t: 0.55 + 0.45 * radical_inverse(j, 5) };
+            let value = reconstruct(&scene, screen, late, &mut scratch, &mut stats).unwrap();
+            assert_eq!(value, [0.0, 0.0, 1.0], "red after it passed the camera, at {screen:?} {late:?}");
+            let early = LensTime { t: 0.3 * radical_inverse(j, 5), ..late };
+            let value = reconstruct(&scene, screen, early, &mut scratch, &mut stats).unwrap();
+            assert!(value.iter().all(|v| v.is_finite()));
+        }
+    }
+
     #[test]
     fn the_concentric_map_covers_the_disk_evenly() {
         let n = 64;
