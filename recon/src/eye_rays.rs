@@ -71,28 +71,31 @@ pub fn most_similar_guide(guide: &GuideBuffers, film: [f32; 2], normal: [f32; 3]
     let x0 = (fx.floor() as i64).clamp(0, width - 1);
     let y0 = (fy.floor() as i64).clamp(0, height - 1);
     let (x1, y1) = ((x0 + 1).min(width - 1), (y0 + 1).min(height - 1));
-    let mut candidates: Vec<(f32, usize)> = Vec::with_capacity(4);
+    // At most four candidates, kept on the stack: this runs once per eye ray.
+    // Each: (distance² to the film position, pixel index, normal distance, depth distance).
+    let mut candidates = [(0.0f32, 0usize, 0.0f32, 0.0f32); 4];
+    let mut count = 0;
     for y in [y0, y1] {
         for x in [x0, x1] {
             let index = (y * width + x) as usize;
-            if candidates.iter().any(|&(_, i)| i == index) || !is_hit(guide.normal[index], guide.depth[index]) {
+            if candidates[..count].iter().any(|c| c.1 == index) || !is_hit(guide.normal[index], guide.depth[index]) {
                 continue;
             }
             let distance = (x as f32 - fx).powi(2) + (y as f32 - fy).powi(2);
-            candidates.push((distance, index));
+            let normal_gap = normal_distance(normal, guide.normal[index]);
+            candidates[count] = (distance, index, normal_gap, (depth - guide.depth[index]).abs());
+            count += 1;
         }
     }
+    let candidates = &mut candidates[..count];
     // Nearest first, so that ties in S go to the nearest guide ray.
     candidates.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    let normal_distances: Vec<f32> =
-        candidates.iter().map(|&(_, i)| normal_distance(normal, guide.normal[i])).collect();
-    let depth_distances: Vec<f32> = candidates.iter().map(|&(_, i)| (depth - guide.depth[i]).abs()).collect();
-    let max_normal = normal_distances.iter().fold(0.0f32, |m, &d| m.max(d));
-    let max_depth = depth_distances.iter().fold(0.0f32, |m, &d| m.max(d));
+    let max_normal = candidates.iter().fold(0.0f32, |m, c| m.max(c.2));
+    let max_depth = candidates.iter().fold(0.0f32, |m, c| m.max(c.3));
     let similarity = |distance: f32, max: f32| if max > 0.0 { 1.0 - distance / max } else { 1.0 };
     let mut best: Option<(f32, usize)> = None;
-    for (k, &(_, index)) in candidates.iter().enumerate() {
-        let s = similarity(normal_distances[k], max_normal) * similarity(depth_distances[k], max_depth);
+    for &(_, index, normal_gap, depth_gap) in candidates.iter() {
+        let s = similarity(normal_gap, max_normal) * similarity(depth_gap, max_depth);
         if best.map_or(true, |(best_s, _)| s > best_s) {
             best = Some((s, index));
         }
