@@ -103,6 +103,10 @@ struct DumpArgs {
     /// Output sample file (conventionally .lfrs; .exr for guide buffers).
     #[arg(long)]
     out: PathBuf,
+    /// With --kind lens-time: also write `albedo`, `normal` and `radiance_without_light` for
+    /// the soft-shadow reconstruction (needs a planar area light).
+    #[arg(long)]
+    soft_shadow: bool,
 }
 
 #[derive(clap::Args)]
@@ -196,7 +200,11 @@ fn dump(args: &DumpArgs) -> Result<()> {
     let settings = trace.dump_settings(&scene, args.spp)?;
     let accel = Accel::build(&scene)?;
     let report = match args.kind {
+        DumpKind::LensTime if args.soft_shadow => {
+            tracer::samples::lens_time::dump_for_soft_shadows(&scene, &accel, &settings, &args.out)?
+        }
         DumpKind::LensTime => tracer::samples::lens_time::dump(&scene, &accel, &settings, &args.out)?,
+        _ if args.soft_shadow => anyhow::bail!("--soft-shadow only applies to --kind lens-time"),
         DumpKind::Light => tracer::samples::light::dump(&scene, &accel, &settings, &args.out)?,
         DumpKind::Indirect => {
             tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::Indirect, &args.out)?

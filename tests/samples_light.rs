@@ -128,3 +128,100 @@ fn a_scene_without_a_planar_light_is_a_clear_error() {
     let empty = scene_from_toml("[render]\nenvironment = [1, 1, 1]\n");
     assert!(PlanarLight::find(&empty).unwrap_err().to_string().contains("emissive mesh"));
 }
+
+/// A 1 × 1 lamp (radiance 4) at y = 2 facing down, optionally a point light, over a grey floor,
+/// seen from straight above; direct light only.
+fn lamp_over_floor(point_light: bool) -> Scene {
+    let point = if point_light {
+        "[[light]]\ntype = \"point\"\nposition = [0.7, 1.5, 0.3]\nintensity = [3, 3, 3]\n"
+    } else {
+        ""
+    };
+    scene_from_toml(&format!(
+        r#"
+        [render]
+        max_bounces = 1
+        [camera]
+        position = [0, 1.5, 0.01]
+        look_at = [0, 0, 0]
+        up = [0, 0, 1]
+        fov = 50
+        [[material]]
+        name = "lamp"
+        base_color = [0, 0, 0]
+        specular = 0
+        emission = [4, 4, 4]
+        [[material]]
+        name = "floor"
+        base_color = [0.5, 0.5, 0.5]
+        specular = 0
+        [[mesh]]
+        shape = "polygon"
+        material = "lamp"
+        points = [[-0.5, 2, -0.5], [0.5, 2, -0.5], [0.5, 2, 0.5], [-0.5, 2, 0.5]]
+        [[mesh]]
+        shape = "polygon"
+        material = "floor"
+        points = [[-5, 0, -5], [-5, 0, 5], [5, 0, 5], [5, 0, -5]]
+        {point}
+        "#
+    ))
+}
+
+fn dump_soft_shadow_lens_time(scene: &Scene, size: (u32, u32), spp: u32) -> (tempfile::TempDir, SampleFile) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("lens-time.lfrs");
+    let accel = Accel::build(scene).unwrap();
+    let settings =
+        DumpSettings { width: size.0, height: size.1, spp, seed: 9, max_bounces: 1, threads: 0, progress: false };
+    tracer::samples::lens_time::dump_for_soft_shadows(scene, &accel, &settings, &path).unwrap();
+    (dir, SampleFile::open(&path).unwrap())
+}
+
+#[test]
+fn soft_shadow_lens_time_samples_split_off_exactly_the_planar_light() {
+    // Only the lamp: without it nothing reaches the floor, so `radiance_without_light` is exactly
+    // zero, while `radiance` equals a plain lens-time dump of the same seed bit for bit.
+    let scene = lamp_over_floor(false);
+    let (_dir, file) = dump_soft_shadow_lens_time(&scene, (16, 16), 4);
+    let names: Vec<_> = file.fields().iter().map(|f| f.name.clone()).collect();
+    assert_eq!(names, ["x", "y", "z", "radiance", "depth_gradient", "albedo", "normal", "radiance_without_light"]);
+    let radiance = file.column("radiance").unwrap();
+    let without = file.column("radiance_without_light").unwrap();
+    let albedo = file.column("albedo").unwrap();
+    assert!(radiance.iter().sum::<f32>() > 0.0);
+    assert!(without.iter().all(|&v| v == 0.0), "the lamp is the only light");
+    assert!(albedo.iter().all(|&a| (a - 0.5).abs() < 1e-3), "every camera ray sees the grey floor");
+    let normal = tracer::samples::secondary::decode_octahedral(
+        file.column("normal").unwrap()[..2].try_into().expect("two components"),
+    );
+    assert!((normal - Vec3::Y).length() < 1e-3, "floor normal {normal}");
+    let plain = {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("plain.lfrs");
+        let settings =
+            DumpSettings { width: 16, height: 16, spp: 4, seed: 9, max_bounces: 1, threads: 0, progress: false };
+        tracer::samples::lens_time::dump(&scene, &Accel::build(&scene).unwrap(), &settings, &path).unwrap();
+        SampleFile::open(&path).unwrap().column("radiance").unwrap()
+    };
+    assert_eq!(radiance, plain, "splitting does not change the paths");
+
+    // With a point light too, what remains is the point light's light alone: its mean over the
+    // samples equals the analytic (albedo/π)·I·cosθ/d² at each sample's floor point.
+    let scene = lamp_over_floor(true);
+    let (_dir, file) = dump_soft_shadow_lens_time(&scene, (24, 24), 16);
+    let (x, y) = (file.column("x").unwrap(), file.column("y").unwrap());
+    let without = file.column("radiance_without_light").unwrap();
+    let light_position = Vec3::new(0.7, 1.5, 0.3);
+    let (mut measured, mut expected) = (0.0f64, 0.0f64);
+    for i in 0..file.len() {
+        let (origin, direction) = scene.camera.generate_ray(Vec2::new(x[i], y[i]), Vec2::ZERO, 24, 24);
+        let floor_point = origin + direction * (-origin.y / direction.y);
+        let to_light = light_position - floor_point;
+        let cos_theta = to_light.normalize().y;
+        expected += (0.5 / std::f64::consts::PI) * 3.0 * cos_theta as f64 / to_light.length_squared() as f64;
+        measured += without[3 * i] as f64;
+    }
+    let relative = (measured / expected - 1.0).abs();
+    assert!(relative < 0.05, "point light alone: measured {measured}, expected {expected} ({relative})");
+}

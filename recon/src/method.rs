@@ -111,6 +111,10 @@ pub struct Inputs<'a> {
     pub spp: u32,
     /// The sample file, when the method asked for `Input::Samples`.
     pub samples: Option<PathBuf>,
+    /// With `Input::Samples` and `Effect::SoftShadow`: the `light` samples of the same seed and
+    /// spp (sample i belongs to camera sample i of `samples`, which then carries the fields
+    /// `albedo`, `normal` and `radiance_without_light`).
+    pub light_samples: Option<PathBuf>,
     /// The path-traced frame, when the method asked for `Input::Frame`.
     pub frame: Option<&'a FrameInput>,
     /// The guide buffers, when the method asked for `Input::Guide`.

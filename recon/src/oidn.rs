@@ -248,6 +248,7 @@ mod tests {
             height: frame.color.height,
             spp: 4,
             samples: None,
+            light_samples: None,
             frame: Some(frame),
             guide: None,
             ao_radius: 1.0,

@@ -88,6 +88,15 @@ pub struct Tracing<'a> {
     pub threads: usize,
 }
 
+/// The sample files of one dump.
+#[derive(Clone, Debug)]
+pub struct Dumped {
+    /// The effect's samples (`Effect::sample_kind`).
+    pub samples: std::path::PathBuf,
+    /// Soft shadows: the `light` samples that pair with `samples`.
+    pub light_samples: Option<std::path::PathBuf>,
+}
+
 /// A traced image of the effect with the denoiser's auxiliary buffers and its wall time.
 pub struct Traced {
     pub frame: FrameInput,
@@ -192,11 +201,22 @@ impl Tracing<'_> {
         Ok((input, seconds))
     }
 
-    /// Writes the effect's samples at `spp` to `path`; returns the wall time.
-    pub fn dump(&self, spp: u32, seed: u32, path: &Path) -> Result<f64> {
+    /// Writes the effect's samples at `spp` into the folder `dir` (`<kind>-<spp>spp.lfrs`; for
+    /// soft shadows the lens-time file with its shading fields and `light-<spp>spp.lfrs`);
+    /// returns the files and the wall time of tracing them all.
+    pub fn dump(&self, spp: u32, seed: u32, dir: &Path) -> Result<(Dumped, f64)> {
         let settings = self.dump_settings(spp, seed);
         let start = Instant::now();
         let (scene, accel) = (self.scene, self.accel);
+        let path = dir.join(format!("{}-{spp}spp.lfrs", self.effect.sample_kind().name()));
+        if self.effect == Effect::SoftShadow {
+            tracer::samples::lens_time::dump_for_soft_shadows(scene, accel, &settings, &path)?;
+            let light_path = dir.join(format!("{}-{spp}spp.lfrs", sampleio::SampleKind::Light.name()));
+            tracer::samples::light::dump(scene, accel, &settings, &light_path)?;
+            let dumped = Dumped { samples: path, light_samples: Some(light_path) };
+            return Ok((dumped, start.elapsed().as_secs_f64()));
+        }
+        let path = path.as_path();
         match self.effect.sample_kind() {
             sampleio::SampleKind::Indirect => {
                 tracer::samples::secondary::dump(scene, accel, &settings, SecondaryKind::Indirect, path)?
@@ -207,6 +227,7 @@ impl Tracing<'_> {
             sampleio::SampleKind::LensTime => tracer::samples::lens_time::dump(scene, accel, &settings, path)?,
             sampleio::SampleKind::Light => tracer::samples::light::dump(scene, accel, &settings, path)?,
         };
-        Ok(start.elapsed().as_secs_f64())
+        let dumped = Dumped { samples: path.to_path_buf(), light_samples: None };
+        Ok((dumped, start.elapsed().as_secs_f64()))
     }
 }

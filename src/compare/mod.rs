@@ -370,7 +370,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
 
     // The methods.
     let inputs_dir = dir.join("inputs");
-    let mut samples: BTreeMap<u32, (PathBuf, f64)> = BTreeMap::new();
+    let mut samples: BTreeMap<u32, (effect::Dumped, f64)> = BTreeMap::new();
     let mut guides: BTreeMap<u32, (recon::method::GuideInput, f64)> = BTreeMap::new();
     let mut skipped = Vec::new();
     'methods: for method in &methods {
@@ -383,17 +383,15 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         let rays: Vec<u32> =
             if default_rays == [0] { vec![0] } else { args.recon_rays.clone().unwrap_or(default_rays) };
         for &spp in &args.spp {
-            let (sample_path, frame, guide, trace_s) = match method.input() {
+            let (dumped, frame, guide, trace_s) = match method.input() {
                 Input::Samples => {
                     if let std::collections::btree_map::Entry::Vacant(entry) = samples.entry(spp) {
                         std::fs::create_dir_all(&inputs_dir)
                             .with_context(|| format!("creating {}", inputs_dir.display()))?;
-                        let path = inputs_dir.join(format!("{}-{spp}spp.lfrs", effect.sample_kind().name()));
-                        let seconds = tracing.dump(spp, args.seed, &path)?;
-                        entry.insert((path, seconds));
+                        entry.insert(tracing.dump(spp, args.seed, &inputs_dir)?);
                     }
-                    let (path, seconds) = &samples[&spp];
-                    (Some(path.clone()), None, None, *seconds)
+                    let (dumped, seconds) = &samples[&spp];
+                    (Some(dumped.clone()), None, None, *seconds)
                 }
                 Input::Frame => {
                     let (frame, seconds) = &frames[&spp];
@@ -407,12 +405,17 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                     (None, None, Some(guide), *seconds)
                 }
             };
+            let (sample_path, light_sample_path) = match dumped {
+                Some(dumped) => (Some(dumped.samples), dumped.light_samples),
+                None => (None, None),
+            };
             let inputs = Inputs {
                 effect,
                 width,
                 height,
                 spp,
                 samples: sample_path,
+                light_samples: light_sample_path,
                 frame,
                 guide,
                 ao_radius,

@@ -25,6 +25,9 @@ pub struct PathSample {
     pub first_hit: Option<FirstHit>,
     /// Rays traced (closest-hit plus shadow).
     pub rays: u32,
+    /// The part of `direct + indirect` that left `Integrator::split_emitter` and was reflected
+    /// at least once (its emission seen by the camera itself is not in it); zero without one.
+    pub split_emitter_light: Vec3,
 }
 
 impl PathSample {
@@ -238,6 +241,8 @@ pub struct TracedRay {
     pub beyond: Vec3,
     pub first_hit: Option<FirstHit>,
     pub rays: u32,
+    /// The part of `direct + beyond` emitted by `Integrator::split_emitter`.
+    pub split_emitter_light: Vec3,
 }
 
 impl TracedRay {
@@ -255,6 +260,19 @@ impl TracedRay {
         }
     }
 
+    /// `add`, also counting the value in `split_emitter_light` when it was reflected at least
+    /// once and `from_split_emitter` says it left the split emitter.
+    #[inline]
+    fn add_from(&mut self, level: u32, value: Vec3, from_split_emitter: bool) {
+        if !value.is_finite() {
+            return;
+        }
+        self.add(level, value);
+        if from_split_emitter && level > 0 {
+            self.split_emitter_light += value;
+        }
+    }
+
     /// Radiance along the ray excluding the first hit's own emission.
     pub fn reflected(&self) -> Vec3 {
         self.direct + self.beyond
@@ -268,6 +286,9 @@ pub struct Integrator<'a> {
     pub max_bounces: u32,
     pub width: u32,
     pub height: u32,
+    /// An emissive mesh whose reflected light is also tallied on its own
+    /// (`PathSample::split_emitter_light`): the planar light of the soft-shadow samples.
+    pub split_emitter: Option<u32>,
 }
 
 impl Integrator<'_> {
@@ -304,6 +325,7 @@ impl Integrator<'_> {
             indirect: traced.beyond,
             first_hit: traced.first_hit,
             rays: traced.rays,
+            split_emitter_light: traced.split_emitter_light,
         }
     }
 
@@ -319,20 +341,34 @@ impl Integrator<'_> {
         rays: &mut u32,
         recorder: &mut R,
     ) -> Vec3 {
+        self.next_event_from(surface, wo, time, u, rays, recorder).0
+    }
+
+    /// `next_event` and the emissive mesh the light came from (`None` for punctual and
+    /// environment light, or when nothing arrives).
+    fn next_event_from<R: RayRecorder>(
+        &self,
+        surface: &SurfacePoint,
+        wo: Vec3,
+        time: f32,
+        u: [f32; 3],
+        rays: &mut u32,
+        recorder: &mut R,
+    ) -> (Vec3, Option<u32>) {
         let frame = Frame::new(surface.shading_normal);
         let wo_local = frame.to_local(wo);
         let (u_select, u_light) = (u[0], [u[1], u[2]]);
         let Some(light) = self.lights.sample(self.scene, surface.position, time, u_select, u_light) else {
-            return Vec3::ZERO;
+            return (Vec3::ZERO, None);
         };
         // Reject light from below the geometric surface (light leaking through).
         if light.wi.dot(surface.geometric_normal) <= 0.0 {
-            return Vec3::ZERO;
+            return (Vec3::ZERO, None);
         }
         let wi_local = frame.to_local(light.wi);
         let f = surface.bsdf.eval(wo_local, wi_local);
         if f == Vec3::ZERO {
-            return Vec3::ZERO;
+            return (Vec3::ZERO, None);
         }
         let shadow_origin = surface.spawn_origin(light.wi);
         // Stop short of the light's own surface by a relative margin.
@@ -345,7 +381,7 @@ impl Integrator<'_> {
         *rays += 1;
         recorder.record(RecordedRay { origin: shadow_origin, direction: light.wi, t_max, time, kind: RayKind::Shadow });
         if !(t_max > 0.0) || self.accel.occluded(shadow_origin, light.wi, 0.0, t_max, time) {
-            return Vec3::ZERO;
+            return (Vec3::ZERO, None);
         }
         let weight = match light.pdf {
             Some(light_pdf) => power_heuristic(light_pdf, surface.bsdf.pdf(wo_local, wi_local)),
@@ -353,9 +389,9 @@ impl Integrator<'_> {
         };
         let value = f * light.weighted_radiance * weight;
         if value.is_finite() {
-            value
+            (value, light.mesh)
         } else {
-            Vec3::ZERO
+            (Vec3::ZERO, None)
         }
     }
 
@@ -412,7 +448,8 @@ impl Integrator<'_> {
                         power_heuristic(pdf, light_pdf)
                     }
                 };
-                traced.add(level, throughput * emitted * weight);
+                let from_split_emitter = self.split_emitter == Some(hit.mesh);
+                traced.add_from(level, throughput * emitted * weight, from_split_emitter);
             }
             if bounce == self.max_bounces {
                 break;
@@ -425,7 +462,7 @@ impl Integrator<'_> {
             let u_bsdf = sampler.next_2d();
             let [u_roulette, _] = sampler.next_2d();
 
-            let direct = self.next_event(
+            let (direct, emitter) = self.next_event_from(
                 &surface,
                 wo,
                 time,
@@ -434,7 +471,8 @@ impl Integrator<'_> {
                 recorder,
             );
             // Light reflected at this vertex straight from an emitter is one level deeper.
-            traced.add(level + 1, throughput * direct);
+            let from_split_emitter = emitter.is_some() && emitter == self.split_emitter;
+            traced.add_from(level + 1, throughput * direct, from_split_emitter);
 
             // Continue the path by BSDF sampling.
             let Some(bsdf_sample) = surface.bsdf.sample(wo_local, u_lobe, u_bsdf) else {

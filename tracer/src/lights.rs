@@ -32,6 +32,8 @@ pub struct LightSample {
     pub weighted_radiance: Vec3,
     /// Solid-angle pdf including selection; `None` for delta lights (no MIS).
     pub pdf: Option<f32>,
+    /// The emissive mesh the point lies on (`None` for punctual and environment light).
+    pub mesh: Option<u32>,
 }
 
 /// Power-proportional emitter table.
@@ -184,11 +186,11 @@ impl LightSampler {
                     return None;
                 }
                 let pdf = select * dist2 / (area * cos_light);
-                Some(LightSample { wi, distance, weighted_radiance: le / pdf, pdf: Some(pdf) })
+                Some(LightSample { wi, distance, weighted_radiance: le / pdf, pdf: Some(pdf), mesh: Some(*mesh) })
             }
             Emitter::Punctual(light) => {
                 let (wi, distance, radiance) = punctual_incident(light, point)?;
-                Some(LightSample { wi, distance, weighted_radiance: radiance / select, pdf: None })
+                Some(LightSample { wi, distance, weighted_radiance: radiance / select, pdf: None, mesh: None })
             }
             Emitter::Environment => {
                 let z = 1.0 - 2.0 * u[0];
@@ -201,6 +203,7 @@ impl LightSampler {
                     distance: f32::INFINITY,
                     weighted_radiance: scene.environment / pdf,
                     pdf: Some(pdf),
+                    mesh: None,
                 })
             }
         }

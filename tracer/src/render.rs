@@ -198,6 +198,7 @@ pub fn render(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result
         max_bounces: settings.max_bounces,
         width: settings.width,
         height: settings.height,
+        split_emitter: None,
     };
     let tile_list = tiles(settings);
     let bar = progress_bar(settings, tile_list.len() as u64, "render");
@@ -230,6 +231,7 @@ pub fn record_rays(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> R
         max_bounces: settings.max_bounces,
         width: settings.width,
         height: settings.height,
+        split_emitter: None,
     };
     let pool = thread_pool(settings.threads)?;
     let per_tile: Vec<Vec<RecordedRay>> = pool.install(|| {

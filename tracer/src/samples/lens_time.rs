@@ -14,6 +14,13 @@
 //! | `radiance` | 3 | always | path-traced radiance (linear RGB) |
 //! | `depth_gradient` | 2 | always | ∂z/∂x, ∂z/∂y in scene units per pixel at fixed (u, v, t) |
 //! | `bandwidth` | 1 | glossy materials | κ of the BRDF lobe at the hit (as for `indirect` samples, `secondary::bandwidth`); 0 for diffuse and misses; for the bandwidth-weighted reconstruction of TLFR Fig. 14 |
+//! | `albedo` | f16 × 3 | soft-shadow dumps | reflectance of the first hit (0 for a miss) |
+//! | `normal` | u16 × 2 | soft-shadow dumps | shading normal of the first hit facing the camera, world space, octahedral; (0, 0) for a miss |
+//! | `radiance_without_light` | 3 | soft-shadow dumps | `radiance` minus the light the planar light (`light::PlanarLight`) sent to the first hit directly or after more bounces; its emission seen by the camera stays |
+//!
+//! The soft-shadow dump (`dump_for_soft_shadows`) adds the last three so a reconstruction can
+//! shade the visible point with its own estimate of the planar light (paper Section 5), taking
+//! everything else from `radiance_without_light`.
 //!
 //! With the circle of confusion C(z) = C1/z + C2 (header `camera.coc`), a sample reprojects as
 //! in the paper's Eq. 2–3; the homogeneous screen motion of Eq. 3 is v = (fx·ΔX + cx·ΔZ,
@@ -39,6 +46,8 @@ pub struct LensTimeLayout {
     pub lens: bool,
     pub time: bool,
     pub bandwidth: bool,
+    /// `albedo`, `normal` and `radiance_without_light` for soft shadows.
+    pub shading: bool,
 }
 
 impl LensTimeLayout {
@@ -47,11 +56,19 @@ impl LensTimeLayout {
             lens: scene.camera.has_lens(),
             time: scene.has_motion(),
             bandwidth: super::secondary::scene_is_glossy(scene),
+            shading: false,
         }
     }
 
     pub fn values_per_sample(&self) -> usize {
-        2 + 2 * self.lens as usize + self.time as usize + 1 + 3 * self.time as usize + 3 + 2 + self.bandwidth as usize
+        2 + 2 * self.lens as usize
+            + self.time as usize
+            + 1
+            + 3 * self.time as usize
+            + 3
+            + 2
+            + self.bandwidth as usize
+            + 8 * self.shading as usize
     }
 
     pub fn header(&self, scene: &Scene, settings: &DumpSettings) -> HeaderSpec {
@@ -93,6 +110,25 @@ impl LensTimeLayout {
                     .unit("")
                     .meaning("von Mises-Fisher concentration kappa of the BRDF at the hit; 0 diffuse"),
             );
+        }
+        if self.shading {
+            spec = spec
+                .field(
+                    FieldSpec::new("albedo", FieldType::F16, 3)
+                        .unit("")
+                        .meaning("reflectance of the first hit; 0 miss"),
+                )
+                .field(
+                    FieldSpec::new("normal", FieldType::U16, 2)
+                        .unit("octahedral u16 pair, 0 = none; see docs/sample-format.md")
+                        .meaning("world-space shading normal of the first hit, facing the camera"),
+                )
+                .field(f32_field(
+                    "radiance_without_light",
+                    3,
+                    "W/(m^2 sr)",
+                    "radiance minus the planar light's light reflected by the first hit (directly or not)",
+                ));
         }
         spec.camera = Some(camera_header(&scene.camera, settings.width, settings.height));
         spec.scene = Some(scene.source.display().to_string());
@@ -140,10 +176,34 @@ pub fn depth_gradient(
 
 /// Writes `lens-time` samples of `scene` to `path`.
 pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) -> Result<DumpReport, RenderError> {
+    dump_with(scene, accel, settings, LensTimeLayout::for_scene(scene), None, path)
+}
+
+/// Writes `lens-time` samples with the soft-shadow fields (`albedo`, `normal`,
+/// `radiance_without_light`) for the scene's planar light (`light::PlanarLight::find`).
+pub fn dump_for_soft_shadows(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &DumpSettings,
+    path: &Path,
+) -> Result<DumpReport, RenderError> {
+    let light = super::light::PlanarLight::find(scene)?;
+    let layout = LensTimeLayout { shading: true, ..LensTimeLayout::for_scene(scene) };
+    dump_with(scene, accel, settings, layout, Some(light.mesh), path)
+}
+
+fn dump_with(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &DumpSettings,
+    layout: LensTimeLayout,
+    split_emitter: Option<u32>,
+    path: &Path,
+) -> Result<DumpReport, RenderError> {
     settings.validate()?;
-    let layout = LensTimeLayout::for_scene(scene);
     let lights = LightSampler::new(scene);
-    let integrator = super::integrator(scene, accel, &lights, settings);
+    let integrator =
+        crate::integrator::Integrator { split_emitter, ..super::integrator(scene, accel, &lights, settings) };
     let camera = &scene.camera;
     let spec = layout.header(scene, settings);
     write_samples(path, spec, settings, layout.values_per_sample(), |x, y, values| {
@@ -179,6 +239,11 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) 
                     if layout.bandwidth {
                         values.push(super::secondary::bandwidth(&hit.bsdf));
                     }
+                    if layout.shading {
+                        values.extend_from_slice(&hit.albedo.to_array());
+                        values.extend_from_slice(&super::secondary::encode_octahedral(hit.normal));
+                        values.extend_from_slice(&(path.radiance() - path.split_emitter_light).to_array());
+                    }
                 }
                 None => {
                     values.push(f32::INFINITY);
@@ -189,6 +254,10 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) 
                     values.extend_from_slice(&[0.0, 0.0]);
                     if layout.bandwidth {
                         values.push(0.0);
+                    }
+                    if layout.shading {
+                        values.extend_from_slice(&[0.0; 5]);
+                        values.extend_from_slice(&path.radiance().to_array());
                     }
                 }
             }

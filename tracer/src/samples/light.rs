@@ -201,6 +201,11 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) 
     }
     spec.camera = Some(camera_header(&scene.camera, settings.width, settings.height));
     spec.light = Some(light.header());
+    if light.motion != Vec3::ZERO {
+        // Format v1 has no light-motion key; `extra` carries it (world-space displacement of the
+        // whole light over the shutter, scene units).
+        spec.extra = Some(serde_json::json!({ "light_motion": light.motion.to_array() }));
+    }
     spec.scene = Some(scene.source.display().to_string());
     spec.seed = Some(settings.seed);
     let values_per_sample = 4 + time_field as usize + 1 + 3 + 1 + 3 * time_field as usize;

@@ -62,6 +62,7 @@ pub fn integrator<'a>(
         max_bounces: settings.max_bounces,
         width: settings.width,
         height: settings.height,
+        split_emitter: None,
     }
 }
 
