@@ -235,3 +235,71 @@ fn refocusing_onto_the_square_makes_it_sharp() {
     assert!(!bad.status.success() && String::from_utf8_lossy(&bad.stderr).contains("go together"));
     assert!(!out("bad.exr").exists());
 }
+
+/// Soft shadows (Section 5): a 1 × 1 lamp 2 above a grey floor and a 0.4 × 0.4 blocker at
+/// height 0.8 between them, which throws a wide penumbra. The reconstruction from 4 spp must
+/// be far closer to a 4096-spp path-traced image than the 4-spp pixel average is, stay finite,
+/// and keep the penumbra soft (values between umbra and full light).
+#[test]
+fn soft_shadows_from_4_spp_approach_the_converged_image() {
+    let scene = scene_from_toml(
+        r#"
+        [render]
+        max_bounces = 1
+        [camera]
+        position = [0.3, 1.6, 1.2]
+        look_at = [0, 0, 0]
+        fov = 60
+        [[material]]
+        name = "lamp"
+        base_color = [0, 0, 0]
+        specular = 0
+        emission = [4, 4, 4]
+        [[material]]
+        name = "grey"
+        base_color = [0.5, 0.5, 0.5]
+        specular = 0
+        [[mesh]]
+        shape = "polygon"
+        material = "lamp"
+        points = [[-0.5, 2, -0.5], [0.5, 2, -0.5], [0.5, 2, 0.5], [-0.5, 2, 0.5]]
+        [[mesh]]
+        shape = "polygon"
+        material = "grey"
+        points = [[-0.2, 0.8, -0.2], [0.2, 0.8, -0.2], [0.2, 0.8, 0.2], [-0.2, 0.8, 0.2]]
+        [[mesh]]
+        shape = "polygon"
+        material = "grey"
+        points = [[-5, 0, -5], [-5, 0, 5], [5, 0, 5], [5, 0, -5]]
+        "#,
+    );
+    let (size, spp) = (32u32, 4u32);
+    let dir = tempfile::tempdir().unwrap();
+    let (camera_path, light_path) = (dir.path().join("lens-time.lfrs"), dir.path().join("light.lfrs"));
+    let accel = Accel::build(&scene).unwrap();
+    let settings =
+        DumpSettings { width: size, height: size, spp, seed: 5, max_bounces: 1, threads: 0, progress: false };
+    lens_time::dump_for_soft_shadows(&scene, &accel, &settings, &camera_path).unwrap();
+    tracer::samples::light::dump(&scene, &accel, &settings, &light_path).unwrap();
+    let tlfr_settings = recon::tlfr::method::TlfrSettings { locations: 32, ..Default::default() };
+    let output = recon::tlfr::shadows::reconstruct_soft_shadow(&camera_path, &light_path, &tlfr_settings).unwrap();
+    let (box_image, _) =
+        recon::box_filter::average(&SampleFile::open(&camera_path).unwrap(), recon::Effect::SoftShadow, 0.0).unwrap();
+    let reference = common::render(&scene, size, size, 4096, 11);
+    let rmse = |pixels: &[[f32; 3]]| {
+        let sum: f64 = pixels
+            .iter()
+            .zip(&reference.beauty)
+            .map(|(p, r)| (0..3).map(|c| (p[c] as f64 - r[c] as f64).powi(2)).sum::<f64>())
+            .sum();
+        (sum / (3 * pixels.len()) as f64).sqrt()
+    };
+    assert!(output.image.pixels.iter().flatten().all(|v| v.is_finite()));
+    let (tlfr_error, box_error) = (rmse(&output.image.pixels), rmse(&box_image.pixels));
+    assert!(tlfr_error < 0.6 * box_error, "tlfr RMSE {tlfr_error} vs box {box_error}: {:?}", output.notes);
+    // The penumbra stays soft: many floor pixels lie well between the darkest and brightest.
+    let luminance: Vec<f32> = output.image.pixels.iter().map(|p| p[0]).collect();
+    let (dark, bright) = luminance.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    let between = luminance.iter().filter(|&&v| v > dark + 0.2 * (bright - dark) && v < bright - 0.2 * (bright - dark));
+    assert!(between.count() > 40, "a soft penumbra, not a hard edge");
+}

@@ -19,7 +19,7 @@ use super::reprojection::LensTime;
 use crate::image::Image;
 
 /// The radical inverse of `index` in `base`.
-fn radical_inverse(mut index: u32, base: u32) -> f32 {
+pub(crate) fn radical_inverse(mut index: u32, base: u32) -> f32 {
     let (mut result, mut scale) = (0.0f64, 1.0f64 / base as f64);
     while index > 0 {
         result += (index % base) as f64 * scale;
@@ -29,7 +29,7 @@ fn radical_inverse(mut index: u32, base: u32) -> f32 {
     result as f32
 }
 
-fn hash(mut x: u32) -> u32 {
+pub(crate) fn hash(mut x: u32) -> u32 {
     x ^= x >> 16;
     x = x.wrapping_mul(0x7feb_352d);
     x ^= x >> 15;

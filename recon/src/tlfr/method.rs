@@ -1,6 +1,7 @@
 //! `tlfr` as a `lfr compare` method: reads the effect's `lens-time` file, measures R on its
 //! pattern, indexes the samples and integrates N = `recon_rays` reconstruction locations per
-//! pixel (effects `dof`, `motion`, `dof-motion`; soft shadows need the light samples, not yet).
+//! pixel (effects `dof`, `motion`, `dof-motion`; `soft-shadow` with the light samples too,
+//! `shadows`).
 
 use std::time::Instant;
 
@@ -31,7 +32,7 @@ impl Method for Tlfr {
     }
 
     fn supports(&self, effect: Effect) -> bool {
-        matches!(effect, Effect::Dof | Effect::Motion | Effect::DofMotion)
+        matches!(effect, Effect::Dof | Effect::Motion | Effect::DofMotion | Effect::SoftShadow)
     }
 
     fn input(&self) -> Input {
@@ -45,7 +46,14 @@ impl Method for Tlfr {
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
         let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed("tlfr needs a sample file".into()))?;
         let settings = TlfrSettings { locations: recon_rays, ..TlfrSettings::default() };
-        let output = reconstruct_file(path, &settings)?;
+        let output = if inputs.effect == Effect::SoftShadow {
+            let light_path = inputs.light_samples.as_ref().ok_or_else(|| {
+                MethodError::Failed("tlfr soft shadows need the light samples of the same seed and spp".into())
+            })?;
+            super::shadows::reconstruct_soft_shadow(path, light_path, &settings)?
+        } else {
+            reconstruct_file(path, &settings)?
+        };
         if (output.image.width, output.image.height) != (inputs.width, inputs.height) {
             return Err(MethodError::Failed(format!(
                 "{}: samples are {}x{}, the comparison is {}x{}",

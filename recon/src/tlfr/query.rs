@@ -69,7 +69,9 @@ impl QueryStats {
 pub struct Scratch {
     candidates: Vec<u32>,
     near: Vec<(f32, u32, Point)>,
-    points: Vec<Point>,
+    /// The covering surface's samples and their reprojected positions (`covering_surface`).
+    pub covering: Vec<u32>,
+    pub points: Vec<Point>,
     values: Vec<[f32; 3]>,
 }
 
@@ -82,6 +84,23 @@ pub fn reconstruct(
     scratch: &mut Scratch,
     stats: &mut QueryStats,
 ) -> Option<[f32; 3]> {
+    let radius = covering_surface(scene, location, at, scratch, stats)?;
+    scratch.values.clear();
+    scratch.values.extend(scratch.covering.iter().map(|&i| scene.radiance[i as usize]));
+    tent_filter(&scratch.points, &scratch.values, location, radius)
+}
+
+/// Steps 1–3 of RECONSTRUCT: the samples of the surface that covers the location, left in
+/// `scratch.covering` (indices into `scene.samples`, front to back) with their reprojected
+/// positions in `scratch.points`; returns the filter radius (R, or R widened), or `None` when
+/// no sample reprojects within 16R. Soft shadows filter other values over the same samples.
+pub fn covering_surface(
+    scene: &Scene,
+    location: Point,
+    at: LensTime,
+    scratch: &mut Scratch,
+    stats: &mut QueryStats,
+) -> Option<f32> {
     stats.locations += 1;
     let mut radius = scene.radius;
     for widening in 0..=MAX_WIDENINGS {
@@ -112,12 +131,12 @@ pub fn reconstruct(
         }
         let chosen = choose_surface(&surfaces, &scratch.near, location, radius, &mut scratch.points, stats);
         scratch.points.clear();
-        scratch.values.clear();
+        scratch.covering.clear();
         for &(_, i, p) in &scratch.near[chosen.0..chosen.1] {
             scratch.points.push(p);
-            scratch.values.push(scene.radiance[i as usize]);
+            scratch.covering.push(i);
         }
-        return tent_filter(&scratch.points, &scratch.values, location, radius);
+        return Some(radius);
     }
     stats.dropped += 1;
     None

@@ -23,6 +23,8 @@ pub struct LensTimeSamples {
     pub samples: Vec<LensTimeSample>,
     /// `radiance[i]` belongs to `samples[i]`.
     pub radiance: Vec<[f32; 3]>,
+    /// `samples[i]` is record `file_index[i]` of the file.
+    pub file_index: Vec<u32>,
     /// Samples dropped for non-finite or impossible values.
     pub dropped: usize,
     /// Whether the file has lens coordinates (a camera with an aperture) and time (motion).
@@ -48,6 +50,7 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, String> {
     let (t, motion) = (file.field("t"), file.field("motion"));
     let mut samples = Vec::with_capacity(file.len());
     let mut radiances = Vec::with_capacity(file.len());
+    let mut file_index = Vec::with_capacity(file.len());
     let mut dropped = 0;
     for i in 0..file.len() {
         let value = |field: &sampleio::Field, c: usize| file.value(i, field, c);
@@ -68,6 +71,7 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, String> {
         if finite && depth_ok && (0.0..=1.0).contains(&sample.t) {
             samples.push(sample);
             radiances.push(colour);
+            file_index.push(i as u32);
         } else {
             dropped += 1;
         }
@@ -79,6 +83,7 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, String> {
         lens,
         samples,
         radiance: radiances,
+        file_index,
         dropped,
         has_lens: u.is_some(),
         has_time: t.is_some(),
