@@ -10,6 +10,7 @@ pub mod filtered_indirect;
 pub mod flip;
 pub mod guide;
 pub mod guided_filter;
+pub mod ilfr;
 pub mod image;
 pub mod method;
 pub mod metrics;

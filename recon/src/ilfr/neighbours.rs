@@ -1,0 +1,256 @@
+//! Nearest neighbours of a secondary hit under the metric of paper Section 2.2: a kd-tree over
+//! points and an incremental walk that yields the other points in increasing order of
+//! (Mahalanobis distance, index). The metric depends on the query (its normal), so it is not a
+//! fixed distance a generic k-NN crate could index; the walk uses the Euclidean distance to a
+//! node's box as an admissible lower bound (the metric is never shorter than the Euclidean
+//! distance for α ≥ 1) and emits a point only when nothing closer can remain.
+//!
+//! The order of the walk is a property of the point set alone (ties broken by index), not of
+//! the tree, so a brute-force sort gives the same sequence bit for bit.
+
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+
+/// Points per leaf.
+const LEAF_SIZE: usize = 8;
+
+/// Squared distance of the offset `d` = candidate − query under the metric that counts the
+/// component along the query's unit normal `normal` α times: |d|² + (α² − 1)(d·n)²
+/// (= |d + (α − 1)(d·n)n|², paper Section 2.2). `alpha_squared_minus_one` = α² − 1.
+#[inline]
+pub fn metric_distance_squared(d: [f32; 3], normal: [f32; 3], alpha_squared_minus_one: f32) -> f32 {
+    let along_normal = d[0] * normal[0] + d[1] * normal[1] + d[2] * normal[2];
+    (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) + alpha_squared_minus_one * (along_normal * along_normal)
+}
+
+#[inline]
+pub fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    lo: [f32; 3],
+    hi: [f32; 3],
+    /// Range of points in tree order (leaves), or the children (inner nodes, `left` > 0).
+    start: u32,
+    end: u32,
+    left: u32,
+    right: u32,
+}
+
+/// A kd-tree over a fixed set of points.
+#[derive(Clone, Debug)]
+pub struct KdTree {
+    nodes: Vec<Node>,
+    /// The points in tree order, and their indices in the input.
+    points: Vec<[f32; 3]>,
+    ids: Vec<u32>,
+}
+
+impl KdTree {
+    /// Builds the tree; the points must be finite (the caller checks).
+    pub fn build(points: &[[f32; 3]]) -> KdTree {
+        let mut ids: Vec<u32> = (0..points.len() as u32).collect();
+        let mut nodes = Vec::with_capacity(2 * points.len() / LEAF_SIZE + 1);
+        if !points.is_empty() {
+            build_node(points, &mut ids, 0, &mut nodes);
+        }
+        KdTree { nodes, points: ids.iter().map(|&i| points[i as usize]).collect(), ids }
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// Calls `visit(index, metric distance²)` for every point except `skip`, in increasing order of
+    /// (metric distance² from `query`, index), until `visit` returns false. The metric is
+    /// [`metric_distance_squared`] with the query's unit `normal` and α = sqrt(1 + `alpha_squared_minus_one`) ≥ 1.
+    pub fn walk(
+        &self,
+        query: [f32; 3],
+        normal: [f32; 3],
+        alpha_squared_minus_one: f32,
+        skip: u32,
+        heap: &mut BinaryHeap<Entry>,
+        mut visit: impl FnMut(u32, f32) -> bool,
+    ) {
+        debug_assert!(alpha_squared_minus_one >= 0.0);
+        heap.clear();
+        if self.nodes.is_empty() {
+            return;
+        }
+        heap.push(Entry { key: 0.0, is_point: false, order: 0, slot: 0 });
+        while let Some(entry) = heap.pop() {
+            if entry.is_point {
+                if !visit(entry.order, entry.key) {
+                    return;
+                }
+                continue;
+            }
+            let node = &self.nodes[entry.slot as usize];
+            if node.left == 0 {
+                for slot in node.start..node.end {
+                    let id = self.ids[slot as usize];
+                    if id == skip {
+                        continue;
+                    }
+                    let d = sub(self.points[slot as usize], query);
+                    let key = metric_distance_squared(d, normal, alpha_squared_minus_one);
+                    heap.push(Entry { key, is_point: true, order: id, slot });
+                }
+            } else {
+                for child in [node.left, node.right] {
+                    let key = box_lower_bound(&self.nodes[child as usize], query);
+                    heap.push(Entry { key, is_point: false, order: child, slot: child });
+                }
+            }
+        }
+    }
+}
+
+/// The squared Euclidean distance from `query` to the node's box, shrunk by a relative 1e-5 so
+/// that rounding can never make it exceed a point's computed metric distance.
+fn box_lower_bound(node: &Node, query: [f32; 3]) -> f32 {
+    let mut sum = 0.0;
+    for ((lo, hi), q) in node.lo.iter().zip(&node.hi).zip(&query) {
+        let gap = (lo - q).max(q - hi).max(0.0);
+        sum += gap * gap;
+    }
+    sum * (1.0 - 1e-5)
+}
+
+fn build_node(points: &[[f32; 3]], ids: &mut [u32], offset: u32, nodes: &mut Vec<Node>) -> u32 {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for &id in ids.iter() {
+        let p = points[id as usize];
+        for axis in 0..3 {
+            lo[axis] = lo[axis].min(p[axis]);
+            hi[axis] = hi[axis].max(p[axis]);
+        }
+    }
+    let index = nodes.len() as u32;
+    let count = ids.len() as u32;
+    nodes.push(Node { lo, hi, start: offset, end: offset + count, left: 0, right: 0 });
+    let extent = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
+    if ids.len() <= LEAF_SIZE || extent.iter().all(|&e| e <= 0.0) {
+        return index;
+    }
+    let axis = (0..3).max_by(|&a, &b| extent[a].total_cmp(&extent[b]).then(b.cmp(&a))).unwrap_or(0);
+    let middle = ids.len() / 2;
+    ids.select_nth_unstable_by(middle, |&a, &b| {
+        points[a as usize][axis].total_cmp(&points[b as usize][axis]).then(a.cmp(&b))
+    });
+    let (left_ids, right_ids) = ids.split_at_mut(middle);
+    let left = build_node(points, left_ids, offset, nodes);
+    let right = build_node(points, right_ids, offset + middle as u32, nodes);
+    nodes[index as usize].left = left;
+    nodes[index as usize].right = right;
+    index
+}
+
+/// A heap entry of the walk: a node with its lower bound or a point with its distance. The heap
+/// pops the smallest (key, node before point, index) first.
+#[derive(Clone, Copy, Debug)]
+pub struct Entry {
+    key: f32,
+    is_point: bool,
+    /// The point's input index, or the node's index.
+    order: u32,
+    slot: u32,
+}
+
+impl PartialEq for Entry {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other) == Ordering::Equal
+    }
+}
+
+impl Eq for Entry {}
+
+impl PartialOrd for Entry {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for Entry {
+    /// Reversed, so that `BinaryHeap` (a max-heap) pops the smallest entry.
+    fn cmp(&self, other: &Self) -> Ordering {
+        other
+            .key
+            .total_cmp(&self.key)
+            .then(other.is_point.cmp(&self.is_point))
+            .then(other.order.cmp(&self.order))
+            .then(other.slot.cmp(&self.slot))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn random_points(n: usize, seed: u64) -> Vec<[f32; 3]> {
+        let mut state = seed;
+        let mut next = move || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 40) as f32) / (1u64 << 24) as f32
+        };
+        (0..n).map(|_| [next() * 4.0, next() * 4.0, (next() * 4.0).floor() * 0.25]).collect()
+    }
+
+    #[test]
+    fn the_walk_visits_every_other_point_in_metric_order() {
+        let points = random_points(700, 7);
+        let tree = KdTree::build(&points);
+        let mut heap = BinaryHeap::new();
+        for (query, normal, alpha) in [(5usize, [0.0, 0.0, 1.0], 3.0f32), (123, [0.6, 0.0, 0.8], 1.0)] {
+            let a = alpha * alpha - 1.0;
+            let mut walked = Vec::new();
+            tree.walk(points[query], normal, a, query as u32, &mut heap, |i, key| {
+                walked.push((key, i));
+                true
+            });
+            let mut expected: Vec<(f32, u32)> = (0..points.len() as u32)
+                .filter(|&i| i as usize != query)
+                .map(|i| (metric_distance_squared(sub(points[i as usize], points[query]), normal, a), i))
+                .collect();
+            expected.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+            assert_eq!(walked.len(), points.len() - 1);
+            assert!(walked.iter().zip(&expected).all(|(w, e)| w.0.to_bits() == e.0.to_bits() && w.1 == e.1));
+        }
+    }
+
+    #[test]
+    fn the_metric_counts_the_normal_component_alpha_times() {
+        let up = [0.0, 0.0, 1.0];
+        assert_eq!(metric_distance_squared([0.0, 0.0, 2.0], up, 8.0), 36.0, "(3 · 2)²");
+        assert_eq!(metric_distance_squared([2.0, 0.0, 0.0], up, 8.0), 4.0, "tangent offsets are unchanged");
+        // |d + (α − 1)(d·n)n|² for a tilted normal, computed directly.
+        let (d, n, alpha) = ([0.3f32, -1.2, 0.5], [0.0f32, 0.6, 0.8], 3.0f32);
+        let dn = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
+        let stretched: Vec<f32> = (0..3).map(|c| d[c] + (alpha - 1.0) * dn * n[c]).collect();
+        let direct: f32 = stretched.iter().map(|v| v * v).sum();
+        assert!((metric_distance_squared(d, n, alpha * alpha - 1.0) - direct).abs() < 1e-5);
+    }
+
+    #[test]
+    fn degenerate_sets_build() {
+        assert!(KdTree::build(&[]).is_empty());
+        let same = vec![[1.0, 2.0, 3.0]; 50];
+        let tree = KdTree::build(&same);
+        let mut heap = BinaryHeap::new();
+        let mut order = Vec::new();
+        tree.walk([1.0, 2.0, 3.0], [0.0, 0.0, 1.0], 8.0, 10, &mut heap, |i, _| {
+            order.push(i);
+            true
+        });
+        let expected: Vec<u32> = (0..50).filter(|&i| i != 10).collect();
+        assert_eq!(order, expected, "equal distances come in index order");
+    }
+}

@@ -1,0 +1,481 @@
+//! Reading `indirect` and `ao` sample files (docs/sample-format.md) into a struct of arrays,
+//! through `sampleio` only. Paper Section 2.1: each record is one secondary ray from a primary
+//! hit o in direction ω to a secondary hit h, with the radiance L it carried (`indirect`) or
+//! its length (`ao`), the normals at both ends and the lobe concentration κ at h.
+//!
+//! Every record is kept, in file order, so that sample i belongs to pixel i / spp; its
+//! [`SampleClass`] says which parts exist. A non-finite value in a field that a record of its
+//! class needs is an error naming the file, the field and the sample (the tracer never writes
+//! one; a tree built on NaN would fail silently much later). The only non-finite value
+//! accepted is `distance` = +inf, the escape marker of `ao` files.
+
+use sampleio::{SampleFile, SampleKind};
+
+/// What one record holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum SampleClass {
+    /// The camera ray escaped: no primary hit, only `direct` (the environment).
+    CameraMiss,
+    /// A primary hit without a secondary ray (the BSDF sample failed or fell below the surface).
+    NoSecondaryRay,
+    /// The secondary ray escaped the scene: a primary hit and an infinite ray, no secondary hit.
+    Escaped,
+    /// A secondary ray that hit a surface: a primary hit, a finite ray and a splat.
+    Hit,
+}
+
+/// An `indirect` or `ao` file in memory, one entry per record in file order.
+#[derive(Clone, Debug)]
+pub struct IndirectSamples {
+    /// The file, for messages.
+    pub path: String,
+    pub kind: SampleKind,
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    pub class: Vec<SampleClass>,
+    /// Film position, pixels.
+    pub film: Vec<[f32; 2]>,
+    /// o, world space (zero for a camera miss).
+    pub primary_hit: Vec<[f32; 3]>,
+    /// Unit shading normal at o facing the camera (zero for a camera miss).
+    pub primary_normal: Vec<[f32; 3]>,
+    /// ω, unit, from o towards h (zero without a secondary ray).
+    pub direction: Vec<[f32; 3]>,
+    /// h, world space (o when the ray escaped or was not traced).
+    pub secondary_hit: Vec<[f32; 3]>,
+    /// Unit shading normal at h facing o (zero unless `Hit`).
+    pub secondary_normal: Vec<[f32; 3]>,
+    /// L arriving at o from ω (`indirect` files).
+    pub radiance: Option<Vec<[f32; 3]>>,
+    /// |h − o|, +inf for an escaped ray (`ao` files).
+    pub distance: Option<Vec<f32>>,
+    /// κ of the vMF lobe at h (glossy `indirect` files; absent means 0 everywhere).
+    pub kappa: Option<Vec<f32>>,
+    /// Reflectance at o (`indirect`).
+    pub albedo: Option<Vec<[f32; 3]>>,
+    /// f·|cos|/pdf of ω at o (glossy `indirect`; `albedo` stands in for it when absent).
+    pub weight: Option<Vec<[f32; 3]>>,
+    /// Direct light at o towards the camera (`indirect`).
+    pub direct: Option<Vec<[f32; 3]>>,
+    /// Reflectance at h (`indirect`).
+    pub secondary_albedo: Option<Vec<[f32; 3]>>,
+    /// The part of L that h reflects straight from emitters (`indirect`).
+    pub secondary_direct: Option<Vec<[f32; 3]>>,
+}
+
+impl IndirectSamples {
+    pub fn len(&self) -> usize {
+        self.class.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.class.is_empty()
+    }
+
+    /// Indices of the samples whose secondary ray hit a surface (the splats), ascending.
+    pub fn hits(&self) -> Vec<u32> {
+        (0..self.len() as u32).filter(|&i| self.class[i as usize] == SampleClass::Hit).collect()
+    }
+
+    /// κ of sample i (0 when the file has no `bandwidth`).
+    pub fn kappa_of(&self, i: usize) -> f32 {
+        self.kappa.as_ref().map_or(0.0, |k| k[i])
+    }
+
+    /// How many samples of each class, in the order of [`SampleClass`].
+    pub fn class_counts(&self) -> [usize; 4] {
+        let mut counts = [0; 4];
+        for class in &self.class {
+            counts[*class as usize] += 1;
+        }
+        counts
+    }
+}
+
+/// Decodes an octahedral u16 pair (docs/sample-format.md); (0, 0) is "no vector" → `None`.
+pub fn decode_octahedral(q: [f32; 2]) -> Option<[f32; 3]> {
+    if q[0] == 0.0 && q[1] == 0.0 {
+        return None;
+    }
+    let sign = |v: f32| if v >= 0.0 { 1.0 } else { -1.0 };
+    let px = (q[0] - 1.0) / 65534.0 * 2.0 - 1.0;
+    let py = (q[1] - 1.0) / 65534.0 * 2.0 - 1.0;
+    let z = 1.0 - px.abs() - py.abs();
+    let (x, y) = if z < 0.0 { ((1.0 - py.abs()) * sign(px), (1.0 - px.abs()) * sign(py)) } else { (px, py) };
+    let length = (x * x + y * y + z * z).sqrt();
+    Some([x / length, y / length, z / length])
+}
+
+/// Reads an `indirect` or `ao` file; errors name the file and the missing or bad field.
+pub fn read_indirect(file: &SampleFile) -> Result<IndirectSamples, String> {
+    let path = file.path().display().to_string();
+    let header = file.header();
+    let kind = header.kind;
+    if kind != SampleKind::Indirect && kind != SampleKind::Ao {
+        return Err(format!("{path}: ILFR reads `indirect` or `ao` samples, the file holds `{}`", kind.name()));
+    }
+    let column = |name: &str, components: usize| -> Result<Option<Vec<f32>>, String> {
+        let Some(field) = file.field(name) else { return Ok(None) };
+        if field.components as usize != components {
+            return Err(format!("{path}: field `{name}` has {} components, {components} expected", field.components));
+        }
+        file.column(name).map(Some).map_err(|e| e.to_string())
+    };
+    let required = |name: &str, components: usize| -> Result<Vec<f32>, String> {
+        column(name, components)?.ok_or_else(|| format!("{path}: `{}` samples lack the field `{name}`", kind.name()))
+    };
+    let n = file.len();
+    let film_x = required("x", 1)?;
+    let film_y = required("y", 1)?;
+    let direction_q = required("direction", 2)?;
+    let origin = required("origin", 3)?;
+    let hit = required("hit", 3)?;
+    let origin_normal_q = required("origin_normal", 2)?;
+    let hit_normal_q = required("hit_normal", 2)?;
+    let (radiance, distance) = match kind {
+        SampleKind::Indirect => (Some(required("radiance", 3)?), None),
+        _ => (None, Some(required("distance", 1)?)),
+    };
+    let kappa = column("bandwidth", 1)?;
+    let optional3 = |name: &str| column(name, 3);
+    let (albedo, weight, direct) = (optional3("albedo")?, optional3("weight")?, optional3("direct")?);
+    let (secondary_albedo, secondary_direct) = (optional3("secondary_albedo")?, optional3("secondary_direct")?);
+
+    let bad = |name: &str, i: usize, what: &str| {
+        let pixel = i / header.spp as usize;
+        format!(
+            "{path}: field `{name}` of sample {i} (pixel {}, {}) is {what}",
+            pixel % header.width as usize,
+            pixel / header.width as usize
+        )
+    };
+    let vec3 = |values: &[f32], i: usize| [values[3 * i], values[3 * i + 1], values[3 * i + 2]];
+    let finite3 = |name: &str, values: &[f32], i: usize| -> Result<[f32; 3], String> {
+        let v = vec3(values, i);
+        if v.iter().all(|c| c.is_finite()) {
+            Ok(v)
+        } else {
+            Err(bad(name, i, &format!("not finite: {v:?}")))
+        }
+    };
+
+    let mut samples = IndirectSamples {
+        path: path.clone(),
+        kind,
+        width: header.width,
+        height: header.height,
+        spp: header.spp,
+        class: Vec::with_capacity(n),
+        film: Vec::with_capacity(n),
+        primary_hit: Vec::with_capacity(n),
+        primary_normal: Vec::with_capacity(n),
+        direction: Vec::with_capacity(n),
+        secondary_hit: Vec::with_capacity(n),
+        secondary_normal: Vec::with_capacity(n),
+        radiance: None,
+        distance: None,
+        kappa: None,
+        albedo: None,
+        weight: None,
+        direct: None,
+        secondary_albedo: None,
+        secondary_direct: None,
+    };
+    for i in 0..n {
+        let (x, y) = (film_x[i], film_y[i]);
+        if !(x.is_finite() && y.is_finite()) {
+            return Err(bad(if x.is_finite() { "y" } else { "x" }, i, "not finite"));
+        }
+        let origin_normal = decode_octahedral([origin_normal_q[2 * i], origin_normal_q[2 * i + 1]]);
+        let direction = decode_octahedral([direction_q[2 * i], direction_q[2 * i + 1]]);
+        let hit_normal = decode_octahedral([hit_normal_q[2 * i], hit_normal_q[2 * i + 1]]);
+        let escaped_ao = distance.as_ref().is_some_and(|d| d[i] == f32::INFINITY);
+        let class = match (origin_normal, direction, hit_normal) {
+            (None, _, _) => SampleClass::CameraMiss,
+            (Some(_), None, _) => SampleClass::NoSecondaryRay,
+            (Some(_), Some(_), None) => SampleClass::Escaped,
+            (Some(_), Some(_), Some(_)) if escaped_ao => SampleClass::Escaped,
+            (Some(_), Some(_), Some(_)) => SampleClass::Hit,
+        };
+        let zero = [0.0; 3];
+        let (primary_hit, secondary_hit) = if class == SampleClass::CameraMiss {
+            (zero, zero)
+        } else {
+            (finite3("origin", &origin, i)?, finite3("hit", &hit, i)?)
+        };
+        if class == SampleClass::Hit {
+            if let Some(d) = &distance {
+                if !d[i].is_finite() || d[i] < 0.0 {
+                    return Err(bad("distance", i, &format!("{} for a ray that hit a surface", d[i])));
+                }
+            }
+        }
+        samples.class.push(class);
+        samples.film.push([x, y]);
+        samples.primary_hit.push(primary_hit);
+        samples.primary_normal.push(origin_normal.unwrap_or(zero));
+        samples.direction.push(if class == SampleClass::CameraMiss { zero } else { direction.unwrap_or(zero) });
+        samples.secondary_hit.push(secondary_hit);
+        samples.secondary_normal.push(if class == SampleClass::Hit { hit_normal.unwrap_or(zero) } else { zero });
+    }
+
+    // Per-sample optional values: finite wherever the class uses them.
+    let uses_ray = |i: usize| matches!(samples.class[i], SampleClass::Hit | SampleClass::Escaped);
+    let has_primary = |i: usize| samples.class[i] != SampleClass::CameraMiss;
+    let check3 = |name: &str, values: Option<Vec<f32>>, needed: &dyn Fn(usize) -> bool| {
+        values
+            .map(|values| {
+                (0..n)
+                    .map(|i| if needed(i) { finite3(name, &values, i) } else { Ok(vec3(&values, i)) })
+                    .collect::<Result<Vec<_>, String>>()
+            })
+            .transpose()
+    };
+    let always = |_: usize| true;
+    samples.radiance = check3("radiance", radiance, &uses_ray)?;
+    samples.albedo = check3("albedo", albedo, &has_primary)?;
+    samples.weight = check3("weight", weight, &has_primary)?;
+    samples.direct = check3("direct", direct, &always)?;
+    samples.secondary_albedo = check3("secondary_albedo", secondary_albedo, &uses_ray)?;
+    samples.secondary_direct = check3("secondary_direct", secondary_direct, &uses_ray)?;
+    if let Some(kappa) = &kappa {
+        for (i, &k) in kappa.iter().enumerate() {
+            if !(k.is_finite() && k >= 0.0) {
+                return Err(bad("bandwidth", i, &format!("{k}, not a concentration κ ≥ 0")));
+            }
+        }
+    }
+    samples.kappa = kappa;
+    samples.distance = distance;
+    Ok(samples)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleWriter};
+
+    /// Octahedral encoding, written independently of the decoder from the format's definition.
+    fn encode(n: [f32; 3]) -> [f32; 2] {
+        let l1 = n[0].abs() + n[1].abs() + n[2].abs();
+        let (mut px, mut py) = (n[0] / l1, n[1] / l1);
+        if n[2] < 0.0 {
+            let (ox, oy) = (px, py);
+            px = (1.0 - oy.abs()) * if ox >= 0.0 { 1.0 } else { -1.0 };
+            py = (1.0 - ox.abs()) * if oy >= 0.0 { 1.0 } else { -1.0 };
+        }
+        [((px + 1.0) * 0.5 * 65534.0).round() + 1.0, ((py + 1.0) * 0.5 * 65534.0).round() + 1.0]
+    }
+
+    fn indirect_spec(glossy: bool) -> HeaderSpec {
+        let mut spec = HeaderSpec::new(SampleKind::Indirect, 2, 1, 2)
+            .field(FieldSpec::new("x", FieldType::F32, 1))
+            .field(FieldSpec::new("y", FieldType::F32, 1))
+            .field(FieldSpec::new("direction", FieldType::U16, 2))
+            .field(FieldSpec::new("radiance", FieldType::F32, 3))
+            .field(FieldSpec::new("origin", FieldType::F32, 3))
+            .field(FieldSpec::new("hit", FieldType::F32, 3))
+            .field(FieldSpec::new("origin_normal", FieldType::U16, 2))
+            .field(FieldSpec::new("hit_normal", FieldType::U16, 2));
+        if glossy {
+            spec = spec.field(FieldSpec::new("bandwidth", FieldType::F16, 1));
+        }
+        spec.field(FieldSpec::new("albedo", FieldType::F16, 3))
+    }
+
+    struct Record {
+        direction: Option<[f32; 3]>,
+        radiance: [f32; 3],
+        origin: [f32; 3],
+        hit: [f32; 3],
+        origin_normal: Option<[f32; 3]>,
+        hit_normal: Option<[f32; 3]>,
+        kappa: f32,
+    }
+
+    fn row(r: &Record, glossy: bool) -> Vec<f32> {
+        let oct = |v: Option<[f32; 3]>| v.map_or([0.0, 0.0], encode);
+        let mut row = vec![0.5, 0.5];
+        row.extend_from_slice(&oct(r.direction));
+        row.extend_from_slice(&r.radiance);
+        row.extend_from_slice(&r.origin);
+        row.extend_from_slice(&r.hit);
+        row.extend_from_slice(&oct(r.origin_normal));
+        row.extend_from_slice(&oct(r.hit_normal));
+        if glossy {
+            row.push(r.kappa);
+        }
+        row.extend_from_slice(&[0.5, 0.5, 0.5]);
+        row
+    }
+
+    fn write(dir: &std::path::Path, spec: HeaderSpec, rows: &[Vec<f32>]) -> std::path::PathBuf {
+        let path = dir.join("samples.lfrs");
+        let mut writer = SampleWriter::create(&path, spec).unwrap();
+        for r in rows {
+            writer.push(r).unwrap();
+        }
+        writer.finish().unwrap()
+    }
+
+    fn four_records() -> Vec<Record> {
+        let up = Some([0.0, 0.0, 1.0]);
+        let s = 0.6f32.sqrt();
+        vec![
+            // Camera miss.
+            Record {
+                direction: None,
+                radiance: [0.0; 3],
+                origin: [0.0; 3],
+                hit: [0.0; 3],
+                origin_normal: None,
+                hit_normal: None,
+                kappa: 0.0,
+            },
+            // Failed BSDF sample.
+            Record {
+                direction: None,
+                radiance: [0.0; 3],
+                origin: [1.0, 2.0, 3.0],
+                hit: [1.0, 2.0, 3.0],
+                origin_normal: up,
+                hit_normal: None,
+                kappa: 0.0,
+            },
+            // Escaped.
+            Record {
+                direction: Some([0.0, s, (1.0f32 - 0.6).sqrt()]),
+                radiance: [0.1, 0.2, 0.3],
+                origin: [1.0, 2.0, 3.0],
+                hit: [1.0, 2.0, 3.0],
+                origin_normal: up,
+                hit_normal: None,
+                kappa: 0.0,
+            },
+            // Hit: from (0, 0, 0) straight up to (0, 0, 2) on a ceiling facing down.
+            Record {
+                direction: up,
+                radiance: [1.0, 2.0, 3.0],
+                origin: [0.0; 3],
+                hit: [0.0, 0.0, 2.0],
+                origin_normal: up,
+                hit_normal: Some([0.0, 0.0, -1.0]),
+                kappa: 40.0,
+            },
+        ]
+    }
+
+    #[test]
+    fn classes_vectors_and_optional_fields_are_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let rows: Vec<_> = four_records().iter().map(|r| row(r, true)).collect();
+        let path = write(dir.path(), indirect_spec(true), &rows);
+        let samples = read_indirect(&SampleFile::open(&path).unwrap()).unwrap();
+        assert_eq!(
+            samples.class,
+            [SampleClass::CameraMiss, SampleClass::NoSecondaryRay, SampleClass::Escaped, SampleClass::Hit]
+        );
+        assert_eq!(samples.class_counts(), [1, 1, 1, 1]);
+        assert_eq!(samples.hits(), [3]);
+        assert_eq!((samples.width, samples.height, samples.spp), (2, 1, 2));
+        let close = |a: [f32; 3], b: [f32; 3]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-4);
+        assert!(close(samples.direction[3], [0.0, 0.0, 1.0]));
+        assert!(close(samples.secondary_normal[3], [0.0, 0.0, -1.0]), "{:?}", samples.secondary_normal[3]);
+        assert!(close(samples.direction[2], [0.0, 0.6f32.sqrt(), 0.4f32.sqrt()]), "{:?}", samples.direction[2]);
+        assert_eq!(samples.secondary_normal[2], [0.0; 3], "an escaped ray has no secondary normal");
+        assert_eq!(samples.secondary_hit[3], [0.0, 0.0, 2.0]);
+        assert_eq!(samples.radiance.as_ref().unwrap()[3], [1.0, 2.0, 3.0]);
+        assert_eq!(samples.kappa_of(3), 40.0);
+        assert!(samples.distance.is_none() && samples.weight.is_none() && samples.albedo.is_some());
+
+        let rows: Vec<_> = four_records().iter().map(|r| row(r, false)).collect();
+        let path = write(dir.path(), indirect_spec(false), &rows);
+        let samples = read_indirect(&SampleFile::open(&path).unwrap()).unwrap();
+        assert!(samples.kappa.is_none());
+        assert_eq!(samples.kappa_of(3), 0.0, "no `bandwidth`: κ = 0");
+    }
+
+    #[test]
+    fn octahedral_decoding_matches_the_definition_everywhere() {
+        let mut worst = 0.0f32;
+        for i in 0..48 {
+            for j in 0..24 {
+                let (phi, theta) = (i as f32 / 48.0 * std::f32::consts::TAU, j as f32 / 23.0 * std::f32::consts::PI);
+                let n = [theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()];
+                let d = decode_octahedral(encode(n)).unwrap();
+                worst = worst.max(((d[0] - n[0]).powi(2) + (d[1] - n[1]).powi(2) + (d[2] - n[2]).powi(2)).sqrt());
+            }
+        }
+        assert!(worst < 1e-4, "{worst}");
+        assert_eq!(decode_octahedral([0.0, 0.0]), None);
+    }
+
+    #[test]
+    fn ambient_occlusion_escapes_are_infinite_distances() {
+        let dir = tempfile::tempdir().unwrap();
+        let spec = HeaderSpec::new(SampleKind::Ao, 1, 1, 2)
+            .field(FieldSpec::new("x", FieldType::F32, 1))
+            .field(FieldSpec::new("y", FieldType::F32, 1))
+            .field(FieldSpec::new("direction", FieldType::U16, 2))
+            .field(FieldSpec::new("distance", FieldType::F32, 1))
+            .field(FieldSpec::new("origin", FieldType::F32, 3))
+            .field(FieldSpec::new("hit", FieldType::F32, 3))
+            .field(FieldSpec::new("origin_normal", FieldType::U16, 2))
+            .field(FieldSpec::new("hit_normal", FieldType::U16, 2));
+        let up = encode([0.0, 0.0, 1.0]);
+        let down = encode([0.0, 0.0, -1.0]);
+        let rows = [
+            [&[0.5, 0.5][..], &up, &[f32::INFINITY], &[0.0; 3], &[0.0; 3], &up, &[0.0, 0.0]].concat(),
+            [&[0.5, 0.5][..], &up, &[2.0], &[0.0; 3], &[0.0, 0.0, 2.0], &up, &down].concat(),
+        ];
+        let path = write(dir.path(), spec.clone(), &rows);
+        let samples = read_indirect(&SampleFile::open(&path).unwrap()).unwrap();
+        assert_eq!(samples.class, [SampleClass::Escaped, SampleClass::Hit]);
+        assert!(samples.radiance.is_none());
+        assert_eq!(samples.distance.as_ref().unwrap(), &[f32::INFINITY, 2.0]);
+
+        // A hit whose distance is NaN is rejected, naming the field.
+        let rows = [rows[0].clone(), [&[0.5, 0.5][..], &up, &[f32::NAN], &[0.0; 3], &[0.0; 3], &up, &down].concat()];
+        let path = write(dir.path(), spec, &rows);
+        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err();
+        assert!(error.contains("`distance`") && error.contains("sample 1"), "{error}");
+    }
+
+    #[test]
+    fn bad_files_are_named_with_the_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut records = four_records();
+        records[3].hit = [0.0, f32::NAN, 2.0];
+        let rows: Vec<_> = records.iter().map(|r| row(r, true)).collect();
+        let path = write(dir.path(), indirect_spec(true), &rows);
+        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err();
+        assert!(error.contains("samples.lfrs") && error.contains("`hit`") && error.contains("sample 3"), "{error}");
+        assert!(error.contains("pixel 1, 0"), "{error}");
+
+        let mut records = four_records();
+        records[3].radiance = [f32::INFINITY, 0.0, 0.0];
+        let rows: Vec<_> = records.iter().map(|r| row(r, true)).collect();
+        let path = write(dir.path(), indirect_spec(true), &rows);
+        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err();
+        assert!(error.contains("`radiance`"), "{error}");
+
+        // A camera miss may carry anything in the fields it does not use.
+        let mut records = four_records();
+        records[0].radiance = [f32::NAN; 3];
+        let rows: Vec<_> = records.iter().map(|r| row(r, true)).collect();
+        let path = write(dir.path(), indirect_spec(true), &rows);
+        assert!(read_indirect(&SampleFile::open(&path).unwrap()).is_ok());
+
+        let spec = HeaderSpec::new(SampleKind::Indirect, 1, 1, 1).field(FieldSpec::new("x", FieldType::F32, 1));
+        let path = write(dir.path(), spec, &[vec![0.5]]);
+        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err();
+        assert!(error.contains("`y`") && error.contains("samples.lfrs"), "{error}");
+
+        let spec = HeaderSpec::new(SampleKind::LensTime, 1, 1, 1).field(FieldSpec::new("x", FieldType::F32, 1));
+        let path = write(dir.path(), spec, &[vec![0.5]]);
+        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err();
+        assert!(error.contains("lens-time"), "{error}");
+    }
+}
