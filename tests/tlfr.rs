@@ -303,3 +303,32 @@ fn soft_shadows_from_4_spp_approach_the_converged_image() {
     let between = luminance.iter().filter(|&&v| v > dark + 0.2 * (bright - dark) && v < bright - 0.2 * (bright - dark));
     assert!(between.count() > 40, "a soft penumbra, not a hard edge");
 }
+
+/// Bad soft-shadow input: a lens-time file without the shading fields, a light file of another
+/// spp and a light file in the camera file's place each give an error naming the file and the
+/// field or count, not a panic.
+#[test]
+fn soft_shadow_inputs_that_do_not_belong_together_are_clear_errors() {
+    let scene = moving_square();
+    let dir = tempfile::tempdir().unwrap();
+    let accel = Accel::build(&scene).unwrap();
+    let settings =
+        |spp| DumpSettings { width: 8, height: 8, spp, seed: 1, max_bounces: 0, threads: 0, progress: false };
+    let plain = dir.path().join("plain.lfrs");
+    lens_time::dump(&scene, &accel, &settings(2), &plain).unwrap();
+    // The square is the scene's only emitter and planar: it serves as the light.
+    let light = dir.path().join("light.lfrs");
+    tracer::samples::light::dump(&scene, &accel, &settings(4), &light).unwrap();
+    let shading = dir.path().join("shading.lfrs");
+    lens_time::dump_for_soft_shadows(&scene, &accel, &settings(2), &shading).unwrap();
+    let run = |camera: &std::path::Path, light: &std::path::Path| {
+        let tlfr = recon::tlfr::method::TlfrSettings { locations: 4, ..Default::default() };
+        recon::tlfr::shadows::reconstruct_soft_shadow(camera, light, &tlfr).unwrap_err().to_string()
+    };
+    let error = run(&plain, &light);
+    assert!(error.contains("plain.lfrs") && error.contains("`albedo`"), "{error}");
+    let error = run(&shading, &light);
+    assert!(error.contains("light.lfrs") && error.contains("256 light samples for 128"), "{error}");
+    let error = run(&light, &light);
+    assert!(error.contains("light.lfrs") && error.contains("lens-time"), "{error}");
+}
