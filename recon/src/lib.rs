@@ -14,6 +14,7 @@ pub mod ilfr;
 pub mod image;
 pub mod method;
 pub mod metrics;
+pub mod octahedral;
 pub mod oidn;
 pub mod python;
 pub mod tlfr;

@@ -95,18 +95,7 @@ impl IndirectSamples {
 }
 
 /// Decodes an octahedral u16 pair (docs/sample-format.md); (0, 0) is "no vector" → `None`.
-pub fn decode_octahedral(q: [f32; 2]) -> Option<[f32; 3]> {
-    if q[0] == 0.0 && q[1] == 0.0 {
-        return None;
-    }
-    let sign = |v: f32| if v >= 0.0 { 1.0 } else { -1.0 };
-    let px = (q[0] - 1.0) / 65534.0 * 2.0 - 1.0;
-    let py = (q[1] - 1.0) / 65534.0 * 2.0 - 1.0;
-    let z = 1.0 - px.abs() - py.abs();
-    let (x, y) = if z < 0.0 { ((1.0 - py.abs()) * sign(px), (1.0 - px.abs()) * sign(py)) } else { (px, py) };
-    let length = (x * x + y * y + z * z).sqrt();
-    Some([x / length, y / length, z / length])
-}
+pub use crate::octahedral::decode as decode_octahedral;
 
 /// Reads an `indirect` or `ao` file; errors name the file and the missing or bad field.
 pub fn read_indirect(file: &SampleFile) -> Result<IndirectSamples, String> {

@@ -178,18 +178,10 @@ impl LightSpace {
     }
 }
 
-/// Octahedral decoding of a `u16 × 2` unit vector (docs/sample-format.md): (0, 0) is "none".
+/// Octahedral decoding of a `u16 × 2` unit vector (docs/sample-format.md): (0, 0), "none",
+/// decodes to the zero vector.
 pub fn decode_octahedral(q: [f32; 2]) -> Vec3 {
-    if q[0] == 0.0 && q[1] == 0.0 {
-        return [0.0; 3];
-    }
-    let x = (q[0] - 1.0) / 65534.0 * 2.0 - 1.0;
-    let y = (q[1] - 1.0) / 65534.0 * 2.0 - 1.0;
-    let z = 1.0 - x.abs() - y.abs();
-    let sign = |v: f32| if v >= 0.0 { 1.0 } else { -1.0 };
-    let (x, y) = if z < 0.0 { ((1.0 - y.abs()) * sign(x), (1.0 - x.abs()) * sign(y)) } else { (x, y) };
-    let n = length([x, y, z]);
-    [x / n, y / n, z / n]
+    crate::octahedral::decode(q).unwrap_or([0.0; 3])
 }
 
 /// The direct light a Lambertian receiver at `receiver` (unit `normal`, reflectance `albedo`)
