@@ -134,9 +134,26 @@ mod tests {
         assert!(strips.iter().all(|&s| s));
     }
 
-    use crate::tlfr::index::SampleGrid;
+    use crate::tlfr::bounds::ScreenArea;
+    use crate::tlfr::hierarchy::{reorder, Hierarchy};
     use crate::tlfr::lens::LensModel;
+    use crate::tlfr::query::max_reach;
     use crate::tlfr::reprojection::{near_limit, LensTimeSample};
+
+    /// The hierarchy over `samples` for queries of radius `radius` on a `width` × `height`
+    /// image, with the samples and colours in its order.
+    fn indexed(
+        samples: &[LensTimeSample],
+        colours: &[[f32; 3]],
+        lens: &LensModel,
+        z_near: f32,
+        (width, height): (u32, u32),
+        radius: f32,
+    ) -> (Hierarchy, Vec<LensTimeSample>, Vec<[f32; 3]>) {
+        let area = ScreenArea { width: width as f32, height: height as f32, max_reach: max_reach(radius) };
+        let (hierarchy, order) = Hierarchy::build(samples, lens, z_near, &area);
+        (hierarchy, reorder(samples, &order), reorder(colours, &order))
+    }
 
     /// Jittered samples over a `size`² image, `spp` per pixel, each given depth, motion and
     /// colour by `surface(x, y)`.
@@ -166,8 +183,16 @@ mod tests {
 
     fn run(samples: &[LensTimeSample], colours: &[[f32; 3]], size: u32, lens: LensModel, time: bool) -> Image {
         let z_near = near_limit(samples.iter().map(|s| s.z));
-        let grid = SampleGrid::build(samples, &lens, false, z_near, (size, size), 20.0, 1.0);
-        let scene = Scene { samples, radiance: colours, lens: &lens, grid: &grid, radius: 0.7, z_near, delta: 0.125 };
+        let (tree, samples, colours) = indexed(samples, colours, &lens, z_near, (size, size), 0.7);
+        let scene = Scene {
+            samples: &samples,
+            radiance: &colours,
+            lens: &lens,
+            hierarchy: &tree,
+            radius: 0.7,
+            z_near,
+            delta: 0.125,
+        };
         integrate(&scene, (size, size), 16, (false, time), 1, |_, _| [-1.0; 3]).0
     }
 
@@ -202,9 +227,16 @@ mod tests {
         }
         let lens = PINHOLE;
         let z_near = near_limit(both.iter().map(|s| s.z));
-        let grid = SampleGrid::build(&both, &lens, false, z_near, (12, 12), 20.0, 1.0);
-        let scene =
-            Scene { samples: &both, radiance: &colours, lens: &lens, grid: &grid, radius: 0.7, z_near, delta: 0.125 };
+        let (tree, both, colours) = indexed(&both, &colours, &lens, z_near, (12, 12), 0.7);
+        let scene = Scene {
+            samples: &both,
+            radiance: &colours,
+            lens: &lens,
+            hierarchy: &tree,
+            radius: 0.7,
+            z_near,
+            delta: 0.125,
+        };
         let (mut scratch, mut stats) = (Scratch::default(), QueryStats::default());
         for j in 0..200 {
             let screen = [2.0 + 8.0 * radical_inverse(j, 2), 2.0 + 8.0 * radical_inverse(j, 3)];
@@ -233,5 +265,70 @@ mod tests {
         }
         // Area-preserving: a quarter of the points within radius 1/2.
         assert!((inner as f32 / total as f32 - 0.25).abs() < 0.01);
+    }
+
+    /// Throughput on a synthetic layered scene with defocus and motion (run with
+    /// `--ignored --nocapture` in release): index build time, locations per second, image mean.
+    #[test]
+    #[ignore]
+    fn bench_layered_scene() {
+        use crate::tlfr::dispersion::measure_radius;
+        use crate::tlfr::test_scenes::{layered_scene, sample_scene};
+        let (width, height, spp) = (160u32, 90u32, 8u32);
+        let through_camera = std::env::var("TLFR_BENCH_THROUGH_CAMERA").is_ok();
+        let (lens, rects) = layered_scene(width, height, through_camera);
+        let (samples, colours) = sample_scene(&lens, &rects, spp, [0.5; 3], 3);
+        let model = lens.model();
+        let z_near = near_limit(samples.iter().map(|s| s.z));
+        let radius = measure_radius(&samples, width, height, spp, 8).unwrap();
+        let start = std::time::Instant::now();
+        let (tree, samples, colours) = indexed(&samples, &colours, &model, z_near, (width, height), radius);
+        let build_s = start.elapsed().as_secs_f64();
+        let scene = Scene {
+            samples: &samples,
+            radiance: &colours,
+            lens: &model,
+            hierarchy: &tree,
+            radius,
+            z_near,
+            delta: 0.125,
+        };
+        let start = std::time::Instant::now();
+        let (image, stats) = integrate(&scene, (width, height), 32, (true, true), 1, |_, _| [0.0; 3]);
+        let recon_s = start.elapsed().as_secs_f64();
+        let mean: f64 = image.pixels.iter().map(|p| p[0] as f64 + p[1] as f64 + p[2] as f64).sum::<f64>()
+            / image.pixels.len() as f64;
+        println!(
+            "{} samples, R = {radius:.3}: build {build_s:.3} s, {} locations in {recon_s:.2} s = {:.0} locations/s; \
+             mean {mean:.6}; {stats:?}",
+            samples.len(),
+            stats.locations,
+            stats.locations as f64 / recon_s
+        );
+        // The converged image (mean of 256 samples per pixel of the same scene) and the error.
+        let (_, truth) = sample_scene(&lens, &rects, 256, [0.5; 3], 9);
+        let mut reference = vec![[0.0f64; 3]; (width * height) as usize];
+        for (k, c) in truth.iter().enumerate() {
+            for ch in 0..3 {
+                reference[k / 256][ch] += c[ch] as f64 / 256.0;
+            }
+        }
+        let squared: f64 = image
+            .pixels
+            .iter()
+            .zip(&reference)
+            .map(|(p, r)| (0..3).map(|ch| (p[ch] as f64 - r[ch]).powi(2)).sum::<f64>())
+            .sum();
+        let reference_mean = reference.iter().map(|r| r[0] + r[1] + r[2]).sum::<f64>() / reference.len() as f64;
+        println!("reference mean {reference_mean:.6}, RMSE {:.5}", (squared / (3 * reference.len()) as f64).sqrt());
+        let record = std::mem::size_of::<LensTimeSample>() + std::mem::size_of::<[f32; 3]>();
+        println!(
+            "{} leaves ({:.1} samples each), {} nodes: {record} + {:.1} = {:.1} bytes per sample",
+            tree.leaf_count(),
+            samples.len() as f64 / tree.leaf_count() as f64,
+            tree.nodes().len(),
+            tree.node_bytes() as f64 / samples.len() as f64,
+            record as f64 + tree.node_bytes() as f64 / samples.len() as f64
+        );
     }
 }

@@ -7,10 +7,11 @@ use std::time::Instant;
 
 use sampleio::SampleFile;
 
+use super::bounds::ScreenArea;
 use super::dispersion::measure_radius;
-use super::index::SampleGrid;
+use super::hierarchy::{reorder, Hierarchy};
 use super::integrate::integrate;
-use super::query::Scene;
+use super::query::{max_reach, Scene};
 use super::reprojection::{near_limit, LensTimeSample};
 use super::same_surface::window_half_width;
 use super::samples::{read_lens_time, refocus};
@@ -28,7 +29,7 @@ impl Method for Tlfr {
     }
 
     fn description(&self) -> &'static str {
-        "temporal light field reconstruction (Lehtinen et al. 2011), grid index in place of the paper's hierarchy"
+        "temporal light field reconstruction (Lehtinen et al. 2011)"
     }
 
     fn supports(&self, effect: Effect) -> bool {
@@ -109,17 +110,23 @@ pub fn reconstruct_file(path: &std::path::Path, settings: &TlfrSettings) -> Resu
     let radius = measure_radius(&loaded.samples, width, height, loaded.spp, RADIUS_TRIALS)
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(1.0);
-    let margin = 16.0 * radius + 2.0;
-    let grid =
-        SampleGrid::build(&loaded.samples, &loaded.lens, has_lens, z_near, (width, height), margin, 2.0 * radius);
+    let built = Instant::now();
+    let area = ScreenArea { width: width as f32, height: height as f32, max_reach: max_reach(radius) };
+    let (hierarchy, order) = Hierarchy::build(&loaded.samples, &loaded.lens, z_near, &area);
+    let (samples, radiance) = (reorder(&loaded.samples, &order), reorder(&loaded.radiance, &order));
+    let (input_samples, lens) = (loaded.samples.len(), loaded.lens);
+    drop(loaded.samples);
+    drop(loaded.radiance);
+    drop(order);
+    let build_s = built.elapsed().as_secs_f64();
     let preprocess_s = start.elapsed().as_secs_f64();
     let start = Instant::now();
     let locations = settings.locations.max(1);
     let scene = Scene {
-        samples: &loaded.samples,
-        radiance: &loaded.radiance,
-        lens: &loaded.lens,
-        grid: &grid,
+        samples: &samples,
+        radiance: &radiance,
+        lens: &lens,
+        hierarchy: &hierarchy,
         radius,
         z_near,
         delta: window_half_width(locations),
@@ -129,8 +136,8 @@ pub fn reconstruct_file(path: &std::path::Path, settings: &TlfrSettings) -> Resu
         integrate(&scene, (width, height), locations, (has_lens, loaded.has_time), settings.seed, fallback);
     let recon_s = start.elapsed().as_secs_f64();
     let per_location = |n: u64| 100.0 * n as f64 / stats.locations.max(1) as f64;
-    let bytes =
-        std::mem::size_of::<LensTimeSample>() as f64 + 12.0 + 4.0 * grid.entries_per_sample(loaded.samples.len());
+    let record_bytes = std::mem::size_of::<LensTimeSample>() + std::mem::size_of::<[f32; 3]>();
+    let bytes = (samples.len() * record_bytes + hierarchy.node_bytes()) as f64 / samples.len().max(1) as f64;
     notes.push(format!(
         "R = {radius:.3} px measured on the input pattern ({:.2}/sqrt(spp); paper: about 2)",
         radius * (loaded.spp as f32).sqrt()
@@ -144,12 +151,25 @@ pub fn reconstruct_file(path: &std::path::Path, settings: &TlfrSettings) -> Resu
         per_location(stats.widened),
         per_location(stats.dropped)
     ));
-    notes.push(format!("{bytes:.0} bytes per sample in memory (record, radiance, grid entries)"));
+    notes.push(format!(
+        "hierarchy: {} leaves ({:.1} samples each), {} nodes, built in {build_s:.3} s; {:.1} leaves per location and pass",
+        hierarchy.leaf_count(),
+        samples.len() as f64 / hierarchy.leaf_count().max(1) as f64,
+        hierarchy.nodes().len(),
+        stats.leaves as f64 / stats.locations.max(1) as f64
+    ));
+    notes.push(format!(
+        "{bytes:.1} bytes per sample in memory ({record_bytes} record and radiance, {:.1} nodes)",
+        hierarchy.node_bytes() as f64 / samples.len().max(1) as f64
+    ));
     if loaded.dropped > 0 {
         notes.push(format!("{} samples with non-finite or impossible values were dropped", loaded.dropped));
     }
-    if grid.unplaced > 0 {
-        notes.push(format!("{} samples are never in front of the camera and were not indexed", grid.unplaced));
+    if hierarchy.unplaced > 0 {
+        notes.push(format!(
+            "{} of {input_samples} samples are never in front of the camera near the image and were not indexed",
+            hierarchy.unplaced
+        ));
     }
     Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes })
 }

@@ -1,28 +1,36 @@
 //! Temporal light field reconstruction (Lehtinen, Aila, Chen, Laine, Durand 2011, "Temporal
 //! Light Field Reconstruction for Rendering Distribution Effects"; the text is in
 //! `shared/papers/temporal-light-field-reconstruction-2011.txt`, the design in
-//! `docs/tlfr-design.md`). Issue 6, in progress: the pieces below are in and run end to end as
-//! the method `tlfr`; the paper's hierarchy (Section 4, Appendix A), soft shadows (Section 5),
-//! the bandwidth extension (Figure 14) and `lfr reconstruct` are not yet.
+//! `docs/tlfr-design.md`). Issue 6, in progress: the pieces below run end to end as the method
+//! `tlfr` (and `lfr reconstruct`); the bandwidth extension (Figure 14) is not in yet.
 //!
 //! Paper → code:
 //! - Eq. 4, `C(z) = C1/z + C2`, and the refocus / aperture change of Section 6: `lens`.
 //! - Eq. 2–3, reprojection of a sample to (û, v̂, t̂), guarded where z'(t̂) nears zero or
 //!   changes sign (Section 5's "in front of the camera"): `reprojection`.
 //! - Eq. 5, SAMESURFACE with δ = sqrt(1/N) and the 0.1-pixel crossing tolerance, extended to
-//!   motion: `same_surface`.
+//!   motion, for samples and for nodes through their bounding planes: `same_surface`.
+//! - Section 4 "Node bounds", Eq. 6 and Appendix A: planes linear in (t, u) and (t, v) bounding
+//!   a sample's or a node's reprojected positions over its time span, and their merging:
+//!   `bounds`.
+//! - Section 4 "Construction" and "Query": quadtree leaves of at most 32 samples of one surface,
+//!   the BVH built bottom-up over them, and the traversal returning the leaves near a location:
+//!   `hierarchy`.
 //! - Section 3.3, "Determining visibility": valid triangles, coverage, the tent filter:
 //!   `coverage`.
-//! - Section 3 steps 1–4, RECONSTRUCT at one location: `query` (candidates from `index`, an
-//!   interim uniform grid over conservative per-sample bounds in place of Section 4's BVH).
+//! - Section 3 steps 1–4 and Figure 7, RECONSTRUCT at one location: leaves from `hierarchy`,
+//!   grouped into surfaces leaf by leaf: `query`.
 //! - Eq. 1, N locations per pixel over pixel × lens × time: `integrate`; the method: `method`.
 //! - Section 3, the input: `lens-time` files read through `sampleio`: `samples`.
 //! - Section 3.3, "Determining R": dispersion of the input pattern under random reprojections:
 //!   `dispersion`.
+//! - Section 5 and Appendix B, soft shadows: the light's samples as a second camera
+//!   (`light_space`) and the two reconstructions per location (`shadows`).
 
+pub mod bounds;
 pub mod coverage;
 pub mod dispersion;
-pub mod index;
+pub mod hierarchy;
 pub mod integrate;
 pub mod lens;
 pub mod light_space;
@@ -32,3 +40,5 @@ pub mod reprojection;
 pub mod same_surface;
 pub mod samples;
 pub mod shadows;
+#[cfg(test)]
+pub mod test_scenes;

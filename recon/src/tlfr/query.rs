@@ -1,26 +1,28 @@
 //! RECONSTRUCT for one location (x̂, ŷ, û, v̂, t̂) (paper Section 3, steps 1–4):
 //!
-//! 1. reproject the candidate samples (`index::SampleGrid`) to (û, v̂, t̂) and keep those
-//!    within 2R of (x̂, ŷ);
-//! 2. group them into apparent surfaces front to back (Section 3.2, Figure 7);
-//! 3. find the nearest surface that covers the location (Section 3.3: one surface is trivially
+//! 1. the hierarchy's leaves near (x̂, ŷ) at (û, v̂, t̂) (`hierarchy::Hierarchy::leaves_near`);
+//!    their samples reprojected to (û, v̂, t̂), those within 2R of (x̂, ŷ) kept;
+//! 2. grouped into apparent surfaces front to back leaf by leaf (Section 4 "Query", Figure 7):
+//!    the leaves sorted by the depth z' at t̂ of their first sample (at least the near limit;
+//!    ties by node index), walked in that order; a leaf that contributed samples opens a new
+//!    surface when SAMESURFACE on the bounding planes (`same_surface::same_surface_bounds`,
+//!    0.1-pixel tolerance) fails against any leaf of the current surface that contributed
+//!    samples. Each leaf holds samples of one surface (the hierarchy guarantees it), so
+//!    samples are never compared one by one;
+//! 3. the nearest surface that covers the location (Section 3.3: one surface is trivially
 //!    covered; surfaces with fewer than `MIN_SURFACE_SAMPLES` samples are merged into the next;
 //!    the last surface is taken without a test);
-//! 4. filter its samples with the circular tent of radius R (`coverage::tent_filter`).
+//! 4. its samples filtered with the circular tent of radius R (`coverage::tent_filter`).
 //!
 //! Where nothing lies within 2R the radius doubles, up to 16R (the authors' code does the same),
-//! then the location returns `None` (the caller leaves it out of the pixel's average).
-//!
-//! Grouping (interim, until the hierarchy's leaves carry the one-surface guarantee of Section 4):
-//! the samples sorted by z' join the current surface while SAMESURFACE holds against the
-//! surface's first (front-most) sample and its most recently added one, an O(n) stand-in for
-//! Figure 7's test against every node of the surface.
+//! then the location returns `None` (the caller leaves it out of the pixel's average). The
+//! hierarchy must have been built with a reach of at least 16R (`max_reach`).
 
 use super::coverage::{is_covered, tent_filter, CoverageStats, Point};
-use super::index::SampleGrid;
+use super::hierarchy::Hierarchy;
 use super::lens::LensModel;
-use super::reprojection::{reproject, LensTime, LensTimeSample};
-use super::same_surface::{same_surface, CROSSING_TOLERANCE_PX};
+use super::reprojection::{depth_at, reproject, LensTime, LensTimeSample};
+use super::same_surface::{same_surface_bounds, CROSSING_TOLERANCE_PX};
 
 /// Surfaces with fewer samples are merged into the next (paper: "surfaces with only one or two
 /// samples").
@@ -30,12 +32,19 @@ pub const MAX_TRIANGLE_CANDIDATES: usize = 24;
 /// Radius doublings before giving up on a location.
 pub const MAX_WIDENINGS: u32 = 3;
 
+/// The largest distance from a location at which a query with radius `radius` looks for
+/// samples: 2R, doubled `MAX_WIDENINGS` times (16R). Hierarchies must be built for it.
+pub fn max_reach(radius: f32) -> f32 {
+    2.0 * radius * (1u32 << MAX_WIDENINGS) as f32
+}
+
 /// Everything a query reads.
 pub struct Scene<'a> {
     pub samples: &'a [LensTimeSample],
     pub radiance: &'a [[f32; 3]],
     pub lens: &'a LensModel,
-    pub grid: &'a SampleGrid,
+    /// The hierarchy over `samples`, which are in its order (`hierarchy::reorder`).
+    pub hierarchy: &'a Hierarchy,
     pub radius: f32,
     pub z_near: f32,
     /// SAMESURFACE's δ.
@@ -49,6 +58,8 @@ pub struct QueryStats {
     pub one_surface: u64,
     pub widened: u64,
     pub dropped: u64,
+    /// Leaves the hierarchy returned, over all passes.
+    pub leaves: u64,
     pub coverage: CoverageStats,
 }
 
@@ -58,6 +69,7 @@ impl QueryStats {
         self.one_surface += other.one_surface;
         self.widened += other.widened;
         self.dropped += other.dropped;
+        self.leaves += other.leaves;
         self.coverage.quadrant_accepts += other.coverage.quadrant_accepts;
         self.coverage.triangle_searches += other.coverage.triangle_searches;
         self.coverage.triangles_tested += other.coverage.triangles_tested;
@@ -67,8 +79,14 @@ impl QueryStats {
 /// Per-thread scratch space.
 #[derive(Default)]
 pub struct Scratch {
-    candidates: Vec<u32>,
-    near: Vec<(f32, u32, Point)>,
+    leaves: Vec<u32>,
+    /// (depth key, leaf) of the leaves near the location.
+    sorted_leaves: Vec<(f32, u32)>,
+    /// Leaves of the current surface that contributed samples.
+    surface_leaves: Vec<u32>,
+    /// The samples within reach, surface by surface, and the surfaces' ranges of it.
+    near: Vec<(u32, Point)>,
+    surfaces: Vec<(usize, usize)>,
     /// The covering surface's samples and their reprojected positions (`covering_surface`).
     pub covering: Vec<u32>,
     pub points: Vec<Point>,
@@ -105,17 +123,7 @@ pub fn covering_surface(
     let mut radius = scene.radius;
     for widening in 0..=MAX_WIDENINGS {
         let reach = 2.0 * radius;
-        scene.grid.candidates(location, reach, &mut scratch.candidates);
-        scratch.near.clear();
-        for &i in &scratch.candidates {
-            let Some(p) = reproject(&scene.samples[i as usize], scene.lens, at, scene.z_near) else {
-                continue;
-            };
-            let (dx, dy) = (p.x - location[0], p.y - location[1]);
-            if dx * dx + dy * dy <= reach * reach {
-                scratch.near.push((p.z, i, [p.x, p.y]));
-            }
-        }
+        gather(scene, location, at, reach, scratch, stats);
         if scratch.near.is_empty() {
             radius *= 2.0;
             continue;
@@ -123,16 +131,13 @@ pub fn covering_surface(
         if widening > 0 {
             stats.widened += 1;
         }
-        // Front to back; ties by index keep the order deterministic.
-        scratch.near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let surfaces = group(scene, at, &scratch.near);
-        if surfaces.len() == 1 {
+        if scratch.surfaces.len() == 1 {
             stats.one_surface += 1;
         }
-        let chosen = choose_surface(&surfaces, &scratch.near, location, radius, &mut scratch.points, stats);
+        let chosen = choose_surface(&scratch.surfaces, &scratch.near, location, radius, &mut scratch.points, stats);
         scratch.points.clear();
         scratch.covering.clear();
-        for &(_, i, p) in &scratch.near[chosen.0..chosen.1] {
+        for &(i, p) in &scratch.near[chosen.0..chosen.1] {
             scratch.points.push(p);
             scratch.covering.push(i);
         }
@@ -142,31 +147,57 @@ pub fn covering_surface(
     None
 }
 
-/// Consecutive ranges of `near` (sorted front to back) that form apparent surfaces.
-fn group(scene: &Scene, at: LensTime, near: &[(f32, u32, Point)]) -> Vec<(usize, usize)> {
-    let mut surfaces = Vec::new();
-    let mut start = 0;
-    for k in 1..near.len() {
-        let sample = &scene.samples[near[k].1 as usize];
-        let first = &scene.samples[near[start].1 as usize];
-        let last = &scene.samples[near[k - 1].1 as usize];
-        let test = |other: &LensTimeSample| {
-            same_surface(sample, other, scene.lens, at, scene.delta, CROSSING_TOLERANCE_PX, scene.z_near)
-        };
-        if !(test(first) && (k - 1 == start || test(last))) {
-            surfaces.push((start, k));
-            start = k;
+/// Steps 1–2: the samples within `reach` into `scratch.near`, grouped into surfaces
+/// (`scratch.surfaces`, front to back) leaf by leaf.
+fn gather(scene: &Scene, location: Point, at: LensTime, reach: f32, scratch: &mut Scratch, stats: &mut QueryStats) {
+    let tree = scene.hierarchy;
+    tree.leaves_near(location, at, reach, &mut scratch.leaves);
+    stats.leaves += scratch.leaves.len() as u64;
+    scratch.sorted_leaves.clear();
+    scratch.sorted_leaves.extend(scratch.leaves.iter().map(|&leaf| {
+        let first = &scene.samples[tree.node(leaf).samples().start];
+        (depth_at(first, at.t).max(scene.z_near), leaf)
+    }));
+    scratch.sorted_leaves.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    scratch.near.clear();
+    scratch.surfaces.clear();
+    scratch.surface_leaves.clear();
+    let mut surface_start = 0;
+    for &(_, leaf) in &scratch.sorted_leaves {
+        let node = tree.node(leaf);
+        let before = scratch.near.len();
+        for i in node.samples() {
+            let Some(p) = reproject(&scene.samples[i], scene.lens, at, scene.z_near) else {
+                continue;
+            };
+            let (dx, dy) = (p.x - location[0], p.y - location[1]);
+            if dx * dx + dy * dy <= reach * reach {
+                scratch.near.push((i as u32, [p.x, p.y]));
+            }
         }
+        if scratch.near.len() == before {
+            continue; // no samples within reach: the leaf plays no part in the grouping
+        }
+        let same = scratch.surface_leaves.iter().all(|&other| {
+            same_surface_bounds(&node.bounds, &tree.node(other).bounds, at, scene.delta, CROSSING_TOLERANCE_PX)
+        });
+        if !same {
+            scratch.surfaces.push((surface_start, before));
+            surface_start = before;
+            scratch.surface_leaves.clear();
+        }
+        scratch.surface_leaves.push(leaf);
     }
-    surfaces.push((start, near.len()));
-    surfaces
+    if scratch.near.len() > surface_start {
+        scratch.surfaces.push((surface_start, scratch.near.len()));
+    }
 }
 
 /// The range of the covering surface: the first (front-most) that covers the location; small
 /// surfaces merge into the next; the last is taken as it is.
 fn choose_surface(
     surfaces: &[(usize, usize)],
-    near: &[(f32, u32, Point)],
+    near: &[(u32, Point)],
     location: Point,
     radius: f32,
     points: &mut Vec<Point>,
@@ -181,7 +212,7 @@ fn choose_surface(
             continue; // merged into the next surface
         }
         points.clear();
-        points.extend(near[start..end].iter().map(|n| n.2));
+        points.extend(near[start..end].iter().map(|n| n.1));
         if is_covered(points, location, radius, MAX_TRIANGLE_CANDIDATES, &mut stats.coverage) {
             return (start, end);
         }

@@ -16,12 +16,23 @@
 //! x (or y) differences take both signs. A sample that cannot be seen at one of the corners
 //! (depth below the near limit there, `reprojection::reproject` = `None`) fails the test: its
 //! trajectory leaves the domain where it could be compared.
+//!
+//! Nodes of the hierarchy (paper Section 4: "we group the leaf nodes into apparent surfaces")
+//! are compared through their bounding planes (`same_surface_bounds`): Xmin against Xmin, Xmax
+//! against Xmax over the (u, t) corners, Ymin against Ymin and Ymax against Ymax over the (v, t)
+//! corners — the vertices of their bounding rectangles. The hierarchy's leaves are built so that
+//! their samples pass the test over the whole domain with the build tolerance of 2 pixels (the
+//! authors' code uses the same value; `same_surface_at` with the domain's corners).
 
+use super::bounds::Bounds;
 use super::lens::LensModel;
 use super::reprojection::{reproject, LensTime, LensTimeSample, Reprojected};
 
 /// The crossing the paper tolerates, pixels.
 pub const CROSSING_TOLERANCE_PX: f32 = 0.1;
+/// The crossing tolerated between the samples of one leaf of the hierarchy, over the whole
+/// domain, pixels.
+pub const BUILD_CROSSING_TOLERANCE_PX: f32 = 2.0;
 
 /// δ = sqrt(1/N) for N reconstruction locations per pixel.
 pub fn window_half_width(locations_per_pixel: u32) -> f32 {
@@ -77,8 +88,21 @@ pub fn same_surface(
     tolerance: f32,
     z_near: f32,
 ) -> bool {
+    same_surface_at(a, b, lens, corners(at, delta), tolerance, z_near)
+}
+
+/// Eq. 5 for two samples over the (û, v̂, t̂) corners `corners`, paired as `corners` makes them
+/// (all four (u, t) and all four (v, t) combinations).
+pub fn same_surface_at(
+    a: &LensTimeSample,
+    b: &LensTimeSample,
+    lens: &LensModel,
+    corners: [LensTime; 4],
+    tolerance: f32,
+    z_near: f32,
+) -> bool {
     let mut positions: [(Reprojected, Reprojected); 4] = [(ORIGIN, ORIGIN); 4];
-    for (slot, corner) in positions.iter_mut().zip(corners(at, delta)) {
+    for (slot, corner) in positions.iter_mut().zip(corners) {
         match (reproject(a, lens, corner, z_near), reproject(b, lens, corner, z_near)) {
             (Some(pa), Some(pb)) => *slot = (pa, pb),
             _ => return false,
@@ -89,6 +113,19 @@ pub fn same_surface(
 }
 
 const ORIGIN: Reprojected = Reprojected { x: 0.0, y: 0.0, z: 0.0 };
+
+/// Eq. 5 for two nodes through their bounding planes around `at`: each of the four plane pairs
+/// (Xmin, Xmax over the (u, t) corners; Ymin, Ymax over the (v, t) corners) must be consistent.
+pub fn same_surface_bounds(a: &Bounds, b: &Bounds, at: LensTime, delta: f32, tolerance: f32) -> bool {
+    let window = corners(at, delta);
+    let x = |pa: &super::bounds::Plane, pb: &super::bounds::Plane| {
+        consistent(window.iter().map(|c| pa.at(c.t, c.u) - pb.at(c.t, c.u)), tolerance)
+    };
+    let y = |pa: &super::bounds::Plane, pb: &super::bounds::Plane| {
+        consistent(window.iter().map(|c| pa.at(c.t, c.v) - pb.at(c.t, c.v)), tolerance)
+    };
+    x(&a.x_min, &b.x_min) && x(&a.x_max, &b.x_max) && y(&a.y_min, &b.y_min) && y(&a.y_max, &b.y_max)
+}
 
 #[cfg(test)]
 mod tests {
@@ -150,6 +187,36 @@ mod tests {
         let at = |t: f32| LensTime { u: 0.0, v: 0.0, t };
         assert!(same_surface(&a, &b, &lens(), at(0.2), delta, CROSSING_TOLERANCE_PX, 1e-3));
         assert!(!same_surface(&a, &b, &lens(), at(0.5), delta, CROSSING_TOLERANCE_PX, 1e-3));
+    }
+
+    #[test]
+    fn nodes_are_compared_through_their_planes() {
+        use crate::tlfr::bounds::Plane;
+        // Node a: x in [10 + 20t, 12 + 20t] (moving right); node b: x in [15, 17] still; both
+        // at y in [0, 1]: their planes cross around t = 0.25.
+        let band = |time: f32, lo: f32, hi: f32| {
+            (Plane { time, lens: 0.0, constant: lo }, Plane { time, lens: 0.0, constant: hi })
+        };
+        let node = |(x_min, x_max): (Plane, Plane)| {
+            let (y_min, y_max) = band(0.0, 0.0, 1.0);
+            Bounds { x_min, x_max, y_min, y_max, span: [0.0, 1.0] }
+        };
+        let (a, b) = (node(band(20.0, 10.0, 12.0)), node(band(0.0, 15.0, 17.0)));
+        let delta = window_half_width(128);
+        let at = |t: f32| LensTime { u: 0.0, v: 0.0, t };
+        assert!(!same_surface_bounds(&a, &b, at(0.25), delta, CROSSING_TOLERANCE_PX));
+        assert!(same_surface_bounds(&a, &b, at(0.8), delta, CROSSING_TOLERANCE_PX));
+        assert!(same_surface_bounds(&a, &b, at(0.05), delta, CROSSING_TOLERANCE_PX));
+        // Lens: slopes +5 and −3 in u at equal constants cross at û = 0 (Xmax against Xmax too).
+        let lens_band =
+            |lens: f32| (Plane { time: 0.0, lens, constant: 20.0 }, Plane { time: 0.0, lens, constant: 21.0 });
+        let (c, d) = (node(lens_band(5.0)), node(lens_band(-3.0)));
+        let at_u = |u: f32| LensTime { u, v: 0.0, t: 0.5 };
+        assert!(!same_surface_bounds(&c, &d, at_u(0.0), delta, CROSSING_TOLERANCE_PX));
+        assert!(same_surface_bounds(&c, &d, at_u(0.5), delta, CROSSING_TOLERANCE_PX));
+        // A crossing of 8·δ ≈ 0.7 px is tolerated with the build tolerance of 2 px.
+        assert!(same_surface_bounds(&c, &d, at_u(0.0), delta, BUILD_CROSSING_TOLERANCE_PX));
+        assert!(same_surface_bounds(&a, &a, at(0.25), delta, CROSSING_TOLERANCE_PX));
     }
 
     #[test]

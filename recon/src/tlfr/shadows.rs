@@ -348,9 +348,11 @@ pub fn reconstruct_soft_shadow(
     light_path: &std::path::Path,
     settings: &super::method::TlfrSettings,
 ) -> Result<crate::method::Output, crate::method::MethodError> {
+    use super::bounds::ScreenArea;
     use super::dispersion::measure_radius;
-    use super::index::SampleGrid;
+    use super::hierarchy::{reorder, Hierarchy};
     use super::method::RADIUS_TRIALS;
+    use super::query::max_reach;
     use super::reprojection::near_limit;
     use super::same_surface::window_half_width;
     use super::samples::read_lens_time;
@@ -376,21 +378,30 @@ pub fn reconstruct_soft_shadow(
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(1.0);
     let z_near = near_limit(camera.samples.iter().map(|s| s.z));
-    let margin = 16.0 * radius + 2.0;
-    let grid = SampleGrid::build(
-        &camera.samples,
-        &camera.lens,
-        camera.has_lens,
-        z_near,
-        (width, height),
-        margin,
-        2.0 * radius,
-    );
+    // The hierarchies; every array aligned with the samples follows their new order.
+    let area = ScreenArea { width: width as f32, height: height as f32, max_reach: max_reach(radius) };
+    let (tree, order) = Hierarchy::build(&camera.samples, &camera.lens, z_near, &area);
+    let (mut camera, mut shading) = (camera, shading);
+    camera.samples = reorder(&camera.samples, &order);
+    camera.radiance = reorder(&camera.radiance, &order);
+    camera.file_index = reorder(&camera.file_index, &order);
+    shading.albedo = reorder(&shading.albedo, &order);
+    shading.normal = reorder(&shading.normal, &order);
+    shading.without_light = reorder(&shading.without_light, &order);
     let light_lens = light.space.lens_model();
     let light_z_near = near_limit(light.samples.iter().map(|s| s.z));
-    let light_extent = (light.extent[0].ceil().max(1.0) as u32, light.extent[1].ceil().max(1.0) as u32);
-    let light_grid =
-        SampleGrid::build(&light.samples, &light_lens, true, light_z_near, light_extent, margin, 2.0 * radius);
+    // Light queries use R·ρ/median ρ: reach for the largest ρ.
+    let largest_density = light.density.iter().fold(light.median_density, |m, &d| m.max(d));
+    let light_area = ScreenArea {
+        width: light.extent[0].max(1.0),
+        height: light.extent[1].max(1.0),
+        max_reach: max_reach(radius * largest_density / light.median_density),
+    };
+    let (light_tree, light_order) = Hierarchy::build(&light.samples, &light_lens, light_z_near, &light_area);
+    let mut light = light;
+    light.samples = reorder(&light.samples, &light_order);
+    light.radiance = reorder(&light.radiance, &light_order);
+    let (camera, shading, light) = (camera, shading, light);
     let preprocess_s = start.elapsed().as_secs_f64();
 
     let start = Instant::now();
@@ -400,7 +411,7 @@ pub fn reconstruct_soft_shadow(
         samples: &camera.samples,
         radiance: &camera.radiance,
         lens: &camera.lens,
-        grid: &grid,
+        hierarchy: &tree,
         radius,
         z_near,
         delta,
@@ -409,7 +420,7 @@ pub fn reconstruct_soft_shadow(
         samples: &light.samples,
         radiance: &light.radiance,
         lens: &light_lens,
-        grid: &light_grid,
+        hierarchy: &light_tree,
         radius,
         z_near: light_z_near,
         delta,

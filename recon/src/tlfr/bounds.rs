@@ -1,0 +1,642 @@
+//! Bounding planes of reprojected samples (paper Section 4 "Node bounds", Eq. 6, and
+//! Appendix A; design `docs/tlfr-design.md` §2 "Bounds (App. A)"): for a sample, or a node of
+//! the hierarchy, four planes
+//!
+//! ```text
+//! Xmin(t, u) = A₁·t + B₁·u + D₁  ≤  x'(u, t)  ≤  A₂·t + B₂·u + D₂ = Xmax(t, u)
+//! Ymin(t, v) = …                 ≤  y'(v, t)  ≤  …               = Ymax(t, v)
+//! ```
+//!
+//! valid for every lens coordinate |u|, |v| ≤ 1 and every time t of the time span, outside of
+//! which no sample of the node can be seen or come near the image. (x' depends on (u, t) only
+//! and y' on (v, t) only: defocus is separable, paper footnote 5.)
+//!
+//! One sample (in f64, rounded outwards to f32 at the end):
+//! 1. the time span: the times in [0, 1] where its depth is at least the near limit
+//!    (`valid_span`, exactly the times where `reprojection::reproject` is `Some`);
+//! 2. trimmed to "potentially on screen": the lens-centre position
+//!    x(t) = (x̄z + (t − tᵢ)·m_x) / z'(t) is a ratio of linear functions whose denominator keeps
+//!    its sign on the span, hence monotone, so the times where it lies in
+//!    [−margin, W + margin] form an interval, found in closed form (likewise y). The margin is
+//!    the largest |C| on the span plus the largest query reach (16R after three widenings):
+//!    beyond it the sample cannot come within reach of any location of the image;
+//! 3. x(t) is convex or concave on the span (x'' has the sign of −m_z·(m_x·z'(t) − x·z'(t)·m_z),
+//!    a constant), so the tangent at the span's midpoint bounds it on one side and the chord
+//!    between the span's ends on the other;
+//! 4. the lens term û·C(z'(t)): C is monotone in t on the span, so with C₀, C₁ its values at
+//!    the span's ends, û·C = û·B + û·(C − B) with B = (C₀ + C₁)/2 and |C − B| ≤ H = |C₁ − C₀|/2:
+//!    slope B in u and the constants widened by H bound it exactly for all |û| ≤ 1.
+//!
+//! The planes are widened by a bound on the rounding error of the f32 reprojection the queries
+//! use, and their f32 coefficients are chosen so that evaluating them in f32 stays on the safe
+//! side of the f64 plane.
+//!
+//! Merging two bounds (Appendix A): the time span is the union; each plane is a least-squares
+//! fit to the children's planes at the four corners of the union's (t, u) rectangle (each child's
+//! plane read at its own span's nearest time), then shifted until it bounds both children's
+//! planes at the corners of the children's own rectangles — the difference of two planes is
+//! linear, so that bounds them everywhere on those rectangles. (The paper fits at the union's
+//! corners only; reading each child on its own span keeps a short-lived child's steep plane
+//! from being extrapolated over the whole shutter.)
+
+use super::lens::LensModel;
+use super::reprojection::{depth_at, LensTime, LensTimeSample};
+
+/// `time·t + lens·w + constant`, w the lens coordinate of the plane's axis (u for x, v for y).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Plane {
+    pub time: f32,
+    pub lens: f32,
+    pub constant: f32,
+}
+
+impl Plane {
+    /// The plane's value in f32, as queries evaluate it.
+    #[inline]
+    pub fn at(&self, t: f32, lens: f32) -> f32 {
+        self.time * t + self.lens * lens + self.constant
+    }
+
+    /// The plane's value in f64.
+    fn at_f64(&self, t: f64, lens: f64) -> f64 {
+        self.time as f64 * t + self.lens as f64 * lens + self.constant as f64
+    }
+}
+
+/// Bounds of one sample or of a node's samples.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Bounds {
+    pub x_min: Plane,
+    pub x_max: Plane,
+    pub y_min: Plane,
+    pub y_max: Plane,
+    /// The times [t0, t1] outside of which none of the samples can be seen near the image.
+    pub span: [f32; 2],
+}
+
+/// The region a sample must be able to come near to matter: the image and the largest reach
+/// of a query around a location.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScreenArea {
+    pub width: f32,
+    pub height: f32,
+    /// The largest distance (pixels) from a location at which a query looks for samples.
+    pub max_reach: f32,
+}
+
+/// The unit roundoff of f32.
+const F32_EPSILON: f64 = f32::EPSILON as f64 * 0.5;
+
+/// The times in [0, 1] at which the sample's depth (Eq. 2, in f32 as `reprojection::depth_at`
+/// computes it) is at least `z_near`; `None` if there are none. Exactly the times at which
+/// `reprojection::reproject` gives a position: the depth is monotone in t also after rounding,
+/// and the ends are moved to the last representable time on either side.
+pub fn valid_span(sample: &LensTimeSample, z_near: f32) -> Option<(f32, f32)> {
+    if sample.z.is_infinite() || sample.motion[2] == 0.0 {
+        return (sample.z >= z_near).then_some((0.0, 1.0));
+    }
+    let valid = |t: f32| depth_at(sample, t) >= z_near;
+    // z + (t − tᵢ)·m_z ≥ z_near ⇔ t ≥ t* (m_z > 0) or t ≤ t* (m_z < 0).
+    let crossing = sample.t + (z_near - sample.z) / sample.motion[2];
+    if sample.motion[2] > 0.0 {
+        let mut lo = crossing.clamp(0.0, 1.0);
+        while lo > 0.0 && valid(step_down(lo)) {
+            lo = step_down(lo);
+        }
+        while lo <= 1.0 && !valid(lo) {
+            lo = step_up(lo);
+        }
+        (lo <= 1.0).then_some((lo, 1.0))
+    } else {
+        let mut hi = crossing.clamp(0.0, 1.0);
+        while hi < 1.0 && valid(step_up(hi)) {
+            hi = step_up(hi);
+        }
+        while hi >= 0.0 && !valid(hi) {
+            hi = step_down(hi);
+        }
+        (hi >= 0.0).then_some((0.0, hi))
+    }
+}
+
+/// The next f32 above `x`.
+fn step_up(x: f32) -> f32 {
+    if x.is_nan() || x == f32::INFINITY {
+        x
+    } else if x == 0.0 {
+        f32::from_bits(1)
+    } else if x > 0.0 {
+        f32::from_bits(x.to_bits() + 1)
+    } else {
+        f32::from_bits(x.to_bits() - 1)
+    }
+}
+
+/// The next f32 below `x`.
+fn step_down(x: f32) -> f32 {
+    -step_up(-x)
+}
+
+/// The largest f32 ≤ `x`.
+fn f32_below(x: f64) -> f32 {
+    let r = x as f32;
+    if r as f64 > x {
+        step_down(r)
+    } else {
+        r
+    }
+}
+
+/// The smallest f32 ≥ `x`.
+fn f32_above(x: f64) -> f32 {
+    let r = x as f32;
+    if (r as f64) < x {
+        step_up(r)
+    } else {
+        r
+    }
+}
+
+/// An f64 plane (time, lens, constant) as an f32 plane that, evaluated in f32 for t ∈ [0, 1]
+/// and |w| ≤ 1, is never above (`upper` false) or below (`upper` true) the f64 plane.
+fn round_plane(time: f64, lens: f64, constant: f64, upper: bool) -> Plane {
+    let (time32, lens32) = (time as f32, lens as f32);
+    // The coefficients' rounding, and f32 evaluation: three roundings of terms at most
+    // |time| + |lens| + |constant|.
+    let error = (time - time32 as f64).abs()
+        + (lens - lens32 as f64).abs()
+        + 4.0 * F32_EPSILON * (time.abs() + lens.abs() + constant.abs());
+    let constant32 = if upper { f32_above(constant + error) } else { f32_below(constant - error) };
+    Plane { time: time32, lens: lens32, constant: constant32 }
+}
+
+/// One axis of a sample in homogeneous form: position·depth = `p + t·q`, depth = `pw + t·qw`.
+#[derive(Clone, Copy)]
+struct Axis {
+    p: f64,
+    q: f64,
+}
+
+/// The lens-centre position on one axis at t.
+fn centre(axis: Axis, depth: Axis, t: f64) -> f64 {
+    (axis.p + t * axis.q) / (depth.p + t * depth.q)
+}
+
+/// The sub-interval of [t0, t1] where the monotone centre position lies in [lo, hi]; `None`
+/// if it stays outside.
+fn trim(axis: Axis, depth: Axis, (t0, t1): (f64, f64), (lo, hi): (f64, f64)) -> Option<(f64, f64)> {
+    let (f0, f1) = (centre(axis, depth, t0), centre(axis, depth, t1));
+    if f0.max(f1) < lo || f0.min(f1) > hi {
+        return None;
+    }
+    // position = c ⇔ p + t·q = c·(pw + t·qw).
+    let solve = |c: f64, fallback: f64| {
+        let t = (c * depth.p - axis.p) / (axis.q - c * depth.q);
+        if t.is_finite() {
+            t.clamp(t0, t1)
+        } else {
+            fallback
+        }
+    };
+    let (mut a, mut b) = (t0, t1);
+    if f1 >= f0 {
+        if f0 < lo {
+            a = solve(lo, t0);
+        }
+        if f1 > hi {
+            b = solve(hi, t1);
+        }
+    } else {
+        if f0 > hi {
+            a = solve(hi, t0);
+        }
+        if f1 < lo {
+            b = solve(lo, t1);
+        }
+    }
+    Some((a.min(b), b.max(a)))
+}
+
+/// Lines (time, constant) below and above the centre position on [t0, t1]: tangent at the
+/// midpoint and chord, by the sign of the (constant-signed) curvature; checked at five times
+/// and widened if rounding made the curvature's sign wrong.
+fn lines(axis: Axis, depth: Axis, (t0, t1): (f64, f64)) -> ((f64, f64), (f64, f64)) {
+    let f = |t: f64| centre(axis, depth, t);
+    let mid = 0.5 * (t0 + t1);
+    let w = depth.p + mid * depth.q;
+    let determinant = axis.q * depth.p - axis.p * depth.q;
+    let slope = determinant / (w * w);
+    let tangent = (slope, f(mid) - slope * mid);
+    let chord = if t1 > t0 {
+        let s = (f(t1) - f(t0)) / (t1 - t0);
+        (s, f(t0) - s * t0)
+    } else {
+        (0.0, f(t0))
+    };
+    // x'' = −2·q_w·determinant / w³ with w > 0.
+    let convex = -depth.q * determinant >= 0.0;
+    let (mut lower, mut upper) = if convex { (tangent, chord) } else { (chord, tangent) };
+    for k in 0..=4 {
+        let t = t0 + (t1 - t0) * k as f64 / 4.0;
+        let value = f(t);
+        lower.1 -= (lower.0 * t + lower.1 - value).max(0.0) * 2.0;
+        upper.1 += (value - upper.0 * t - upper.1).max(0.0) * 2.0;
+    }
+    (lower, upper)
+}
+
+/// The bounds of one sample, for lens model `lens`, near limit `z_near` and the image area
+/// `area`; `None` when it is never in front of the camera while potentially near the image.
+pub fn sample_bounds(sample: &LensTimeSample, lens: &LensModel, z_near: f32, area: &ScreenArea) -> Option<Bounds> {
+    let (t0, t1) = valid_span(sample, z_near)?;
+    let (c1, c2) = (lens.c1 as f64, lens.c2 as f64);
+    let (width, height, reach) = (area.width as f64, area.height as f64, area.max_reach as f64);
+    let (x, y, u, v) = (sample.x as f64, sample.y as f64, sample.u as f64, sample.v as f64);
+    if sample.z.is_infinite() {
+        // A miss: x' = x − u·c2 + û·c2 at every time.
+        let (xc, yc) = (x - u * c2, y - v * c2);
+        let margin = c2.abs() + reach;
+        if !(-margin..=width + margin).contains(&xc) || !(-margin..=height + margin).contains(&yc) {
+            return None;
+        }
+        let slack = 4.0 * F32_EPSILON * (x.abs() + y.abs() + 2.0 * c2.abs()) + 1e-6;
+        return Some(Bounds {
+            x_min: round_plane(0.0, c2, xc - slack, false),
+            x_max: round_plane(0.0, c2, xc + slack, true),
+            y_min: round_plane(0.0, c2, yc - slack, false),
+            y_max: round_plane(0.0, c2, yc + slack, true),
+            span: [0.0, 1.0],
+        });
+    }
+    let z = sample.z as f64;
+    let coc = |depth: f64| c1 / depth + c2;
+    let c_old = coc(z);
+    let (x_bar, y_bar) = (x - u * c_old, y - v * c_old);
+    let (dx, dy, dz) = (sample.motion[0] as f64, sample.motion[1] as f64, sample.motion[2] as f64);
+    let m = [lens.fx as f64 * dx + lens.cx as f64 * dz, lens.fy as f64 * dy + lens.cy as f64 * dz, dz];
+    let ts = sample.t as f64;
+    // Homogeneous position at t: (x̄·z + (t − tᵢ)·m) / (z + (t − tᵢ)·m_z).
+    let depth = Axis { p: z - ts * m[2], q: m[2] };
+    let axis_x = Axis { p: x_bar * z - ts * m[0], q: m[0] };
+    let axis_y = Axis { p: y_bar * z - ts * m[1], q: m[1] };
+    let (t0, t1) = (t0 as f64, t1 as f64);
+    let depth_at = |t: f64| depth.p + t * depth.q;
+    if depth_at(t0).min(depth_at(t1)) < 0.5 * z_near as f64 {
+        // The f32 depth passes the near limit where the exact one is (almost) zero: f32
+        // rounding dominates the position there. Bound it by everything.
+        return Some(Bounds::everywhere([t0 as f32, t1 as f32]));
+    }
+    let largest_coc = coc(depth_at(t0)).abs().max(coc(depth_at(t1)).abs());
+    let margin = largest_coc + reach;
+    let (a, b) = trim(axis_x, depth, (t0, t1), (-margin, width + margin))?;
+    let (a, b) = trim(axis_y, depth, (a, b), (-margin, height + margin))?;
+    // The span in f32, rounded outwards but within the valid span.
+    let span = [f32_below(a).max(t0 as f32), f32_above(b).min(t1 as f32)];
+    let (t0, t1) = (span[0] as f64, span[1] as f64);
+    // The lens term (step 4).
+    let (coc0, coc1) = (coc(depth_at(t0)), coc(depth_at(t1)));
+    let (lens_slope, lens_half) = (0.5 * (coc0 + coc1), 0.5 * (coc1 - coc0).abs());
+    // Rounding of the f32 reprojection: relative errors of a few units in the magnitudes it
+    // adds, amplified by the division by the depth (itself rounded) where the depth is small.
+    let nearest = depth_at(t0).min(depth_at(t1));
+    let amplification = 1.0 + (z + dz.abs()) / nearest;
+    let slack = |bar: f64, motion: f64| {
+        let magnitude = (bar.abs() * z + motion.abs() + ts * motion.abs()) / nearest
+            + (c1.abs() / nearest + c2.abs())
+            + bar.abs()
+            + (c_old * u).abs();
+        16.0 * F32_EPSILON * magnitude * amplification + 1e-6
+    };
+    let planes = |axis: Axis, bar: f64, motion: f64| {
+        let (lower, upper) = lines(axis, depth, (t0, t1));
+        let s = slack(bar, motion) + lens_half;
+        (round_plane(lower.0, lens_slope, lower.1 - s, false), round_plane(upper.0, lens_slope, upper.1 + s, true))
+    };
+    let (x_min, x_max) = planes(axis_x, x_bar, m[0]);
+    let (y_min, y_max) = planes(axis_y, y_bar, m[1]);
+    Some(Bounds { x_min, x_max, y_min, y_max, span })
+}
+
+impl Bounds {
+    /// Bounds that contain every position a query can ask about, over `span`.
+    pub fn everywhere(span: [f32; 2]) -> Bounds {
+        let (low, high) = (Plane { constant: -1e12, ..Plane::default() }, Plane { constant: 1e12, ..Plane::default() });
+        Bounds { x_min: low, x_max: high, y_min: low, y_max: high, span }
+    }
+
+    /// Whether (x̂, ŷ) lies within `reach` pixels (per axis) of the bounds at `at`, with t̂ in
+    /// the span: then a sample of the node may reproject within `reach` of it.
+    #[inline]
+    pub fn near(&self, location: [f32; 2], at: LensTime, reach: f32) -> bool {
+        at.t >= self.span[0]
+            && at.t <= self.span[1]
+            && location[0] >= self.x_min.at(at.t, at.u) - reach
+            && location[0] <= self.x_max.at(at.t, at.u) + reach
+            && location[1] >= self.y_min.at(at.t, at.v) - reach
+            && location[1] <= self.y_max.at(at.t, at.v) + reach
+    }
+
+    /// Bounds of the union of two nodes' samples (Appendix A; see the module comment).
+    pub fn merge(&self, other: &Bounds) -> Bounds {
+        merge_children(&[self, other])
+    }
+
+    /// Bounds of the union of several nodes' (or samples') bounds; the default bounds for none.
+    pub fn merge_all<'a>(items: impl IntoIterator<Item = &'a Bounds>) -> Bounds {
+        let items: Vec<&Bounds> = items.into_iter().collect();
+        match items.len() {
+            0 => Bounds::default(),
+            1 => *items[0],
+            _ => merge_children(&items),
+        }
+    }
+
+    /// The extents of the bounds over their span and |u|, |v| ≤ 1: (width, height), pixels.
+    pub fn extent(&self) -> (f32, f32) {
+        let corners = |plane: &Plane, upper: bool| {
+            let values = [
+                plane.at_f64(self.span[0] as f64, -1.0),
+                plane.at_f64(self.span[0] as f64, 1.0),
+                plane.at_f64(self.span[1] as f64, -1.0),
+                plane.at_f64(self.span[1] as f64, 1.0),
+            ];
+            if upper {
+                values.into_iter().fold(f64::NEG_INFINITY, f64::max)
+            } else {
+                values.into_iter().fold(f64::INFINITY, f64::min)
+            }
+        };
+        let width = corners(&self.x_max, true) - corners(&self.x_min, false);
+        let height = corners(&self.y_max, true) - corners(&self.y_min, false);
+        (width.max(0.0) as f32, height.max(0.0) as f32)
+    }
+}
+
+/// The bounds of several children.
+fn merge_children(children: &[&Bounds]) -> Bounds {
+    let span =
+        children.iter().fold([f32::INFINITY, f32::NEG_INFINITY], |s, c| [s[0].min(c.span[0]), s[1].max(c.span[1])]);
+    let pick = |b: &Bounds, k: usize| [b.x_min, b.x_max, b.y_min, b.y_max][k];
+    let mut planes = [Plane::default(); 4];
+    for (k, plane) in planes.iter_mut().enumerate() {
+        *plane = merge_planes(children.iter().map(|c| (pick(c, k), c.span)), span, k % 2 == 1);
+    }
+    let [x_min, x_max, y_min, y_max] = planes;
+    Bounds { x_min, x_max, y_min, y_max, span }
+}
+
+/// A plane above (`upper`) or below planes, each on its own span, over `span`.
+fn merge_planes(children: impl Iterator<Item = (Plane, [f32; 2])> + Clone, span: [f32; 2], upper: bool) -> Plane {
+    let (t0, t1) = (span[0] as f64, span[1] as f64);
+    let outer = |p: f64, q: f64| if upper { p.max(q) } else { p.min(q) };
+    let start = if upper { f64::NEG_INFINITY } else { f64::INFINITY };
+    // Each child read at its own span's nearest time.
+    let value = |t: f64, w: f64| {
+        children
+            .clone()
+            .fold(start, |acc, (plane, own)| outer(acc, plane.at_f64(t.clamp(own[0] as f64, own[1] as f64), w)))
+    };
+    // Least squares over the 2 × 2 corners: the main effects.
+    let (v00, v01, v10, v11) = (value(t0, -1.0), value(t0, 1.0), value(t1, -1.0), value(t1, 1.0));
+    let lens = 0.25 * ((v01 - v00) + (v11 - v10));
+    let time = if t1 > t0 { 0.5 * ((v10 - v00) + (v11 - v01)) / (t1 - t0) } else { 0.0 };
+    let mean = 0.25 * (v00 + v01 + v10 + v11);
+    let mut constant = mean - time * 0.5 * (t0 + t1);
+    // Shift until it bounds every child at its own corners.
+    let mut shift = 0.0f64;
+    for (plane, own) in children {
+        for t in [own[0] as f64, own[1] as f64] {
+            for w in [-1.0, 1.0] {
+                let gap = plane.at_f64(t, w) - (time * t + lens * w + constant);
+                shift = if upper { shift.max(gap) } else { shift.min(gap) };
+            }
+        }
+    }
+    constant += shift;
+    round_plane(time, lens, constant, upper)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tlfr::reprojection::reproject;
+    use crate::tlfr::test_scenes::Lcg;
+
+    /// A random lens with |C| up to about 300 px over the depths below, and a random sample; a
+    /// third of the samples move through the camera plane (Δz crossing zero) within the shutter.
+    fn random_case(rng: &mut Lcg) -> (LensModel, LensTimeSample) {
+        let f = 100.0 + 400.0 * rng.uniform();
+        let a = 0.4 * rng.uniform() * rng.uniform();
+        let focus = 0.5 + 10.0 * rng.uniform();
+        let lens = LensModel { c1: -f * a, c2: f * a / focus, fx: f, fy: f, cx: 160.0, cy: 90.0 };
+        let (u, v) = rng.disk();
+        let z = 0.3 + 12.0 * rng.uniform();
+        let t = rng.uniform();
+        let dz = match (rng.uniform() * 3.0) as u32 {
+            0 => 0.0,
+            1 => 2.0 * (rng.uniform() - 0.5),
+            // Through the camera plane: depth z at tᵢ, zero somewhere in the shutter.
+            _ => {
+                let when = rng.uniform();
+                -z / (when - t + if when == t { 1e-3 } else { 0.0 })
+            }
+        };
+        let sample = LensTimeSample {
+            x: -40.0 + 400.0 * rng.uniform(),
+            y: -40.0 + 260.0 * rng.uniform(),
+            u,
+            v,
+            t,
+            z: if rng.uniform() < 0.03 { f32::INFINITY } else { z },
+            motion: [2.0 * (rng.uniform() - 0.5), 2.0 * (rng.uniform() - 0.5), dz],
+        };
+        let sample = if sample.z.is_infinite() { LensTimeSample { motion: [0.0; 3], ..sample } } else { sample };
+        (lens, sample)
+    }
+
+    const AREA: ScreenArea = ScreenArea { width: 320.0, height: 180.0, max_reach: 16.0 };
+
+    /// x' and y' of the sample at (u, v, t) lie within the bounds, up to 1e-3 px or relative
+    /// 1e-5 of the magnitudes involved.
+    fn assert_inside(bounds: &Bounds, sample: &LensTimeSample, lens: &LensModel, z_near: f32, at: LensTime) {
+        let Some(p) = reproject(sample, lens, at, z_near) else {
+            return;
+        };
+        let check = |value: f32, lo: f32, hi: f32| {
+            let tolerance = 1e-3f32.max(1e-5 * value.abs().max(lo.abs()).max(hi.abs()));
+            value >= lo - tolerance && value <= hi + tolerance
+        };
+        let (x0, x1) = (bounds.x_min.at(at.t, at.u), bounds.x_max.at(at.t, at.u));
+        let (y0, y1) = (bounds.y_min.at(at.t, at.v), bounds.y_max.at(at.t, at.v));
+        assert!(
+            check(p.x, x0, x1) && check(p.y, y0, y1),
+            "{sample:?} with {lens:?} at {at:?}: ({}, {}) outside x {x0}..{x1}, y {y0}..{y1}",
+            p.x,
+            p.y
+        );
+    }
+
+    #[test]
+    fn sample_bounds_contain_the_reprojections_over_the_span() {
+        let mut rng = Lcg(2024);
+        let z_near = 1e-3;
+        let (mut bounded, mut crossing) = (0, 0);
+        for _ in 0..10_000 {
+            let (lens, sample) = random_case(&mut rng);
+            let Some(bounds) = sample_bounds(&sample, &lens, z_near, &AREA) else {
+                continue;
+            };
+            bounded += 1;
+            let [t0, t1] = bounds.span;
+            assert!(t0 <= t1 && t0 >= 0.0 && t1 <= 1.0);
+            crossing += (t1 - t0 < 1.0 && sample.motion[2] != 0.0) as usize;
+            for i in 0..33 {
+                for j in 0..33 {
+                    let t = t0 + (t1 - t0) * j as f32 / 32.0;
+                    let w = -1.0 + i as f32 / 16.0;
+                    assert_inside(&bounds, &sample, &lens, z_near, LensTime { u: w, v: -w, t });
+                }
+            }
+        }
+        assert!(bounded > 5000 && crossing > 1000, "{bounded} bounded, {crossing} with a cut span");
+    }
+
+    /// Outside its span a sample is behind the camera, or more than the largest reach away from
+    /// the image at every lens position: trimming never removes a time a query could use.
+    #[test]
+    fn trimmed_times_are_far_from_the_image() {
+        let mut rng = Lcg(77);
+        let z_near = 1e-3;
+        let mut trimmed = 0;
+        for _ in 0..10_000 {
+            let (lens, sample) = random_case(&mut rng);
+            let span = sample_bounds(&sample, &lens, z_near, &AREA).map(|b| b.span);
+            for j in 0..=64 {
+                let t = j as f32 / 64.0;
+                if span.is_some_and(|[t0, t1]| t >= t0 && t <= t1) {
+                    continue;
+                }
+                for i in 0..=8 {
+                    let w = -1.0 + i as f32 / 4.0;
+                    for at in [LensTime { u: w, v: 0.0, t }, LensTime { u: 0.0, v: w, t }] {
+                        if let Some(p) = reproject(&sample, &lens, at, z_near) {
+                            trimmed += 1;
+                            let outside_x = (-p.x).max(p.x - AREA.width);
+                            let outside_y = (-p.y).max(p.y - AREA.height);
+                            assert!(
+                                outside_x.max(outside_y) > AREA.max_reach * 0.999,
+                                "{sample:?} at {at:?} is at ({}, {}), inside the reach, but outside {span:?}",
+                                p.x,
+                                p.y
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        assert!(trimmed > 1000, "{trimmed}");
+    }
+
+    #[test]
+    fn the_valid_span_is_exactly_where_reprojection_succeeds() {
+        let s = LensTimeSample { z: 1.0, t: 0.0, motion: [0.0, 0.0, -2.0], ..LensTimeSample::default() };
+        let (lo, hi) = valid_span(&s, 1e-3).unwrap();
+        assert_eq!(lo, 0.0);
+        assert!((hi - 0.4995).abs() < 1e-6);
+        assert!(depth_at(&s, hi) >= 1e-3 && depth_at(&s, step_up(hi)) < 1e-3);
+        let towards = LensTimeSample { z: 1.0, t: 1.0, motion: [0.0, 0.0, 2.0], ..s };
+        let (lo, hi) = valid_span(&towards, 1e-3).unwrap();
+        assert!((lo - 0.5005).abs() < 1e-6 && hi == 1.0);
+        assert!(depth_at(&towards, lo) >= 1e-3 && depth_at(&towards, step_down(lo)) < 1e-3);
+        let still = LensTimeSample { z: 2.0, motion: [0.0; 3], ..s };
+        assert_eq!(valid_span(&still, 1e-3), Some((0.0, 1.0)));
+        // Nearer than the near limit for the whole shutter.
+        assert_eq!(valid_span(&LensTimeSample { z: 1e-4, motion: [0.0; 3], ..s }, 1e-3), None);
+        assert_eq!(valid_span(&LensTimeSample { z: 1e-4, motion: [0.0, 0.0, -1.0], ..s }, 1e-3), None);
+        // Random samples: Some exactly on the span.
+        let mut rng = Lcg(5);
+        let lens = LensModel { c1: -8.0, c2: 2.0, fx: 80.0, fy: 80.0, cx: 32.0, cy: 24.0 };
+        for _ in 0..2000 {
+            let (_, sample) = random_case(&mut rng);
+            let span = valid_span(&sample, 1e-3);
+            for j in 0..=100 {
+                let t = j as f32 / 100.0;
+                let inside = span.is_some_and(|(a, b)| t >= a && t <= b);
+                let at = LensTime { u: 0.0, v: 0.0, t };
+                assert_eq!(reproject(&sample, &lens, at, 1e-3).is_some(), inside, "{sample:?} at {t}");
+            }
+        }
+    }
+
+    #[test]
+    fn merged_bounds_contain_both_children() {
+        let mut rng = Lcg(99);
+        let z_near = 1e-3;
+        let mut merged_count = 0;
+        for _ in 0..2000 {
+            // One lens per group, as in a file.
+            let (lens, _) = random_case(&mut rng);
+            let mut members: Vec<(LensTimeSample, Bounds)> = Vec::new();
+            while members.len() < 4 {
+                let (_, sample) = random_case(&mut rng);
+                if let Some(b) = sample_bounds(&sample, &lens, z_near, &AREA) {
+                    members.push((sample, b));
+                }
+            }
+            let left = members[0].1.merge(&members[1].1);
+            let right = members[2].1.merge(&members[3].1);
+            let root = left.merge(&right);
+            merged_count += 1;
+            for (child, parent) in [(&members[0].1, &left), (&members[1].1, &left), (&left, &root), (&right, &root)] {
+                assert!(parent.span[0] <= child.span[0] && parent.span[1] >= child.span[1]);
+                for t in [child.span[0], child.span[1], 0.5 * (child.span[0] + child.span[1])] {
+                    for w in [-1.0f32, 0.0, 1.0] {
+                        let ok = |p: &Plane, c: &Plane, upper: bool| {
+                            let (pv, cv) = (p.at(t, w), c.at(t, w));
+                            let tolerance = 1e-6 * pv.abs().max(cv.abs()).max(1.0);
+                            if upper {
+                                pv >= cv - tolerance
+                            } else {
+                                pv <= cv + tolerance
+                            }
+                        };
+                        assert!(ok(&parent.x_min, &child.x_min, false) && ok(&parent.x_max, &child.x_max, true));
+                        assert!(ok(&parent.y_min, &child.y_min, false) && ok(&parent.y_max, &child.y_max, true));
+                    }
+                }
+            }
+            // And the samples themselves.
+            for (sample, own) in &members {
+                for j in 0..=16 {
+                    let t = own.span[0] + (own.span[1] - own.span[0]) * j as f32 / 16.0;
+                    for i in 0..=8 {
+                        let w = -1.0 + i as f32 / 4.0;
+                        assert_inside(&root, sample, &lens, z_near, LensTime { u: w, v: w, t });
+                    }
+                }
+            }
+        }
+        assert_eq!(merged_count, 2000);
+    }
+
+    #[test]
+    fn a_static_sample_has_exact_planes_and_the_node_test_uses_them() {
+        let lens = LensModel { c1: -8.0, c2: 2.0, fx: 80.0, fy: 80.0, cx: 32.0, cy: 24.0 };
+        // C(2) = −2: x' = 10 + 0.5·2 − 2û (x̄ = 11), y' = 20 + 2v̂·… (ȳ = 20).
+        let sample = LensTimeSample { x: 10.0, y: 20.0, u: 0.5, v: 0.0, t: 0.3, z: 2.0, motion: [0.0; 3] };
+        let b = sample_bounds(&sample, &lens, 1e-3, &ScreenArea { width: 64.0, height: 48.0, max_reach: 4.0 }).unwrap();
+        assert_eq!(b.span, [0.0, 1.0]);
+        for plane in [b.x_min, b.x_max] {
+            assert_eq!((plane.time, plane.lens), (0.0, -2.0));
+            assert!((plane.constant - 11.0).abs() < 1e-4);
+        }
+        let at = LensTime { u: 1.0, v: 0.0, t: 0.7 };
+        assert!(b.near([9.0 + 0.9, 20.0], at, 1.0) && !b.near([9.0 + 1.1, 20.0], at, 0.05));
+        assert!(!b.near([9.0, 21.5], at, 1.0) && b.near([9.0, 20.5], at, 1.0));
+        let (w, h) = b.extent();
+        assert!((w - 4.0).abs() < 1e-3 && (h - 4.0).abs() < 1e-3, "{w} {h}");
+        // Far off the image (x = 500 on a 64-px image, reach 4): never near it.
+        let far = LensTimeSample { x: 500.0, ..sample };
+        assert!(sample_bounds(&far, &lens, 1e-3, &ScreenArea { width: 64.0, height: 48.0, max_reach: 4.0 }).is_none());
+    }
+}
