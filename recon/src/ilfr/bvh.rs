@@ -1,0 +1,665 @@
+//! Our bounding volume hierarchy over the splats, paper Section 2.3: "we organize the secondary
+//! hit points into a … bounding volume hierarchy … During reconstruction, the hierarchy is used
+//! in a standard fashion by walking the BVH and intersecting the reconstruction ray with the
+//! splats in the intersected leaf nodes" (design: docs/ilfr-design.md §3 #8, §4 candidate A).
+//!
+//! Paper → code:
+//! - the hierarchy: [`DiscBvh::build`] — binned SAH (16 bins, all three axes) over each disc's
+//!   exact box ([`Disc::bounds`]), leaves of at most [`MAX_LEAF`] discs stored contiguously in
+//!   leaf order, 2-wide nodes of 32 bytes. Sequential and a pure function of the input, hence the
+//!   same tree for any thread count. (The paper's streaming Morton builder and motion boxes are
+//!   not used; motion is slice 10 of the design.)
+//! - "collect all input samples whose spatial support overlaps the reconstruction ray"
+//!   (§2.3.2) and the retrace of input rays (§2.3.1): [`DiscBvh::for_each_hit`] /
+//!   [`DiscBvh::collect_hits`] — *every* disc the ray hits within (t_min, t_max), not the
+//!   nearest; an unordered stack walk.
+//! - "the bounding boxes of the BVH nodes are recomputed to accommodate the new sizes"
+//!   (§2.3.1): [`DiscBvh::set_radii`] (bottom-up refit, same topology).
+//!
+//! Boxes are padded by a small scene-relative margin so that rounding in the box test can never
+//! drop a disc that [`intersect`] accepts: the walk returns exactly the set a scan of all discs
+//! returns (tested bit for bit).
+
+use super::disc::{intersect, Disc, DiscHit, Ray};
+
+/// Discs per leaf at most.
+pub const MAX_LEAF: usize = 8;
+/// SAH bins per axis.
+const BINS: usize = 16;
+/// Relative slack of the box test and the box padding (both far above f32 rounding).
+const BOX_SLACK: f32 = 1e-5;
+
+/// A node: its box, then either two children at `first`, `first + 1` (`count` = 0) or the leaf
+/// range `first .. first + count` of the discs in leaf order.
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    lo: [f32; 3],
+    hi: [f32; 3],
+    first: u32,
+    count: u32,
+}
+
+/// A hit found by the walk.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SplatHit {
+    /// The disc's index in the input of [`DiscBvh::build`].
+    pub id: u32,
+    /// Its position in leaf order ([`DiscBvh::disc_at`]).
+    pub slot: u32,
+    pub hit: DiscHit,
+}
+
+/// Counts of one walk, for statistics.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct WalkCounts {
+    pub nodes: u64,
+    pub discs_tested: u64,
+}
+
+/// The hierarchy; it owns the discs, in leaf order.
+#[derive(Clone, Debug)]
+pub struct DiscBvh {
+    nodes: Vec<Node>,
+    discs: Vec<Disc>,
+    /// Input index of each disc in leaf order.
+    ids: Vec<u32>,
+    /// Absolute padding of every box (scene-relative).
+    pad: f32,
+}
+
+struct BuildRef {
+    centre: [f32; 3],
+    lo: [f32; 3],
+    hi: [f32; 3],
+    id: u32,
+}
+
+#[derive(Clone, Copy)]
+struct Bin {
+    lo: [f32; 3],
+    hi: [f32; 3],
+    count: u32,
+}
+
+const EMPTY_BIN: Bin = Bin { lo: [f32::INFINITY; 3], hi: [f32::NEG_INFINITY; 3], count: 0 };
+
+fn grow(lo: &mut [f32; 3], hi: &mut [f32; 3], other_lo: [f32; 3], other_hi: [f32; 3]) {
+    for axis in 0..3 {
+        lo[axis] = lo[axis].min(other_lo[axis]);
+        hi[axis] = hi[axis].max(other_hi[axis]);
+    }
+}
+
+fn half_area(lo: [f32; 3], hi: [f32; 3]) -> f32 {
+    let e = [(hi[0] - lo[0]).max(0.0), (hi[1] - lo[1]).max(0.0), (hi[2] - lo[2]).max(0.0)];
+    e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
+}
+
+impl DiscBvh {
+    /// Builds the hierarchy. Every centre and radius must be finite, radii ≥ 0, normals unit
+    /// (make them with [`Disc::new`]); otherwise an error names the disc.
+    pub fn build(discs: &[Disc]) -> Result<DiscBvh, String> {
+        let mut largest = 0.0f32;
+        for (i, disc) in discs.iter().enumerate() {
+            if !disc.centre.iter().all(|c| c.is_finite()) {
+                return Err(format!("splat hierarchy: the centre of disc {i} is not finite: {:?}", disc.centre));
+            }
+            if !(disc.radius.is_finite() && disc.radius >= 0.0) {
+                return Err(format!("splat hierarchy: the radius of disc {i} is {}, not finite and ≥ 0", disc.radius));
+            }
+            let l = super::disc::length(disc.normal);
+            if !(l.is_finite() && (l - 1.0).abs() <= 1e-3) {
+                return Err(format!("splat hierarchy: the normal of disc {i} is not a unit vector: {:?}", disc.normal));
+            }
+            largest = largest.max(disc.radius);
+            for c in disc.centre {
+                largest = largest.max(c.abs());
+            }
+        }
+        let mut refs: Vec<BuildRef> = discs
+            .iter()
+            .enumerate()
+            .map(|(i, d)| {
+                let (lo, hi) = d.bounds();
+                BuildRef { centre: d.centre, lo, hi, id: i as u32 }
+            })
+            .collect();
+        let mut nodes = Vec::with_capacity(discs.len() / 2 + 1);
+        if !refs.is_empty() {
+            nodes.push(Node { lo: [0.0; 3], hi: [0.0; 3], first: 0, count: 0 });
+            // (node, start, end) still to split.
+            let mut work = vec![(0usize, 0usize, refs.len())];
+            while let Some((node, start, end)) = work.pop() {
+                match split(&mut refs[start..end]) {
+                    None => {
+                        nodes[node] =
+                            Node { lo: [0.0; 3], hi: [0.0; 3], first: start as u32, count: (end - start) as u32 }
+                    }
+                    Some(mid) => {
+                        let first = nodes.len();
+                        nodes[node] = Node { lo: [0.0; 3], hi: [0.0; 3], first: first as u32, count: 0 };
+                        nodes.push(nodes[node]);
+                        nodes.push(nodes[node]);
+                        work.push((first + 1, start + mid, end));
+                        work.push((first, start, start + mid));
+                    }
+                }
+            }
+        }
+        let mut bvh = DiscBvh {
+            nodes,
+            discs: refs.iter().map(|r| discs[r.id as usize]).collect(),
+            ids: refs.iter().map(|r| r.id).collect(),
+            pad: BOX_SLACK * largest,
+        };
+        bvh.refit();
+        Ok(bvh)
+    }
+
+    pub fn len(&self) -> usize {
+        self.discs.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.discs.is_empty()
+    }
+
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// The disc at `slot` in leaf order, and its input index.
+    pub fn disc_at(&self, slot: u32) -> (&Disc, u32) {
+        (&self.discs[slot as usize], self.ids[slot as usize])
+    }
+
+    /// The discs in leaf order with their input indices.
+    pub fn discs(&self) -> impl Iterator<Item = (u32, &Disc)> {
+        self.ids.iter().copied().zip(self.discs.iter())
+    }
+
+    /// Radii by input index.
+    pub fn radii(&self) -> Vec<f32> {
+        let mut radius = vec![0.0; self.discs.len()];
+        for (id, disc) in self.discs() {
+            radius[id as usize] = disc.radius;
+        }
+        radius
+    }
+
+    /// Replaces every radius (by input index; finite, ≥ 0) and refits the boxes bottom-up.
+    pub fn set_radii(&mut self, radius_by_id: &[f32]) -> Result<(), String> {
+        if radius_by_id.len() != self.discs.len() {
+            return Err(format!("splat hierarchy: {} radii for {} discs", radius_by_id.len(), self.discs.len()));
+        }
+        if let Some(i) = radius_by_id.iter().position(|r| !(r.is_finite() && *r >= 0.0)) {
+            return Err(format!("splat hierarchy: radius {i} is {}, not finite and ≥ 0", radius_by_id[i]));
+        }
+        for (slot, disc) in self.discs.iter_mut().enumerate() {
+            disc.radius = radius_by_id[self.ids[slot] as usize];
+        }
+        self.refit();
+        Ok(())
+    }
+
+    /// Recomputes every box from the discs: children come after their parent, so a reverse
+    /// sweep sees children first.
+    fn refit(&mut self) {
+        let pad = self.pad;
+        for index in (0..self.nodes.len()).rev() {
+            let Node { first, count, .. } = self.nodes[index];
+            let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+            if count > 0 {
+                for disc in &self.discs[first as usize..(first + count) as usize] {
+                    let (dlo, dhi) = disc.bounds();
+                    grow(&mut lo, &mut hi, dlo, dhi);
+                }
+                for axis in 0..3 {
+                    lo[axis] -= pad + BOX_SLACK * lo[axis].abs();
+                    hi[axis] += pad + BOX_SLACK * hi[axis].abs();
+                }
+            } else {
+                for child in [first as usize, first as usize + 1] {
+                    grow(&mut lo, &mut hi, self.nodes[child].lo, self.nodes[child].hi);
+                }
+            }
+            self.nodes[index].lo = lo;
+            self.nodes[index].hi = hi;
+        }
+    }
+
+    /// Calls `visit` for every disc the ray hits with t in (t_min, t_max), in walk order.
+    /// `stack` is scratch, reused between calls.
+    pub fn for_each_hit(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        stack: &mut Vec<u32>,
+        mut visit: impl FnMut(SplatHit),
+    ) -> WalkCounts {
+        let mut counts = WalkCounts::default();
+        if self.nodes.is_empty() {
+            return counts;
+        }
+        let inverse = ray.direction.map(|d| {
+            let d = if d.abs() > 1e-20 { d } else { 1e-20f32.copysign(d) };
+            1.0 / d
+        });
+        stack.clear();
+        stack.push(0);
+        while let Some(index) = stack.pop() {
+            let node = &self.nodes[index as usize];
+            counts.nodes += 1;
+            if !box_overlaps(node, ray.origin, inverse, t_min, t_max) {
+                continue;
+            }
+            if node.count == 0 {
+                stack.push(node.first + 1);
+                stack.push(node.first);
+                continue;
+            }
+            counts.discs_tested += node.count as u64;
+            for slot in node.first..node.first + node.count {
+                if let Some(hit) = intersect(&self.discs[slot as usize], ray, t_min, t_max) {
+                    visit(SplatHit { id: self.ids[slot as usize], slot, hit });
+                }
+            }
+        }
+        counts
+    }
+
+    /// Every hit of the ray with t in (t_min, t_max), appended to `out` (cleared first).
+    pub fn collect_hits(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        stack: &mut Vec<u32>,
+        out: &mut Vec<SplatHit>,
+    ) -> WalkCounts {
+        out.clear();
+        self.for_each_hit(ray, t_min, t_max, stack, |hit| out.push(hit))
+    }
+
+    /// The same set by testing every disc: O(n) per ray, for tests and measurements.
+    pub fn collect_hits_brute_force(&self, ray: &Ray, t_min: f32, t_max: f32, out: &mut Vec<SplatHit>) {
+        out.clear();
+        for (slot, disc) in self.discs.iter().enumerate() {
+            if let Some(hit) = intersect(disc, ray, t_min, t_max) {
+                out.push(SplatHit { id: self.ids[slot], slot: slot as u32, hit });
+            }
+        }
+    }
+}
+
+/// The slab test against the ray's (t_min, t_max), with a relative slack so that it is
+/// conservative with respect to [`intersect`]; NaN-free for any finite box (|1/d| ≤ 1e20).
+#[inline]
+fn box_overlaps(node: &Node, origin: [f32; 3], inverse: [f32; 3], t_min: f32, t_max: f32) -> bool {
+    let mut near = t_min;
+    let mut far = t_max;
+    for axis in 0..3 {
+        let a = (node.lo[axis] - origin[axis]) * inverse[axis];
+        let b = (node.hi[axis] - origin[axis]) * inverse[axis];
+        near = near.max(a.min(b));
+        far = far.min(a.max(b));
+    }
+    near <= far + BOX_SLACK * (far.abs() + near.abs())
+}
+
+/// Chooses a split of `refs` by binned SAH and partitions it; `None` makes a leaf.
+fn split(refs: &mut [BuildRef]) -> Option<usize> {
+    let n = refs.len();
+    if n <= 1 {
+        return None;
+    }
+    let (mut box_lo, mut box_hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    let (mut centre_lo, mut centre_hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for r in refs.iter() {
+        grow(&mut box_lo, &mut box_hi, r.lo, r.hi);
+        grow(&mut centre_lo, &mut centre_hi, r.centre, r.centre);
+    }
+    let parent_area = half_area(box_lo, box_hi);
+    // Cost in units of one disc test; a node visit costs about as much.
+    let leaf_cost = n as f32;
+    let mut best: Option<(f32, usize, usize)> = None; // (cost, axis, bins on the left)
+    for axis in 0..3 {
+        let extent = centre_hi[axis] - centre_lo[axis];
+        let spread = extent > 0.0;
+        if !spread {
+            continue;
+        }
+        let scale = BINS as f32 / extent;
+        let bin_of = |c: f32| (((c - centre_lo[axis]) * scale) as usize).min(BINS - 1);
+        let mut bins = [EMPTY_BIN; BINS];
+        for r in refs.iter() {
+            let bin = &mut bins[bin_of(r.centre[axis])];
+            grow(&mut bin.lo, &mut bin.hi, r.lo, r.hi);
+            bin.count += 1;
+        }
+        // Sweep from the right for the right-side areas, then from the left.
+        let mut right_area = [0.0f32; BINS];
+        let (mut lo, mut hi, mut count) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3], 0u32);
+        for b in (1..BINS).rev() {
+            grow(&mut lo, &mut hi, bins[b].lo, bins[b].hi);
+            count += bins[b].count;
+            right_area[b] = half_area(lo, hi) * count as f32;
+        }
+        let (mut lo, mut hi, mut count) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3], 0u32);
+        for b in 0..BINS - 1 {
+            grow(&mut lo, &mut hi, bins[b].lo, bins[b].hi);
+            count += bins[b].count;
+            if count == 0 || count as usize == n {
+                continue;
+            }
+            let cost =
+                1.0 + (half_area(lo, hi) * count as f32 + right_area[b + 1]) / parent_area.max(f32::MIN_POSITIVE);
+            if best.map_or(true, |(c, _, _)| cost < c) {
+                best = Some((cost, axis, b + 1));
+            }
+        }
+    }
+    match best {
+        Some((cost, axis, left_bins)) if cost < leaf_cost || n > MAX_LEAF => {
+            let extent = centre_hi[axis] - centre_lo[axis];
+            let scale = BINS as f32 / extent;
+            let lo = centre_lo[axis];
+            let mid = partition(refs, |r| ((((r.centre[axis] - lo) * scale) as usize).min(BINS - 1)) < left_bins);
+            Some(mid)
+        }
+        _ if n > MAX_LEAF => {
+            // All centres coincide (or a NaN-free degenerate spread): split by position in the
+            // current order, which is deterministic.
+            Some(n / 2)
+        }
+        _ => None,
+    }
+}
+
+/// In-place partition: the elements satisfying `left` first; returns their count. A pure
+/// function of the slice's order, so the build is deterministic.
+fn partition(refs: &mut [BuildRef], left: impl Fn(&BuildRef) -> bool) -> usize {
+    let mut write = 0;
+    for read in 0..refs.len() {
+        if left(&refs[read]) {
+            refs.swap(write, read);
+            write += 1;
+        }
+    }
+    write
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ilfr::disc::length;
+
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> f32 {
+            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((self.0 >> 40) as f32) / (1u64 << 24) as f32
+        }
+        fn unit(&mut self) -> [f32; 3] {
+            let (u, v) = (self.next() * 2.0 - 1.0, self.next() * std::f32::consts::TAU);
+            let r = (1.0 - u * u).max(0.0).sqrt();
+            [r * v.cos(), r * v.sin(), u]
+        }
+    }
+
+    /// Discs on a bumpy surface and on a few random planes, with some duplicates and zero radii.
+    fn random_discs(n: usize, seed: u64) -> Vec<Disc> {
+        let mut rng = Rng(seed);
+        let mut discs = Vec::with_capacity(n);
+        for i in 0..n {
+            let disc = if i % 3 == 0 {
+                Disc::new([rng.next() * 4.0, rng.next() * 4.0, rng.next() * 4.0], rng.unit(), rng.next() * 0.3)
+            } else {
+                let (x, y) = (rng.next() * 4.0, rng.next() * 4.0);
+                let z = 0.3 * (3.0 * x).sin() * (2.0 * y).cos();
+                let normal = [-0.9 * (3.0 * x).cos() * (2.0 * y).cos(), 0.6 * (3.0 * x).sin() * (2.0 * y).sin(), 1.0];
+                Disc::new([x, y, z], normal, 0.02 + rng.next() * 0.1)
+            };
+            discs.push(match i % 101 {
+                7 => discs[i - 1],
+                8 => Disc { radius: 0.0, ..disc },
+                _ => disc,
+            });
+        }
+        discs
+    }
+
+    fn random_rays(n: usize, seed: u64) -> Vec<(Ray, f32, f32)> {
+        let mut rng = Rng(seed);
+        (0..n)
+            .map(|i| {
+                let origin = [rng.next() * 6.0 - 1.0, rng.next() * 6.0 - 1.0, rng.next() * 3.0 - 1.0];
+                let mut direction = rng.unit();
+                if i % 17 == 0 {
+                    // Axis-aligned directions exercise the 1/d guard.
+                    direction = [0.0, 0.0, if i % 2 == 0 { 1.0 } else { -1.0 }];
+                }
+                let (t_min, t_max) = match i % 3 {
+                    0 => (0.0, f32::INFINITY),
+                    1 => (1e-3, 2.0),
+                    _ => (0.5, 1.0 + rng.next() * 4.0),
+                };
+                (Ray { origin, direction }, t_min, t_max)
+            })
+            .collect()
+    }
+
+    fn sorted(hits: &[SplatHit]) -> Vec<(u32, u32, u32, u32, bool)> {
+        let mut v: Vec<_> = hits
+            .iter()
+            .map(|h| (h.id, h.hit.t.to_bits(), h.hit.spatial.to_bits(), h.hit.depth.to_bits(), h.hit.back_facing))
+            .collect();
+        v.sort();
+        v
+    }
+
+    fn assert_walk_equals_scan(bvh: &DiscBvh, rays: &[(Ray, f32, f32)]) -> usize {
+        let (mut stack, mut walked, mut scanned) = (Vec::new(), Vec::new(), Vec::new());
+        let mut total = 0;
+        for (k, (ray, t_min, t_max)) in rays.iter().enumerate() {
+            bvh.collect_hits(ray, *t_min, *t_max, &mut stack, &mut walked);
+            bvh.collect_hits_brute_force(ray, *t_min, *t_max, &mut scanned);
+            assert_eq!(sorted(&walked), sorted(&scanned), "ray {k}: {ray:?}");
+            total += walked.len();
+        }
+        total
+    }
+
+    #[test]
+    fn the_walk_finds_every_disc_a_scan_finds() {
+        let discs = random_discs(5000, 1);
+        let bvh = DiscBvh::build(&discs).unwrap();
+        let total = assert_walk_equals_scan(&bvh, &random_rays(3000, 2));
+        // Not a vacuous comparison: many rays hit several discs.
+        assert!(total > 3000, "{total}");
+        // Leaves hold at most MAX_LEAF discs and every disc appears once.
+        let mut seen = vec![false; discs.len()];
+        for (id, disc) in bvh.discs() {
+            assert!(!seen[id as usize]);
+            seen[id as usize] = true;
+            assert_eq!(*disc, discs[id as usize]);
+        }
+        assert!(bvh.nodes.iter().all(|n| n.count as usize <= MAX_LEAF));
+    }
+
+    #[test]
+    fn hits_are_those_of_the_disc_test_with_input_ids() {
+        // A hand-made stack of three discs on z = 1, 2, 3 under a vertical ray: all three, in
+        // any order, with their ids; a window (1.5, 2.5) keeps only the middle one.
+        let discs = [
+            Disc::new([0.0, 0.0, 3.0], [0.0, 0.0, 1.0], 1.0),
+            Disc::new([0.2, 0.0, 1.0], [0.0, 0.0, -1.0], 0.5),
+            Disc::new([5.0, 5.0, 2.0], [0.0, 0.0, 1.0], 0.1),
+            Disc::new([0.0, 0.3, 2.0], [0.0, 0.6, 0.8], 0.5),
+        ];
+        let bvh = DiscBvh::build(&discs).unwrap();
+        let ray = Ray { origin: [0.0, 0.0, 0.0], direction: [0.0, 0.0, 1.0] };
+        let (mut stack, mut out) = (Vec::new(), Vec::new());
+        bvh.collect_hits(&ray, 0.0, f32::INFINITY, &mut stack, &mut out);
+        let mut ids: Vec<u32> = out.iter().map(|h| h.id).collect();
+        ids.sort();
+        assert_eq!(ids, [0, 1, 3]);
+        for h in &out {
+            assert_eq!(Some(h.hit), intersect(&discs[h.id as usize], &ray, 0.0, f32::INFINITY));
+            assert_eq!(bvh.disc_at(h.slot).1, h.id);
+        }
+        bvh.collect_hits(&ray, 1.5, 2.5, &mut stack, &mut out);
+        assert_eq!(out.iter().map(|h| h.id).collect::<Vec<_>>(), [3]);
+    }
+
+    #[test]
+    fn refit_after_shrinking_keeps_the_walk_exact() {
+        let discs = random_discs(4000, 5);
+        let mut bvh = DiscBvh::build(&discs).unwrap();
+        let rays = random_rays(2000, 6);
+        let before = assert_walk_equals_scan(&bvh, &rays);
+        // Shrink every other disc to a pseudo-random fraction, some to zero.
+        let mut rng = Rng(9);
+        let radii: Vec<f32> = bvh
+            .radii()
+            .iter()
+            .enumerate()
+            .map(|(i, &r)| match i % 4 {
+                0 => r * rng.next(),
+                1 => 0.0,
+                _ => r,
+            })
+            .collect();
+        bvh.set_radii(&radii).unwrap();
+        assert_eq!(bvh.radii(), radii);
+        let after = assert_walk_equals_scan(&bvh, &rays);
+        assert!(after < before && after > 0, "{before} → {after}");
+        // Refit boxes are tight: the root box equals that of a tree built on the shrunk discs.
+        let fresh =
+            DiscBvh::build(&discs.iter().zip(&radii).map(|(d, &r)| Disc { radius: r, ..*d }).collect::<Vec<_>>())
+                .unwrap();
+        let (fresh_root, refit_root) = (&fresh.nodes[0], &bvh.nodes[0]);
+        assert_eq!((fresh_root.lo, fresh_root.hi), (refit_root.lo, refit_root.hi));
+        assert!(bvh.set_radii(&radii[1..]).is_err());
+        assert!(bvh.set_radii(&vec![f32::NAN; radii.len()]).is_err());
+    }
+
+    #[test]
+    fn the_tree_does_not_depend_on_the_thread_count() {
+        // The build is sequential; built inside pools of 1 and 3 threads it is the same tree.
+        let discs = random_discs(3000, 3);
+        let build = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| DiscBvh::build(&discs).unwrap())
+        };
+        let (a, b) = (build(1), build(3));
+        assert_eq!(a.ids, b.ids);
+        assert_eq!(a.nodes.len(), b.nodes.len());
+        for (x, y) in a.nodes.iter().zip(&b.nodes) {
+            assert_eq!((x.first, x.count), (y.first, y.count));
+            assert!(x.lo.iter().chain(&x.hi).zip(y.lo.iter().chain(&y.hi)).all(|(p, q)| p.to_bits() == q.to_bits()));
+        }
+    }
+
+    #[test]
+    fn degenerate_sets_build_and_query() {
+        // Empty, one disc, and 100 coincident discs (no centroid spread: split by order).
+        let empty = DiscBvh::build(&[]).unwrap();
+        let (mut stack, mut out) = (Vec::new(), Vec::new());
+        let ray = Ray { origin: [0.0, 0.0, 5.0], direction: [0.0, 0.0, -1.0] };
+        empty.collect_hits(&ray, 0.0, f32::INFINITY, &mut stack, &mut out);
+        assert!(out.is_empty());
+        let same = vec![Disc::new([0.0; 3], [0.0, 0.0, 1.0], 1.0); 100];
+        let bvh = DiscBvh::build(&same).unwrap();
+        bvh.collect_hits(&ray, 0.0, f32::INFINITY, &mut stack, &mut out);
+        assert_eq!(out.len(), 100);
+        assert!(bvh.nodes.iter().all(|n| n.count as usize <= MAX_LEAF));
+        // Bad input names the disc.
+        let mut bad = random_discs(10, 1);
+        bad[4].centre[2] = f32::NAN;
+        assert!(DiscBvh::build(&bad).unwrap_err().contains("disc 4"));
+        bad = random_discs(10, 1);
+        bad[2].radius = -1.0;
+        assert!(DiscBvh::build(&bad).unwrap_err().contains("disc 2"));
+        assert!(length(bad[0].normal) > 0.99);
+    }
+
+    /// `cargo test --release -p recon --lib ilfr::bvh -- --ignored --nocapture`
+    #[test]
+    #[ignore = "timing, run by hand"]
+    fn hierarchy_speed() {
+        use rayon::prelude::*;
+        let n = 200_000;
+        // Splats on a bumpy 20 × 20 surface sized like slice 1's k = 12 radii (≈ 2 spacings).
+        let mut rng = Rng(1);
+        let spacing = (400.0f32 / n as f32).sqrt();
+        let discs: Vec<Disc> = (0..n)
+            .map(|_| {
+                let (x, y) = (rng.next() * 20.0, rng.next() * 20.0);
+                let z = 0.5 * (x * 0.7).sin() * (y * 0.5).cos();
+                let normal = [-0.35 * (x * 0.7).cos() * (y * 0.5).cos(), 0.25 * (x * 0.7).sin() * (y * 0.5).sin(), 1.0];
+                Disc::new([x, y, z], normal, 2.0 * spacing)
+            })
+            .collect();
+        let start = std::time::Instant::now();
+        let bvh = DiscBvh::build(&discs).unwrap();
+        let build = start.elapsed().as_secs_f64();
+        let leaves = bvh.nodes.iter().filter(|n| n.count > 0).count();
+        let m = 1_000_000;
+        // Rays leaving the surface (upper hemisphere, mostly escaping: the gather's case on a
+        // plane) and rays from 3 units above crossing it (the case of a ray meeting a surface).
+        let leaving: Vec<Ray> = (0..m)
+            .map(|_| {
+                let (x, y) = (rng.next() * 20.0, rng.next() * 20.0);
+                let z = 0.5 * (x * 0.7).sin() * (y * 0.5).cos() + 0.01;
+                let mut d = rng.unit();
+                d[2] = d[2].abs();
+                Ray { origin: [x, y, z], direction: d }
+            })
+            .collect();
+        let crossing: Vec<Ray> = (0..m)
+            .map(|_| {
+                let (x, y) = (2.0 + rng.next() * 16.0, 2.0 + rng.next() * 16.0);
+                let mut d = rng.unit();
+                d[2] = -d[2].abs().max(0.5);
+                let l = length(d);
+                Ray { origin: [x, y, 3.0], direction: [d[0] / l, d[1] / l, d[2] / l] }
+            })
+            .collect();
+        println!(
+            "{n} discs: build {build:.3} s ({} nodes, {leaves} leaves, {:.1} discs/leaf), on {} threads",
+            bvh.nodes.len(),
+            n as f64 / leaves as f64,
+            rayon::current_num_threads()
+        );
+        for (name, rays) in [("leaving", &leaving), ("crossing", &crossing)] {
+            let start = std::time::Instant::now();
+            let (hits, nodes, tested) = rays
+                .par_iter()
+                .map_init(
+                    || (Vec::new(), Vec::new()),
+                    |(stack, out), ray| {
+                        let c = bvh.collect_hits(ray, 1e-4, f32::INFINITY, stack, out);
+                        (out.len() as u64, c.nodes, c.discs_tested)
+                    },
+                )
+                .reduce(|| (0, 0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
+            let seconds = start.elapsed().as_secs_f64();
+            let m = m as f64;
+            println!(
+                "  {name}: {:.0} rays/s, {:.1} hits/ray, {:.1} nodes/ray, {:.1} discs tested/ray",
+                m / seconds,
+                hits as f64 / m,
+                nodes as f64 / m,
+                tested as f64 / m
+            );
+        }
+        let start = std::time::Instant::now();
+        let radii: Vec<f32> = bvh.radii().iter().map(|r| r * 0.9).collect();
+        let mut refitted = bvh.clone();
+        refitted.set_radii(&radii).unwrap();
+        let refit = start.elapsed().as_secs_f64();
+        println!("  refit {refit:.4} s");
+    }
+}

@@ -1,0 +1,497 @@
+//! Consistent visibility, paper Section 2.3.1 (design: docs/ilfr-design.md §2 "Shrinking",
+//! §3 #9–10).
+//!
+//! Paper → code:
+//! - "we know, with certainty, that a ray from o_i terminated at h_i without being blocked in
+//!   between": [`InputRay`] — every traced secondary ray, finite (o → h) or escaped (o + tω,
+//!   t ∈ (0, ∞)), built from the samples by [`input_rays`].
+//! - "we retrace all the input rays using the BVH and shrink splats that intersect rays they
+//!   should not": [`shrink_splats`] — for every ray j and every splat i ≠ j's own that it hits
+//!   with ε_j < t < |h_j − o_j| − ε_j, r_i ← min(r_i, s_i) (s_i: the ray's distance from h_i on
+//!   i's tangent plane; a ray exactly at the rim misses, see [`super::disc::intersect`]). The
+//!   window leaves alone the splats the ray meets within ε_j of its own hit (the surface around
+//!   h_j itself) and of its origin; ε_j = max(1e-3·|h_j − o_j|, 1e-5 · scene diagonal), the scene
+//!   being the box of the splat centres and ray origins ([`ShrinkParams`]).
+//! - "Finally, the bounding boxes of the BVH nodes are recomputed": the refit
+//!   ([`DiscBvh::set_radii`]) at the end of [`shrink_splats`].
+//!
+//! The result is min(r_i, min of the s_i of the rays that block i), independent of the order in
+//! which rays are processed, so the rays run in parallel with an atomic minimum on the radius's
+//! bits (non-negative floats order like their bit patterns): exact and the same for any thread
+//! count. One pass, as in the paper: a splat shrunk here cannot block a ray it did not block
+//! before, so a second retrace finds nothing (tested).
+
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+
+use rayon::prelude::*;
+
+use super::bvh::{DiscBvh, SplatHit};
+use super::disc::{dot, length, Ray};
+use super::samples::{IndirectSamples, SampleClass};
+
+/// One traced secondary ray.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InputRay {
+    /// o, the primary hit.
+    pub origin: [f32; 3],
+    /// ω, unit.
+    pub direction: [f32; 3],
+    /// |h − o|, or +inf when the ray escaped.
+    pub length: f32,
+    /// The splat of its own hit (an index into the discs of the hierarchy), never shrunk by it.
+    pub own_splat: Option<u32>,
+}
+
+/// The ε of the window (design §3 #10).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShrinkParams {
+    /// ε_j ≥ this × the ray's length …
+    pub relative_epsilon: f32,
+    /// … and ≥ this × the scene diagonal.
+    pub scene_epsilon: f32,
+}
+
+impl Default for ShrinkParams {
+    fn default() -> Self {
+        ShrinkParams { relative_epsilon: 1e-3, scene_epsilon: 1e-5 }
+    }
+}
+
+/// What shrinking did, for reports.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ShrinkStats {
+    /// Input rays retraced.
+    pub rays: usize,
+    /// Rays too short to have a window (|h − o| ≤ 2ε_j), skipped.
+    pub short_rays: usize,
+    /// Rays that crossed at least one splat.
+    pub blocked_rays: usize,
+    /// (ray, splat) crossings.
+    pub crossings: u64,
+    /// Splats whose radius went down.
+    pub shrunk_splats: usize,
+    /// Of those, splats shrunk to radius 0 (a ray through the centre): never hit again.
+    pub dead_splats: usize,
+    /// The absolute floor of ε_j (scene_epsilon × scene diagonal).
+    pub epsilon_floor: f32,
+}
+
+/// The input rays of `samples` (classes `Hit` and `Escaped`), with `own_splat` the index of the
+/// sample in `splat_sample_index` (the sample index of each splat, ascending, as
+/// [`super::splats::GatheredPoints::sample_index`]).
+pub fn input_rays(samples: &IndirectSamples, splat_sample_index: &[u32]) -> Vec<InputRay> {
+    let mut rays = Vec::new();
+    let mut next_splat = 0usize;
+    for i in 0..samples.len() {
+        let own_splat = if splat_sample_index.get(next_splat) == Some(&(i as u32)) {
+            next_splat += 1;
+            Some(next_splat as u32 - 1)
+        } else {
+            None
+        };
+        let length = match samples.class[i] {
+            SampleClass::Hit => length(super::disc::sub(samples.secondary_hit[i], samples.primary_hit[i])),
+            SampleClass::Escaped => f32::INFINITY,
+            SampleClass::CameraMiss | SampleClass::NoSecondaryRay => continue,
+        };
+        rays.push(InputRay { origin: samples.primary_hit[i], direction: samples.direction[i], length, own_splat });
+    }
+    rays
+}
+
+/// The open t interval in which `ray` must not meet any splat, or `None` when it is empty.
+pub fn blocking_window(ray: &InputRay, epsilon_floor: f32, params: &ShrinkParams) -> Option<(f32, f32)> {
+    let epsilon =
+        if ray.length.is_finite() { (params.relative_epsilon * ray.length).max(epsilon_floor) } else { epsilon_floor };
+    let end = ray.length - epsilon;
+    (epsilon < end).then_some((epsilon, end))
+}
+
+/// Calls `visit` for every splat that blocks `ray` (not its own) within its window.
+pub fn for_each_blocker(
+    bvh: &DiscBvh,
+    ray: &InputRay,
+    window: (f32, f32),
+    stack: &mut Vec<u32>,
+    mut visit: impl FnMut(SplatHit),
+) {
+    let geometric = Ray { origin: ray.origin, direction: ray.direction };
+    bvh.for_each_hit(&geometric, window.0, window.1, stack, |hit| {
+        if Some(hit.id) != ray.own_splat {
+            visit(hit)
+        }
+    });
+}
+
+/// The diagonal of the box of the splat centres and the ray origins.
+pub fn scene_diagonal(bvh: &DiscBvh, rays: &[InputRay]) -> f32 {
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for p in bvh.discs().map(|(_, d)| d.centre).chain(rays.iter().map(|r| r.origin)) {
+        for axis in 0..3 {
+            lo[axis] = lo[axis].min(p[axis]);
+            hi[axis] = hi[axis].max(p[axis]);
+        }
+    }
+    if lo[0] <= hi[0] {
+        length(super::disc::sub(hi, lo))
+    } else {
+        0.0
+    }
+}
+
+/// Shrinks every splat that blocks an input ray (see the module documentation) and refits the
+/// hierarchy. Rays must have finite origins, unit directions, lengths > 0 (or +inf) and own
+/// splats within the hierarchy; otherwise an error names the ray.
+pub fn shrink_splats(bvh: &mut DiscBvh, rays: &[InputRay], params: &ShrinkParams) -> Result<ShrinkStats, String> {
+    for (j, ray) in rays.iter().enumerate() {
+        if !ray.origin.iter().all(|c| c.is_finite()) {
+            return Err(format!("shrinking: the origin of input ray {j} is not finite: {:?}", ray.origin));
+        }
+        let l = dot(ray.direction, ray.direction);
+        if !(l.is_finite() && (l - 1.0).abs() <= 1e-3) {
+            return Err(format!("shrinking: the direction of input ray {j} is not a unit vector: {:?}", ray.direction));
+        }
+        let length_ok = ray.length >= 0.0; // false for NaN
+        if !length_ok {
+            return Err(format!("shrinking: the length of input ray {j} is {}", ray.length));
+        }
+        if ray.own_splat.is_some_and(|s| s as usize >= bvh.len()) {
+            return Err(format!("shrinking: input ray {j} names splat {:?} of {}", ray.own_splat, bvh.len()));
+        }
+    }
+    let epsilon_floor = params.scene_epsilon * scene_diagonal(bvh, rays);
+    // Radii by slot (leaf order), as bits: fetch_min on non-negative f32 bits is the float minimum.
+    let radius_bits: Vec<AtomicU32> = bvh.discs().map(|(_, d)| AtomicU32::new(d.radius.to_bits())).collect();
+    let crossings = AtomicU64::new(0);
+    let (short_rays, blocked_rays) = rays
+        .par_iter()
+        .map_init(Vec::new, |stack, ray| {
+            let Some(window) = blocking_window(ray, epsilon_floor, params) else {
+                return (1usize, 0usize);
+            };
+            let mut count = 0u64;
+            for_each_blocker(bvh, ray, window, stack, |hit| {
+                // s ≥ 0 (a square root of a sum of squares, never −0).
+                radius_bits[hit.slot as usize].fetch_min(hit.hit.spatial.to_bits(), Ordering::Relaxed);
+                count += 1;
+            });
+            crossings.fetch_add(count, Ordering::Relaxed);
+            (0, (count > 0) as usize)
+        })
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let mut stats = ShrinkStats {
+        rays: rays.len(),
+        short_rays,
+        blocked_rays,
+        crossings: crossings.into_inner(),
+        epsilon_floor,
+        ..ShrinkStats::default()
+    };
+    let mut radius_by_id = vec![0.0f32; bvh.len()];
+    for ((id, disc), bits) in bvh.discs().zip(&radius_bits) {
+        let radius = f32::from_bits(bits.load(Ordering::Relaxed));
+        if radius < disc.radius {
+            stats.shrunk_splats += 1;
+            stats.dead_splats += (radius == 0.0) as usize;
+        }
+        radius_by_id[id as usize] = radius;
+    }
+    bvh.set_radii(&radius_by_id)?;
+    Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ilfr::disc::{intersect, Disc};
+
+    const UP: [f32; 3] = [0.0, 0.0, 1.0];
+
+    fn normalize(v: [f32; 3]) -> [f32; 3] {
+        let l = length(v);
+        [v[0] / l, v[1] / l, v[2] / l]
+    }
+
+    #[test]
+    fn a_blocking_splat_shrinks_until_the_ray_passes() {
+        // A ray from the origin up to its own hit at z = 2 (splat 0). Splat 1 at z = 1 is 0.3 off
+        // the ray with radius 1: it blocks and must end with radius 0.3 (the ray's distance from its
+        // centre), which the ray then just misses. Splat 2 (5 units aside) and splat 3 (beyond the
+        // hit) do not block; splat 4, centred on the ray 1e-3 before the hit, is met inside
+        // ε = 1e-3 · 2 of the end, part of the surface around h: kept (outside the window the
+        // ray through its centre would kill it, as `escaped_rays_…` checks).
+        let discs = [
+            Disc::new([0.0, 0.0, 2.0], [0.0, 0.0, -1.0], 0.5),
+            Disc::new([0.3, 0.0, 1.0], UP, 1.0),
+            Disc::new([5.0, 0.0, 1.0], UP, 1.0),
+            Disc::new([0.0, 0.0, 3.0], UP, 1.0),
+            Disc::new([0.0, 0.0, 2.0 - 1e-3], normalize([0.2, 0.0, -1.0]), 0.5),
+        ];
+        let mut bvh = DiscBvh::build(&discs).unwrap();
+        let ray = InputRay { origin: [0.0; 3], direction: UP, length: 2.0, own_splat: Some(0) };
+        let stats = shrink_splats(&mut bvh, &[ray], &ShrinkParams::default()).unwrap();
+        let radii = bvh.radii();
+        assert!((radii[1] - 0.3).abs() < 1e-6, "{radii:?}");
+        assert_eq!([radii[0], radii[2], radii[3], radii[4]], [0.5, 1.0, 1.0, 0.5]);
+        assert_eq!((stats.shrunk_splats, stats.crossings, stats.blocked_rays, stats.dead_splats), (1, 1, 1, 0));
+        let geometric = Ray { origin: [0.0; 3], direction: UP };
+        assert!(intersect(&Disc { radius: radii[1], ..discs[1] }, &geometric, 0.0, 2.0).is_none());
+        assert!(intersect(&discs[1], &geometric, 0.0, 2.0).is_some());
+    }
+
+    #[test]
+    fn escaped_rays_shrink_along_their_whole_length_and_own_splats_are_spared() {
+        // An escaped ray along +x meets splats at x = 10 and x = 1000 (0.2 and 0.4 off the ray).
+        let discs =
+            [Disc::new([10.0, 0.2, 0.0], [1.0, 0.0, 0.0], 1.0), Disc::new([1000.0, 0.0, 0.4], [-1.0, 0.0, 0.0], 1.0)];
+        let ray = InputRay { origin: [0.0; 3], direction: [1.0, 0.0, 0.0], length: f32::INFINITY, own_splat: None };
+        let mut bvh = DiscBvh::build(&discs).unwrap();
+        shrink_splats(&mut bvh, &[ray], &ShrinkParams::default()).unwrap();
+        let radii = bvh.radii();
+        assert!((radii[0] - 0.2).abs() < 1e-6 && (radii[1] - 0.4).abs() < 1e-4, "{radii:?}");
+        // The same ray naming splat 1 as its own leaves that one alone.
+        let mut bvh = DiscBvh::build(&discs).unwrap();
+        shrink_splats(&mut bvh, &[InputRay { own_splat: Some(1), ..ray }], &ShrinkParams::default()).unwrap();
+        assert_eq!(bvh.radii()[1], 1.0);
+        // A ray through a centre kills the splat; one of length 0 does nothing.
+        let mut bvh = DiscBvh::build(&discs).unwrap();
+        let through = InputRay { origin: [0.0, 0.2, 0.0], ..ray };
+        let zero = InputRay { origin: [10.0, 0.2, -1.0], direction: UP, length: 0.0, own_splat: None };
+        let stats = shrink_splats(&mut bvh, &[through, zero], &ShrinkParams::default()).unwrap();
+        assert_eq!(bvh.radii()[0], 0.0);
+        assert_eq!((stats.dead_splats, stats.short_rays), (1, 1));
+        // Bad rays are named.
+        let bad = InputRay { direction: [0.0; 3], ..ray };
+        assert!(shrink_splats(&mut bvh, &[ray, bad], &ShrinkParams::default()).unwrap_err().contains("input ray 1"));
+        let bad = InputRay { own_splat: Some(2), ..ray };
+        assert!(shrink_splats(&mut bvh, &[bad], &ShrinkParams::default()).is_err());
+    }
+
+    #[test]
+    fn input_rays_come_from_hit_and_escaped_samples() {
+        // Four records, one per class: a camera miss, a failed BSDF sample, an escaped ray and a hit
+        // at distance 5 (splat 0, the only one).
+        use SampleClass::*;
+        let class = vec![CameraMiss, NoSecondaryRay, Escaped, Hit];
+        let samples = IndirectSamples {
+            path: "test".into(),
+            kind: sampleio::SampleKind::Indirect,
+            width: 4,
+            height: 1,
+            spp: 1,
+            film: vec![[0.5; 2]; 4],
+            primary_hit: vec![[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [3.0, 0.0, 0.0]],
+            primary_normal: vec![[0.0; 3], UP, UP, UP],
+            direction: vec![[0.0; 3], [0.0; 3], UP, [0.0, 0.6, 0.8]],
+            secondary_hit: vec![[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [3.0, 3.0, 4.0]],
+            secondary_normal: vec![[0.0; 3], [0.0; 3], [0.0; 3], [0.0, 0.0, -1.0]],
+            class,
+            radiance: None,
+            distance: None,
+            kappa: None,
+            albedo: None,
+            weight: None,
+            direct: None,
+            secondary_albedo: None,
+            secondary_direct: None,
+        };
+        let rays = input_rays(&samples, &samples.hits());
+        assert_eq!(
+            rays,
+            [
+                InputRay { origin: [2.0, 0.0, 0.0], direction: UP, length: f32::INFINITY, own_splat: None },
+                InputRay { origin: [3.0, 0.0, 0.0], direction: [0.0, 0.6, 0.8], length: 5.0, own_splat: Some(0) },
+            ]
+        );
+    }
+
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> f32 {
+            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((self.0 >> 40) as f32) / (1u64 << 24) as f32
+        }
+    }
+
+    /// Two parallel planes: splats on z = 0 (facing up) and z = 1 (facing down) with a gap in the
+    /// upper plane (no samples for |x − 2| < 0.25) that its neighbours' splats overlap, a third
+    /// plane at z = 2 (facing down) and a plane far aside that no ray reaches. Rays go from the
+    /// lower plane to the upper plane's samples (consistent) and through the gap to z = 2.
+    fn two_planes() -> (Vec<Disc>, Vec<InputRay>, std::ops::Range<usize>) {
+        let mut rng = Rng(3);
+        let mut discs = Vec::new();
+        let mut rays = Vec::new();
+        let radius = 0.3;
+        for _ in 0..1500 {
+            let (x, y) = (rng.next() * 4.0, rng.next() * 4.0);
+            discs.push(Disc::new([x, y, 0.0], UP, radius));
+        }
+        let shoot = |discs: &mut Vec<Disc>, rays: &mut Vec<InputRay>, hit: [f32; 3], normal: [f32; 3]| {
+            let origin = discs[rays.len() % 1500].centre;
+            let offset = super::super::disc::sub(hit, origin);
+            let l = length(offset);
+            discs.push(Disc::new(hit, normal, radius));
+            rays.push(InputRay {
+                origin,
+                direction: [offset[0] / l, offset[1] / l, offset[2] / l],
+                length: l,
+                own_splat: Some(discs.len() as u32 - 1),
+            });
+        };
+        for _ in 0..1500 {
+            let (x, y) = (rng.next() * 4.0, rng.next() * 4.0);
+            if (x - 2.0).abs() >= 0.25 {
+                shoot(&mut discs, &mut rays, [x, y, 1.0], [0.0, 0.0, -1.0]);
+            } else {
+                // Through the gap: aim at z = 2 so that the ray crosses z = 1 inside the gap.
+                let at_gap = [x, y, 1.0];
+                let origin = discs[rays.len() % 1500].centre;
+                let beyond = [2.0 * at_gap[0] - origin[0], 2.0 * at_gap[1] - origin[1], 2.0];
+                shoot(&mut discs, &mut rays, beyond, [0.0, 0.0, -1.0]);
+            }
+        }
+        let aside = discs.len()..discs.len() + 200;
+        for _ in 0..200 {
+            discs.push(Disc::new([20.0 + rng.next(), rng.next(), 0.5], [1.0, 0.0, 0.0], radius));
+        }
+        (discs, rays, aside)
+    }
+
+    /// The definition by brute force: every ray against every disc.
+    fn shrunk_by_brute_force(discs: &[Disc], rays: &[InputRay], params: &ShrinkParams, floor: f32) -> Vec<f32> {
+        let mut radius: Vec<f32> = discs.iter().map(|d| d.radius).collect();
+        for ray in rays {
+            let Some((t0, t1)) = blocking_window(ray, floor, params) else { continue };
+            for (i, disc) in discs.iter().enumerate() {
+                if Some(i as u32) == ray.own_splat {
+                    continue;
+                }
+                if let Some(hit) = intersect(disc, &Ray { origin: ray.origin, direction: ray.direction }, t0, t1) {
+                    radius[i] = radius[i].min(hit.spatial);
+                }
+            }
+        }
+        radius
+    }
+
+    #[test]
+    fn after_shrinking_no_input_ray_is_blocked() {
+        let (discs, rays, aside) = two_planes();
+        let params = ShrinkParams::default();
+        let mut bvh = DiscBvh::build(&discs).unwrap();
+        let stats = shrink_splats(&mut bvh, &rays, &params).unwrap();
+        let radii = bvh.radii();
+        // Equal to the brute-force definition, bit for bit.
+        let expected = shrunk_by_brute_force(&discs, &rays, &params, stats.epsilon_floor);
+        assert!(radii.iter().zip(&expected).all(|(a, b)| a.to_bits() == b.to_bits()));
+        // Something happened, and only to upper-plane splats bordering the gap.
+        assert!(stats.shrunk_splats > 10 && stats.blocked_rays > 10, "{stats:?}");
+        for (i, (r, d)) in radii.iter().zip(&discs).enumerate() {
+            if *r < d.radius {
+                assert!(d.centre[2] == 1.0 && (d.centre[0] - 2.0).abs() < 0.25 + d.radius, "splat {i}: {d:?}");
+            }
+        }
+        assert!(aside.clone().all(|i| radii[i] == discs[i].radius));
+        // The lower plane (origins) and the far plane at z = 2 (hits) are untouched.
+        assert!(radii[..1500].iter().all(|&r| r == 0.3));
+        let far_hits = discs.iter().zip(&radii).filter(|(d, _)| d.centre[2] == 2.0);
+        assert!(far_hits.clone().count() > 50 && far_hits.clone().all(|(_, &r)| r == 0.3));
+        // Retrace: no input ray is blocked any more, and shrinking again changes nothing.
+        let mut stack = Vec::new();
+        for ray in &rays {
+            if let Some(window) = blocking_window(ray, stats.epsilon_floor, &params) {
+                for_each_blocker(&bvh, ray, window, &mut stack, |hit| panic!("{ray:?} still blocked by {hit:?}"));
+            }
+        }
+        let again = shrink_splats(&mut bvh, &rays, &params).unwrap();
+        assert_eq!((again.shrunk_splats, again.crossings), (0, 0));
+    }
+
+    #[test]
+    fn random_scenes_match_the_definition_for_any_thread_count() {
+        // Random discs and random rays between random points, some escaping.
+        let mut rng = Rng(17);
+        let discs: Vec<Disc> = (0..2000)
+            .map(|_| {
+                let n = normalize([rng.next() - 0.5, rng.next() - 0.5, rng.next() - 0.5 + 1e-3]);
+                Disc::new([rng.next() * 3.0, rng.next() * 3.0, rng.next() * 3.0], n, rng.next() * 0.3)
+            })
+            .collect();
+        let rays: Vec<InputRay> = (0..3000)
+            .map(|j| {
+                let own = (j * 7 % discs.len()) as u32;
+                let origin = [rng.next() * 3.0, rng.next() * 3.0, rng.next() * 3.0];
+                let offset = super::super::disc::sub(discs[own as usize].centre, origin);
+                let l = length(offset);
+                let direction = [offset[0] / l, offset[1] / l, offset[2] / l];
+                if j % 5 == 0 {
+                    InputRay { origin, direction, length: f32::INFINITY, own_splat: None }
+                } else {
+                    InputRay { origin, direction, length: l, own_splat: Some(own) }
+                }
+            })
+            .collect();
+        let params = ShrinkParams::default();
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let mut bvh = DiscBvh::build(&discs).unwrap();
+            let stats = pool.install(|| shrink_splats(&mut bvh, &rays, &params).unwrap());
+            (bvh.radii(), stats)
+        };
+        let (one, stats) = run(1);
+        let (two, stats_two) = run(2);
+        assert!(one.iter().zip(&two).all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert_eq!(stats, stats_two);
+        let expected = shrunk_by_brute_force(&discs, &rays, &params, stats.epsilon_floor);
+        assert!(one.iter().zip(&expected).all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert!(stats.shrunk_splats > 100, "{stats:?}");
+    }
+
+    /// `cargo test --release -p recon --lib ilfr::shrink -- --ignored --nocapture`
+    #[test]
+    #[ignore = "timing, run by hand"]
+    fn shrinking_speed() {
+        // 200k splats on a bumpy 20 × 20 surface (radius 2 spacings) and 200k rays to its samples
+        // from 1 to 3 units up and up to 1 aside, a quarter escaping upwards. (Rays are not checked
+        // against the true surface, so a few cross its hills: the counts are indicative only.)
+        let n = 200_000;
+        let mut rng = Rng(1);
+        let spacing = (400.0f32 / n as f32).sqrt();
+        let height = |x: f32, y: f32| 0.5 * (x * 0.7).sin() * (y * 0.5).cos();
+        let discs: Vec<Disc> = (0..n)
+            .map(|_| {
+                let (x, y) = (rng.next() * 20.0, rng.next() * 20.0);
+                let normal = [-0.35 * (x * 0.7).cos() * (y * 0.5).cos(), 0.25 * (x * 0.7).sin() * (y * 0.5).sin(), 1.0];
+                Disc::new([x, y, height(x, y)], normal, 2.0 * spacing)
+            })
+            .collect();
+        let rays: Vec<InputRay> = (0..n)
+            .map(|j| {
+                let target = discs[j].centre;
+                let origin =
+                    [target[0] + 2.0 * rng.next() - 1.0, target[1] + 2.0 * rng.next() - 1.0, 1.0 + 2.0 * rng.next()];
+                if j % 4 == 0 {
+                    return InputRay { origin, direction: UP, length: f32::INFINITY, own_splat: None };
+                }
+                let offset = super::super::disc::sub(discs[j].centre, origin);
+                let l = length(offset);
+                InputRay {
+                    origin,
+                    direction: [offset[0] / l, offset[1] / l, offset[2] / l],
+                    length: l,
+                    own_splat: Some(j as u32),
+                }
+            })
+            .collect();
+        let mut bvh = DiscBvh::build(&discs).unwrap();
+        let start = std::time::Instant::now();
+        let stats = shrink_splats(&mut bvh, &rays, &ShrinkParams::default()).unwrap();
+        let seconds = start.elapsed().as_secs_f64();
+        println!(
+            "{n} splats, {} rays: {seconds:.3} s ({:.0} rays/s on {} threads, refit included); {stats:?}",
+            rays.len(),
+            rays.len() as f64 / seconds,
+            rayon::current_num_threads()
+        );
+    }
+}

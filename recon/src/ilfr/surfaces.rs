@@ -1,0 +1,525 @@
+//! Apparent surfaces along a reconstruction ray, paper Section 2.3.2, Figure 5 and Section 2.5
+//! (design: docs/ilfr-design.md §2 "Apparent surfaces", "Back-facing splats", "Small surfaces";
+//! §3 #11, #12, #15, #16).
+//!
+//! Paper → code:
+//! - "the samples are sorted according to distance from the ray origin": [`prepare_candidates`]
+//!   — the splats the ray hits ([`super::bvh::DiscBvh::collect_hits`]), sorted by the depth of
+//!   their centres z_i = d·(h_i − p), ties by index.
+//! - "grouped into apparent surfaces … adding the next sample to the open surface as long as it
+//!   does not conflict with any of the samples already in the surface": [`group_end`].
+//! - "Visibility conflicts are detected by computing the intersection of the st plane and the
+//!   event line formed by connecting the two endpoints h_i and h_j. If the intersection point
+//!   lies within the positive halfspaces of both samples, a conflict is declared" (Figure 5):
+//!   [`conflicts`] with [`ConflictTest::EventLine`]; the authors' code's active test
+//!   ("facing / coplanar") as [`ConflictTest::FacingOrCoplanar`].
+//! - §2.5 two-sided splats: "back-facing splats contribute to [visibility] similarly to
+//!   front-facing splats … contribute to radiance only if all splats of the first surface are
+//!   back-facing": the flipped normal n̂ in [`conflicts`] and [`Surface::radiance_from_back_faces`]
+//!   / [`Surface::gives_radiance`]; the code's near-field rule (a back-facing splat whose centre is
+//!   nearer to the st plane than its radius is dropped) in [`prepare_candidates`], switchable.
+//! - §2.5 one- and two-sample surfaces ("we empirically reduce the splat size … for
+//!   single-sample surfaces and … for two-sample surfaces"): [`first_surface`] — a surface of fewer
+//!   than 4 splats that is not the last is kept only if the ray passes inside the convex hull of
+//!   its splats' footprints with radii × 0.5, 0.6, 0.7 (1, 2, 3 splats; the code's constants),
+//!   else it is merged into the next ([`inside_footprint_hull`]).
+//!
+//! Footprints are orthographic projections along the ray onto the st plane (ellipses; the code
+//! projects centrally onto the uv plane). For one splat this is exact and equals "the ray passes
+//! within scale·r of the centre on the tangent plane", whichever projection; for two or three the
+//! ellipses are represented by inscribed 32-gons joined with the exact one-splat test, so the hull
+//! is at most 0.5 % of a radius smaller than the exact one.
+
+use std::ops::Range;
+
+use super::bvh::{DiscBvh, SplatHit};
+use super::disc::{dot, length, sub, DiscHit, Ray};
+
+/// Which visibility-conflict test groups splats.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConflictTest {
+    /// The paper's: the event line through both centres meets the st plane inside both positive
+    /// half-spaces.
+    EventLine,
+    /// The authors' code's: same surface if both (flipped) normals point towards the other
+    /// centre, or both away (within sin 2°), or either centre is within min(r_a, r_b) of the
+    /// other's tangent plane.
+    FacingOrCoplanar,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfaceParams {
+    pub conflict_test: ConflictTest,
+    /// Drop back-facing splats whose centre is nearer to the st plane than their radius.
+    pub backface_near_field_cull: bool,
+    /// Footprint scale of the small-surface test for surfaces of 1, 2, 3 splats.
+    pub small_surface_scale: [f32; 3],
+}
+
+impl Default for SurfaceParams {
+    fn default() -> Self {
+        SurfaceParams {
+            conflict_test: ConflictTest::EventLine,
+            backface_near_field_cull: true,
+            small_surface_scale: [0.5, 0.6, 0.7],
+        }
+    }
+}
+
+/// A splat the ray hits, with what grouping needs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Candidate {
+    /// Index of the disc in the input of the hierarchy.
+    pub id: u32,
+    pub centre: [f32; 3],
+    /// Unit, as stored (not flipped).
+    pub normal: [f32; 3],
+    pub radius: f32,
+    pub hit: DiscHit,
+}
+
+impl Candidate {
+    /// The normal turned to face the ray (n̂ of the design).
+    fn facing_normal(&self) -> [f32; 3] {
+        if self.hit.back_facing {
+            self.normal.map(|c| -c)
+        } else {
+            self.normal
+        }
+    }
+}
+
+/// Turns the walk's hits into candidates: drops near-field back-facing splats when asked
+/// (`dropped` counts them), then sorts by (depth, index). `out` is cleared first.
+pub fn prepare_candidates(bvh: &DiscBvh, hits: &[SplatHit], params: &SurfaceParams, out: &mut Vec<Candidate>) -> usize {
+    out.clear();
+    let mut dropped = 0;
+    for h in hits {
+        let (disc, id) = bvh.disc_at(h.slot);
+        if params.backface_near_field_cull && h.hit.back_facing && h.hit.depth < disc.radius {
+            dropped += 1;
+            continue;
+        }
+        out.push(Candidate { id, centre: disc.centre, normal: disc.normal, radius: disc.radius, hit: h.hit });
+    }
+    out.sort_by(|a, b| a.hit.depth.total_cmp(&b.hit.depth).then(a.id.cmp(&b.id)));
+    dropped
+}
+
+/// Whether splats `a` and `b` (both hit by `ray`) belong to different surfaces.
+pub fn conflicts(ray: &Ray, a: &Candidate, b: &Candidate, test: ConflictTest) -> bool {
+    let e = sub(b.centre, a.centre);
+    let (na, nb) = (a.facing_normal(), b.facing_normal());
+    match test {
+        ConflictTest::EventLine => {
+            let along = dot(ray.direction, e);
+            let parallel = along.abs() <= 1e-7 * length(e);
+            if parallel {
+                return false;
+            }
+            // q = h_a + λe on the st plane: d·(q − p) = z_a + λ(d·e) = 0.
+            let lambda = -a.hit.depth / along;
+            // n̂_a·(q − h_a) = λ n̂_a·e and n̂_b·(q − h_b) = (λ − 1) n̂_b·e.
+            let eta = 1e-3 * a.radius.min(b.radius);
+            lambda * dot(na, e) > eta && (lambda - 1.0) * dot(nb, e) > eta
+        }
+        ConflictTest::FacingOrCoplanar => {
+            let l = length(e);
+            let coincident = l <= 0.0;
+            if coincident {
+                return false;
+            }
+            let (towards_b, towards_a) = (dot(na, e) / l, -dot(nb, e) / l);
+            let slack = (2.0f32).to_radians().sin();
+            let both_towards = towards_b + slack >= 0.0 && towards_a + slack >= 0.0;
+            let both_away = towards_b - slack <= 0.0 && towards_a - slack <= 0.0;
+            let near_plane = dot(a.normal, e).abs() < a.radius.min(b.radius);
+            !(both_towards || both_away || near_plane)
+        }
+    }
+}
+
+/// The end of the surface that starts at `start`: the greedy grouping of §2.3.2.
+pub fn group_end(ray: &Ray, candidates: &[Candidate], start: usize, test: ConflictTest) -> usize {
+    let mut end = start + 1;
+    while end < candidates.len() {
+        let next = &candidates[end];
+        if candidates[start..end].iter().any(|member| conflicts(ray, member, next, test)) {
+            break;
+        }
+        end += 1;
+    }
+    end.min(candidates.len())
+}
+
+/// Vertices per footprint ellipse in the hull test.
+const FOOTPRINT_VERTICES: usize = 32;
+
+/// Whether the ray passes inside the convex hull of the footprints of `members` (discs with radii
+/// × `scale`, projected along the ray onto the st plane); see the module documentation.
+pub fn inside_footprint_hull(ray: &Ray, members: &[Candidate], scale: f32) -> bool {
+    // Within one footprint: exactly the tangent-plane distance.
+    if members.iter().any(|c| c.hit.spatial < scale * c.radius) {
+        return true;
+    }
+    if members.len() < 2 {
+        return false;
+    }
+    let d = ray.direction;
+    let (u, v) = perpendicular_frame(d);
+    let mut angles: Vec<f32> = Vec::with_capacity(members.len() * FOOTPRINT_VERTICES);
+    for c in members {
+        let rho = scale * c.radius;
+        // Tangents of the disc: t1 ⟂ n and d (projects at full length), t2 = n × t1.
+        let normal_cross_ray = cross(c.normal, d);
+        let t1 = if length(normal_cross_ray) > 1e-6 { normalize(normal_cross_ray) } else { u };
+        let t2 = cross(c.normal, t1);
+        let centre = sub(c.centre, ray.origin);
+        for k in 0..FOOTPRINT_VERTICES {
+            let phi = k as f32 * std::f32::consts::TAU / FOOTPRINT_VERTICES as f32;
+            let (sin, cos) = phi.sin_cos();
+            let q = [0, 1, 2].map(|a| centre[a] + rho * (cos * t1[a] + sin * t2[a]));
+            let (x, y) = (dot(q, u), dot(q, v));
+            if x == 0.0 && y == 0.0 {
+                return true;
+            }
+            angles.push(y.atan2(x));
+        }
+    }
+    // Outside iff every vertex lies in an open half-plane through the origin: a gap > π between
+    // consecutive directions.
+    angles.sort_by(|a, b| a.total_cmp(b));
+    let wrap = angles[0] + std::f32::consts::TAU - angles[angles.len() - 1];
+    let largest_gap = angles.windows(2).map(|w| w[1] - w[0]).fold(wrap, f32::max);
+    largest_gap <= std::f32::consts::PI
+}
+
+/// The surface a reconstruction uses.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Surface {
+    /// Its splats, a range of the sorted candidates (small surfaces merged into it included).
+    pub members: Range<usize>,
+    /// No member faces the ray: the back-facing ones give radiance (§2.5).
+    pub radiance_from_back_faces: bool,
+    /// Surfaces before it that the small-surface rule merged into it.
+    pub merged_surfaces: u32,
+}
+
+impl Surface {
+    /// Whether candidate `c` of this surface gives radiance.
+    pub fn gives_radiance(&self, c: &Candidate) -> bool {
+        c.hit.back_facing == self.radiance_from_back_faces
+    }
+}
+
+/// The nearest apparent surface along the ray among the sorted `candidates`
+/// ([`prepare_candidates`]), after the small-surface rule; `None` without candidates.
+pub fn first_surface(ray: &Ray, candidates: &[Candidate], params: &SurfaceParams) -> Option<Surface> {
+    // Surfaces rejected by the small-surface rule are merged into the next, so the chosen surface
+    // always starts at the nearest candidate.
+    let mut merged_surfaces = 0;
+    let mut start = 0;
+    while start < candidates.len() {
+        let end = group_end(ray, candidates, start, params.conflict_test);
+        let size = end;
+        let last = end == candidates.len();
+        if !last && size <= params.small_surface_scale.len() {
+            let scale = params.small_surface_scale[size - 1];
+            if !inside_footprint_hull(ray, &candidates[..end], scale) {
+                merged_surfaces += 1;
+                start = end;
+                continue;
+            }
+        }
+        let members = 0..end;
+        let radiance_from_back_faces = candidates[members.clone()].iter().all(|c| c.hit.back_facing);
+        return Some(Surface { members, radiance_from_back_faces, merged_surfaces });
+    }
+    None
+}
+
+fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+fn normalize(a: [f32; 3]) -> [f32; 3] {
+    let l = length(a);
+    [a[0] / l, a[1] / l, a[2] / l]
+}
+
+/// Two unit vectors spanning the plane ⟂ the unit `d`.
+fn perpendicular_frame(d: [f32; 3]) -> ([f32; 3], [f32; 3]) {
+    let helper = if d[0].abs() < 0.6 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+    let u = normalize(cross(d, helper));
+    (u, cross(d, u))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ilfr::disc::Disc;
+
+    /// The ray of every test: from the origin along +y (depth = y).
+    const RAY: Ray = Ray { origin: [0.0; 3], direction: [0.0, 1.0, 0.0] };
+
+    fn unit(x: f32, y: f32, z: f32) -> [f32; 3] {
+        normalize([x, y, z])
+    }
+
+    /// Candidates for hand-made discs (all of which the ray must hit), sorted as in reconstruction.
+    fn candidates(discs: &[Disc], params: &SurfaceParams) -> Vec<Candidate> {
+        let bvh = DiscBvh::build(discs).unwrap();
+        let (mut stack, mut hits, mut out) = (Vec::new(), Vec::new(), Vec::new());
+        bvh.collect_hits(&RAY, 0.0, f32::INFINITY, &mut stack, &mut hits);
+        assert_eq!(hits.len(), discs.len(), "every test disc is hit");
+        prepare_candidates(&bvh, &hits, params, &mut out);
+        out
+    }
+
+    fn both_tests() -> [SurfaceParams; 2] {
+        [
+            SurfaceParams::default(),
+            SurfaceParams { conflict_test: ConflictTest::FacingOrCoplanar, ..SurfaceParams::default() },
+        ]
+    }
+
+    fn groups(discs: &[Disc], params: &SurfaceParams) -> Vec<Vec<u32>> {
+        let c = candidates(discs, params);
+        let mut out = Vec::new();
+        let mut start = 0;
+        while start < c.len() {
+            let end = group_end(&RAY, &c, start, params.conflict_test);
+            out.push(c[start..end].iter().map(|c| c.id).collect());
+            start = end;
+        }
+        out
+    }
+
+    #[test]
+    fn coplanar_splats_are_one_surface() {
+        // Three splats on the plane y = 2 facing the ray origin, with the plane tilted 30° about z:
+        // their event lines lie in the plane, on both half-spaces' boundary.
+        let n = unit(0.5, -(0.75f32).sqrt(), 0.0); // normal of the tilted plane, towards the origin
+        let along = unit((0.75f32).sqrt(), 0.5, 0.0); // in the plane, ⟂ z
+        let at = |s: f32, z: f32| [0.0 + s * along[0], 2.0 + s * along[1], z];
+        let discs =
+            [Disc::new(at(-0.3, 0.1), n, 0.8), Disc::new(at(0.2, -0.2), n, 0.8), Disc::new(at(0.5, 0.0), n, 0.8)];
+        for params in both_tests() {
+            assert_eq!(groups(&discs, &params).len(), 1, "{params:?}");
+        }
+    }
+
+    #[test]
+    fn convex_and_concave_corners_are_one_surface() {
+        // Figure 5 left. In the x–y plane (y = depth): a convex corner with its apex (0, 1)
+        // towards the ray origin, faces towards (−1, 2) and (1, 2), outward normals (−1, −1)/√2 and
+        // (1, −1)/√2; splats at (−0.5, 1.5) and (0.25, 1.25). Event line: e = (0.75, −0.25),
+        // λ = −1.5 / −0.25 = 6, q = (4, 0); n_a·(q − h_a) = (−4.5 + 1.5)/√2 < 0: no conflict.
+        let convex = [
+            Disc::new([-0.5, 1.5, 0.0], unit(-1.0, -1.0, 0.0), 0.8),
+            Disc::new([0.25, 1.25, 0.0], unit(1.0, -1.0, 0.0), 0.8),
+        ];
+        // A concave corner, apex (0, 2) away from the origin, faces towards (−1, 1) and (1, 1),
+        // normals (1, −1)/√2 and (−1, −1)/√2, splats at (−0.5, 1.5) and (0.25, 1.75): e = (0.75,
+        // 0.25), λ = −6, q = (−5, 0), n_a·(q − h_a) = (−4.5 + 1.5)/√2 < 0: no conflict.
+        let concave = [
+            Disc::new([-0.5, 1.5, 0.0], unit(1.0, -1.0, 0.0), 0.8),
+            Disc::new([0.25, 1.75, 0.0], unit(-1.0, -1.0, 0.0), 0.8),
+        ];
+        for params in both_tests() {
+            assert_eq!(groups(&convex, &params).len(), 1, "convex, {params:?}");
+            assert_eq!(groups(&concave, &params).len(), 1, "concave, {params:?}");
+        }
+    }
+
+    #[test]
+    fn stacked_planes_are_two_surfaces() {
+        // Figure 5 right: two planes y = 1 and y = 2 facing the origin (normal −y), splats offset
+        // sideways. Event line through (0.3, 1) and (−0.2, 2): λ = −1/1, q = (0.8, 0) — at depth 0,
+        // in front of both planes: n·(q − h) = 1 and 2 > 0: conflict. The nearer plane is the
+        // first surface, its two splats together.
+        let down = [0.0, -1.0, 0.0];
+        let discs = [
+            Disc::new([-0.2, 2.0, 0.1], down, 0.7),
+            Disc::new([0.3, 1.0, 0.0], down, 0.7),
+            Disc::new([-0.1, 1.0, 0.2], down, 0.7),
+        ];
+        for params in both_tests() {
+            assert_eq!(groups(&discs, &params), [vec![1, 2], vec![0]], "{params:?}");
+            let c = candidates(&discs, &params);
+            let surface = first_surface(&RAY, &c, &params).unwrap();
+            assert_eq!(surface.members, 0..2);
+            assert!(!surface.radiance_from_back_faces);
+        }
+        // The same two planes seen from behind (normals +y, both back-facing): still a conflict,
+        // since n̂ is flipped to face the ray.
+        let up = [0.0, 1.0, 0.0];
+        let behind = [Disc::new([-0.2, 2.0, 0.1], up, 0.7), Disc::new([0.3, 1.0, 0.0], up, 0.7)];
+        let params = SurfaceParams { backface_near_field_cull: false, ..SurfaceParams::default() };
+        assert_eq!(groups(&behind, &params), [vec![1], vec![0]]);
+    }
+
+    #[test]
+    fn a_splat_behind_a_wall_conflicts_only_in_front_of_both() {
+        // The crossing of the event line decides. Splat a on the plane y = 1 (normal −y, centre
+        // (0, 1)), splat b centred at (1, 3) on planes of three slopes, all facing the ray and hit
+        // by it. e = (1, 2), λ = −z_a/(d·e) = −1/2, q = h_a − e/2 = (−0.5, 0):
+        // n_a·(q − h_a) = 1 > 0 always, n̂_b·(q − h_b) = (λ − 1) n̂_b·e = −1.5 n̂_b·e, positive
+        // iff n̂_b·e < 0.
+        let a = Disc::new([0.0, 1.0, 0.0], [0.0, -1.0, 0.0], 2.0);
+        let cases = [
+            // n̂_b·e = −3/√2: conflict (b is a wall facing the origin behind a).
+            (unit(-1.0, -1.0, 0.0), true),
+            // n̂_b·e = −2.2/1: conflict.
+            (unit(-0.6, -0.8, 0.0), true),
+            // A steep plane, n̂_b·e = 0.5/|n| > 0: q lies behind b, no conflict (b could be the
+            // continuation of a bending away).
+            (unit(2.5, -1.0, 0.0), false),
+        ];
+        let params = SurfaceParams { backface_near_field_cull: false, ..SurfaceParams::default() };
+        for (normal, expect) in cases {
+            let b = Disc::new([1.0, 3.0, 0.0], normal, 3.0);
+            let c = candidates(&[a, b], &params);
+            assert_eq!((c[0].id, c[1].id), (0, 1));
+            assert!(!c[1].hit.back_facing);
+            assert_eq!(conflicts(&RAY, &c[0], &c[1], ConflictTest::EventLine), expect, "{normal:?}");
+            assert_eq!(conflicts(&RAY, &c[1], &c[0], ConflictTest::EventLine), expect, "symmetric, {normal:?}");
+        }
+    }
+
+    #[test]
+    fn an_event_line_parallel_to_the_st_plane_is_no_conflict() {
+        // Two splats at the same depth on different, parallel planes (normals −y, but offset
+        // sideways): the event line never meets the st plane.
+        let a = Disc::new([0.2, 1.0, 0.0], [0.0, -1.0, 0.0], 0.5);
+        let b = Disc::new([-0.2, 1.0, 0.0], unit(0.3, -1.0, 0.0), 0.5);
+        let c = candidates(&[a, b], &SurfaceParams::default());
+        assert!(!conflicts(&RAY, &c[0], &c[1], ConflictTest::EventLine));
+        // Coincident centres: no conflict and nothing non-finite.
+        let twin = candidates(&[a, a], &SurfaceParams::default());
+        for test in [ConflictTest::EventLine, ConflictTest::FacingOrCoplanar] {
+            assert!(!conflicts(&RAY, &twin[0], &twin[1], test));
+        }
+    }
+
+    #[test]
+    fn back_facing_splats_give_radiance_only_when_alone() {
+        // A surface at depth 2 of three coplanar splats, one of them facing away (a two-sided
+        // wall sampled from both sides): only the front-facing ones give radiance.
+        let down = [0.0, -1.0, 0.0];
+        let up = [0.0, 1.0, 0.0];
+        let params = SurfaceParams::default();
+        let mixed = [
+            Disc::new([0.1, 2.0, 0.0], down, 0.6),
+            Disc::new([-0.2, 2.0, 0.0], up, 0.6),
+            Disc::new([0.0, 2.0, 0.3], down, 0.6),
+        ];
+        let c = candidates(&mixed, &params);
+        let surface = first_surface(&RAY, &c, &params).unwrap();
+        assert_eq!(surface.members, 0..3);
+        assert!(!surface.radiance_from_back_faces);
+        let giving: Vec<u32> = c.iter().filter(|c| surface.gives_radiance(c)).map(|c| c.id).collect();
+        assert_eq!(giving, [0, 2]);
+        // All back-facing: they give radiance.
+        let back = [Disc::new([0.1, 2.0, 0.0], up, 0.6), Disc::new([-0.2, 2.0, 0.0], up, 0.6)];
+        let c = candidates(&back, &params);
+        let surface = first_surface(&RAY, &c, &params).unwrap();
+        assert!(surface.radiance_from_back_faces && c.iter().all(|c| surface.gives_radiance(c)));
+    }
+
+    #[test]
+    fn near_field_back_faces_are_dropped_when_asked() {
+        // A back-facing splat at depth 0.3 with radius 0.5 (a concavity around the ray origin)
+        // and a front-facing one at depth 2.
+        let discs =
+            [Disc::new([0.0, 0.3, 0.1], [0.0, 1.0, 0.0], 0.5), Disc::new([0.1, 2.0, 0.0], [0.0, -1.0, 0.0], 0.5)];
+        let bvh = DiscBvh::build(&discs).unwrap();
+        let (mut stack, mut hits, mut out) = (Vec::new(), Vec::new(), Vec::new());
+        bvh.collect_hits(&RAY, 0.0, f32::INFINITY, &mut stack, &mut hits);
+        assert_eq!(prepare_candidates(&bvh, &hits, &SurfaceParams::default(), &mut out), 1);
+        assert_eq!(out.iter().map(|c| c.id).collect::<Vec<_>>(), [1]);
+        let keep = SurfaceParams { backface_near_field_cull: false, ..SurfaceParams::default() };
+        assert_eq!(prepare_candidates(&bvh, &hits, &keep, &mut out), 0);
+        assert_eq!(out.iter().map(|c| c.id).collect::<Vec<_>>(), [0, 1]);
+        // At depth 0.6 > radius it stays even with the rule on.
+        let far = [Disc::new([0.0, 0.6, 0.1], [0.0, 1.0, 0.0], 0.5), discs[1]];
+        assert_eq!(candidates(&far, &SurfaceParams::default()).len(), 2);
+    }
+
+    /// A wall of five coplanar splats at depth 3 (normal −y) that every test ray hits.
+    fn wall() -> Vec<Disc> {
+        let down = [0.0, -1.0, 0.0];
+        [[0.0, 0.0], [0.3, 0.0], [-0.3, 0.0], [0.0, 0.3], [0.0, -0.3]]
+            .iter()
+            .map(|&[x, z]| Disc::new([x, 3.0, z], down, 1.0))
+            .collect()
+    }
+
+    #[test]
+    fn a_single_splat_surface_needs_the_ray_within_half_its_radius() {
+        // One splat at depth 1 (radius 1, facing the origin) in front of the wall. The ray passes
+        // at distance s from its centre (tangent plane = the plane y = 1): kept iff s < 0.5.
+        let params = SurfaceParams::default();
+        for (s, kept) in [(0.0, true), (0.45, true), (0.55, false), (0.9, false)] {
+            let mut discs = vec![Disc::new([s, 1.0, 0.0], [0.0, -1.0, 0.0], 1.0)];
+            discs.extend(wall());
+            let c = candidates(&discs, &params);
+            let surface = first_surface(&RAY, &c, &params).unwrap();
+            if kept {
+                assert_eq!((surface.members.clone(), surface.merged_surfaces), (0..1, 0), "s = {s}");
+            } else {
+                // Merged into the wall behind it: the surface is both.
+                assert_eq!((surface.members.clone(), surface.merged_surfaces), (0..6, 1), "s = {s}");
+            }
+        }
+        // The last surface is never tested: alone, the splat is the surface at any s < r.
+        let lone = [Disc::new([0.9, 1.0, 0.0], [0.0, -1.0, 0.0], 1.0)];
+        let c = candidates(&lone, &params);
+        assert_eq!(first_surface(&RAY, &c, &params).unwrap().members, 0..1);
+        assert_eq!(first_surface(&RAY, &[], &params), None);
+    }
+
+    #[test]
+    fn a_two_splat_surface_keeps_rays_inside_the_hull_of_its_footprints() {
+        // Two coplanar splats at depth 1, centres (±0.7, 1, 0), radius 1: footprints (scale 0.6)
+        // are circles of radius 0.6 around (±0.7, 0) on the st plane, whose hull is a stadium. A ray
+        // offset by z meets both discs (√(0.49 + z²) < 1) and lies inside the stadium iff |z| < 0.6,
+        // though it is farther than 0.6 from either centre.
+        let params = SurfaceParams::default();
+        for (z, kept) in [(0.0, true), (0.55, true), (-0.55, true), (0.65, false), (-0.68, false)] {
+            let down = [0.0, -1.0, 0.0];
+            let mut discs = vec![Disc::new([0.7, 1.0, -z], down, 1.0), Disc::new([-0.7, 1.0, -z], down, 1.0)];
+            discs.extend(wall());
+            let c = candidates(&discs, &params);
+            let surface = first_surface(&RAY, &c, &params).unwrap();
+            let expected = if kept { (0..2, 0) } else { (0..7, 1) };
+            assert_eq!((surface.members.clone(), surface.merged_surfaces), expected, "z = {z}");
+        }
+    }
+
+    #[test]
+    fn the_footprint_hull_of_tilted_splats_is_their_projection() {
+        // A splat tilted 60° away from the ray (normal (0, −cos 60°, sin 60°)): its footprint is an
+        // ellipse with semi-axes ρ along x and ρ·cos 60° = ρ/2 along z. Two such splats at x = ±1
+        // (radius 1, scale 0.6 → ρ = 0.6): the hull holds rays with |z| < 0.3 and not 0.35 (on the
+        // st plane; the tangent-plane offset differs, so this is the projection at work).
+        let n = [0.0, -0.5, (0.75f32).sqrt()];
+        let at = |x: f32, z: f32| Candidate {
+            id: 0,
+            centre: [x, 2.0, z],
+            normal: n,
+            radius: 1.0,
+            hit: DiscHit { t: 2.0, spatial: 1.0, depth: 2.0, back_facing: false },
+        };
+        for (z, inside) in [(0.0, true), (0.28, true), (-0.28, true), (0.32, false), (0.5, false)] {
+            // The ray offset by z ⇔ the splats offset by −z.
+            let members = [at(1.0, -z), at(-1.0, -z)];
+            assert_eq!(inside_footprint_hull(&RAY, &members, 0.6), inside, "z = {z}");
+        }
+        // Three splats around the ray (triangle) hold it; the same three all on one side do not.
+        let around = [at(1.0, 0.0), at(-0.5, 1.0), at(-0.5, -1.0)];
+        assert!(inside_footprint_hull(&RAY, &around, 0.1));
+        let aside = [at(1.0, 0.0), at(2.0, 1.0), at(2.0, -1.0)];
+        assert!(!inside_footprint_hull(&RAY, &aside, 0.1));
+    }
+}
