@@ -372,13 +372,17 @@ pub fn reconstruct_soft_shadow(
     let light_file = SampleFile::open(light_path)?;
     let light = read_light(&light_file, records).map_err(failed)?;
     drop(light_file);
+    let read_s = start.elapsed().as_secs_f64();
 
     let (width, height) = (camera.width, camera.height);
+    let radius_start = Instant::now();
     let radius = measure_radius(&camera.samples, width, height, camera.spp, RADIUS_TRIALS)
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(1.0);
+    let radius_s = radius_start.elapsed().as_secs_f64();
     let z_near = near_limit(camera.samples.iter().map(|s| s.z));
     // The hierarchies; every array aligned with the samples follows their new order.
+    let build_start = Instant::now();
     let area = ScreenArea { width: width as f32, height: height as f32, max_reach: max_reach(radius) };
     let (tree, order) = Hierarchy::build(&camera.samples, &camera.lens, z_near, &area);
     let (mut camera, mut shading) = (camera, shading);
@@ -397,10 +401,13 @@ pub fn reconstruct_soft_shadow(
         height: light.extent[1].max(1.0),
         max_reach: max_reach(radius * largest_density / light.median_density),
     };
+    let camera_build_s = build_start.elapsed().as_secs_f64();
+    let build_start = Instant::now();
     let (light_tree, light_order) = Hierarchy::build(&light.samples, &light_lens, light_z_near, &light_area);
     let mut light = light;
     light.samples = reorder(&light.samples, &light_order);
     light.radiance = reorder(&light.radiance, &light_order);
+    let light_build_s = build_start.elapsed().as_secs_f64();
     let (camera, shading, light) = (camera, shading, light);
     let preprocess_s = start.elapsed().as_secs_f64();
 
@@ -485,6 +492,12 @@ pub fn reconstruct_soft_shadow(
             stats.shaded,
             100.0 * stats.blocked as f64 / stats.shaded.max(1) as f64,
             light.skipped
+        ),
+        format!(
+            "preprocess: reading {read_s:.3} s, R {radius_s:.3} s, camera hierarchy {camera_build_s:.3} s ({} leaves), \
+             light hierarchy {light_build_s:.3} s ({} leaves)",
+            tree.leaf_count(),
+            light_tree.leaf_count()
         ),
     ];
     let image = crate::image::Image::from_pixels(width, height, pixels);
