@@ -230,6 +230,9 @@ fn bad_input_fails_cleanly_without_results() {
         (&["--effect", "ao", "--ao-radius=-1"], &["--ao-radius"]),
         (&["--effect", "ao", "--ao-radius", "NaN"], &["--ao-radius"]),
         (&["--effect", "indirect", "--exposure", "0"], &["--exposure"]),
+        (&["--effect", "dof", "--aperture-radius=-0.1"], &["--aperture-radius"]),
+        (&["--effect", "dof", "--aperture-radius", "inf"], &["--aperture-radius"]),
+        (&["--effect", "dof", "--aperture-radius", "0.1", "--focus-distance", "0"], &["--focus-distance"]),
         (&["--effect", "indirect", "--scene", "does/not/exist.toml"], &["does/not/exist.toml"]),
     ];
     for (extra, needles) in cases {

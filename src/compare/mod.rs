@@ -76,6 +76,12 @@ pub struct CompareArgs {
     /// Ambient-occlusion radius in scene units (default: a tenth of the scene's diagonal).
     #[arg(long)]
     pub ao_radius: Option<f32>,
+    /// Thin-lens aperture radius in scene units, replacing the scene's (0 = pinhole).
+    #[arg(long)]
+    pub aperture_radius: Option<f32>,
+    /// Focus distance in scene units, replacing the scene's.
+    #[arg(long)]
+    pub focus_distance: Option<f32>,
     /// Exposure of the tone map for PSNR/SSIM (default: the reference's 99th-percentile
     /// luminance maps to 1).
     #[arg(long)]
@@ -301,6 +307,18 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         None => crate::DEFAULT_SCENE.as_bytes().to_vec(),
     };
     let mut scene = crate::load_scene(args.scene.as_deref())?;
+    if let Some(radius) = args.aperture_radius {
+        if !(radius.is_finite() && radius >= 0.0) {
+            bail!("--aperture-radius must be finite and at least 0, got {radius}");
+        }
+        scene.camera.aperture_radius = radius;
+    }
+    if let Some(distance) = args.focus_distance {
+        if !(distance.is_finite() && distance > 0.0) {
+            bail!("--focus-distance must be positive and finite, got {distance}");
+        }
+        scene.camera.focus_distance = distance;
+    }
     let max_bounces = prepare_scene(effect, &mut scene, args.max_bounces)?;
     let (width, height) = (args.width.unwrap_or(scene.width), args.height.unwrap_or(scene.height));
     if width == 0 || height == 0 || width > 1 << 14 || height > 1 << 14 {

@@ -101,7 +101,9 @@ pub fn cache_key(scene_text: &[u8], tracing: &Tracing, spp: u32, seeds: [u32; 2]
             hash.update(c.to_le_bytes());
         }
     }
+    // The camera's lens, which `lfr compare --aperture-radius/--focus-distance` may change.
     hash.update(tracing.scene.camera.aperture_radius.to_le_bytes());
+    hash.update(tracing.scene.camera.focus_distance.to_le_bytes());
     let settings = format!(
         "effect={} width={} height={} spp={} seeds={:?} max_bounces={} ao_radius={}",
         tracing.effect.name(),
