@@ -236,10 +236,73 @@ fn refocusing_onto_the_square_makes_it_sharp() {
     assert!(!out("bad.exr").exists());
 }
 
-/// Soft shadows (Section 5): a 1 × 1 lamp 2 above a grey floor and a 0.4 × 0.4 blocker at
-/// height 0.8 between them, which throws a wide penumbra. The reconstruction from 4 spp must
-/// be far closer to a 4096-spp path-traced image than the 4-spp pixel average is, stay finite,
-/// and keep the penumbra soft (values between umbra and full light).
+/// A huge aperture (stiff case): the refocusing scene's samples (traced with a 0.2 lens) are
+/// reconstructed for a lens of radius 2 focused at 1000, which spreads the 11-px square at depth
+/// 4 over a disc of radius f·a·(1/4 − 1/1000) ≈ 22 px, larger than the 32-px image, while the
+/// black background (misses) stays sharp. Analytically every pixel whose disc holds the whole
+/// square sees radiance 2 × (square area)/(disc area) ≈ 0.16; the reconstruction must give that
+/// in the middle of the image, finite everywhere. (Focused near, the background's own blur
+/// would need samples from far outside the frame, which no file has.)
+#[test]
+fn a_huge_aperture_spreads_the_square_as_the_thin_lens_does() {
+    let scene = scene_from_toml(
+        &r#"
+        [render]
+        max_bounces = 0
+        [camera]
+        position = [0, 0, 0]
+        look_at = [0, 0, 1]
+        fov = 40
+        aperture_radius = 0.2
+        focus_distance = 2.0
+        [[material]]
+        name = "lamp"
+        base_color = [0, 0, 0]
+        specular = 0
+        emission = [2, 2, 2]
+        two_sided_emission = true
+        [[mesh]]
+        shape = "polygon"
+        material = "lamp"
+        points = [[-0.5, -0.5, 4], [0.5, -0.5, 4], [0.5, 0.5, 4], [-0.5, 0.5, 4]]
+        "#
+        .replace("\n        ", "\n"),
+    );
+    let (width, height) = (32u32, 32u32);
+    let (dir, path) = dump(&scene, width, height, 8);
+    let target = dir.path().join("huge.exr");
+    let result = std::process::Command::new(env!("CARGO_BIN_EXE_lfr"))
+        .args(["reconstruct", "--samples", path.to_str().unwrap(), "--locations", "64"])
+        .args(["--focus-distance", "1000", "--aperture", "2", "--out", target.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(result.status.success(), "{}", String::from_utf8_lossy(&result.stderr));
+    let red = tracer::output::read_exr(&target).unwrap().2.into_iter().find(|(n, _)| n == "R").unwrap().1;
+    assert!(red.iter().all(|v| v.is_finite()));
+    let focal_px = 0.5 * height as f32 / (20.0f32.to_radians()).tan();
+    let (square_px, disc_px) = (focal_px * 1.0 / 4.0, focal_px * 2.0 * (1.0 / 4.0 - 1.0 / 1000.0));
+    let expected = 2.0 * square_px * square_px / (std::f32::consts::PI * disc_px * disc_px);
+    let (mut sum, mut count) = (0.0f64, 0usize);
+    for y in 0..height {
+        for x in 0..width {
+            let offset = Vec2::new(x as f32 + 0.5 - 16.0, y as f32 + 0.5 - 16.0).length();
+            // Whole square inside the disc with a pixel to spare: offset + half diagonal + 1 < disc.
+            if offset + square_px * std::f32::consts::FRAC_1_SQRT_2 + 1.0 < disc_px {
+                // Each location sees the square (2) or not (0): single pixels are binomial noise
+                // (about 40 % at 64 locations), so the check is on the mean over the region.
+                sum += red[(y * width + x) as usize] as f64;
+                count += 1;
+            }
+        }
+    }
+    let mean = sum / count as f64;
+    eprintln!("huge aperture: {count} pixels, mean {mean} vs analytic {expected}");
+    assert!(
+        count > 400 && (mean - expected as f64).abs() < 0.05 * expected as f64,
+        "{count} px, mean {mean} vs {expected}"
+    );
+}
+
 /// The lamp-and-blocker scene of the soft-shadow tests; the lamp moves by `lamp_motion` over the
 /// shutter.
 fn lamp_and_blocker(lamp_motion: [f32; 3]) -> Scene {
@@ -306,6 +369,10 @@ fn soft_shadow_errors(scene: &Scene) -> (recon::method::Output, f64, f64) {
     (output, tlfr_error, box_error)
 }
 
+/// Soft shadows (Section 5): a 1 × 1 lamp 2 above a grey floor and a 0.4 × 0.4 blocker at
+/// height 0.8 between them, which throws a wide penumbra. The reconstruction from 4 spp must
+/// be far closer to a 4096-spp path-traced image than the 4-spp pixel average is, stay finite,
+/// and keep the penumbra soft (values between umbra and full light).
 #[test]
 fn soft_shadows_from_4_spp_approach_the_converged_image() {
     let (output, tlfr_error, box_error) = soft_shadow_errors(&lamp_and_blocker([0.0; 3]));
