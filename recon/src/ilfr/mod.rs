@@ -1,7 +1,7 @@
 //! Indirect light field reconstruction (Lehtinen, Aila, Laine, Durand 2012, "Reconstructing the
 //! Indirect Light Field for Global Illumination"; the text is in
 //! `shared/papers/indirect-light-field-reconstruction-2012.txt`, the design in
-//! `docs/ilfr-design.md`). Issue 7, in progress: slices 1–4 of the design's implementation order.
+//! `docs/ilfr-design.md`). Issue 7, in progress: slices 1–6 of the design's implementation order.
 //!
 //! Paper → code (✓ implemented, ✗ not yet):
 //! - ✓ Section 2.1, the input tuple {L, o, h, n_o, n_h, κ} from `indirect` / `ao` files read
@@ -18,16 +18,26 @@
 //! - ✓ Section 2.3.2 and Figure 5, apparent surfaces by the event-line conflict test (and the
 //!   authors' facing/coplanar test); Section 2.5, back-facing splats and one- to three-sample
 //!   surfaces: `surfaces`.
-//! - ✗ Section 2.4 and Figure 6, the diffuse tent and the glossy anisotropic nearest neighbour:
-//!   `filter`; RECONSTRUCT(p, ω): `reconstruct`.
-//! - ✗ Eq. 1 and Eq. 3, the final gather and ambient occlusion (Section 3.3): `gather`.
+//! - ✓ Section 2.4 and Figure 6, the diffuse tent average and the glossy anisotropic nearest
+//!   neighbour (largest transformed filter value); Section 3.3, the AO distance threshold:
+//!   `filter`. RECONSTRUCT(p, ω) — all-hits walk, grouping, filter, no-support fallback (sky
+//!   samples for radiance, visible for AO): `reconstruct`.
+//! - ✓ Eq. 1 and Eq. 3, the final gather at Lambertian primary hits (cosine-distributed,
+//!   Owen-scrambled Sobol' directions, albedo-weighted, normalised by the supported rays) and
+//!   ambient occlusion (Section 3.3): `gather`. ✗ Glossy primary hits (needs the BSDF of o,
+//!   design gap G1): refused with an error naming the file's `weight` field.
 //! - ✗ Section 4, recursive filtering: `recursive`.
 //! - ✗ Section 3.4, motion and defocus from primary rays: `lens`.
-//! - ✗ The `Method` (`ilfr`) for `lfr compare`: `method`.
+//! - ✓ The `Method` `ilfr` for `lfr compare` (effects `indirect`, `ao`; time split and counts in
+//!   its notes): `method`. ✗ `ilfr-dof` (Section 3.4).
 
 pub mod bvh;
 pub mod disc;
+pub mod filter;
+pub mod gather;
+pub mod method;
 pub mod neighbours;
+pub mod reconstruct;
 pub mod samples;
 pub mod shrink;
 pub mod splats;

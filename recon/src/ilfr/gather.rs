@@ -1,0 +1,441 @@
+//! The final gather, paper Eq. 1 and Eq. 3, and ambient occlusion, Section 3.3 (design:
+//! docs/ilfr-design.md §2 "Final gather", §3 #13, #17, #19).
+//!
+//! Paper → code:
+//! - Eq. 3, L(p → c) ≈ (1/N) Σ_j (1/π) f_r cosθ_j / p(ω_j) · RECONSTRUCT(p, ω_j): for every
+//!   primary hit o_i of a pixel, N = ceil(rays per pixel / spp) reconstruction rays, cosine-
+//!   distributed about its shading normal m_i, from o_i lifted by `offset` along m_i. For a
+//!   Lambertian o the sampling weight f·cos/p is its albedo, so the hit's value is
+//!   albedo_i · (1/N') Σ RECONSTRUCT over the N' rays that found support (the authors
+//!   normalise by the supported count as well). Glossy primary hits need the BSDF parameters of
+//!   o, which our files do not carry (design gap G1): a file with a `weight` field (written only
+//!   for glossy scenes) is refused with an error naming it.
+//! - Support: a ray that meets no splat takes the radiance of the nearest *sky sample* (an
+//!   input ray that escaped, with the environment radiance it carried) among the primary hits
+//!   of the pixel's 5×5 neighbourhood, if that one lies within twice the neighbourhood's angular
+//!   spacing sqrt(2π / n) (n secondary rays in the neighbourhood); otherwise it has no support
+//!   and is left out. A primary hit without a supported ray keeps its own input estimate
+//!   albedo · L (the box value of that sample).
+//! - "thresholding the distance to the closest apparent surface found" (§3.3): the same rays,
+//!   weight 1, value = mean ambient visibility ([`super::reconstruct::Reconstructor::visibility`],
+//!   1 where no surface lies within the radius). A camera ray that escaped counts as visible, as
+//!   in the harness's reference.
+//! - A pixel is the mean over its spp records (sample i belongs to pixel i / spp), a camera miss
+//!   giving 0 indirect light (the box value: its radiance is zero) or visibility 1.
+//!
+//! Directions: the 2D Sobol' (0, 2)-sequence, Owen-scrambled by a hash of (seed, sample index),
+//! mapped by the concentric disk map and lifted to the hemisphere (Malley). Each pixel is a pure
+//! function of the input, so the image is bit-identical for any number of threads.
+
+use rayon::prelude::*;
+
+use super::disc::Ray;
+use super::reconstruct::{nearest_sky, ReconstructStats, Reconstructor, Scratch, SkySample};
+use super::samples::{IndirectSamples, SampleClass};
+use crate::image::Image;
+
+/// What the gather computes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum GatherTarget {
+    /// Indirect light reflected towards the camera (the harness's `indirect` layer).
+    Indirect,
+    /// Ambient visibility within `ao_radius` (the harness's `ao` image).
+    Visibility { ao_radius: f32 },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GatherSettings {
+    /// Reconstruction rays per pixel (spread over its primary hits, at least one each).
+    pub rays_per_pixel: u32,
+    /// Seed of the directions.
+    pub seed: u32,
+    /// How far reconstruction rays start above the primary hit, along its normal (scene units).
+    pub offset: f32,
+    /// The sky neighbourhood reaches this many pixels either side (2: 5×5).
+    pub sky_pixel_radius: u32,
+    /// A sky sample counts within this many angular spacings of the ray.
+    pub sky_spacing_factor: f32,
+}
+
+impl Default for GatherSettings {
+    fn default() -> Self {
+        GatherSettings { rays_per_pixel: 256, seed: 0, offset: 1e-4, sky_pixel_radius: 2, sky_spacing_factor: 2.0 }
+    }
+}
+
+/// Counts of a gather, for reports.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct GatherStats {
+    pub reconstruct: ReconstructStats,
+    /// Primary hits gathered.
+    pub primary_hits: u64,
+    /// Rays with no surface that took a sky sample's radiance.
+    pub sky_rays: u64,
+    /// Rays with neither (left out of their hit's average).
+    pub unsupported_rays: u64,
+    /// Primary hits none of whose rays had support (they kept their own input estimate).
+    pub unsupported_hits: u64,
+}
+
+impl GatherStats {
+    fn add(&mut self, other: &GatherStats) {
+        self.reconstruct.add(&other.reconstruct);
+        self.primary_hits += other.primary_hits;
+        self.sky_rays += other.sky_rays;
+        self.unsupported_rays += other.unsupported_rays;
+        self.unsupported_hits += other.unsupported_hits;
+    }
+}
+
+/// Reconstruction rays per primary hit for `rays_per_pixel` and `spp`: ceil(rays / spp), ≥ 1.
+pub fn rays_per_hit(rays_per_pixel: u32, spp: u32) -> u32 {
+    rays_per_pixel.div_ceil(spp.max(1)).max(1)
+}
+
+/// Gathers the image of `target` from `samples` with the splats of `reconstructor`. Errors name
+/// the file and the field: a glossy file (`weight`, gap G1), an `indirect` file without
+/// `albedo`, an AO target on a file without `distance` and the reverse.
+pub fn gather(
+    samples: &IndirectSamples,
+    reconstructor: &Reconstructor,
+    target: GatherTarget,
+    settings: &GatherSettings,
+) -> Result<(Image, GatherStats), String> {
+    let path = &samples.path;
+    let albedo = match target {
+        GatherTarget::Indirect => {
+            if samples.weight.is_some() {
+                return Err(format!(
+                    "{path}: the file has the field `weight`, written for glossy scenes: gathering at glossy primary \
+                     hits needs their BSDF parameters, which the `indirect` format does not carry yet (design gap G1)"
+                ));
+            }
+            if samples.radiance.is_none() {
+                return Err(format!("{path}: indirect light needs the field `radiance`"));
+            }
+            Some(samples.albedo.as_ref().ok_or_else(|| format!("{path}: indirect light needs the field `albedo`"))?)
+        }
+        GatherTarget::Visibility { ao_radius } => {
+            if !(ao_radius.is_finite() && ao_radius > 0.0) {
+                return Err(format!("the AO radius must be positive, got {ao_radius}"));
+            }
+            None
+        }
+    };
+    if !(settings.offset.is_finite() && settings.offset >= 0.0) {
+        return Err(format!("the reconstruction ray offset must be finite and ≥ 0, got {}", settings.offset));
+    }
+    let (width, height, spp) = (samples.width, samples.height, samples.spp.max(1));
+    let expected = width as usize * height as usize * spp as usize;
+    if samples.len() != expected {
+        return Err(format!(
+            "{path}: {} samples for {width}x{height} pixels at {spp} spp ({expected} expected)",
+            samples.len()
+        ));
+    }
+    let per_hit = rays_per_hit(settings.rays_per_pixel, spp);
+    let rows: Vec<(Vec<[f32; 3]>, GatherStats)> = (0..height)
+        .into_par_iter()
+        .map(|y| {
+            let mut scratch = Scratch::default();
+            let mut stats = GatherStats::default();
+            let mut sky = Vec::new();
+            let row = (0..width)
+                .map(|x| {
+                    let first = (y as usize * width as usize + x as usize) * spp as usize;
+                    let sky_spacing = match target {
+                        GatherTarget::Indirect => sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky),
+                        GatherTarget::Visibility { .. } => None,
+                    };
+                    let min_cosine = sky_spacing.map(|spacing| {
+                        let angle = (settings.sky_spacing_factor * spacing).min(std::f32::consts::PI);
+                        angle.cos()
+                    });
+                    let mut sum = [0.0f64; 3];
+                    for i in first..first + spp as usize {
+                        let value = match target {
+                            GatherTarget::Indirect => indirect_at(
+                                samples,
+                                i,
+                                albedo.map(|a| a[i]).unwrap_or([0.0; 3]),
+                                reconstructor,
+                                (&sky, min_cosine),
+                                (per_hit, settings),
+                                &mut scratch,
+                                &mut stats,
+                            ),
+                            GatherTarget::Visibility { ao_radius } => visibility_at(
+                                samples,
+                                i,
+                                ao_radius,
+                                reconstructor,
+                                (per_hit, settings),
+                                &mut scratch,
+                                &mut stats,
+                            ),
+                        };
+                        for c in 0..3 {
+                            sum[c] += value[c] as f64;
+                        }
+                    }
+                    sum.map(|s| (s / spp as f64) as f32)
+                })
+                .collect();
+            (row, stats)
+        })
+        .collect();
+    let mut stats = GatherStats::default();
+    let mut pixels = Vec::with_capacity(width as usize * height as usize);
+    for (row, row_stats) in rows {
+        pixels.extend(row);
+        stats.add(&row_stats);
+    }
+    Ok((Image::from_pixels(width, height, pixels), stats))
+}
+
+/// The sky samples of the pixels within `radius` of (x, y) into `out`, and the angular spacing
+/// sqrt(2π / n) of the n secondary rays there (`None` without any).
+fn sky_samples(samples: &IndirectSamples, x: u32, y: u32, radius: u32, out: &mut Vec<SkySample>) -> Option<f32> {
+    out.clear();
+    let Some(radiance) = &samples.radiance else { return None };
+    let spp = samples.spp.max(1) as usize;
+    let mut rays = 0usize;
+    for py in y.saturating_sub(radius)..(y + radius + 1).min(samples.height) {
+        for px in x.saturating_sub(radius)..(x + radius + 1).min(samples.width) {
+            let first = (py as usize * samples.width as usize + px as usize) * spp;
+            let range = first..first + spp;
+            let records =
+                samples.class[range.clone()].iter().zip(&samples.direction[range.clone()]).zip(&radiance[range]);
+            for ((class, direction), radiance) in records {
+                match class {
+                    SampleClass::Hit => rays += 1,
+                    SampleClass::Escaped => {
+                        rays += 1;
+                        out.push(SkySample { direction: *direction, radiance: *radiance });
+                    }
+                    SampleClass::CameraMiss | SampleClass::NoSecondaryRay => {}
+                }
+            }
+        }
+    }
+    (rays > 0 && !out.is_empty()).then(|| (std::f32::consts::TAU / rays as f32).sqrt())
+}
+
+/// The reconstruction rays of primary hit `i`: origin lifted along the normal, directions
+/// cosine-distributed about it.
+fn hit_rays(samples: &IndirectSamples, i: usize, per_hit: u32, settings: &GatherSettings) -> impl Iterator<Item = Ray> {
+    let normal = samples.primary_normal[i];
+    let o = samples.primary_hit[i];
+    let origin = [0, 1, 2].map(|a| o[a] + settings.offset * normal[a]);
+    let (tangent, bitangent) = orthonormal_basis(normal);
+    let scramble = hash(settings.seed ^ hash(i as u32 ^ 0x6a09_e667));
+    (0..per_hit).map(move |j| {
+        let (u, v) = sobol_2d_scrambled(j, scramble);
+        let local = cosine_hemisphere(u, v);
+        let direction = [0, 1, 2].map(|a| local[0] * tangent[a] + local[1] * bitangent[a] + local[2] * normal[a]);
+        Ray { origin, direction: normalize(direction) }
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn indirect_at(
+    samples: &IndirectSamples,
+    i: usize,
+    albedo: [f32; 3],
+    reconstructor: &Reconstructor,
+    (sky, min_cosine): (&[SkySample], Option<f32>),
+    (per_hit, settings): (u32, &GatherSettings),
+    scratch: &mut Scratch,
+    stats: &mut GatherStats,
+) -> [f32; 3] {
+    let class = samples.class[i];
+    if class == SampleClass::CameraMiss {
+        return [0.0; 3];
+    }
+    stats.primary_hits += 1;
+    let (mut sum, mut supported) = ([0.0f64; 3], 0u32);
+    for ray in hit_rays(samples, i, per_hit, settings) {
+        let radiance = match reconstructor.radiance(&ray, scratch, &mut stats.reconstruct) {
+            Some(f) => Some(f.radiance),
+            None => {
+                let from_sky = min_cosine.and_then(|c| nearest_sky(sky, ray.direction, c));
+                if from_sky.is_some() {
+                    stats.sky_rays += 1;
+                } else {
+                    stats.unsupported_rays += 1;
+                }
+                from_sky
+            }
+        };
+        if let Some(l) = radiance {
+            for c in 0..3 {
+                sum[c] += l[c] as f64;
+            }
+            supported += 1;
+        }
+    }
+    let incident = if supported > 0 {
+        sum.map(|s| (s / supported as f64) as f32)
+    } else {
+        stats.unsupported_hits += 1;
+        match class {
+            SampleClass::Hit | SampleClass::Escaped => samples.radiance.as_ref().map_or([0.0; 3], |r| r[i]),
+            SampleClass::CameraMiss | SampleClass::NoSecondaryRay => [0.0; 3],
+        }
+    };
+    [0, 1, 2].map(|c| albedo[c] * incident[c])
+}
+
+fn visibility_at(
+    samples: &IndirectSamples,
+    i: usize,
+    ao_radius: f32,
+    reconstructor: &Reconstructor,
+    (per_hit, settings): (u32, &GatherSettings),
+    scratch: &mut Scratch,
+    stats: &mut GatherStats,
+) -> [f32; 3] {
+    if samples.class[i] == SampleClass::CameraMiss {
+        return [1.0; 3];
+    }
+    stats.primary_hits += 1;
+    let mut sum = 0.0f64;
+    for ray in hit_rays(samples, i, per_hit, settings) {
+        sum += reconstructor.visibility(&ray, ao_radius, scratch, &mut stats.reconstruct) as f64;
+    }
+    [(sum / per_hit as f64) as f32; 3]
+}
+
+/// A 32-bit integer hash (the "lowbias32" mixer).
+fn hash(mut x: u32) -> u32 {
+    x ^= x >> 16;
+    x = x.wrapping_mul(0x7feb_352d);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x846c_a68b);
+    x ^= x >> 16;
+    x
+}
+
+/// Nested uniform (Owen) scrambling of a 32-bit fixed-point coordinate by a hash that only
+/// lets each bit depend on the bits above it (Laine–Karras, with Vegdahl's constants).
+fn owen_scramble(x: u32, seed: u32) -> u32 {
+    let mut v = x.reverse_bits();
+    v ^= v.wrapping_mul(0x3d20_adea);
+    v = v.wrapping_add(seed);
+    v = v.wrapping_mul((seed >> 16) | 1);
+    v ^= v.wrapping_mul(0x0552_6c56);
+    v ^= v.wrapping_mul(0x53a2_2864);
+    v.reverse_bits()
+}
+
+/// Point `index` of the first two Sobol' dimensions (van der Corput in base 2, and the
+/// dimension with direction numbers v_1 = 1/2, v_{k+1} = v_k ⊕ v_k/2), as 32-bit fixed point.
+fn sobol_2d(index: u32) -> (u32, u32) {
+    let x = index.reverse_bits();
+    let (mut y, mut v, mut i) = (0u32, 1u32 << 31, index);
+    while i != 0 {
+        if i & 1 != 0 {
+            y ^= v;
+        }
+        i >>= 1;
+        v ^= v >> 1;
+    }
+    (x, y)
+}
+
+/// The scrambled point `index` in [0, 1)², the two dimensions scrambled independently.
+fn sobol_2d_scrambled(index: u32, seed: u32) -> (f32, f32) {
+    let (x, y) = sobol_2d(index);
+    let to_unit = |v: u32| (v >> 8) as f32 / (1u32 << 24) as f32;
+    (to_unit(owen_scramble(x, hash(seed ^ 0x243f_6a88))), to_unit(owen_scramble(y, hash(seed ^ 0x85a3_08d3))))
+}
+
+/// Shirley–Chiu concentric map of [0, 1)² to the unit disk, lifted to the cosine-weighted
+/// hemisphere about +z.
+fn cosine_hemisphere(u: f32, v: f32) -> [f32; 3] {
+    let (a, b) = (2.0 * u - 1.0, 2.0 * v - 1.0);
+    let (x, y) = if a == 0.0 && b == 0.0 {
+        (0.0, 0.0)
+    } else if a.abs() > b.abs() {
+        let phi = std::f32::consts::FRAC_PI_4 * (b / a);
+        (a * phi.cos(), a * phi.sin())
+    } else {
+        let phi = std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (a / b);
+        (b * phi.cos(), b * phi.sin())
+    };
+    [x, y, (1.0 - x * x - y * y).max(0.0).sqrt()]
+}
+
+/// Two unit vectors completing the unit `n` to a right-handed basis (Duff et al. 2017).
+fn orthonormal_basis(n: [f32; 3]) -> ([f32; 3], [f32; 3]) {
+    let sign = 1.0f32.copysign(n[2]);
+    let a = -1.0 / (sign + n[2]);
+    let b = n[0] * n[1] * a;
+    ([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]], [b, sign + n[1] * n[1] * a, -n[1]])
+}
+
+fn normalize(v: [f32; 3]) -> [f32; 3] {
+    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if l > 0.0 {
+        v.map(|c| c / l)
+    } else {
+        v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scrambled_sobol_points_are_stratified() {
+        // A (0, 2)-net: 2^m points put exactly one in every elementary interval of area 2^−m,
+        // after nested scrambling too.
+        for seed in [0u32, 1, 0xdead_beef] {
+            let points: Vec<(f32, f32)> = (0..16).map(|j| sobol_2d_scrambled(j, seed)).collect();
+            for (nx, ny) in [(16usize, 1usize), (8, 2), (4, 4), (2, 8), (1, 16)] {
+                let mut cells = vec![0; 16];
+                for &(u, v) in &points {
+                    assert!((0.0..1.0).contains(&u) && (0.0..1.0).contains(&v));
+                    cells[(u * nx as f32) as usize * ny + (v * ny as f32) as usize] += 1;
+                }
+                assert!(cells.iter().all(|&c| c == 1), "seed {seed}, {nx}x{ny}: {cells:?}");
+            }
+        }
+        assert_ne!(sobol_2d_scrambled(3, 1), sobol_2d_scrambled(3, 2), "seeds give other points");
+    }
+
+    #[test]
+    fn cosine_directions_have_the_cosine_moments() {
+        // Under p(ω) = cosθ/π: E[cosθ] = 2/3, E[cos²θ] = 1/2, E[x] = E[y] = 0.
+        let n = 4096;
+        let (mut c1, mut c2, mut mx, mut my) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        for j in 0..n {
+            let (u, v) = sobol_2d_scrambled(j, 7);
+            let d = cosine_hemisphere(u, v);
+            assert!(((d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - 1.0).abs() < 1e-5 && d[2] >= 0.0);
+            c1 += d[2] as f64;
+            c2 += (d[2] * d[2]) as f64;
+            mx += d[0] as f64;
+            my += d[1] as f64;
+        }
+        let n = n as f64;
+        assert!((c1 / n - 2.0 / 3.0).abs() < 1e-3, "{}", c1 / n);
+        assert!((c2 / n - 0.5).abs() < 1e-3, "{}", c2 / n);
+        assert!((mx / n).abs() < 1e-3 && (my / n).abs() < 1e-3);
+    }
+
+    #[test]
+    fn the_basis_is_orthonormal_for_any_normal() {
+        for n in [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [0.6, 0.0, 0.8], [-0.48, 0.6, -0.64], [1.0, 0.0, 0.0]] {
+            let (t, b) = orthonormal_basis(n);
+            let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+            for (x, y, want) in [(t, t, 1.0), (b, b, 1.0), (n, n, 1.0), (t, b, 0.0), (t, n, 0.0), (b, n, 0.0)] {
+                assert!((dot(x, y) - want).abs() < 1e-6, "{n:?}");
+            }
+        }
+        assert_eq!(rays_per_hit(256, 4), 64);
+        assert_eq!(rays_per_hit(10, 4), 3);
+        assert_eq!(rays_per_hit(0, 4), 1);
+    }
+}
