@@ -199,6 +199,7 @@ pub fn registry() -> Vec<Box<dyn Method>> {
         vec![Box::new(crate::box_filter::BoxFilter), Box::new(crate::oidn::Oidn::default())];
     methods.extend(FilteredIndirect::all().into_iter().map(|m| Box::new(m) as Box<dyn Method>));
     methods.push(Box::new(crate::tlfr::method::Tlfr));
+    methods.push(Box::new(crate::tlfr::method::TlfrNearest));
     methods.push(Box::new(crate::ilfr::method::Ilfr));
     methods
 }

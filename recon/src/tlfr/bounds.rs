@@ -245,9 +245,137 @@ fn lines(axis: Axis, depth: Axis, (t0, t1): (f64, f64)) -> ((f64, f64), (f64, f6
     (lower, upper)
 }
 
-/// The bounds of one sample, for lens model `lens`, near limit `z_near` and the image area
-/// `area`; `None` when it is never in front of the camera while potentially near the image.
-pub fn sample_bounds(sample: &LensTimeSample, lens: &LensModel, z_near: f32, area: &ScreenArea) -> Option<Bounds> {
+/// The largest number of time segments a sample is split into (`sample_segments`).
+pub const MAX_SEGMENTS: usize = 8;
+/// A sample's time span is split while a segment's bounds are thicker than this (pixels): the
+/// largest distance between its lower and upper plane at one lens position.
+pub const MAX_SEGMENT_THICKNESS_PX: f32 = 2.0;
+/// Segments are cut where the depth crosses 2^(k/`DEPTH_STEPS_PER_OCTAVE`) for an integer k.
+pub const DEPTH_STEPS_PER_OCTAVE: u32 = 2;
+
+/// One entry of a sample in the hierarchy: bounds over part of its time span, and the times
+/// `times[0] ≤ t̂ < times[1]` at which a query takes the sample from this entry. The times of a
+/// sample's entries are consecutive pieces of one partition of the real line (the first
+/// starts at −∞, the last ends at +∞; a piece whose sample cannot come near the image has no
+/// entry), so a query time falls in at most one entry of each sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Segment {
+    pub bounds: Bounds,
+    pub times: [f32; 2],
+}
+
+/// A sample prepared for bounds: fixed bounds (a miss, or a sample whose position f32 rounding
+/// dominates), or a trajectory with its valid span.
+enum Prepared {
+    Fixed(Bounds),
+    Moving(Trajectory, [f32; 2]),
+}
+
+/// One moving sample in f64: the homogeneous form of its lens-centre position and depth.
+struct Trajectory {
+    depth: Axis,
+    axis_x: Axis,
+    axis_y: Axis,
+    c1: f64,
+    c2: f64,
+    /// Depth, time, and |Δz| at the sample's own time; x̄, ȳ; screen motion; the sample's
+    /// own (u, v) times C(z), for the rounding bound.
+    z: f64,
+    ts: f64,
+    dz: f64,
+    bar: [f64; 2],
+    motion: [f64; 2],
+    own_lens_term: [f64; 2],
+}
+
+impl Trajectory {
+    fn depth_at(&self, t: f64) -> f64 {
+        self.depth.p + t * self.depth.q
+    }
+
+    fn coc(&self, depth: f64) -> f64 {
+        self.c1 / depth + self.c2
+    }
+
+    /// Step 2 of the module comment on [t0, t1]: the times where the sample can come near the
+    /// image, rounded outwards in f32 but within [t0, t1]; the margin is the largest |C| on
+    /// [t0, t1] plus the largest reach.
+    fn trim(&self, [t0, t1]: [f32; 2], area: &ScreenArea) -> Option<[f32; 2]> {
+        let (a, b) = (t0 as f64, t1 as f64);
+        let largest_coc = self.coc(self.depth_at(a)).abs().max(self.coc(self.depth_at(b)).abs());
+        let margin = largest_coc + area.max_reach as f64;
+        let (a, b) = trim(self.axis_x, self.depth, (a, b), (-margin, area.width as f64 + margin))?;
+        let (a, b) = trim(self.axis_y, self.depth, (a, b), (-margin, area.height as f64 + margin))?;
+        Some([f32_below(a).max(t0), f32_above(b).min(t1)])
+    }
+
+    /// Steps 3–4 and the rounding bound over `span` (within the valid span).
+    fn bounds(&self, span: [f32; 2]) -> Bounds {
+        let (t0, t1) = (span[0] as f64, span[1] as f64);
+        let (coc0, coc1) = (self.coc(self.depth_at(t0)), self.coc(self.depth_at(t1)));
+        let (lens_slope, lens_half) = (0.5 * (coc0 + coc1), 0.5 * (coc1 - coc0).abs());
+        // Rounding of the f32 reprojection: relative errors of a few units in the magnitudes it
+        // adds, amplified by the division by the depth (itself rounded) where the depth is small.
+        let nearest = self.depth_at(t0).min(self.depth_at(t1));
+        let amplification = 1.0 + (self.z + self.dz.abs()) / nearest;
+        let slack = |k: usize| {
+            let (bar, motion) = (self.bar[k], self.motion[k]);
+            let magnitude = (bar.abs() * self.z + motion.abs() + self.ts * motion.abs()) / nearest
+                + (self.c1.abs() / nearest + self.c2.abs())
+                + bar.abs()
+                + self.own_lens_term[k].abs();
+            16.0 * F32_EPSILON * magnitude * amplification + 1e-6
+        };
+        let planes = |axis: Axis, k: usize| {
+            let (lower, upper) = lines(axis, self.depth, (t0, t1));
+            let s = slack(k) + lens_half;
+            (round_plane(lower.0, lens_slope, lower.1 - s, false), round_plane(upper.0, lens_slope, upper.1 + s, true))
+        };
+        let (x_min, x_max) = planes(self.axis_x, 0);
+        let (y_min, y_max) = planes(self.axis_y, 1);
+        Bounds { x_min, x_max, y_min, y_max, span }
+    }
+
+    /// Candidate times to cut [t0, t1] at, strictly inside it in f32: where z' crosses a
+    /// depth of the global grid 2^(k/`DEPTH_STEPS_PER_OCTAVE`) nearest the geometric mean of
+    /// its depths at the ends (so that samples of one surface, whose depths move together, are
+    /// cut at the same times and their segments share leaves); `None` without depth motion or
+    /// where no grid depth lies strictly inside.
+    fn split_times(&self, [t0, t1]: [f32; 2]) -> [Option<f32>; 1] {
+        if self.depth.q == 0.0 {
+            return [None];
+        }
+        let (za, zb) = (self.depth_at(t0 as f64), self.depth_at(t1 as f64));
+        let steps = DEPTH_STEPS_PER_OCTAVE as f64;
+        let level = |z: f64| z.log2() * steps;
+        let (la, lb) = (level(za).min(level(zb)), level(za).max(level(zb)));
+        let at_level = |k: f64| ((k / steps).exp2() - self.depth.p) / self.depth.q;
+        let inside = |t: f64| {
+            let t = t as f32;
+            (t > t0 && t < t1).then_some(t)
+        };
+        // The grid levels strictly between the ends, nearest the middle first.
+        let middle = 0.5 * (la + lb);
+        let (low, high) = (la.floor() + 1.0, lb.ceil() - 1.0);
+        if low > high {
+            return [None];
+        }
+        let k = middle.round().clamp(low, high);
+        [inside(at_level(k))]
+    }
+}
+
+/// The work a segment's bounds cost the queries, up to a constant: its duration times the
+/// image area (with the largest reach around it) that its bounds cover at one lens position.
+fn segment_work(bounds: &Bounds, area: &ScreenArea) -> f64 {
+    let reach = 2.0 * area.max_reach as f64;
+    let [x, y] = bounds.thickness();
+    let duration = (bounds.span[1] - bounds.span[0]) as f64;
+    duration * (x + reach).min(area.width as f64 + reach) * (y + reach).min(area.height as f64 + reach)
+}
+
+/// Step 1 for one sample: `None` when it is never in front of the camera.
+fn prepare(sample: &LensTimeSample, lens: &LensModel, z_near: f32, area: &ScreenArea) -> Option<Prepared> {
     let (t0, t1) = valid_span(sample, z_near)?;
     let (c1, c2) = (lens.c1 as f64, lens.c2 as f64);
     let (width, height, reach) = (area.width as f64, area.height as f64, area.max_reach as f64);
@@ -260,13 +388,13 @@ pub fn sample_bounds(sample: &LensTimeSample, lens: &LensModel, z_near: f32, are
             return None;
         }
         let slack = 4.0 * F32_EPSILON * (x.abs() + y.abs() + 2.0 * c2.abs()) + 1e-6;
-        return Some(Bounds {
+        return Some(Prepared::Fixed(Bounds {
             x_min: round_plane(0.0, c2, xc - slack, false),
             x_max: round_plane(0.0, c2, xc + slack, true),
             y_min: round_plane(0.0, c2, yc - slack, false),
             y_max: round_plane(0.0, c2, yc + slack, true),
             span: [0.0, 1.0],
-        });
+        }));
     }
     let z = sample.z as f64;
     let coc = |depth: f64| c1 / depth + c2;
@@ -276,45 +404,115 @@ pub fn sample_bounds(sample: &LensTimeSample, lens: &LensModel, z_near: f32, are
     let m = [lens.fx as f64 * dx + lens.cx as f64 * dz, lens.fy as f64 * dy + lens.cy as f64 * dz, dz];
     let ts = sample.t as f64;
     // Homogeneous position at t: (x̄·z + (t − tᵢ)·m) / (z + (t − tᵢ)·m_z).
-    let depth = Axis { p: z - ts * m[2], q: m[2] };
-    let axis_x = Axis { p: x_bar * z - ts * m[0], q: m[0] };
-    let axis_y = Axis { p: y_bar * z - ts * m[1], q: m[1] };
-    let (t0, t1) = (t0 as f64, t1 as f64);
-    let depth_at = |t: f64| depth.p + t * depth.q;
-    if depth_at(t0).min(depth_at(t1)) < 0.5 * z_near as f64 {
+    let trajectory = Trajectory {
+        depth: Axis { p: z - ts * m[2], q: m[2] },
+        axis_x: Axis { p: x_bar * z - ts * m[0], q: m[0] },
+        axis_y: Axis { p: y_bar * z - ts * m[1], q: m[1] },
+        c1,
+        c2,
+        z,
+        ts,
+        dz,
+        bar: [x_bar, y_bar],
+        motion: [m[0], m[1]],
+        own_lens_term: [c_old * u, c_old * v],
+    };
+    if trajectory.depth_at(t0 as f64).min(trajectory.depth_at(t1 as f64)) < 0.5 * z_near as f64 {
         // The f32 depth passes the near limit where the exact one is (almost) zero: f32
         // rounding dominates the position there. Bound it by everything.
-        return Some(Bounds::everywhere([t0 as f32, t1 as f32]));
+        return Some(Prepared::Fixed(Bounds::everywhere([t0, t1])));
     }
-    let largest_coc = coc(depth_at(t0)).abs().max(coc(depth_at(t1)).abs());
-    let margin = largest_coc + reach;
-    let (a, b) = trim(axis_x, depth, (t0, t1), (-margin, width + margin))?;
-    let (a, b) = trim(axis_y, depth, (a, b), (-margin, height + margin))?;
-    // The span in f32, rounded outwards but within the valid span.
-    let span = [f32_below(a).max(t0 as f32), f32_above(b).min(t1 as f32)];
-    let (t0, t1) = (span[0] as f64, span[1] as f64);
-    // The lens term (step 4).
-    let (coc0, coc1) = (coc(depth_at(t0)), coc(depth_at(t1)));
-    let (lens_slope, lens_half) = (0.5 * (coc0 + coc1), 0.5 * (coc1 - coc0).abs());
-    // Rounding of the f32 reprojection: relative errors of a few units in the magnitudes it
-    // adds, amplified by the division by the depth (itself rounded) where the depth is small.
-    let nearest = depth_at(t0).min(depth_at(t1));
-    let amplification = 1.0 + (z + dz.abs()) / nearest;
-    let slack = |bar: f64, motion: f64| {
-        let magnitude = (bar.abs() * z + motion.abs() + ts * motion.abs()) / nearest
-            + (c1.abs() / nearest + c2.abs())
-            + bar.abs()
-            + (c_old * u).abs();
-        16.0 * F32_EPSILON * magnitude * amplification + 1e-6
+    Some(Prepared::Moving(trajectory, [t0, t1]))
+}
+
+/// The bounds of one sample over its whole (trimmed) span, for lens model `lens`, near limit
+/// `z_near` and the image area `area`; `None` when it is never in front of the camera while
+/// potentially near the image.
+pub fn sample_bounds(sample: &LensTimeSample, lens: &LensModel, z_near: f32, area: &ScreenArea) -> Option<Bounds> {
+    match prepare(sample, lens, z_near, area)? {
+        Prepared::Fixed(bounds) => Some(bounds),
+        Prepared::Moving(trajectory, valid) => Some(trajectory.bounds(trajectory.trim(valid, area)?)),
+    }
+}
+
+/// A sample's entries for the hierarchy: its valid span cut into time segments, each trimmed
+/// and bounded on its own (steps 2–4 on the segment). A plane linear in t bounds x ∝ 1/z'(t)
+/// loosely where z' nears zero, and the lens term's spread |C₁ − C₀|/2 grows like 1/z' there;
+/// so while some segment's bounds are thicker than `MAX_SEGMENT_THICKNESS_PX`
+/// (`Bounds::thickness`), and at most into `MAX_SEGMENTS`, the thick segment costing the
+/// queries the most (`segment_work`) is cut, at the candidate time (`Trajectory::split_times`)
+/// that leaves the least work. Pieces trimmed away entirely have no entry. A sample with a
+/// single entry (no depth motion, a miss, or one piece near the image) has the times (−∞, +∞).
+/// Empty when the sample is never in front of the camera near the image.
+pub fn sample_segments(sample: &LensTimeSample, lens: &LensModel, z_near: f32, area: &ScreenArea) -> Vec<Segment> {
+    let whole = [f32::NEG_INFINITY, f32::INFINITY];
+    let (trajectory, valid) = match prepare(sample, lens, z_near, area) {
+        None => return Vec::new(),
+        Some(Prepared::Fixed(bounds)) => return vec![Segment { bounds, times: whole }],
+        Some(Prepared::Moving(trajectory, valid)) => (trajectory, valid),
     };
-    let planes = |axis: Axis, bar: f64, motion: f64| {
-        let (lower, upper) = lines(axis, depth, (t0, t1));
-        let s = slack(bar, motion) + lens_half;
-        (round_plane(lower.0, lens_slope, lower.1 - s, false), round_plane(upper.0, lens_slope, upper.1 + s, true))
-    };
-    let (x_min, x_max) = planes(axis_x, x_bar, m[0]);
-    let (y_min, y_max) = planes(axis_y, y_bar, m[1]);
-    Some(Bounds { x_min, x_max, y_min, y_max, span })
+    // (piece of the valid span, its trimmed bounds, whether it may still be split)
+    let piece = |span: [f32; 2]| (span, trajectory.trim(span, area).map(|s| trajectory.bounds(s)), true);
+    let mut pieces = vec![piece(valid)];
+    while pieces.len() < MAX_SEGMENTS {
+        let thick = |(_, bounds, splittable): &([f32; 2], Option<Bounds>, bool)| {
+            let bounds = bounds.as_ref().filter(|_| *splittable)?;
+            let [x, y] = bounds.thickness();
+            (x.max(y) > MAX_SEGMENT_THICKNESS_PX as f64).then(|| segment_work(bounds, area))
+        };
+        // The first of the largest, so that ties go the same way every time.
+        let chosen = pieces.iter().enumerate().filter_map(|(k, p)| thick(p).map(|w| (k, w))).fold(
+            None,
+            |best: Option<(usize, f64)>, (k, w)| if best.is_some_and(|(_, b)| b >= w) { best } else { Some((k, w)) },
+        );
+        let Some((k, _)) = chosen else {
+            break;
+        };
+        let (span, bounds, _) = pieces[k];
+        let trimmed = bounds.expect("only bounded pieces are chosen").span;
+        // The cut of the candidates (`Trajectory::split_times`) that leaves the least work.
+        let work = |p: &([f32; 2], Option<Bounds>, bool)| p.1.as_ref().map_or(0.0, |b| segment_work(b, area));
+        let best = trajectory
+            .split_times(trimmed)
+            .into_iter()
+            .flatten()
+            .map(|t| {
+                let (left, right) = (piece([span[0], t]), piece([t, span[1]]));
+                (work(&left) + work(&right), left, right)
+            })
+            .fold(
+                None,
+                |best: Option<(f64, _, _)>, candidate| {
+                    if best.as_ref().is_some_and(|b| b.0 <= candidate.0) {
+                        best
+                    } else {
+                        Some(candidate)
+                    }
+                },
+            );
+        match best {
+            Some((_, left, right)) => {
+                pieces[k] = left;
+                pieces.insert(k + 1, right);
+            }
+            None => pieces[k].2 = false,
+        }
+    }
+    let last = pieces.len() - 1;
+    let mut segments: Vec<Segment> = pieces
+        .iter()
+        .enumerate()
+        .filter_map(|(k, (span, bounds, _))| {
+            let start = if k == 0 { f32::NEG_INFINITY } else { span[0] };
+            let end = if k == last { f32::INFINITY } else { span[1] };
+            bounds.map(|bounds| Segment { bounds, times: [start, end] })
+        })
+        .collect();
+    if let [only] = segments.as_mut_slice() {
+        // The other pieces are never near the image: one entry for all times.
+        only.times = whole;
+    }
+    segments
 }
 
 impl Bounds {
@@ -349,6 +547,22 @@ impl Bounds {
             1 => *items[0],
             _ => merge_children(&items),
         }
+    }
+
+    /// The largest distance between the lower and the upper plane of each axis at one lens
+    /// position, over the span and |u|, |v| ≤ 1: [x, y], pixels. Zero for the exact bounds of a
+    /// sample whose position is linear in t; what splitting a span in time can reduce.
+    pub fn thickness(&self) -> [f64; 2] {
+        let gap = |low: &Plane, high: &Plane| {
+            let mut largest = f64::NEG_INFINITY;
+            for t in self.span {
+                for w in [-1.0, 1.0] {
+                    largest = largest.max(high.at_f64(t as f64, w) - low.at_f64(t as f64, w));
+                }
+            }
+            largest.max(0.0)
+        };
+        [gap(&self.x_min, &self.x_max), gap(&self.y_min, &self.y_max)]
     }
 
     /// The extents of the bounds over their span and |u|, |v| ≤ 1: (width, height), pixels.
@@ -535,6 +749,94 @@ mod tests {
             }
         }
         assert!(trimmed > 1000, "{trimmed}");
+    }
+
+    /// A sample's time segments: consecutive half-open times taking each query time at most
+    /// once; within its times and span a segment's bounds contain the reprojections; a time no
+    /// segment takes (or outside the taking segment's span) leaves the sample behind the camera
+    /// or beyond the largest reach from the image.
+    #[test]
+    fn time_segments_partition_the_shutter_and_bound_their_pieces() {
+        let mut rng = Lcg(4242);
+        let z_near = 1e-3;
+        let (mut split, mut checked_far) = (0, 0);
+        for _ in 0..6000 {
+            let (lens, sample) = random_case(&mut rng);
+            let segments = sample_segments(&sample, &lens, z_near, &AREA);
+            let whole = sample_bounds(&sample, &lens, z_near, &AREA);
+            assert_eq!(segments.is_empty(), whole.is_none(), "{sample:?}");
+            assert!(segments.len() <= MAX_SEGMENTS);
+            split += (segments.len() > 1) as usize;
+            for (k, segment) in segments.iter().enumerate() {
+                let [start, end] = segment.times;
+                let [t0, t1] = segment.bounds.span;
+                assert!(start < end && start <= t0 && t0 <= t1 && t1 <= end, "{segment:?}");
+                if let Some(next) = segments.get(k + 1) {
+                    assert!(end <= next.times[0]);
+                }
+                let whole = whole.expect("placed");
+                assert!(t0 >= whole.span[0] && t1 <= whole.span[1], "{segment:?} outside {whole:?}");
+            }
+            if segments.len() == 1 {
+                assert_eq!(segments[0].times, [f32::NEG_INFINITY, f32::INFINITY]);
+            }
+            for j in 0..=96 {
+                // Every segment's ends, and a grid.
+                let times: Vec<f32> = segments
+                    .iter()
+                    .flat_map(|s| [s.times[0], s.bounds.span[0], s.bounds.span[1]])
+                    .filter(|t| (0.0..=1.0).contains(t))
+                    .chain([j as f32 / 96.0])
+                    .collect();
+                let t = times[j % times.len()];
+                let taking: Vec<&Segment> = segments.iter().filter(|s| s.times[0] <= t && t < s.times[1]).collect();
+                assert!(taking.len() <= 1, "{t} taken by {taking:?}");
+                for i in 0..=8 {
+                    let w = -1.0 + i as f32 / 4.0;
+                    let at = LensTime { u: w, v: -w, t };
+                    match taking.first() {
+                        Some(segment) if t >= segment.bounds.span[0] && t <= segment.bounds.span[1] => {
+                            assert_inside(&segment.bounds, &sample, &lens, z_near, at);
+                        }
+                        _ => {
+                            if let Some(p) = reproject(&sample, &lens, at, z_near) {
+                                checked_far += 1;
+                                let outside = (-p.x).max(p.x - AREA.width).max((-p.y).max(p.y - AREA.height));
+                                assert!(outside > AREA.max_reach * 0.999, "{sample:?} at {at:?}: ({}, {})", p.x, p.y);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(split > 500 && checked_far > 1000, "{split} split, {checked_far} far");
+    }
+
+    /// A point flying into the camera plane (depth 1 → 0 over t ∈ [0, 0.5]) near the optical
+    /// axis: one plane pair over its whole span is thousands of pixels thick; cut into
+    /// `MAX_SEGMENTS` segments, all but the last (nearest the camera, a few hundredths of the
+    /// shutter) are under 100 px thick, the longest under 1% of the whole's thickness, and the
+    /// work a query sees (duration × area at one lens position) drops by more than half. (The
+    /// lens term û·C(t) is bilinear: a plane in (t, u) cannot bound it closer than |ΔC| over a
+    /// segment, which keeps even the first segment, z' from 1 to 0.5, about 10 px thick.)
+    #[test]
+    fn segments_are_thin_where_a_sample_flies_into_the_camera() {
+        let lens = LensModel { c1: -9.6, c2: 3.2, fx: 160.0, fy: 160.0, cx: 80.0, cy: 45.0 };
+        let area = ScreenArea { width: 160.0, height: 90.0, max_reach: 11.5 };
+        let sample = LensTimeSample { x: 78.0, y: 44.0, u: 0.3, v: -0.2, t: 0.1, z: 0.8, motion: [0.05, 0.0, -2.0] };
+        let whole = sample_bounds(&sample, &lens, 1e-3, &area).unwrap();
+        let segments = sample_segments(&sample, &lens, 1e-3, &area);
+        assert_eq!(segments.len(), MAX_SEGMENTS);
+        let thickest = |b: &Bounds| b.thickness()[0].max(b.thickness()[1]);
+        assert!(thickest(&whole) > 10_000.0, "{:?}", whole.thickness());
+        let (last, rest) = segments.split_last().unwrap();
+        assert!(last.bounds.span[1] - last.bounds.span[0] < 0.05, "{last:?}");
+        assert!(rest.iter().all(|s| thickest(&s.bounds) < 100.0), "{segments:?}");
+        let duration = |b: &Bounds| b.span[1] - b.span[0];
+        let longest = segments.iter().max_by(|a, b| duration(&a.bounds).total_cmp(&duration(&b.bounds))).unwrap();
+        assert!(thickest(&longest.bounds) < 0.01 * thickest(&whole), "{longest:?}");
+        let split_work: f64 = segments.iter().map(|s| segment_work(&s.bounds, &area)).sum();
+        assert!(2.0 * split_work < segment_work(&whole, &area), "{split_work}");
     }
 
     #[test]

@@ -4,8 +4,11 @@
 //! `MAX_LEAF_SAMPLES` samples of one surface each.
 //!
 //! Construction ("a push-pull procedure": leaves top-down, then the BVH bottom-up):
-//! 1. every sample's bounds (`bounds::sample_bounds`); a sample that is never in front of the
-//!    camera while potentially near the image is left out (`unplaced`);
+//! 1. every sample's entries (`bounds::sample_segments`): one with the bounds over its whole
+//!    span, or, for a sample whose depth changes enough that one plane pair bounds it loosely
+//!    (it nears the camera plane), up to `bounds::MAX_SEGMENTS` time segments with half-open
+//!    query times, each bounded on its own and entered as its own entry; a sample that is never
+//!    in front of the camera while potentially near the image is left out (`unplaced`);
 //! 2. the samples reprojected to the centre of the (u, v, t) cube (u = v = 0 and t = 0.5, or
 //!    the nearest time of the sample's span, which differs for samples passing the camera
 //!    plane) and bucketed into square bins of about
@@ -16,7 +19,7 @@
 //!    samples or is a single bin ("the subdivision stops whenever there are fewer than a
 //!    specified number of samples (we use 32) inside the node, or the node consists of only one
 //!    bin");
-//! 4. a quadtree leaf's samples sorted front to back (depth at the centre time; the authors'
+//! 4. a quadtree leaf's entries (whole samples and time segments apart) sorted front to back (depth at the centre time; the authors'
 //!    code sorts by centre time first, which only differs for samples passing the camera plane,
 //!    and those are told apart by the crossing test anyway) are cut into
 //!    runs: a sample opens a new run when it fails SAMESURFACE against any member of the current
@@ -34,15 +37,21 @@
 //!
 //! The nodes are stored depth first, each inner node followed by its first child, and each
 //! inner node knows where its subtree ends, so a query walks the tree without a stack. A node is
-//! 64 bytes (one cache line): four planes, the time span and two indices. The samples are
-//! renumbered so that the leaves' samples follow each other in that same depth-first order
-//! (`Hierarchy::build` returns the permutation; `reorder` applies it to any array aligned with
-//! the samples).
+//! 64 bytes (one cache line): four planes, the time span and two indices. The entries are
+//! renumbered so that the leaves' entries follow each other in that same depth-first order,
+//! the whole samples' leaves first and then the time segments' (`Hierarchy::build` returns the
+//! map from entries to samples; `reorder` applies it to any array aligned with the samples, a
+//! segmented sample's record repeated once per segment). Only the time segments store their
+//! query times (8 bytes each); `Hierarchy::entry_takes` tells a query which entry of a sample
+//! takes its t̂, so a sample is never collected twice.
 //!
-//! Known limit: a plane linear in t bounds a trajectory that nears the camera plane (x ∝ 1/z'
-//! with z' → 0) only loosely over the whole of its span, so samples flying through the camera
-//! are "near" many locations early in the shutter where they are far; queries stay exact
-//! (the test below checks that against a scan) but visit many leaves in such scenes.
+//! Known limit: a plane linear in t and u bounds a trajectory that nears the camera plane
+//! loosely: x ∝ 1/z'(t), and the lens term û·C(z'(t)) is bilinear in (û, t), which a plane
+//! cannot bound closer than the change of C over the span (Eq. 4: C ∝ 1/z'). Time segments
+//! shrink both per segment, but not to a pixel with a handful of segments: on the bench scene
+//! with a card flying through the camera (docs/tlfr.md) 8 segments cut the leaves per location
+//! from 517 to 428 at 3.7× the memory, with about the same locations per CPU second. Queries
+//! stay exact either way (the tests check that against a scan).
 //!
 //! Everything is deterministic: per-sample work runs in parallel but lands in sample order,
 //! quadtree leaves are processed in parallel and collected in Morton order, and every sort and
@@ -50,7 +59,7 @@
 
 use rayon::prelude::*;
 
-use super::bounds::{sample_bounds, Bounds, ScreenArea};
+use super::bounds::{sample_segments, Bounds, ScreenArea};
 use super::lens::LensModel;
 use super::reprojection::{reproject, LensTime, LensTimeSample};
 use super::same_surface::{same_surface_at, BUILD_CROSSING_TOLERANCE_PX};
@@ -96,6 +105,11 @@ pub struct Hierarchy {
     /// Depth first; the root is node 0.
     nodes: Vec<Node>,
     leaves: usize,
+    /// Entries below this index are whole samples (one entry each, any query time); the
+    /// entries from it on are time segments, entry k taking the query times
+    /// `segment_times[k − whole_entries]` (half-open).
+    whole_entries: usize,
+    segment_times: Vec<[f32; 2]>,
     /// Samples left out (never in front of the camera near the image).
     pub unplaced: usize,
 }
@@ -105,10 +119,12 @@ pub struct Hierarchy {
 struct BuildNode {
     bounds: Bounds,
     samples: u32,
-    /// Children of an inner node, or the leaf's sample range.
+    /// Children of an inner node, or the leaf's entry range.
     a: u32,
     b: u32,
     leaf: bool,
+    /// A leaf of time segments.
+    segmented: bool,
 }
 
 /// The cost of a node in the greedy merging.
@@ -130,46 +146,84 @@ fn morton(x: u32, y: u32) -> u64 {
     spread(x) | (spread(y) << 1)
 }
 
-/// A sample ready for binning.
+/// An entry (a sample, or one time segment of it) with its position and depth at the time it
+/// is binned at.
+struct Entry {
+    index: u32,
+    bounds: Bounds,
+    times: [f32; 2],
+    position: [f32; 2],
+    depth: f32,
+}
+
+/// An entry ready for binning.
 #[derive(Clone, Copy)]
 struct Placed {
     code: u64,
     depth: f32,
+    /// The sample.
     index: u32,
     bounds: Bounds,
+    /// The query times the entry takes (`bounds::Segment::times`).
+    times: [f32; 2],
+}
+
+impl Placed {
+    /// One of several time segments of its sample.
+    fn segmented(&self) -> bool {
+        self.times != [f32::NEG_INFINITY, f32::INFINITY]
+    }
 }
 
 impl Hierarchy {
     /// Builds the hierarchy over `samples` for lens model `lens`, near limit `z_near` and the
-    /// image area `area`. Returns it with the permutation `order`: position k of the reordered
-    /// samples (which the leaves index) holds `samples[order[k]]`; unplaced samples are not in it.
+    /// image area `area`. Returns it with the map `order` from entries to samples: entry k of
+    /// the reordered samples (which the leaves index) holds `samples[order[k]]`; unplaced
+    /// samples are not in it, a sample split into time segments is in it once per segment.
     pub fn build(
         samples: &[LensTimeSample],
         lens: &LensModel,
         z_near: f32,
         area: &ScreenArea,
     ) -> (Hierarchy, Vec<u32>) {
-        let centre_of = |sample: &LensTimeSample, bounds: &Bounds| {
-            let t = 0.5f32.clamp(bounds.span[0], bounds.span[1]);
+        // A whole sample is binned at t = 0.5 (or its span's nearest time), a time segment at
+        // the middle of its span.
+        let centre_of = |sample: &LensTimeSample, bounds: &Bounds, segmented: bool| {
+            let t = if segmented {
+                0.5 * (bounds.span[0] + bounds.span[1])
+            } else {
+                0.5f32.clamp(bounds.span[0], bounds.span[1])
+            };
             let p = reproject(sample, lens, LensTime { u: 0.0, v: 0.0, t }, z_near);
             p.map_or(([0.0, 0.0], f32::INFINITY), |p| ([p.x, p.y], p.z))
         };
-        let bounded: Vec<Option<(Bounds, [f32; 2], f32)>> = samples
+        let entries: Vec<Entry> = samples
             .par_iter()
-            .map(|s| {
-                sample_bounds(s, lens, z_near, area).map(|b| {
-                    let (position, depth) = centre_of(s, &b);
-                    (b, position, depth)
+            .enumerate()
+            .flat_map_iter(|(index, s)| {
+                let segments = sample_segments(s, lens, z_near, area);
+                let segmented = segments.len() > 1;
+                segments.into_iter().map(move |segment| {
+                    let (position, depth) = centre_of(s, &segment.bounds, segmented);
+                    let times = if segmented { segment.times } else { [f32::NEG_INFINITY, f32::INFINITY] };
+                    Entry { index: index as u32, bounds: segment.bounds, times, position, depth }
                 })
             })
             .collect();
-        let placed_count = bounded.iter().flatten().count();
+        let entry_count = entries.len();
+        let placed_count = {
+            let mut distinct: Vec<u32> = entries.iter().map(|e| e.index).collect();
+            distinct.dedup();
+            distinct.len()
+        };
         let unplaced = samples.len() - placed_count;
-        if placed_count == 0 {
-            return (Hierarchy { nodes: Vec::new(), leaves: 0, unplaced }, Vec::new());
+        if entry_count == 0 {
+            let empty =
+                Hierarchy { nodes: Vec::new(), leaves: 0, whole_entries: 0, segment_times: Vec::new(), unplaced };
+            return (empty, Vec::new());
         }
         // The bin grid: a square of 2^levels bins a side over the image.
-        let density = placed_count as f32 / (area.width * area.height).max(1.0);
+        let density = entry_count as f32 / (area.width * area.height).max(1.0);
         let bin = (SAMPLES_PER_BIN / density).sqrt();
         let side = area.width.max(area.height).max(1.0);
         let mut levels = 0u32;
@@ -179,20 +233,21 @@ impl Hierarchy {
         let bins = 1u32 << levels;
         let scale = bins as f32 / side;
         let to_bin = |v: f32| ((v * scale).floor().max(0.0) as u32).min(bins - 1);
-        let mut placed: Vec<Placed> = bounded
+        let mut placed: Vec<Placed> = entries
             .par_iter()
-            .enumerate()
-            .filter_map(|(index, entry)| {
-                entry.map(|(bounds, position, depth)| Placed {
-                    code: morton(to_bin(position[0]), to_bin(position[1])),
-                    depth,
-                    index: index as u32,
-                    bounds,
-                })
+            .map(|entry| Placed {
+                code: morton(to_bin(entry.position[0]), to_bin(entry.position[1])),
+                depth: entry.depth,
+                index: entry.index,
+                bounds: entry.bounds,
+                times: entry.times,
             })
             .collect();
-        drop(bounded);
-        placed.par_sort_unstable_by_key(|p| (p.code, p.index));
+        drop(entries);
+        // Entries of one sample are in time order: the time breaks ties between them.
+        placed.par_sort_unstable_by(|a, b| {
+            (a.code, a.index).cmp(&(b.code, b.index)).then(a.times[0].total_cmp(&b.times[0]))
+        });
 
         // The quadtree as a walk: inner nodes opened and closed, leaves (ranges of `placed`) in
         // Morton order.
@@ -208,7 +263,11 @@ impl Hierarchy {
         drop(placed);
 
         // The BVH, bottom-up along the same walk: each open quadtree node collects a frontier.
-        let mut builder = Builder { nodes: Vec::new(), order: Vec::with_capacity(placed_count) };
+        let mut builder = Builder {
+            nodes: Vec::new(),
+            order: Vec::with_capacity(entry_count),
+            times: Vec::with_capacity(entry_count),
+        };
         let mut frontiers: Vec<Vec<u32>> = vec![Vec::new()];
         let mut runs = runs.into_iter();
         for step in walk {
@@ -229,8 +288,39 @@ impl Hierarchy {
         let mut frontier = frontiers.pop().expect("the root's frontier");
         builder.reduce(&mut frontier, 1);
         let root = frontier[0];
-        let (nodes, leaves, order) = layout(&builder.nodes, root, &builder.order);
-        (Hierarchy { nodes, leaves, unplaced }, order)
+        let laid_out = layout(&builder.nodes, root, &builder.order, &builder.times);
+        let hierarchy = Hierarchy {
+            nodes: laid_out.nodes,
+            leaves: laid_out.leaves,
+            whole_entries: laid_out.whole_entries,
+            segment_times: laid_out.segment_times,
+            unplaced,
+        };
+        (hierarchy, laid_out.order)
+    }
+
+    /// Whether entry `entry` (an index into the reordered samples) takes query time `t`: always
+    /// for a whole sample, within its half-open times for a time segment. Of a sample's entries
+    /// at most one takes any given time.
+    #[inline]
+    pub fn entry_takes(&self, entry: usize, t: f32) -> bool {
+        match entry.checked_sub(self.whole_entries) {
+            None => true,
+            Some(k) => {
+                let [start, end] = self.segment_times[k];
+                start <= t && t < end
+            }
+        }
+    }
+
+    /// The number of entries (the length of the reordered samples).
+    pub fn entry_count(&self) -> usize {
+        self.whole_entries + self.segment_times.len()
+    }
+
+    /// The number of time-segment entries.
+    pub fn segment_entries(&self) -> usize {
+        self.segment_times.len()
     }
 
     /// Appends to `out` (cleared first) the leaves whose bounds at `at` come within `reach`
@@ -269,9 +359,9 @@ impl Hierarchy {
         self.leaves
     }
 
-    /// Memory of the nodes, bytes.
+    /// Memory of the nodes and the segments' times, bytes.
     pub fn node_bytes(&self) -> usize {
-        self.nodes.len() * std::mem::size_of::<Node>()
+        self.nodes.len() * std::mem::size_of::<Node>() + self.segment_times.len() * std::mem::size_of::<[f32; 2]>()
     }
 }
 
@@ -333,15 +423,22 @@ fn same_surface_throughout(a: &Placed, b: &Placed, samples: &[LensTimeSample], l
     same_surface_at(sa, sb, lens, corners, BUILD_CROSSING_TOLERANCE_PX, z_near)
 }
 
-/// A quadtree leaf's samples, front to back, cut into runs of one surface of at most
-/// `MAX_LEAF_SAMPLES`.
+/// A quadtree leaf's entries, front to back, cut into runs of one surface of at most
+/// `MAX_LEAF_SAMPLES`; whole samples and time segments never share a run (the whole samples'
+/// runs first).
 fn split_into_runs(cell: &[Placed], samples: &[LensTimeSample], lens: &LensModel, z_near: f32) -> Vec<Vec<Placed>> {
     let mut sorted = cell.to_vec();
-    sorted.sort_unstable_by(|a, b| a.depth.total_cmp(&b.depth).then(a.index.cmp(&b.index)));
+    sorted.sort_unstable_by(|a, b| {
+        (a.segmented().cmp(&b.segmented()))
+            .then(a.depth.total_cmp(&b.depth))
+            .then(a.index.cmp(&b.index))
+            .then(a.times[0].total_cmp(&b.times[0]))
+    });
     let mut runs: Vec<Vec<Placed>> = Vec::new();
     let mut current: Vec<Placed> = Vec::new();
     for p in sorted {
         let fits = current.len() < MAX_LEAF_SAMPLES
+            && current.first().map_or(true, |q| q.segmented() == p.segmented())
             && current.iter().all(|q| same_surface_throughout(&p, q, samples, lens, z_near));
         if !fits && !current.is_empty() {
             runs.push(std::mem::take(&mut current));
@@ -356,19 +453,23 @@ fn split_into_runs(cell: &[Placed], samples: &[LensTimeSample], lens: &LensModel
 
 struct Builder {
     nodes: Vec<BuildNode>,
+    /// The entries in build order: their samples and query times.
     order: Vec<u32>,
+    times: Vec<[f32; 2]>,
 }
 
 impl Builder {
-    /// BVH leaves for the runs of a quadtree leaf; their samples join the order.
+    /// BVH leaves for the runs of a quadtree leaf; their entries join the order.
     fn leaves(&mut self, runs: Vec<Vec<Placed>>) -> Vec<u32> {
         runs.into_iter()
             .map(|run| {
                 let first = self.order.len() as u32;
                 self.order.extend(run.iter().map(|p| p.index));
+                self.times.extend(run.iter().map(|p| p.times));
                 let bounds = Bounds::merge_all(run.iter().map(|p| &p.bounds));
                 let count = run.len() as u32;
-                self.push(BuildNode { bounds, samples: count, a: first, b: count, leaf: true })
+                let segmented = run[0].segmented();
+                self.push(BuildNode { bounds, samples: count, a: first, b: count, leaf: true, segmented })
             })
             .collect()
     }
@@ -434,18 +535,38 @@ impl Builder {
 
     fn merge(&mut self, a: u32, b: u32) -> u32 {
         let (na, nb) = (&self.nodes[a as usize], &self.nodes[b as usize]);
-        let node =
-            BuildNode { bounds: na.bounds.merge(&nb.bounds), samples: na.samples + nb.samples, a, b, leaf: false };
+        let node = BuildNode {
+            bounds: na.bounds.merge(&nb.bounds),
+            samples: na.samples + nb.samples,
+            a,
+            b,
+            leaf: false,
+            segmented: false,
+        };
         self.push(node)
     }
 }
 
+/// The hierarchy's arrays as `layout` leaves them.
+struct LaidOut {
+    nodes: Vec<Node>,
+    leaves: usize,
+    /// Entry → sample; the whole samples' entries first, then the time segments'.
+    order: Vec<u32>,
+    whole_entries: usize,
+    segment_times: Vec<[f32; 2]>,
+}
+
 /// The tree below `root` depth first, each inner node knowing where its subtree ends, with the
-/// samples renumbered so that the leaves' samples follow each other in that order; the number of
-/// leaves and the new sample order (`order` maps build positions to samples).
-fn layout(built: &[BuildNode], root: u32, order: &[u32]) -> (Vec<Node>, usize, Vec<u32>) {
+/// entries renumbered so that the leaves' entries follow each other in that order: first the
+/// leaves of whole samples, then (after all of those) the leaves of time segments. `order` and
+/// `times` give each build position's sample and query times.
+fn layout(built: &[BuildNode], root: u32, order: &[u32], times: &[[f32; 2]]) -> LaidOut {
     let mut nodes: Vec<Node> = Vec::with_capacity(built.len());
-    let mut new_order = Vec::with_capacity(order.len());
+    let (mut whole_order, mut segment_order, mut segment_times) =
+        (Vec::with_capacity(order.len()), Vec::new(), Vec::new());
+    // Nodes of segment leaves, whose first entry moves past the whole samples' at the end.
+    let mut segment_leaves = Vec::new();
     let mut leaves = 0;
     // (build index, whether the inner node's subtree is finished)
     let mut stack: Vec<(u32, bool)> = vec![(root, false)];
@@ -458,8 +579,18 @@ fn layout(built: &[BuildNode], root: u32, order: &[u32]) -> (Vec<Node>, usize, V
         }
         let node = &built[index as usize];
         if node.leaf {
-            let first = new_order.len() as u32;
-            new_order.extend_from_slice(&order[node.a as usize..(node.a + node.b) as usize]);
+            let range = node.a as usize..(node.a + node.b) as usize;
+            let first = if node.segmented {
+                segment_leaves.push(nodes.len());
+                let first = segment_order.len() as u32;
+                segment_order.extend_from_slice(&order[range.clone()]);
+                segment_times.extend_from_slice(&times[range]);
+                first
+            } else {
+                let first = whole_order.len() as u32;
+                whole_order.extend_from_slice(&order[range]);
+                first
+            };
             nodes.push(Node { bounds: node.bounds, first_or_end: first, count: node.b });
             leaves += 1;
         } else {
@@ -470,12 +601,19 @@ fn layout(built: &[BuildNode], root: u32, order: &[u32]) -> (Vec<Node>, usize, V
             stack.push((node.a, false));
         }
     }
-    (nodes, leaves, new_order)
+    let whole_entries = whole_order.len();
+    for position in segment_leaves {
+        nodes[position].first_or_end += whole_entries as u32;
+    }
+    let mut order = whole_order;
+    order.extend(segment_order);
+    LaidOut { nodes, leaves, order, whole_entries, segment_times }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::tlfr::bounds::sample_bounds;
     use crate::tlfr::reprojection::near_limit;
     use crate::tlfr::same_surface::same_surface;
     use crate::tlfr::test_scenes::{layered_scene, sample_scene, Lcg, MovingRect, ThinLens};
@@ -528,7 +666,10 @@ mod tests {
     }
 
     /// The samples within `reach` of `location` at `at` (by index into the original samples),
-    /// through the tree and by scanning every sample.
+    /// through the tree (each entry that takes t̂) and by scanning every sample: the same, and
+    /// no sample twice. Scenes with a surface flying through the camera plane, whose samples
+    /// are split into time segments; a third of the query times are the segments' own
+    /// boundaries, where one segment ends and the next begins.
     #[test]
     fn the_tree_finds_exactly_the_samples_a_scan_finds() {
         let radius = 0.6;
@@ -538,12 +679,20 @@ mod tests {
             let (samples, hierarchy, order, z_near) = build(&lens, &rects, 6, seed, max_reach);
             let model = lens.model();
             assert!(hierarchy.leaf_count() > samples.len() / MAX_LEAF_SAMPLES);
+            let boundaries: Vec<f32> =
+                hierarchy.segment_times.iter().map(|times| times[0]).filter(|t| t.is_finite()).collect();
+            assert!(boundaries.len() > 100, "scene {seed}: {} segment boundaries", boundaries.len());
             let mut rng = Lcg(seed + 100);
-            let (mut leaves, mut found_total) = (Vec::new(), 0);
-            for query in 0..300 {
+            let (mut leaves, mut found_total, mut found_in_segments) = (Vec::new(), 0, 0);
+            for query in 0..450 {
                 let location = [64.0 * rng.uniform(), 40.0 * rng.uniform()];
                 let (u, v) = rng.disk();
-                let at = LensTime { u, v, t: rng.uniform() };
+                let t = if query % 3 == 2 {
+                    boundaries[(rng.uniform() * boundaries.len() as f32) as usize % boundaries.len()]
+                } else {
+                    rng.uniform()
+                };
+                let at = LensTime { u, v, t };
                 let reach = radius * [2.0f32, 4.0, 8.0, 16.0][query % 4];
                 let within = |s: &LensTimeSample| {
                     reproject(s, &model, at, z_near).is_some_and(|p| {
@@ -551,23 +700,25 @@ mod tests {
                         dx * dx + dy * dy <= reach * reach
                     })
                 };
-                let mut scanned: Vec<u32> =
-                    (0..samples.len() as u32).filter(|&i| within(&samples[i as usize])).collect();
+                let scanned: Vec<u32> = (0..samples.len() as u32).filter(|&i| within(&samples[i as usize])).collect();
                 hierarchy.leaves_near(location, at, reach, &mut leaves);
-                let mut through_tree: Vec<u32> = leaves
+                let entries: Vec<usize> = leaves
                     .iter()
                     .flat_map(|&leaf| hierarchy.node(leaf).samples())
-                    .map(|k| order[k])
-                    .filter(|&i| within(&samples[i as usize]))
+                    .filter(|&k| hierarchy.entry_takes(k, at.t) && within(&samples[order[k] as usize]))
                     .collect();
-                scanned.sort_unstable();
+                let mut through_tree: Vec<u32> = entries.iter().map(|&k| order[k]).collect();
                 through_tree.sort_unstable();
+                let mut distinct = through_tree.clone();
+                distinct.dedup();
+                assert_eq!(distinct, through_tree, "scene {seed}: a sample found twice at {at:?}");
                 assert_eq!(through_tree, scanned, "scene {seed}, {location:?} {at:?} reach {reach}");
                 found_total += scanned.len();
+                found_in_segments += entries.iter().filter(|&&k| k >= hierarchy.whole_entries).count();
                 // The pruning works: far fewer leaves than all.
                 assert!(leaves.len() < hierarchy.leaf_count(), "{} of {}", leaves.len(), hierarchy.leaf_count());
             }
-            assert!(found_total > 1000, "scene {seed}: {found_total}");
+            assert!(found_total > 1000 && found_in_segments > 10, "scene {seed}: {found_total}, {found_in_segments}");
         }
     }
 
@@ -578,20 +729,34 @@ mod tests {
             let (samples, hierarchy, order, z_near) = build(&lens, &rects, 8, seed, 8.0);
             let model = lens.model();
             let area = ScreenArea { width: 48.0, height: 32.0, max_reach: 8.0 };
-            // Every placed sample is in exactly one leaf; the unplaced are never near the image.
+            // Every placed sample is in one leaf per time segment; the unplaced are never near the
+            // image.
+            let segments: Vec<_> = samples.iter().map(|s| sample_segments(s, &model, z_near, &area)).collect();
+            // The time span of entry k's bounds.
+            let span = |k: usize| {
+                let own = &segments[order[k] as usize];
+                if k < hierarchy.whole_entries {
+                    assert_eq!(own.len(), 1, "a whole entry of a sample with several segments");
+                    own[0].bounds.span
+                } else {
+                    let times = hierarchy.segment_times[k - hierarchy.whole_entries];
+                    own.iter().find(|s| s.times == times).expect("the entry's segment").bounds.span
+                }
+            };
             let mut seen = vec![0u32; samples.len()];
             let (mut pairs, mut split_leaves) = (0, 0);
             for node in hierarchy.nodes().iter().filter(|n| n.is_leaf()) {
                 let range = node.samples();
                 assert!((1..=MAX_LEAF_SAMPLES).contains(&range.len()));
+                // A leaf holds whole samples or time segments.
+                assert!(range.end <= hierarchy.whole_entries || range.start >= hierarchy.whole_entries);
                 for k in range.clone() {
                     seen[order[k] as usize] += 1;
                 }
                 for a in range.clone() {
                     for b in range.start..a {
                         let (sa, sb) = (&samples[order[a] as usize], &samples[order[b] as usize]);
-                        let span = |s: &LensTimeSample| sample_bounds(s, &model, z_near, &area).unwrap().span;
-                        let (ta, tb) = (span(sa), span(sb));
+                        let (ta, tb) = (span(a), span(b));
                         let same = if ta == [0.0, 1.0] && tb == [0.0, 1.0] {
                             // The whole domain: δ = 1 around the cube's centre.
                             let centre = LensTime { u: 0.0, v: 0.0, t: 0.5 };
@@ -609,8 +774,8 @@ mod tests {
                 split_leaves += (range.len() < MAX_LEAF_SAMPLES) as usize;
             }
             for (i, count) in seen.iter().enumerate() {
-                let placed = sample_bounds(&samples[i], &model, z_near, &area).is_some();
-                assert_eq!(*count, placed as u32, "sample {i}");
+                assert_eq!(*count as usize, segments[i].len(), "sample {i}");
+                assert_eq!(segments[i].is_empty(), sample_bounds(&samples[i], &model, z_near, &area).is_none());
             }
             assert_eq!(hierarchy.unplaced, seen.iter().filter(|&&c| c == 0).count());
             assert!(pairs > 10_000 && split_leaves > 0, "{pairs} pairs");
@@ -639,7 +804,8 @@ mod tests {
         let (lens, rects) = layered_scene(40, 30, false);
         let (samples, hierarchy, order, _) = build(&lens, &rects, 4, 1, 8.0);
         assert_eq!(order.len() + hierarchy.unplaced, samples.len());
-        // Inner nodes are followed by their subtree; leaves cover the samples in order.
+        assert_eq!((hierarchy.whole_entries, hierarchy.entry_count()), (order.len(), order.len()));
+        // Inner nodes are followed by their subtree; leaves cover the entries in order.
         let mut next_sample = 0;
         for (i, node) in hierarchy.nodes().iter().enumerate() {
             if node.is_leaf() {
@@ -650,9 +816,22 @@ mod tests {
             }
         }
         assert_eq!(next_sample, order.len());
-        // A binary tree: one fewer inner node than leaves.
         assert_eq!(hierarchy.nodes().len(), 2 * hierarchy.leaf_count() - 1);
         assert!(hierarchy.node_bytes() as f64 / samples.len() as f64 <= 16.0);
+        // With a card flying through the camera: the whole samples' leaves in order, then the
+        // time segments' leaves in order.
+        let (lens, rects) = layered_scene(40, 30, true);
+        let (_, hierarchy, order, _) = build(&lens, &rects, 4, 1, 8.0);
+        assert!(hierarchy.segment_entries() > 0 && hierarchy.entry_count() == order.len());
+        let mut next = [0, hierarchy.whole_entries];
+        for node in hierarchy.nodes().iter().filter(|n| n.is_leaf()) {
+            let part = (node.samples().start >= hierarchy.whole_entries) as usize;
+            assert_eq!(node.samples().start, next[part]);
+            next[part] = node.samples().end;
+        }
+        assert_eq!(next, [hierarchy.whole_entries, order.len()]);
+        // A binary tree: one fewer inner node than leaves.
+        assert_eq!(hierarchy.nodes().len(), 2 * hierarchy.leaf_count() - 1);
     }
 
     #[test]

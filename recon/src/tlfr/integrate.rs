@@ -14,6 +14,7 @@
 
 use rayon::prelude::*;
 
+use super::coverage::Point;
 use super::query::{reconstruct, QueryStats, Scene, Scratch};
 use super::reprojection::LensTime;
 use crate::image::Image;
@@ -66,9 +67,25 @@ pub fn location(seed: u32, x: u32, y: u32, j: u32, has_lens: bool, has_time: boo
     (screen, LensTime { u, v, t })
 }
 
+/// The value of one location (`query::reconstruct`, `nearest::reconstruct_nearest`).
+pub type Reconstruct = fn(&Scene, Point, LensTime, &mut Scratch, &mut QueryStats) -> Option<[f32; 3]>;
+
 /// The image of `scene` at `width` × `height` with `locations` per pixel; `fallback(x, y)` is a
 /// pixel's value when none of its locations found a sample.
 pub fn integrate(
+    scene: &Scene,
+    size: (u32, u32),
+    locations: u32,
+    has: (bool, bool),
+    seed: u32,
+    fallback: impl Fn(u32, u32) -> [f32; 3] + Sync,
+) -> (Image, QueryStats) {
+    integrate_with(reconstruct, scene, size, locations, has, seed, fallback)
+}
+
+/// `integrate` with another value per location, `value`.
+pub fn integrate_with(
+    value: Reconstruct,
     scene: &Scene,
     (width, height): (u32, u32),
     locations: u32,
@@ -85,9 +102,9 @@ pub fn integrate(
                     let (mut sum, mut count) = ([0.0f64; 3], 0u32);
                     for j in 0..locations.max(1) {
                         let (screen, at) = location(seed, x, y, j, has_lens, has_time);
-                        if let Some(value) = reconstruct(scene, screen, at, scratch, &mut stats) {
+                        if let Some(found) = value(scene, screen, at, scratch, &mut stats) {
                             for c in 0..3 {
-                                sum[c] += value[c] as f64;
+                                sum[c] += found[c] as f64;
                             }
                             count += 1;
                         }
@@ -267,6 +284,15 @@ mod tests {
         assert!((inner as f32 / total as f32 - 0.25).abs() < 0.01);
     }
 
+    /// The CPU time of this process (user + system), seconds, where /proc tells it.
+    fn process_cpu_seconds() -> Option<f64> {
+        let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+        // The fields after the command's closing parenthesis; utime and stime are 14 and 15.
+        let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+        let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+        Some(ticks / 100.0)
+    }
+
     /// Throughput on a synthetic layered scene with defocus and motion (run with
     /// `--ignored --nocapture` in release): index build time, locations per second, image mean.
     #[test]
@@ -294,8 +320,13 @@ mod tests {
             delta: 0.125,
         };
         let start = std::time::Instant::now();
+        let cpu_start = process_cpu_seconds();
         let (image, stats) = integrate(&scene, (width, height), 32, (true, true), 1, |_, _| [0.0; 3]);
         let recon_s = start.elapsed().as_secs_f64();
+        if let (Some(a), Some(b)) = (cpu_start, process_cpu_seconds()) {
+            // Less sensitive to other processes on a shared machine than the wall clock.
+            println!("{:.0} locations per CPU second ({:.2} CPU s)", stats.locations as f64 / (b - a), b - a);
+        }
         let mean: f64 = image.pixels.iter().map(|p| p[0] as f64 + p[1] as f64 + p[2] as f64).sum::<f64>()
             / image.pixels.len() as f64;
         println!(
@@ -321,14 +352,22 @@ mod tests {
             .sum();
         let reference_mean = reference.iter().map(|r| r[0] + r[1] + r[2]).sum::<f64>() / reference.len() as f64;
         println!("reference mean {reference_mean:.6}, RMSE {:.5}", (squared / (3 * reference.len()) as f64).sqrt());
+        // Memory per input sample: the entries' records (a sample split into time segments has
+        // one per segment), the nodes and the segments' times.
         let record = std::mem::size_of::<LensTimeSample>() + std::mem::size_of::<[f32; 3]>();
+        let inputs = (width * height * spp) as f64;
         println!(
-            "{} leaves ({:.1} samples each), {} nodes: {record} + {:.1} = {:.1} bytes per sample",
+            "{} entries ({} time segments) for {inputs} samples, {} leaves ({:.1} entries each), {} nodes: \
+             {:.1} + {:.1} = {:.1} bytes per sample; {:.1} leaves per location and pass",
+            tree.entry_count(),
+            tree.segment_entries(),
             tree.leaf_count(),
             samples.len() as f64 / tree.leaf_count() as f64,
             tree.nodes().len(),
-            tree.node_bytes() as f64 / samples.len() as f64,
-            record as f64 + tree.node_bytes() as f64 / samples.len() as f64
+            (record * samples.len()) as f64 / inputs,
+            tree.node_bytes() as f64 / inputs,
+            ((record * samples.len()) as f64 + tree.node_bytes() as f64) / inputs,
+            stats.leaves as f64 / stats.locations as f64
         );
     }
 }

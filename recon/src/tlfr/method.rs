@@ -1,4 +1,4 @@
-//! `tlfr` as a `lfr compare` method: reads the effect's `lens-time` file, measures R on its
+//! `tlfr` and `tlfr-nn` (`nearest`) as `lfr compare` methods: reads the effect's `lens-time` file, measures R on its
 //! pattern, indexes the samples and integrates N = `recon_rays` reconstruction locations per
 //! pixel (effects `dof`, `motion`, `dof-motion`; `soft-shadow` with the light samples too,
 //! `shadows`).
@@ -10,8 +10,9 @@ use sampleio::SampleFile;
 use super::bounds::ScreenArea;
 use super::dispersion::measure_radius;
 use super::hierarchy::{reorder, Hierarchy};
-use super::integrate::integrate;
-use super::query::{max_reach, Scene};
+use super::integrate::{integrate_with, Reconstruct};
+use super::nearest::reconstruct_nearest;
+use super::query::{max_reach, reconstruct, Scene};
 use super::reprojection::{near_limit, LensTimeSample};
 use super::same_surface::window_half_width;
 use super::samples::{read_lens_time, refocus};
@@ -22,6 +23,49 @@ use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
 pub const RADIUS_TRIALS: u32 = 32;
 
 pub struct Tlfr;
+
+/// `tlfr-nn`: the same reconstruction with the nearest sample's radiance instead of the filter
+/// (`nearest`); effects `dof`, `motion`, `dof-motion`.
+pub struct TlfrNearest;
+
+impl Method for TlfrNearest {
+    fn name(&self) -> &str {
+        "tlfr-nn"
+    }
+
+    fn description(&self) -> &'static str {
+        "temporal light field reconstruction, nearest reprojected sample of the covering surface instead of the filter"
+    }
+
+    fn supports(&self, effect: Effect) -> bool {
+        matches!(effect, Effect::Dof | Effect::Motion | Effect::DofMotion)
+    }
+
+    fn input(&self) -> Input {
+        Input::Samples
+    }
+
+    fn default_recon_rays(&self) -> Vec<u32> {
+        vec![32, 128]
+    }
+
+    fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
+        let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed("tlfr-nn needs a sample file".into()))?;
+        let settings = TlfrSettings { locations: recon_rays, ..TlfrSettings::default() };
+        let output = reconstruct_file_with(reconstruct_nearest, path, &settings)?;
+        if (output.image.width, output.image.height) != (inputs.width, inputs.height) {
+            return Err(MethodError::Failed(format!(
+                "{}: samples are {}x{}, the comparison is {}x{}",
+                path.display(),
+                output.image.width,
+                output.image.height,
+                inputs.width,
+                inputs.height
+            )));
+        }
+        Ok(output)
+    }
+}
 
 impl Method for Tlfr {
     fn name(&self) -> &str {
@@ -88,6 +132,15 @@ impl Default for TlfrSettings {
 
 /// Reconstructs the image of a `lens-time` file.
 pub fn reconstruct_file(path: &std::path::Path, settings: &TlfrSettings) -> Result<Output, MethodError> {
+    reconstruct_file_with(reconstruct, path, settings)
+}
+
+/// `reconstruct_file` with another value per location (`nearest::reconstruct_nearest`).
+pub fn reconstruct_file_with(
+    value: Reconstruct,
+    path: &std::path::Path,
+    settings: &TlfrSettings,
+) -> Result<Output, MethodError> {
     let start = Instant::now();
     let file = SampleFile::open(path)?;
     let mut loaded = read_lens_time(&file).map_err(MethodError::Failed)?;
@@ -133,11 +186,12 @@ pub fn reconstruct_file(path: &std::path::Path, settings: &TlfrSettings) -> Resu
     };
     let fallback = |x: u32, y: u32| box_image.pixels[(y * width + x) as usize];
     let (image, stats) =
-        integrate(&scene, (width, height), locations, (has_lens, loaded.has_time), settings.seed, fallback);
+        integrate_with(value, &scene, (width, height), locations, (has_lens, loaded.has_time), settings.seed, fallback);
     let recon_s = start.elapsed().as_secs_f64();
     let per_location = |n: u64| 100.0 * n as f64 / stats.locations.max(1) as f64;
     let record_bytes = std::mem::size_of::<LensTimeSample>() + std::mem::size_of::<[f32; 3]>();
-    let bytes = (samples.len() * record_bytes + hierarchy.node_bytes()) as f64 / samples.len().max(1) as f64;
+    // Per input sample: a sample split into time segments has a record per segment.
+    let bytes = (samples.len() * record_bytes + hierarchy.node_bytes()) as f64 / input_samples.max(1) as f64;
     notes.push(format!(
         "R = {radius:.3} px measured on the input pattern ({:.2}/sqrt(spp); paper: about 2)",
         radius * (loaded.spp as f32).sqrt()
@@ -152,15 +206,18 @@ pub fn reconstruct_file(path: &std::path::Path, settings: &TlfrSettings) -> Resu
         per_location(stats.dropped)
     ));
     notes.push(format!(
-        "hierarchy: {} leaves ({:.1} samples each), {} nodes, built in {build_s:.3} s; {:.1} leaves per location and pass",
+        "hierarchy: {} leaves ({:.1} entries each), {} nodes, built in {build_s:.3} s; {:.1} leaves per location and pass",
         hierarchy.leaf_count(),
         samples.len() as f64 / hierarchy.leaf_count().max(1) as f64,
         hierarchy.nodes().len(),
         stats.leaves as f64 / stats.locations.max(1) as f64
     ));
     notes.push(format!(
-        "{bytes:.1} bytes per sample in memory ({record_bytes} record and radiance, {:.1} nodes)",
-        hierarchy.node_bytes() as f64 / samples.len().max(1) as f64
+        "{bytes:.1} bytes per sample in memory ({record_bytes} record and radiance per entry, {} entries of which {} \
+         time segments, {:.1} nodes)",
+        hierarchy.entry_count(),
+        hierarchy.segment_entries(),
+        hierarchy.node_bytes() as f64 / input_samples.max(1) as f64
     ));
     if loaded.dropped > 0 {
         notes.push(format!("{} samples with non-finite or impossible values were dropped", loaded.dropped));

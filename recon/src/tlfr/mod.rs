@@ -11,16 +11,21 @@
 //! - Eq. 5, SAMESURFACE with δ = sqrt(1/N) and the 0.1-pixel crossing tolerance, extended to
 //!   motion, for samples and for nodes through their bounding planes: `same_surface`.
 //! - Section 4 "Node bounds", Eq. 6 and Appendix A: planes linear in (t, u) and (t, v) bounding
-//!   a sample's or a node's reprojected positions over its time span, and their merging:
-//!   `bounds`.
+//!   a sample's or a node's reprojected positions over its time span, and their merging; a
+//!   sample nearing the camera plane cut into time segments bounded one by one (not in the
+//!   paper): `bounds`.
 //! - Section 4 "Construction" and "Query": quadtree leaves of at most 32 samples of one surface,
-//!   the BVH built bottom-up over them, and the traversal returning the leaves near a location:
-//!   `hierarchy`.
+//!   the BVH built bottom-up over them, the traversal returning the leaves near a location, and
+//!   which time segment of a sample takes a query time: `hierarchy`.
 //! - Section 3.3, "Determining visibility": valid triangles, coverage, the tent filter:
 //!   `coverage`.
 //! - Section 3 steps 1–4 and Figure 7, RECONSTRUCT at one location: leaves from `hierarchy`,
-//!   grouped into surfaces leaf by leaf: `query`.
-//! - Eq. 1, N locations per pixel over pixel × lens × time: `integrate`; the method: `method`.
+//!   grouped into surfaces leaf by leaf through one representative sample each: `query`.
+//! - Not in the paper: `tlfr-nn`, steps 1–3 with the nearest sample's radiance instead of the
+//!   filter: `nearest`.
+//! - Eq. 1, N locations per pixel over pixel × lens × time: `integrate`; the methods `tlfr` and
+//!   `tlfr-nn`: `method`.
+//! - The synthetic scenes of the tests and the `tlfr` bench: `test_scenes`.
 //! - Section 3, the input: `lens-time` files read through `sampleio`: `samples`.
 //! - Section 3.3, "Determining R": dispersion of the input pattern under random reprojections:
 //!   `dispersion`.
@@ -35,10 +40,10 @@ pub mod integrate;
 pub mod lens;
 pub mod light_space;
 pub mod method;
+pub mod nearest;
 pub mod query;
 pub mod reprojection;
 pub mod same_surface;
 pub mod samples;
 pub mod shadows;
-#[cfg(test)]
 pub mod test_scenes;

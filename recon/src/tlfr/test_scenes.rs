@@ -1,4 +1,4 @@
-//! Test-only synthetic light fields: fronto-parallel rectangles moving linearly over the shutter,
+//! Synthetic light fields for the tests and the `tlfr` bench: fronto-parallel rectangles moving linearly over the shutter,
 //! seen through a thin lens, sampled by jittered (x, y) with random (u, v, t). Each sample is the
 //! nearest rectangle hit by its ray (a miss: z = +∞), traced here independently of the
 //! reprojection code: the ray from the lens point (a·u, a·v, 0) through the point of the focus
