@@ -201,6 +201,7 @@ pub fn registry() -> Vec<Box<dyn Method>> {
     methods.push(Box::new(crate::tlfr::method::Tlfr));
     methods.push(Box::new(crate::tlfr::method::TlfrNearest));
     methods.push(Box::new(crate::ilfr::method::Ilfr));
+    methods.push(Box::new(crate::ilfr::method::IlfrRecursive));
     methods
 }
 

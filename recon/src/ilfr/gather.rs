@@ -195,7 +195,13 @@ pub fn gather(
 
 /// The sky samples of the pixels within `radius` of (x, y) into `out`, and the angular spacing
 /// sqrt(2π / n) of the n secondary rays there (`None` without any).
-fn sky_samples(samples: &IndirectSamples, x: u32, y: u32, radius: u32, out: &mut Vec<SkySample>) -> Option<f32> {
+pub(super) fn sky_samples(
+    samples: &IndirectSamples,
+    x: u32,
+    y: u32,
+    radius: u32,
+    out: &mut Vec<SkySample>,
+) -> Option<f32> {
     out.clear();
     let Some(radiance) = &samples.radiance else { return None };
     let spp = samples.spp.max(1) as usize;
@@ -307,7 +313,7 @@ fn visibility_at(
 }
 
 /// A 32-bit integer hash (the "lowbias32" mixer).
-fn hash(mut x: u32) -> u32 {
+pub(super) fn hash(mut x: u32) -> u32 {
     x ^= x >> 16;
     x = x.wrapping_mul(0x7feb_352d);
     x ^= x >> 15;
@@ -344,7 +350,7 @@ fn sobol_2d(index: u32) -> (u32, u32) {
 }
 
 /// The scrambled point `index` in [0, 1)², the two dimensions scrambled independently.
-fn sobol_2d_scrambled(index: u32, seed: u32) -> (f32, f32) {
+pub(super) fn sobol_2d_scrambled(index: u32, seed: u32) -> (f32, f32) {
     let (x, y) = sobol_2d(index);
     let to_unit = |v: u32| (v >> 8) as f32 / (1u32 << 24) as f32;
     (to_unit(owen_scramble(x, hash(seed ^ 0x243f_6a88))), to_unit(owen_scramble(y, hash(seed ^ 0x85a3_08d3))))
@@ -352,7 +358,7 @@ fn sobol_2d_scrambled(index: u32, seed: u32) -> (f32, f32) {
 
 /// Shirley–Chiu concentric map of [0, 1)² to the unit disk, lifted to the cosine-weighted
 /// hemisphere about +z.
-fn cosine_hemisphere(u: f32, v: f32) -> [f32; 3] {
+pub(super) fn cosine_hemisphere(u: f32, v: f32) -> [f32; 3] {
     let (a, b) = (2.0 * u - 1.0, 2.0 * v - 1.0);
     let (x, y) = if a == 0.0 && b == 0.0 {
         (0.0, 0.0)
@@ -367,14 +373,14 @@ fn cosine_hemisphere(u: f32, v: f32) -> [f32; 3] {
 }
 
 /// Two unit vectors completing the unit `n` to a right-handed basis (Duff et al. 2017).
-fn orthonormal_basis(n: [f32; 3]) -> ([f32; 3], [f32; 3]) {
+pub(super) fn orthonormal_basis(n: [f32; 3]) -> ([f32; 3], [f32; 3]) {
     let sign = 1.0f32.copysign(n[2]);
     let a = -1.0 / (sign + n[2]);
     let b = n[0] * n[1] * a;
     ([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]], [b, sign + n[1] * n[1] * a, -n[1]])
 }
 
-fn normalize(v: [f32; 3]) -> [f32; 3] {
+pub(super) fn normalize(v: [f32; 3]) -> [f32; 3] {
     let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     if l > 0.0 {
         v.map(|c| c / l)

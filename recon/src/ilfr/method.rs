@@ -1,7 +1,12 @@
 //! `ilfr` as a `lfr compare` method (effects `indirect` and `ao`): reads the effect's `indirect`
 //! or `ao` file, sizes the splats (§2.2), builds the hierarchy (§2.3), shrinks (§2.3.1) and
 //! gathers `recon_rays` reconstruction rays per pixel (Eq. 3, §3.3). Its notes give the time
-//! split (read, splat sizing, hierarchy, shrinking, reconstruction) and the counts of each stage.
+//! split (read, splat sizing, hierarchy, shrinking, recursive filtering, reconstruction) and the
+//! counts of each stage.
+//!
+//! `ilfr-recursive` (effect `indirect`) is the same with one pass of recursive filtering (§4,
+//! [`super::recursive`]) with 16 rays per secondary hit before the final gather; a second method
+//! name rather than an option, since only the filtered path-tracing pipeline parses `NAME:options`.
 //!
 //! The image is the quantity the harness's reference measures: for `indirect` the light the
 //! primary hit reflects after at least one more bounce (albedo × reconstructed incident
@@ -17,6 +22,7 @@ use super::disc::Disc;
 use super::filter::SplatShading;
 use super::gather::{gather, rays_per_hit, GatherSettings, GatherStats, GatherTarget};
 use super::reconstruct::Reconstructor;
+use super::recursive::{recursive_pass, RecursiveSettings, RecursiveStats};
 use super::samples::{read_indirect, IndirectSamples};
 use super::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams, ShrinkStats};
 use super::splats::{size_splats, GatheredPoints, SplatParams, SplatPoints, SplatStats};
@@ -48,39 +54,71 @@ impl Method for Ilfr {
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed("ilfr needs a sample file".into()))?;
-        let target = match inputs.effect {
-            Effect::Indirect => GatherTarget::Indirect,
-            Effect::Ao => GatherTarget::Visibility { ao_radius: inputs.ao_radius },
-            other => return Err(MethodError::Unsupported(format!("ilfr does not reconstruct {}", other.name()))),
-        };
-        let start = Instant::now();
-        let file = SampleFile::open(path)?;
-        let samples = read_indirect(&file).map_err(MethodError::Failed)?;
-        drop(file);
-        let read_s = start.elapsed().as_secs_f64();
-        if (samples.width, samples.height) != (inputs.width, inputs.height) {
-            return Err(MethodError::Failed(format!(
-                "{}: samples are {}x{}, the comparison is {}x{}",
-                path.display(),
-                samples.width,
-                samples.height,
-                inputs.width,
-                inputs.height
-            )));
-        }
-        let settings = IlfrSettings { recon_rays, ..IlfrSettings::default() };
-        let mut result = reconstruct_samples(&samples, target, &settings)?;
-        result.timings.read_s = read_s;
-        let notes = result.notes(&samples, &settings);
-        Ok(Output {
-            image: result.image,
-            preprocess_s: result.timings.preprocess_s(),
-            recon_s: result.timings.reconstruct_s,
-            external_peak_rss_mb: None,
-            notes,
-        })
+        run_ilfr(self.name(), inputs, IlfrSettings { recon_rays, ..IlfrSettings::default() })
     }
+}
+
+/// `ilfr` with one pass of recursive filtering (paper §4) before the final gather.
+pub struct IlfrRecursive;
+
+impl Method for IlfrRecursive {
+    fn name(&self) -> &str {
+        "ilfr-recursive"
+    }
+
+    fn description(&self) -> &'static str {
+        "indirect light field reconstruction with recursive filtering at the secondary hits (Lehtinen et al. 2012 §4)"
+    }
+
+    fn supports(&self, effect: Effect) -> bool {
+        effect == Effect::Indirect
+    }
+
+    fn input(&self) -> Input {
+        Input::Samples
+    }
+
+    fn default_recon_rays(&self) -> Vec<u32> {
+        vec![256]
+    }
+
+    fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
+        run_ilfr(self.name(), inputs, IlfrSettings { recon_rays, recursive_passes: 1, ..IlfrSettings::default() })
+    }
+}
+
+fn run_ilfr(name: &str, inputs: &Inputs, settings: IlfrSettings) -> Result<Output, MethodError> {
+    let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed(format!("{name} needs a sample file")))?;
+    let target = match inputs.effect {
+        Effect::Indirect => GatherTarget::Indirect,
+        Effect::Ao if settings.recursive_passes == 0 => GatherTarget::Visibility { ao_radius: inputs.ao_radius },
+        other => return Err(MethodError::Unsupported(format!("{name} does not reconstruct {}", other.name()))),
+    };
+    let start = Instant::now();
+    let file = SampleFile::open(path)?;
+    let samples = read_indirect(&file).map_err(MethodError::Failed)?;
+    drop(file);
+    let read_s = start.elapsed().as_secs_f64();
+    if (samples.width, samples.height) != (inputs.width, inputs.height) {
+        return Err(MethodError::Failed(format!(
+            "{}: samples are {}x{}, the comparison is {}x{}",
+            path.display(),
+            samples.width,
+            samples.height,
+            inputs.width,
+            inputs.height
+        )));
+    }
+    let mut result = reconstruct_samples(&samples, target, &settings)?;
+    result.timings.read_s = read_s;
+    let notes = result.notes(&samples, &settings);
+    Ok(Output {
+        image: result.image,
+        preprocess_s: result.timings.preprocess_s(),
+        recon_s: result.timings.recursive_s + result.timings.reconstruct_s,
+        external_peak_rss_mb: None,
+        notes,
+    })
 }
 
 /// How [`reconstruct_samples`] runs.
@@ -92,8 +130,13 @@ pub struct IlfrSettings {
     pub splats: SplatParams,
     pub shrink: ShrinkParams,
     pub surfaces: SurfaceParams,
-    /// Reconstruction rays start this fraction of the scene diagonal above their primary hit.
+    /// Reconstruction rays start this fraction of the scene diagonal above their primary (and,
+    /// recursing, secondary) hit.
     pub relative_offset: f32,
+    /// Passes of recursive filtering (§4) before the final gather; 0: none.
+    pub recursive_passes: u32,
+    /// Reconstruction rays per secondary hit in a recursive pass.
+    pub recursive_rays: u32,
 }
 
 impl Default for IlfrSettings {
@@ -105,6 +148,8 @@ impl Default for IlfrSettings {
             shrink: ShrinkParams::default(),
             surfaces: SurfaceParams::default(),
             relative_offset: 1e-4,
+            recursive_passes: 0,
+            recursive_rays: 16,
         }
     }
 }
@@ -116,6 +161,8 @@ pub struct Timings {
     pub sizing_s: f64,
     pub hierarchy_s: f64,
     pub shrinking_s: f64,
+    /// Recursive filtering (§4), all passes.
+    pub recursive_s: f64,
     pub reconstruct_s: f64,
 }
 
@@ -134,6 +181,8 @@ pub struct Reconstructed {
     pub sizing: SplatStats,
     pub shrinking: ShrinkStats,
     pub gather: GatherStats,
+    /// One entry per recursive pass.
+    pub recursive: Vec<RecursiveStats>,
 }
 
 impl Reconstructed {
@@ -143,10 +192,11 @@ impl Reconstructed {
         let per_ray = |n: u64| n as f64 / r.rays.max(1) as f64;
         let percent = |n: u64| 100.0 * n as f64 / r.rays.max(1) as f64;
         let [camera_miss, no_ray, escaped, hit] = samples.class_counts();
-        vec![
+        let mut notes = vec![
             format!(
-                "time: read {:.3} s, splat sizing {:.3} s, hierarchy {:.3} s, shrinking {:.3} s, reconstruction {:.3} s",
-                t.read_s, t.sizing_s, t.hierarchy_s, t.shrinking_s, t.reconstruct_s
+                "time: read {:.3} s, splat sizing {:.3} s, hierarchy {:.3} s, shrinking {:.3} s, recursive filtering {:.3} s, \
+                 reconstruction {:.3} s",
+                t.read_s, t.sizing_s, t.hierarchy_s, t.shrinking_s, t.recursive_s, t.reconstruct_s
             ),
             format!(
                 "{} samples: {hit} splats, {escaped} escaped, {no_ray} without a secondary ray, {camera_miss} camera misses; \
@@ -181,7 +231,23 @@ impl Reconstructed {
                 percent(r.glossy),
                 self.gather.unsupported_hits
             ),
-        ]
+        ];
+        for (pass, r) in self.recursive.iter().enumerate() {
+            let rays = r.reconstruct.rays.max(1) as f64;
+            notes.push(format!(
+                "recursive pass {}: {} rays per secondary hit, {} hits replaced, {} glossy kept (gap G3), {} kept without \
+                 support; {:.2}% of rays no surface ({:.2}% sky, {:.2}% unsupported)",
+                pass + 1,
+                settings.recursive_rays,
+                r.replaced,
+                r.glossy_kept,
+                r.unsupported_kept,
+                100.0 * r.reconstruct.no_surface as f64 / rays,
+                100.0 * r.sky_rays as f64 / rays,
+                100.0 * r.unsupported_rays as f64 / rays,
+            ));
+        }
+        notes
     }
 }
 
@@ -220,14 +286,49 @@ pub fn reconstruct_samples(
     drop(rays);
     let shrinking_s = start.elapsed().as_secs_f64();
 
+    let offset = if diagonal > 0.0 { settings.relative_offset * diagonal } else { settings.relative_offset };
+    let splat_radiance = |per_sample: &[[f32; 3]]| -> Vec<[f32; 3]> {
+        storage.sample_index.iter().map(|&i| per_sample[i as usize]).collect()
+    };
+
+    // §4: each pass reconstructs at the Lambertian secondary hits from the previous radiances.
+    let start = Instant::now();
+    let mut recursive = Vec::new();
+    let mut recursed: Option<IndirectSamples> = None;
+    if settings.recursive_passes > 0 {
+        if target != GatherTarget::Indirect {
+            return Err(MethodError::Unsupported("recursive filtering applies to indirect light only".into()));
+        }
+        let mut current =
+            samples.radiance.clone().ok_or_else(|| failed("recursive filtering needs the field `radiance`".into()))?;
+        let recursive_settings = RecursiveSettings {
+            rays_per_hit: settings.recursive_rays,
+            seed: settings.seed,
+            offset,
+            ..RecursiveSettings::default()
+        };
+        for _ in 0..settings.recursive_passes {
+            let radiance = splat_radiance(&current);
+            let shading =
+                SplatShading { radiance: &radiance, direction: &storage.direction, kappa: storage.kappa.as_deref() };
+            let reconstructor = Reconstructor { bvh: &bvh, shading, surfaces: settings.surfaces };
+            let (next, stats) =
+                recursive_pass(samples, &current, &reconstructor, &recursive_settings).map_err(MethodError::Failed)?;
+            current = next;
+            recursive.push(stats);
+        }
+        recursed = Some(IndirectSamples { radiance: Some(current), ..samples.clone() });
+    }
+    let samples = recursed.as_ref().unwrap_or(samples);
+    let recursive_s = start.elapsed().as_secs_f64();
+
     let start = Instant::now();
     let radiance: Vec<[f32; 3]> = match &samples.radiance {
-        Some(r) => storage.sample_index.iter().map(|&i| r[i as usize]).collect(),
+        Some(r) => splat_radiance(r),
         None => vec![[0.0; 3]; storage.sample_index.len()],
     };
     let shading = SplatShading { radiance: &radiance, direction: &storage.direction, kappa: storage.kappa.as_deref() };
     let reconstructor = Reconstructor { bvh: &bvh, shading, surfaces: settings.surfaces };
-    let offset = if diagonal > 0.0 { settings.relative_offset * diagonal } else { settings.relative_offset };
     let gather_settings = GatherSettings {
         rays_per_pixel: settings.recon_rays,
         seed: settings.seed,
@@ -238,23 +339,24 @@ pub fn reconstruct_samples(
     let reconstruct_s = start.elapsed().as_secs_f64();
     Ok(Reconstructed {
         image,
-        timings: Timings { read_s: 0.0, sizing_s, hierarchy_s, shrinking_s, reconstruct_s },
+        timings: Timings { read_s: 0.0, sizing_s, hierarchy_s, shrinking_s, recursive_s, reconstruct_s },
         splats: bvh.len(),
         sizing: sized.stats,
         shrinking,
         gather: gathered,
+        recursive,
     })
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::ilfr::samples::SampleClass;
     use sampleio::SampleKind;
 
     /// The inside of the box [−1, 1]² × [0, 2] (or only its floor and a ceiling at `ceiling`
     /// when `open`): where a ray from inside leaves it, and the inward normal there.
-    fn box_exit(o: [f32; 3], d: [f32; 3], ceiling: f32, open: bool) -> Option<([f32; 3], [f32; 3])> {
+    pub(crate) fn box_exit(o: [f32; 3], d: [f32; 3], ceiling: f32, open: bool) -> Option<([f32; 3], [f32; 3])> {
         let mut best: Option<(f32, [f32; 3])> = None;
         let planes: &[(usize, f32, f32)] = if open {
             &[(2, ceiling, -1.0)]
@@ -288,7 +390,7 @@ mod tests {
     /// W×H pixels looking at the floor z = 0 of the box (pixel (x, y) ↦ floor point inside
     /// [−0.9, 0.9]²), `spp` cosine-distributed secondary rays per pixel, radiance of a hit
     /// `radiance(h)`; `ao` files carry distances instead.
-    fn box_samples(
+    pub(crate) fn box_samples(
         size: u32,
         spp: u32,
         kind: SampleKind,
@@ -362,7 +464,7 @@ mod tests {
         s
     }
 
-    fn settings(rays: u32) -> IlfrSettings {
+    pub(crate) fn settings(rays: u32) -> IlfrSettings {
         IlfrSettings { recon_rays: rays, ..IlfrSettings::default() }
     }
 

@@ -1,7 +1,7 @@
 //! Indirect light field reconstruction (Lehtinen, Aila, Laine, Durand 2012, "Reconstructing the
 //! Indirect Light Field for Global Illumination"; the text is in
 //! `shared/papers/indirect-light-field-reconstruction-2012.txt`, the design in
-//! `docs/ilfr-design.md`). Issue 7, in progress: slices 1–6 of the design's implementation order.
+//! `docs/ilfr-design.md`). Issue 7, in progress: slices 1–6 and 9 of the design's implementation order.
 //!
 //! Paper → code (✓ implemented, ✗ not yet):
 //! - ✓ Section 2.1, the input tuple {L, o, h, n_o, n_h, κ} from `indirect` / `ao` files read
@@ -26,10 +26,16 @@
 //!   Owen-scrambled Sobol' directions, albedo-weighted, normalised by the supported rays) and
 //!   ambient occlusion (Section 3.3): `gather`. ✗ Glossy primary hits (needs the BSDF of o,
 //!   design gap G1): refused with an error naming the file's `weight` field.
-//! - ✗ Section 4, recursive filtering: `recursive`.
+//! - ✓ Section 4, recursive filtering: at every Lambertian secondary hit (κ below the glossy
+//!   threshold) 16 cosine rays reconstruct the incident light, and the sample's radiance becomes
+//!   `secondary_direct + secondary_albedo × their mean` before the final gather: `recursive`,
+//!   switched on by the method name `ilfr-recursive`. ✗ Glossy secondary hits keep their
+//!   radiance (their BSDF is not in the files, design gap G3).
 //! - ✗ Section 3.4, motion and defocus from primary rays: `lens`.
-//! - ✓ The `Method` `ilfr` for `lfr compare` (effects `indirect`, `ao`; time split and counts in
-//!   its notes): `method`. ✗ `ilfr-dof` (Section 3.4).
+//! - ✓ The `Method`s `ilfr` (effects `indirect`, `ao`) and `ilfr-recursive` (`indirect`, with
+//!   Section 4) for `lfr compare`, time split and counts in their notes: `method`
+//!   (`ilfr-recursive` still needs its line in `crate::method::registry`). ✗ `ilfr-dof`
+//!   (Section 3.4).
 
 pub mod bvh;
 pub mod disc;
@@ -38,6 +44,7 @@ pub mod gather;
 pub mod method;
 pub mod neighbours;
 pub mod reconstruct;
+pub mod recursive;
 pub mod samples;
 pub mod shrink;
 pub mod splats;
