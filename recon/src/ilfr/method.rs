@@ -567,6 +567,40 @@ pub(crate) mod tests {
         assert!(one.image.pixels.iter().flatten().all(|v| v.is_finite()));
     }
 
+    /// Stiff inputs: a 1×1 image at 1 spp still gives the furnace's exact albedo × L, and a
+    /// scene where every secondary ray escaped (nothing to splat: an empty scene around the
+    /// primary hits) gives exactly the black sky for indirect light and full visibility for AO,
+    /// with no NaN from empty trees.
+    #[test]
+    fn one_pixel_and_all_escaped_inputs_have_exact_answers() {
+        let l = [3.0f32, 0.5, 1e6];
+        let one = box_samples(1, 1, SampleKind::Indirect, None, |_| l);
+        let result = reconstruct_samples(&one, GatherTarget::Indirect, &settings(16)).unwrap();
+        assert_eq!(result.image.pixels, vec![[0.5 * l[0], 0.25 * l[1], l[2]]]);
+
+        let escape_all = |mut s: IndirectSamples| {
+            for i in 0..s.class.len() {
+                s.class[i] = SampleClass::Escaped;
+                s.secondary_hit[i] = s.primary_hit[i];
+                s.secondary_normal[i] = [0.0; 3];
+            }
+            if let Some(r) = s.radiance.as_mut() {
+                r.iter_mut().for_each(|v| *v = [0.0; 3]);
+            }
+            if let Some(d) = s.distance.as_mut() {
+                d.iter_mut().for_each(|v| *v = f32::INFINITY);
+            }
+            s
+        };
+        let empty = escape_all(box_samples(4, 2, SampleKind::Indirect, None, |_| l));
+        let result = reconstruct_samples(&empty, GatherTarget::Indirect, &settings(16)).unwrap();
+        assert!(result.image.pixels.iter().all(|p| *p == [0.0; 3]), "{:?}", result.image.pixels);
+        let empty_ao = escape_all(box_samples(4, 2, SampleKind::Ao, None, |_| l));
+        let result =
+            reconstruct_samples(&empty_ao, GatherTarget::Visibility { ao_radius: 0.5 }, &settings(16)).unwrap();
+        assert!(result.image.pixels.iter().all(|p| *p == [1.0; 3]), "{:?}", result.image.pixels);
+    }
+
     #[test]
     fn glossy_files_and_wrong_effects_are_refused_by_name() {
         let mut samples = box_samples(2, 1, SampleKind::Indirect, None, |_| [1.0; 3]);
