@@ -15,7 +15,9 @@
 //! L_in excludes the emission of what ω hits — exactly what RECONSTRUCT returns (the splats'
 //! radiances exclude their own hit's emission too). So
 //!
-//!     L_j' = secondary_direct_j + secondary_albedo_j · (1/M') Σ_{k ≤ M} RECONSTRUCT(h_j + ε n_j, ω_k)
+//! ```text
+//! L_j' = secondary_direct_j + secondary_albedo_j · (1/M') Σ_{k ≤ M} RECONSTRUCT(h_j + ε n_j, ω_k)
+//! ```
 //!
 //! counts direct light at h_j once (in `secondary_direct`) and nothing twice. ω_k: M
 //! cosine-distributed directions about n_j (`hit_normal`, facing o_j), the Owen-scrambled 2D
