@@ -165,9 +165,9 @@ fn tlfr_beats_the_box_filter_of_its_input_and_is_deterministic() {
 /// static emissive square at depth 4 taken through a lens focused at 2 (a blur of about 2 px)
 /// and refocused onto the square give its sharp image: full brightness a pixel and a half inside
 /// its edges, black a pixel and a half outside; without refocusing light spills beyond them.
-#[test]
-fn refocusing_onto_the_square_makes_it_sharp() {
-    let scene = scene_from_toml(
+/// A static 1 × 1 emitting square at depth 4 seen through a 0.2 lens focused at 2.
+fn still_square() -> Scene {
+    scene_from_toml(
         &r#"
         [render]
         max_bounces = 0
@@ -189,7 +189,12 @@ fn refocusing_onto_the_square_makes_it_sharp() {
         points = [[-0.5, -0.5, 4], [0.5, -0.5, 4], [0.5, 0.5, 4], [-0.5, 0.5, 4]]
         "#
         .replace("\n        ", "\n"),
-    );
+    )
+}
+
+#[test]
+fn refocusing_onto_the_square_makes_it_sharp() {
+    let scene = still_square();
     let (width, height) = (32u32, 32u32);
     let (dir, path) = dump(&scene, width, height, 8);
     let out = |name: &str| dir.path().join(name);
@@ -245,29 +250,7 @@ fn refocusing_onto_the_square_makes_it_sharp() {
 /// would need samples from far outside the frame, which no file has.)
 #[test]
 fn a_huge_aperture_spreads_the_square_as_the_thin_lens_does() {
-    let scene = scene_from_toml(
-        &r#"
-        [render]
-        max_bounces = 0
-        [camera]
-        position = [0, 0, 0]
-        look_at = [0, 0, 1]
-        fov = 40
-        aperture_radius = 0.2
-        focus_distance = 2.0
-        [[material]]
-        name = "lamp"
-        base_color = [0, 0, 0]
-        specular = 0
-        emission = [2, 2, 2]
-        two_sided_emission = true
-        [[mesh]]
-        shape = "polygon"
-        material = "lamp"
-        points = [[-0.5, -0.5, 4], [0.5, -0.5, 4], [0.5, 0.5, 4], [-0.5, 0.5, 4]]
-        "#
-        .replace("\n        ", "\n"),
-    );
+    let scene = still_square();
     let (width, height) = (32u32, 32u32);
     let (dir, path) = dump(&scene, width, height, 8);
     let target = dir.path().join("huge.exr");
