@@ -24,6 +24,11 @@ pub struct ReconstructArgs {
     /// Refocus: the new lens radius (scene units); needs --focus-distance.
     #[arg(long)]
     aperture: Option<f32>,
+    /// The bandwidth extension (paper Figure 14): weight each sample of a glossy surface by a
+    /// Gaussian in view angle of deviation SCALE · 8/κ (κ from the file's `bandwidth`; 8/κ is
+    /// the reflected lobe's deviation; without a value 0.5, docs/tlfr.md). Off unless given.
+    #[arg(long, value_name = "SCALE", num_args = 0..=1, default_missing_value = "0.5")]
+    bandwidth: Option<f32>,
     #[arg(long, default_value_t = 0)]
     seed: u32,
     /// Worker threads (0 = all cores).
@@ -46,7 +51,13 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
         (None, None) => None,
         _ => bail!("--focus-distance and --aperture go together"),
     };
-    let settings = TlfrSettings { locations: args.locations, refocus, seed: args.seed };
+    if let Some(scale) = args.bandwidth {
+        if !(scale.is_finite() && scale > 0.0) {
+            bail!("--bandwidth must be a positive, finite scale, got {scale}");
+        }
+    }
+    let settings =
+        TlfrSettings { locations: args.locations, refocus, seed: args.seed, bandwidth_scale: args.bandwidth };
     let pool = rayon::ThreadPoolBuilder::new().num_threads(args.threads).build().context("thread pool")?;
     let output = pool
         .install(|| reconstruct_file(&args.samples, &settings))

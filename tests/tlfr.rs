@@ -239,6 +239,19 @@ fn refocusing_onto_the_square_makes_it_sharp() {
         .unwrap();
     assert!(!bad.status.success() && String::from_utf8_lossy(&bad.stderr).contains("go together"));
     assert!(!out("bad.exr").exists());
+    // The bandwidth extension on a file without glossy surfaces (no `bandwidth` field) changes
+    // nothing, bit for bit; an impossible scale is refused before anything is written.
+    assert_eq!(run(&["--bandwidth"], "bandwidth.exr"), blurred);
+    for scale in ["0", "-1", "nan", "inf"] {
+        let bad = std::process::Command::new(env!("CARGO_BIN_EXE_lfr"))
+            .args(["reconstruct", "--samples", path.to_str().unwrap(), &format!("--bandwidth={scale}"), "--out"])
+            .arg(out("bad.exr"))
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&bad.stderr);
+        assert!(!bad.status.success() && stderr.contains("--bandwidth"), "{scale}: {stderr}");
+        assert!(!out("bad.exr").exists());
+    }
 }
 
 /// A huge aperture (stiff case): the refocusing scene's samples (traced with a 0.2 lens) are

@@ -57,6 +57,7 @@ fn bench(c: &mut Criterion) {
         radius: RADIUS,
         z_near: input.z_near,
         delta: (1.0 / LOCATIONS as f32).sqrt(),
+        view_bandwidth: None,
     };
     let locations = (WIDTH * HEIGHT * LOCATIONS) as u64;
 

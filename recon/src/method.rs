@@ -200,6 +200,7 @@ pub fn registry() -> Vec<Box<dyn Method>> {
     methods.extend(FilteredIndirect::all().into_iter().map(|m| Box::new(m) as Box<dyn Method>));
     methods.push(Box::new(crate::tlfr::method::Tlfr));
     methods.push(Box::new(crate::tlfr::method::TlfrNearest));
+    methods.push(Box::new(crate::tlfr::method::TlfrBandwidth));
     methods.push(Box::new(crate::ilfr::method::Ilfr));
     methods.push(Box::new(crate::ilfr::method::IlfrRecursive));
     methods

@@ -614,6 +614,7 @@ fn layout(built: &[BuildNode], root: u32, order: &[u32], times: &[[f32; 2]]) -> 
 mod tests {
     use super::*;
     use crate::tlfr::bounds::sample_bounds;
+    use crate::tlfr::query::{reconstruct, QueryStats, Scene, Scratch};
     use crate::tlfr::reprojection::near_limit;
     use crate::tlfr::same_surface::same_surface;
     use crate::tlfr::test_scenes::{layered_scene, sample_scene, Lcg, MovingRect, ThinLens};
@@ -665,6 +666,103 @@ mod tests {
         (samples, hierarchy, order, z_near)
     }
 
+    /// The samples within `reach` of `location` at `at` (indices into `samples`, sorted):
+    /// through `hierarchy`'s leaves (each entry that takes t̂; asserting no sample comes twice)
+    /// and by scanning every sample; and the entries the tree found.
+    fn tree_and_scan(
+        samples: &[LensTimeSample],
+        hierarchy: &Hierarchy,
+        order: &[u32],
+        model: &LensModel,
+        z_near: f32,
+        (location, at, reach): ([f32; 2], LensTime, f32),
+        leaves: &mut Vec<u32>,
+    ) -> (Vec<u32>, Vec<u32>, Vec<usize>) {
+        let within = |s: &LensTimeSample| {
+            reproject(s, model, at, z_near).is_some_and(|p| {
+                let (dx, dy) = (p.x - location[0], p.y - location[1]);
+                dx * dx + dy * dy <= reach * reach
+            })
+        };
+        let scanned: Vec<u32> = (0..samples.len() as u32).filter(|&i| within(&samples[i as usize])).collect();
+        hierarchy.leaves_near(location, at, reach, leaves);
+        let entries: Vec<usize> = leaves
+            .iter()
+            .flat_map(|&leaf| hierarchy.node(leaf).samples())
+            .filter(|&k| hierarchy.entry_takes(k, at.t) && within(&samples[order[k] as usize]))
+            .collect();
+        let mut through_tree: Vec<u32> = entries.iter().map(|&k| order[k]).collect();
+        through_tree.sort_unstable();
+        let mut distinct = through_tree.clone();
+        distinct.dedup();
+        assert_eq!(distinct, through_tree, "a sample found twice at {location:?} {at:?}");
+        (through_tree, scanned, entries)
+    }
+
+    /// Stiff case "samples on tile borders": the bins (tiles) of this input are exactly 1 px
+    /// (4761 samples over 32 × 32 px at `SAMPLES_PER_BIN` = 8 give 32 bins a side), and half of the samples
+    /// lie on their borders: a lattice of spacing 0.5 px from x, y = 0 to 32 inclusive, so also
+    /// on the image's own border (clamped into the border bins), plus a ring just outside the
+    /// image. Two planes, the near one ending exactly on the bin line x = 16, seen through a
+    /// lens (C = ±1.2 px). Queries exactly on bin corners, on the image border and at its
+    /// corners find exactly what a scan finds; a constant scene reconstructs exactly there.
+    #[test]
+    fn samples_on_tile_borders_are_found_as_a_scan_finds_them() {
+        let model = LensModel { c1: -4.8, c2: 1.6, fx: 32.0, fy: 32.0, cx: 16.0, cy: 16.0 };
+        let mut rng = Lcg(9);
+        let mut samples = Vec::new();
+        for j in -2..=66 {
+            for i in -2..=66 {
+                let (x, y) = (0.5 * i as f32, 0.5 * j as f32);
+                let (u, v) = rng.disk();
+                let z = if x < 16.0 { 2.0 } else { 6.0 };
+                samples.push(LensTimeSample { x, y, u, v, t: 0.5, z, motion: [0.0; 3] });
+            }
+        }
+        let z_near = near_limit(samples.iter().map(|s| s.z));
+        let radius = 0.5;
+        let area = ScreenArea { width: 32.0, height: 32.0, max_reach: 16.0 * radius };
+        let (hierarchy, order) = Hierarchy::build(&samples, &model, z_near, &area);
+        assert_eq!(hierarchy.unplaced, 0);
+        let mut leaves = Vec::new();
+        let mut found = 0;
+        for (k, (qx, qy)) in
+            [(0, 0), (16, 16), (32, 32), (0, 32), (32, 0), (16, 0), (7, 31), (31, 8), (16, 5)].into_iter().enumerate()
+        {
+            for reach in [0.5f32, 1.0, 2.0, 8.0] {
+                for (u, v) in [(0.0, 0.0), (1.0, 0.0), (-0.6, 0.8), (0.0, -1.0)] {
+                    let at = LensTime { u, v, t: 0.5 };
+                    let location = [qx as f32, qy as f32];
+                    let (through_tree, scanned, _) =
+                        tree_and_scan(&samples, &hierarchy, &order, &model, z_near, (location, at, reach), &mut leaves);
+                    assert_eq!(through_tree, scanned, "query {k} at {location:?} {at:?} reach {reach}");
+                    found += scanned.len();
+                }
+            }
+        }
+        assert!(found > 5000, "{found}");
+        // A constant scene comes back exactly at every one of those locations.
+        let colours = vec![[0.25, 0.5, 1.0]; samples.len()];
+        let (ordered, ordered_colours) = (reorder(&samples, &order), reorder(&colours, &order));
+        let scene = Scene {
+            samples: &ordered,
+            radiance: &ordered_colours,
+            lens: &model,
+            hierarchy: &hierarchy,
+            radius,
+            z_near,
+            delta: 0.125,
+            view_bandwidth: None,
+        };
+        let (mut scratch, mut stats) = (Scratch::default(), QueryStats::default());
+        for (qx, qy) in [(0.0, 0.0), (16.0, 16.0), (32.0, 32.0), (0.0, 32.0), (16.0, 0.0), (31.5, 7.0)] {
+            for (u, v) in [(0.0, 0.0), (1.0, 0.0), (-0.6, 0.8)] {
+                let value = reconstruct(&scene, [qx, qy], LensTime { u, v, t: 0.5 }, &mut scratch, &mut stats);
+                assert_eq!(value, Some([0.25, 0.5, 1.0]), "at ({qx}, {qy}), lens ({u}, {v})");
+            }
+        }
+    }
+
     /// The samples within `reach` of `location` at `at` (by index into the original samples),
     /// through the tree (each entry that takes t̂) and by scanning every sample: the same, and
     /// no sample twice. Scenes with a surface flying through the camera plane, whose samples
@@ -694,24 +792,8 @@ mod tests {
                 };
                 let at = LensTime { u, v, t };
                 let reach = radius * [2.0f32, 4.0, 8.0, 16.0][query % 4];
-                let within = |s: &LensTimeSample| {
-                    reproject(s, &model, at, z_near).is_some_and(|p| {
-                        let (dx, dy) = (p.x - location[0], p.y - location[1]);
-                        dx * dx + dy * dy <= reach * reach
-                    })
-                };
-                let scanned: Vec<u32> = (0..samples.len() as u32).filter(|&i| within(&samples[i as usize])).collect();
-                hierarchy.leaves_near(location, at, reach, &mut leaves);
-                let entries: Vec<usize> = leaves
-                    .iter()
-                    .flat_map(|&leaf| hierarchy.node(leaf).samples())
-                    .filter(|&k| hierarchy.entry_takes(k, at.t) && within(&samples[order[k] as usize]))
-                    .collect();
-                let mut through_tree: Vec<u32> = entries.iter().map(|&k| order[k]).collect();
-                through_tree.sort_unstable();
-                let mut distinct = through_tree.clone();
-                distinct.dedup();
-                assert_eq!(distinct, through_tree, "scene {seed}: a sample found twice at {at:?}");
+                let (through_tree, scanned, entries) =
+                    tree_and_scan(&samples, &hierarchy, &order, &model, z_near, (location, at, reach), &mut leaves);
                 assert_eq!(through_tree, scanned, "scene {seed}, {location:?} {at:?} reach {reach}");
                 found_total += scanned.len();
                 found_in_segments += entries.iter().filter(|&&k| k >= hierarchy.whole_entries).count();

@@ -87,22 +87,55 @@ pub fn integrate(
 pub fn integrate_with(
     value: Reconstruct,
     scene: &Scene,
+    size: (u32, u32),
+    locations: u32,
+    has: (bool, bool),
+    seed: u32,
+    fallback: impl Fn(u32, u32) -> [f32; 3] + Sync,
+) -> (Image, QueryStats) {
+    integrate_locations(
+        size,
+        locations,
+        has,
+        seed,
+        |_, screen, at, scratch: &mut Scratch, stats: &mut QueryStats| value(scene, screen, at, scratch, stats),
+        fallback,
+    )
+}
+
+/// Counters summed over the rows of `integrate_locations`.
+pub trait Counters: Default + Send {
+    fn add(&mut self, other: &Self);
+}
+
+impl Counters for QueryStats {
+    fn add(&mut self, other: &Self) {
+        QueryStats::add(self, other)
+    }
+}
+
+/// Eq. 1 for any value per location: pixel (x, y) is the mean of `value((x, y, j), screen, at,
+/// scratch, counters)` over its locations j (`location`), or `fallback(x, y)` when every one
+/// returned `None`. Rows run in parallel with a scratch `Sc` per worker and counters per row,
+/// summed in row order.
+pub fn integrate_locations<Sc: Default + Send, St: Counters>(
     (width, height): (u32, u32),
     locations: u32,
     (has_lens, has_time): (bool, bool),
     seed: u32,
+    value: impl Fn((u32, u32, u32), Point, LensTime, &mut Sc, &mut St) -> Option<[f32; 3]> + Sync,
     fallback: impl Fn(u32, u32) -> [f32; 3] + Sync,
-) -> (Image, QueryStats) {
-    let rows: Vec<(Vec<[f32; 3]>, QueryStats)> = (0..height)
+) -> (Image, St) {
+    let rows: Vec<(Vec<[f32; 3]>, St)> = (0..height)
         .into_par_iter()
-        .map_init(Scratch::default, |scratch, y| {
-            let mut stats = QueryStats::default();
+        .map_init(Sc::default, |scratch, y| {
+            let mut stats = St::default();
             let row = (0..width)
                 .map(|x| {
                     let (mut sum, mut count) = ([0.0f64; 3], 0u32);
                     for j in 0..locations.max(1) {
                         let (screen, at) = location(seed, x, y, j, has_lens, has_time);
-                        if let Some(found) = value(scene, screen, at, scratch, &mut stats) {
+                        if let Some(found) = value((x, y, j), screen, at, scratch, &mut stats) {
                             for c in 0..3 {
                                 sum[c] += found[c] as f64;
                             }
@@ -119,7 +152,7 @@ pub fn integrate_with(
             (row, stats)
         })
         .collect();
-    let mut stats = QueryStats::default();
+    let mut stats = St::default();
     let mut pixels = Vec::with_capacity((width * height) as usize);
     for (row, row_stats) in rows {
         pixels.extend(row);
@@ -151,26 +184,9 @@ mod tests {
         assert!(strips.iter().all(|&s| s));
     }
 
-    use crate::tlfr::bounds::ScreenArea;
-    use crate::tlfr::hierarchy::{reorder, Hierarchy};
     use crate::tlfr::lens::LensModel;
-    use crate::tlfr::query::max_reach;
     use crate::tlfr::reprojection::{near_limit, LensTimeSample};
-
-    /// The hierarchy over `samples` for queries of radius `radius` on a `width` × `height`
-    /// image, with the samples and colours in its order.
-    fn indexed(
-        samples: &[LensTimeSample],
-        colours: &[[f32; 3]],
-        lens: &LensModel,
-        z_near: f32,
-        (width, height): (u32, u32),
-        radius: f32,
-    ) -> (Hierarchy, Vec<LensTimeSample>, Vec<[f32; 3]>) {
-        let area = ScreenArea { width: width as f32, height: height as f32, max_reach: max_reach(radius) };
-        let (hierarchy, order) = Hierarchy::build(samples, lens, z_near, &area);
-        (hierarchy, reorder(samples, &order), reorder(colours, &order))
-    }
+    use crate::tlfr::test_scenes::indexed;
 
     /// Jittered samples over a `size`² image, `spp` per pixel, each given depth, motion and
     /// colour by `surface(x, y)`.
@@ -209,6 +225,7 @@ mod tests {
             radius: 0.7,
             z_near,
             delta: 0.125,
+            view_bandwidth: None,
         };
         integrate(&scene, (size, size), 16, (false, time), 1, |_, _| [-1.0; 3]).0
     }
@@ -253,6 +270,7 @@ mod tests {
             radius: 0.7,
             z_near,
             delta: 0.125,
+            view_bandwidth: None,
         };
         let (mut scratch, mut stats) = (Scratch::default(), QueryStats::default());
         for j in 0..200 {
@@ -318,6 +336,7 @@ mod tests {
             radius,
             z_near,
             delta: 0.125,
+            view_bandwidth: None,
         };
         let start = std::time::Instant::now();
         let cpu_start = process_cpu_seconds();

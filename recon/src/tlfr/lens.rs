@@ -59,6 +59,11 @@ impl LensModel {
         }
     }
 
+    /// The lens radius a in scene units (`c1 = −fx·a`); 0 for a pinhole.
+    pub fn aperture_radius(&self) -> f32 {
+        (self.c1 / self.fx).abs()
+    }
+
     /// Whether every sample stays put on the lens (a pinhole, or a lens with C ≡ 0).
     pub fn is_pinhole(&self) -> bool {
         self.c1 == 0.0 && self.c2 == 0.0

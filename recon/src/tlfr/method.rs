@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use sampleio::SampleFile;
 
+use super::bandwidth::ViewBandwidth;
 use super::bounds::ScreenArea;
 use super::dispersion::measure_radius;
 use super::hierarchy::{reorder, Hierarchy};
@@ -27,6 +28,31 @@ pub struct Tlfr;
 /// `tlfr-nn`: the same reconstruction with the nearest sample's radiance instead of the filter
 /// (`nearest`); effects `dof`, `motion`, `dof-motion`.
 pub struct TlfrNearest;
+
+/// `tlfr-bw`: the reconstruction with the bandwidth extension (Figure 14, `bandwidth`): each
+/// sample also weighted by a Gaussian in lens distance matched to its BRDF's bandwidth; effects
+/// `dof`, `motion`, `dof-motion`.
+pub struct TlfrBandwidth;
+
+/// The sample file of `inputs`, or an error naming `method`.
+fn samples_path<'a>(inputs: &'a Inputs, method: &str) -> Result<&'a std::path::Path, MethodError> {
+    inputs.samples.as_deref().ok_or_else(|| MethodError::Failed(format!("{method} needs a sample file")))
+}
+
+/// `output` when it has the comparison's size; an error naming `path` otherwise.
+fn of_comparison_size(output: Output, path: &std::path::Path, inputs: &Inputs) -> Result<Output, MethodError> {
+    if (output.image.width, output.image.height) != (inputs.width, inputs.height) {
+        return Err(MethodError::Failed(format!(
+            "{}: samples are {}x{}, the comparison is {}x{}",
+            path.display(),
+            output.image.width,
+            output.image.height,
+            inputs.width,
+            inputs.height
+        )));
+    }
+    Ok(output)
+}
 
 impl Method for TlfrNearest {
     fn name(&self) -> &str {
@@ -50,20 +76,41 @@ impl Method for TlfrNearest {
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed("tlfr-nn needs a sample file".into()))?;
+        let path = samples_path(inputs, self.name())?;
         let settings = TlfrSettings { locations: recon_rays, ..TlfrSettings::default() };
-        let output = reconstruct_file_with(reconstruct_nearest, path, &settings)?;
-        if (output.image.width, output.image.height) != (inputs.width, inputs.height) {
-            return Err(MethodError::Failed(format!(
-                "{}: samples are {}x{}, the comparison is {}x{}",
-                path.display(),
-                output.image.width,
-                output.image.height,
-                inputs.width,
-                inputs.height
-            )));
-        }
-        Ok(output)
+        of_comparison_size(reconstruct_file_with(reconstruct_nearest, path, &settings)?, path, inputs)
+    }
+}
+
+impl Method for TlfrBandwidth {
+    fn name(&self) -> &str {
+        "tlfr-bw"
+    }
+
+    fn description(&self) -> &'static str {
+        "temporal light field reconstruction with the bandwidth extension (Figure 14) for glossy surfaces"
+    }
+
+    fn supports(&self, effect: Effect) -> bool {
+        matches!(effect, Effect::Dof | Effect::Motion | Effect::DofMotion)
+    }
+
+    fn input(&self) -> Input {
+        Input::Samples
+    }
+
+    fn default_recon_rays(&self) -> Vec<u32> {
+        vec![32, 128]
+    }
+
+    fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
+        let path = samples_path(inputs, self.name())?;
+        let settings = TlfrSettings {
+            locations: recon_rays,
+            bandwidth_scale: Some(DEFAULT_BANDWIDTH_SCALE),
+            ..TlfrSettings::default()
+        };
+        of_comparison_size(reconstruct_file(path, &settings)?, path, inputs)
     }
 }
 
@@ -89,7 +136,7 @@ impl Method for Tlfr {
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed("tlfr needs a sample file".into()))?;
+        let path = samples_path(inputs, self.name())?;
         let settings = TlfrSettings { locations: recon_rays, ..TlfrSettings::default() };
         let output = if inputs.effect == Effect::SoftShadow {
             let light_path = inputs.light_samples.as_ref().ok_or_else(|| {
@@ -99,19 +146,13 @@ impl Method for Tlfr {
         } else {
             reconstruct_file(path, &settings)?
         };
-        if (output.image.width, output.image.height) != (inputs.width, inputs.height) {
-            return Err(MethodError::Failed(format!(
-                "{}: samples are {}x{}, the comparison is {}x{}",
-                path.display(),
-                output.image.width,
-                output.image.height,
-                inputs.width,
-                inputs.height
-            )));
-        }
-        Ok(output)
+        of_comparison_size(output, path, inputs)
     }
 }
+
+/// σ_view of the bandwidth extension in units of the reflected lobe's deviation 8/κ
+/// (`bandwidth`); measured in its test and in `docs/tlfr.md`.
+pub const DEFAULT_BANDWIDTH_SCALE: f32 = 0.5;
 
 /// How `reconstruct_file` runs.
 #[derive(Clone, Debug)]
@@ -122,11 +163,13 @@ pub struct TlfrSettings {
     pub refocus: Option<(f32, f32)>,
     /// Seed of the locations.
     pub seed: u32,
+    /// The bandwidth extension (Figure 14) with σ_view = `scale` · 8/κ, or off.
+    pub bandwidth_scale: Option<f32>,
 }
 
 impl Default for TlfrSettings {
     fn default() -> Self {
-        TlfrSettings { locations: 128, refocus: None, seed: 0 }
+        TlfrSettings { locations: 128, refocus: None, seed: 0, bandwidth_scale: None }
     }
 }
 
@@ -148,6 +191,7 @@ pub fn reconstruct_file_with(
     let (box_image, _) = average(&file, Effect::Dof, 0.0)?;
     drop(file);
     let mut notes = Vec::new();
+    let sample_aperture = loaded.lens.aperture_radius();
     if let Some((focus_distance, aperture_radius)) = settings.refocus {
         refocus(&mut loaded, focus_distance, aperture_radius).map_err(MethodError::Failed)?;
         notes.push(format!("refocused to distance {focus_distance} with lens radius {aperture_radius}"));
@@ -167,6 +211,25 @@ pub fn reconstruct_file_with(
     let area = ScreenArea { width: width as f32, height: height as f32, max_reach: max_reach(radius) };
     let (hierarchy, order) = Hierarchy::build(&loaded.samples, &loaded.lens, z_near, &area);
     let (samples, radiance) = (reorder(&loaded.samples, &order), reorder(&loaded.radiance, &order));
+    let view_bandwidth = match (settings.bandwidth_scale, &loaded.kappa) {
+        (None, _) => None,
+        (Some(scale), _) if !(scale.is_finite() && scale > 0.0) => {
+            return Err(MethodError::Failed(format!("the bandwidth scale must be positive and finite, got {scale}")));
+        }
+        (Some(_), None) => {
+            notes.push(format!(
+                "{}: no `bandwidth` field (no glossy surface): the bandwidth extension changes nothing",
+                path.display()
+            ));
+            None
+        }
+        (Some(scale), Some(kappa)) => Some(ViewBandwidth {
+            kappa: reorder(kappa, &order),
+            sample_aperture,
+            location_aperture: loaded.lens.aperture_radius(),
+            scale,
+        }),
+    };
     let (input_samples, lens) = (loaded.samples.len(), loaded.lens);
     drop(loaded.samples);
     drop(loaded.radiance);
@@ -183,6 +246,7 @@ pub fn reconstruct_file_with(
         radius,
         z_near,
         delta: window_half_width(locations),
+        view_bandwidth: view_bandwidth.as_ref(),
     };
     let fallback = |x: u32, y: u32| box_image.pixels[(y * width + x) as usize];
     let (image, stats) =
@@ -191,7 +255,9 @@ pub fn reconstruct_file_with(
     let per_location = |n: u64| 100.0 * n as f64 / stats.locations.max(1) as f64;
     let record_bytes = std::mem::size_of::<LensTimeSample>() + std::mem::size_of::<[f32; 3]>();
     // Per input sample: a sample split into time segments has a record per segment.
-    let bytes = (samples.len() * record_bytes + hierarchy.node_bytes()) as f64 / input_samples.max(1) as f64;
+    let kappa_bytes = view_bandwidth.as_ref().map_or(0, |v| v.kappa.len() * std::mem::size_of::<half::f16>());
+    let bytes =
+        (samples.len() * record_bytes + kappa_bytes + hierarchy.node_bytes()) as f64 / input_samples.max(1) as f64;
     notes.push(format!(
         "R = {radius:.3} px measured on the input pattern ({:.2}/sqrt(spp); paper: about 2)",
         radius * (loaded.spp as f32).sqrt()
@@ -213,8 +279,9 @@ pub fn reconstruct_file_with(
         stats.leaves as f64 / stats.locations.max(1) as f64
     ));
     notes.push(format!(
-        "{bytes:.1} bytes per sample in memory ({record_bytes} record and radiance per entry, {} entries of which {} \
+        "{bytes:.1} bytes per sample in memory ({record_bytes} record and radiance{} per entry, {} entries of which {} \
          time segments, {:.1} nodes)",
+        if kappa_bytes > 0 { " + 2 κ" } else { "" },
         hierarchy.entry_count(),
         hierarchy.segment_entries(),
         hierarchy.node_bytes() as f64 / input_samples.max(1) as f64

@@ -1,8 +1,8 @@
 //! Temporal light field reconstruction (Lehtinen, Aila, Chen, Laine, Durand 2011, "Temporal
 //! Light Field Reconstruction for Rendering Distribution Effects"; the text is in
 //! `shared/papers/temporal-light-field-reconstruction-2011.txt`, the design in
-//! `docs/tlfr-design.md`). Issue 6, in progress: the pieces below run end to end as the method
-//! `tlfr` (and `lfr reconstruct`); the bandwidth extension (Figure 14) is not in yet.
+//! `docs/tlfr-design.md`). The pieces below run end to end as the methods `tlfr`, `tlfr-nn` and
+//! `tlfr-bw` (and `lfr reconstruct`).
 //!
 //! Paper → code:
 //! - Eq. 4, `C(z) = C1/z + C2`, and the refocus / aperture change of Section 6: `lens`.
@@ -23,15 +23,19 @@
 //!   grouped into surfaces leaf by leaf through one representative sample each: `query`.
 //! - Not in the paper: `tlfr-nn`, steps 1–3 with the nearest sample's radiance instead of the
 //!   filter: `nearest`.
-//! - Eq. 1, N locations per pixel over pixel × lens × time: `integrate`; the methods `tlfr` and
-//!   `tlfr-nn`: `method`.
+//! - Eq. 1, N locations per pixel over pixel × lens × time: `integrate` (also for soft
+//!   shadows); the methods `tlfr`, `tlfr-nn` and `tlfr-bw`: `method`.
 //! - The synthetic scenes of the tests and the `tlfr` bench: `test_scenes`.
 //! - Section 3, the input: `lens-time` files read through `sampleio`: `samples`.
 //! - Section 3.3, "Determining R": dispersion of the input pattern under random reprojections:
 //!   `dispersion`.
+//! - Section 6 "Bandwidth information and view-dependent effects", Figure 14: each sample
+//!   weighted by a Gaussian in lens distance matched to its BRDF's bandwidth: `bandwidth`
+//!   (method `tlfr-bw`).
 //! - Section 5 and Appendix B, soft shadows: the light's samples as a second camera
 //!   (`light_space`) and the two reconstructions per location (`shadows`).
 
+pub mod bandwidth;
 pub mod bounds;
 pub mod coverage;
 pub mod dispersion;

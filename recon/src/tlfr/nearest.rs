@@ -32,12 +32,10 @@ pub fn reconstruct_nearest(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tlfr::bounds::ScreenArea;
-    use crate::tlfr::hierarchy::{reorder, Hierarchy};
     use crate::tlfr::integrate::{integrate_with, Reconstruct};
-    use crate::tlfr::query::{max_reach, reconstruct};
-    use crate::tlfr::reprojection::{near_limit, LensTimeSample};
-    use crate::tlfr::test_scenes::{layered_scene, sample_scene, Lcg, MovingRect, ThinLens};
+    use crate::tlfr::query::reconstruct;
+    use crate::tlfr::reprojection::near_limit;
+    use crate::tlfr::test_scenes::{indexed, layered_scene, sample_scene, Lcg, MovingRect, ThinLens};
 
     /// The image of `rects` through `lens` from `spp` samples per pixel with `value` per
     /// location (8 per pixel, radius 0.75), and the per-pixel mean of `reference_spp` samples.
@@ -51,9 +49,7 @@ mod tests {
         let model = lens.model();
         let z_near = near_limit(samples.iter().map(|s| s.z));
         let radius = 0.75;
-        let area = ScreenArea { width: lens.width as f32, height: lens.height as f32, max_reach: max_reach(radius) };
-        let (tree, order) = Hierarchy::build(&samples, &model, z_near, &area);
-        let (samples, colours): (Vec<LensTimeSample>, _) = (reorder(&samples, &order), reorder(&colours, &order));
+        let (tree, samples, colours) = indexed(&samples, &colours, &model, z_near, (lens.width, lens.height), radius);
         let scene = Scene {
             samples: &samples,
             radiance: &colours,
@@ -62,6 +58,7 @@ mod tests {
             radius,
             z_near,
             delta: 0.35,
+            view_bandwidth: None,
         };
         let (image, _) = integrate_with(value, &scene, (lens.width, lens.height), 8, (true, true), 1, |_, _| [0.0; 3]);
         let (_, truth) = sample_scene(lens, rects, reference_spp, [0.5; 3], 9);
@@ -99,9 +96,7 @@ mod tests {
         let (samples, colours) = sample_scene(&lens, &[plane], 4, colour, 11);
         let model = lens.model();
         let z_near = near_limit(samples.iter().map(|s| s.z));
-        let area = ScreenArea { width: 32.0, height: 24.0, max_reach: max_reach(0.8) };
-        let (tree, order) = Hierarchy::build(&samples, &model, z_near, &area);
-        let (samples, colours) = (reorder(&samples, &order), reorder(&colours, &order));
+        let (tree, samples, colours) = indexed(&samples, &colours, &model, z_near, (32, 24), 0.8);
         let scene = Scene {
             samples: &samples,
             radiance: &colours,
@@ -110,6 +105,7 @@ mod tests {
             radius: 0.8,
             z_near,
             delta: 0.25,
+            view_bandwidth: None,
         };
         let (mut scratch, mut stats, mut rng) = (Scratch::default(), QueryStats::default(), Lcg(2));
         for _ in 0..2000 {
@@ -148,9 +144,7 @@ mod tests {
         let (samples, colours) = sample_scene(&lens, &rects, 6, [0.5; 3], 5);
         let model = lens.model();
         let z_near = near_limit(samples.iter().map(|s| s.z));
-        let area = ScreenArea { width: 48.0, height: 27.0, max_reach: max_reach(0.8) };
-        let (tree, order) = Hierarchy::build(&samples, &model, z_near, &area);
-        let (samples, colours) = (reorder(&samples, &order), reorder(&colours, &order));
+        let (tree, samples, colours) = indexed(&samples, &colours, &model, z_near, (48, 27), 0.8);
         let scene = Scene {
             samples: &samples,
             radiance: &colours,
@@ -159,6 +153,7 @@ mod tests {
             radius: 0.8,
             z_near,
             delta: 1.0,
+            view_bandwidth: None,
         };
         let (image, stats) =
             integrate_with(reconstruct_nearest, &scene, (48, 27), 1, (true, true), 4, |_, _| [-1.0; 3]);

@@ -18,12 +18,15 @@
 //! 3. the nearest surface that covers the location (Section 3.3: one surface is trivially
 //!    covered; surfaces with fewer than `MIN_SURFACE_SAMPLES` samples are merged into the next;
 //!    the last surface is taken without a test);
-//! 4. its samples filtered with the circular tent of radius R (`coverage::tent_filter`).
+//! 4. its samples filtered with the circular tent of radius R (`coverage::tent_filter`), each
+//!    weighted also by its BRDF bandwidth when the extension of Figure 14 is on
+//!    (`bandwidth::weighted_tent_filter`).
 //!
 //! Where nothing lies within 2R the radius doubles, up to 16R (the authors' code does the same),
 //! then the location returns `None` (the caller leaves it out of the pixel's average). The
 //! hierarchy must have been built with a reach of at least 16R (`max_reach`).
 
+use super::bandwidth::{weighted_tent_filter, ViewBandwidth};
 use super::coverage::{is_covered, tent_filter, CoverageStats, Point};
 use super::hierarchy::Hierarchy;
 use super::lens::LensModel;
@@ -55,6 +58,9 @@ pub struct Scene<'a> {
     pub z_near: f32,
     /// SAMESURFACE's δ.
     pub delta: f32,
+    /// The bandwidth extension (Figure 14), when on: step 4 weights each sample by how far its
+    /// lens position is from the location's, for its BRDF's bandwidth (`bandwidth`).
+    pub view_bandwidth: Option<&'a ViewBandwidth>,
 }
 
 /// Counters over many queries.
@@ -97,6 +103,7 @@ pub struct Scratch {
     pub covering: Vec<u32>,
     pub points: Vec<Point>,
     values: Vec<[f32; 3]>,
+    log_weights: Vec<f64>,
 }
 
 /// The reconstructed radiance at `location` = (x̂, ŷ) and `at` = (û, v̂, t̂), or `None` when no
@@ -111,7 +118,20 @@ pub fn reconstruct(
     let radius = covering_surface(scene, location, at, scratch, stats)?;
     scratch.values.clear();
     scratch.values.extend(scratch.covering.iter().map(|&i| scene.radiance[i as usize]));
-    tent_filter(&scratch.points, &scratch.values, location, radius)
+    let Some(view) = scene.view_bandwidth else {
+        return tent_filter(&scratch.points, &scratch.values, location, radius);
+    };
+    scratch.log_weights.clear();
+    scratch.log_weights.extend(scratch.covering.iter().map(|&i| {
+        let sample = &scene.samples[i as usize];
+        view.log_weight(i as usize, [sample.u, sample.v], sample.z, [at.u, at.v])
+    }));
+    if scratch.log_weights.iter().all(|&l| l == 0.0) {
+        // No glossy sample here (or all on the location's lens point): the plain filter, the
+        // same value, without an exponential per sample.
+        return tent_filter(&scratch.points, &scratch.values, location, radius);
+    }
+    weighted_tent_filter(&scratch.points, &scratch.values, &scratch.log_weights, location, radius)
 }
 
 /// Steps 1–3 of RECONSTRUCT: the samples of the surface that covers the location, left in

@@ -5,8 +5,11 @@
 //! `u`, `v` (pinhole) → 0; no `t` (static) → 0.5, the shutter's middle; no `motion` → 0. A miss
 //! keeps z = +∞. Samples with a non-finite position, lens or time coordinate, motion or
 //! radiance, or a depth that is NaN or not positive, cannot be reprojected; they are dropped and
-//! counted (the tracer never writes them; a file from elsewhere might).
+//! counted (the tracer never writes them; a file from elsewhere might). The optional `bandwidth`
+//! (κ of the BRDF at the hit, for the bandwidth extension) is kept as the file's f16 when
+//! present; a NaN or negative κ also drops its sample.
 
+use half::f16;
 use sampleio::{SampleFile, SampleKind};
 
 use super::lens::LensModel;
@@ -23,6 +26,8 @@ pub struct LensTimeSamples {
     pub samples: Vec<LensTimeSample>,
     /// `radiance[i]` belongs to `samples[i]`.
     pub radiance: Vec<[f32; 3]>,
+    /// κ of `samples[i]` when the file has `bandwidth` (glossy scenes); 0 for diffuse and misses.
+    pub kappa: Option<Vec<f16>>,
     /// `samples[i]` is record `file_index[i]` of the file.
     pub file_index: Vec<u32>,
     /// Samples dropped for non-finite or impossible values.
@@ -48,6 +53,8 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, String> {
         return Err(format!("{path}: the file has only one of the lens fields `u`, `v`"));
     }
     let (t, motion) = (file.field("t"), file.field("motion"));
+    let bandwidth = file.field("bandwidth");
+    let mut kappa = bandwidth.map(|_| Vec::with_capacity(file.len()));
     let mut samples = Vec::with_capacity(file.len());
     let mut radiances = Vec::with_capacity(file.len());
     let mut file_index = Vec::with_capacity(file.len());
@@ -68,7 +75,11 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, String> {
             && sample.motion.iter().all(|c| c.is_finite())
             && colour.iter().all(|c| c.is_finite());
         let depth_ok = sample.z > 0.0 && (sample.z.is_finite() || sample.z == f32::INFINITY);
-        if finite && depth_ok && (0.0..=1.0).contains(&sample.t) {
+        let sample_kappa = bandwidth.map_or(0.0, |f| value(f, 0));
+        if finite && depth_ok && (0.0..=1.0).contains(&sample.t) && sample_kappa >= 0.0 {
+            if let Some(kappa) = kappa.as_mut() {
+                kappa.push(f16::from_f32(sample_kappa));
+            }
             samples.push(sample);
             radiances.push(colour);
             file_index.push(i as u32);
@@ -83,6 +94,7 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, String> {
         lens,
         samples,
         radiance: radiances,
+        kappa,
         file_index,
         dropped,
         has_lens: u.is_some(),
@@ -178,11 +190,25 @@ mod tests {
         let path = write(dir.path(), SampleKind::LensTime, &fields, &rows);
         let loaded = read_lens_time(&SampleFile::open(&path).unwrap()).unwrap();
         assert!(loaded.has_lens && loaded.has_time);
+        assert!(loaded.kappa.is_none(), "no `bandwidth` field");
         assert_eq!(loaded.dropped, 1, "t = 1.5 is outside the shutter");
         assert_eq!(
             loaded.samples[0],
             LensTimeSample { x: 0.2, y: 0.5, u: 0.1, v: -0.2, t: 0.3, z: 2.0, motion: [0.5, 0.0, -0.25] }
         );
+    }
+
+    #[test]
+    fn bandwidth_is_kept_and_bad_values_drop_their_sample() {
+        let dir = tempfile::tempdir().unwrap();
+        let fields = [("x", 1), ("y", 1), ("z", 1), ("radiance", 3), ("bandwidth", 1)];
+        let row = |kappa: f32| vec![0.5, 0.5, 2.0, 1.0, 1.0, 1.0, kappa];
+        let rows = vec![row(0.0), row(90.5), row(f32::NAN), row(-1.0)];
+        let path = write(dir.path(), SampleKind::LensTime, &fields, &rows);
+        let loaded = read_lens_time(&SampleFile::open(&path).unwrap()).unwrap();
+        assert_eq!(loaded.dropped, 2, "NaN and negative κ");
+        assert_eq!(loaded.kappa, Some(vec![f16::from_f32(0.0), f16::from_f32(90.5)]));
+        assert_eq!(loaded.samples.len(), 2);
     }
 
     #[test]

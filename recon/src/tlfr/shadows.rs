@@ -210,6 +210,15 @@ pub struct ShadowStats {
     pub blocked: u64,
 }
 
+impl super::integrate::Counters for ShadowStats {
+    fn add(&mut self, other: &Self) {
+        self.camera.add(&other.camera);
+        self.light.add(&other.light);
+        self.shaded += other.shaded;
+        self.blocked += other.blocked;
+    }
+}
+
 /// Everything a soft-shadow location reads.
 pub struct ShadowScene<'a> {
     pub camera: &'a Scene<'a>,
@@ -357,7 +366,6 @@ pub fn reconstruct_soft_shadow(
     use super::same_surface::window_half_width;
     use super::samples::read_lens_time;
     use crate::method::{Effect, MethodError, Output};
-    use rayon::prelude::*;
     use std::time::Instant;
 
     let failed = MethodError::Failed;
@@ -422,6 +430,7 @@ pub fn reconstruct_soft_shadow(
         radius,
         z_near,
         delta,
+        view_bandwidth: None,
     };
     let light_scene = Scene {
         samples: &light.samples,
@@ -431,6 +440,7 @@ pub fn reconstruct_soft_shadow(
         radius,
         z_near: light_z_near,
         delta,
+        view_bandwidth: None,
     };
     let area = light.space.width_u * light.space.width_v;
     let scene = ShadowScene {
@@ -442,44 +452,17 @@ pub fn reconstruct_soft_shadow(
         area,
         file_index: &camera.file_index,
     };
-    let rows: Vec<(Vec<[f32; 3]>, ShadowStats)> = (0..height)
-        .into_par_iter()
-        .map_init(ShadowScratch::default, |scratch, y| {
-            let mut stats = ShadowStats::default();
-            let row = (0..width)
-                .map(|x| {
-                    let (mut sum, mut count) = ([0.0f64; 3], 0u32);
-                    for j in 0..locations {
-                        let (screen, at) =
-                            super::integrate::location(settings.seed, x, y, j, camera.has_lens, camera.has_time);
-                        let light_uv = light_coordinates(settings.seed, x, y, j);
-                        if let Some(value) = reconstruct_with_shadow(&scene, screen, at, light_uv, scratch, &mut stats)
-                        {
-                            for c in 0..3 {
-                                sum[c] += value[c] as f64;
-                            }
-                            count += 1;
-                        }
-                    }
-                    if count == 0 {
-                        box_image.pixels[(y * width + x) as usize]
-                    } else {
-                        sum.map(|s| (s / count as f64) as f32)
-                    }
-                })
-                .collect();
-            (row, stats)
-        })
-        .collect();
-    let mut stats = ShadowStats::default();
-    let mut pixels = Vec::with_capacity((width * height) as usize);
-    for (row, row_stats) in rows {
-        pixels.extend(row);
-        stats.camera.add(&row_stats.camera);
-        stats.light.add(&row_stats.light);
-        stats.shaded += row_stats.shaded;
-        stats.blocked += row_stats.blocked;
-    }
+    let (image, stats) = super::integrate::integrate_locations(
+        (width, height),
+        locations,
+        (camera.has_lens, camera.has_time),
+        settings.seed,
+        |(x, y, j), screen, at, scratch: &mut ShadowScratch, stats: &mut ShadowStats| {
+            let light_uv = light_coordinates(settings.seed, x, y, j);
+            reconstruct_with_shadow(&scene, screen, at, light_uv, scratch, stats)
+        },
+        |x, y| box_image.pixels[(y * width + x) as usize],
+    );
     let recon_s = start.elapsed().as_secs_f64();
     let notes = vec![
         format!(
@@ -500,6 +483,5 @@ pub fn reconstruct_soft_shadow(
             light_tree.leaf_count()
         ),
     ];
-    let image = crate::image::Image::from_pixels(width, height, pixels);
     Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes })
 }

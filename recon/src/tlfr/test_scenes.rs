@@ -4,7 +4,10 @@
 //! reprojection code: the ray from the lens point (a·u, a·v, 0) through the point of the focus
 //! plane Z = F that the pixel position (x, y) names.
 
+use super::bounds::ScreenArea;
+use super::hierarchy::{reorder, Hierarchy};
 use super::lens::LensModel;
+use super::query::max_reach;
 use super::reprojection::LensTimeSample;
 
 /// A rectangle [x0, x1] × [y0, y1] (camera space) at depth `z` at t = 0, displaced by `motion`
@@ -72,6 +75,20 @@ pub fn sample_scene(
     background: [f32; 3],
     seed: u64,
 ) -> (Vec<LensTimeSample>, Vec<[f32; 3]>) {
+    sample_scene_shaded(lens, rects, spp, background, seed, |rect, _, _| rect.colour)
+}
+
+/// `sample_scene` with view-dependent shading: a hit's colour is `shade(rect, hit, eye)` with
+/// `hit` the camera-space (X, Y) of the hit point at depth `rect.z`-plus-motion and `eye` the
+/// camera-space (X, Y) of the lens point the ray left from.
+pub fn sample_scene_shaded(
+    lens: &ThinLens,
+    rects: &[MovingRect],
+    spp: u32,
+    background: [f32; 3],
+    seed: u64,
+    shade: impl Fn(&MovingRect, [f32; 2], [f32; 2]) -> [f32; 3],
+) -> (Vec<LensTimeSample>, Vec<[f32; 3]>) {
     let mut rng = Lcg(seed);
     let (mut samples, mut colours) = (Vec::new(), Vec::new());
     let (cx, cy) = (0.5 * lens.width as f32, 0.5 * lens.height as f32);
@@ -83,7 +100,7 @@ pub fn sample_scene(
                 let t = rng.uniform();
                 let from = [lens.a * u, lens.a * v];
                 let target = [(x - cx) / lens.f * lens.focus, (y - cy) / lens.f * lens.focus];
-                let mut best: Option<(f32, &MovingRect)> = None;
+                let mut best: Option<(f32, &MovingRect, [f32; 2])> = None;
                 for rect in rects {
                     let depth = rect.z + t * rect.motion[2];
                     if depth <= 1e-4 {
@@ -93,12 +110,12 @@ pub fn sample_scene(
                     let hit = [from[0] + (target[0] - from[0]) * s, from[1] + (target[1] - from[1]) * s];
                     let (hx, hy) = (hit[0] - t * rect.motion[0], hit[1] - t * rect.motion[1]);
                     let inside = (rect.x[0]..=rect.x[1]).contains(&hx) && (rect.y[0]..=rect.y[1]).contains(&hy);
-                    if inside && best.map_or(true, |(d, _)| depth < d) {
-                        best = Some((depth, rect));
+                    if inside && best.map_or(true, |(d, _, _)| depth < d) {
+                        best = Some((depth, rect, hit));
                     }
                 }
                 let (z, motion, colour) = match best {
-                    Some((depth, rect)) => (depth, rect.motion, rect.colour),
+                    Some((depth, rect, hit)) => (depth, rect.motion, shade(rect, hit, from)),
                     None => (f32::INFINITY, [0.0; 3], background),
                 };
                 samples.push(LensTimeSample { x, y, u, v, t, z, motion });
@@ -131,4 +148,19 @@ pub fn layered_scene(width: u32, height: u32, through_camera: bool) -> (ThinLens
         });
     }
     (lens, rects)
+}
+
+/// The hierarchy over `samples` for queries of radius `radius` on a `width` × `height` image,
+/// with the samples and `colours` in its order (what `query::Scene` needs).
+pub fn indexed(
+    samples: &[LensTimeSample],
+    colours: &[[f32; 3]],
+    lens: &LensModel,
+    z_near: f32,
+    (width, height): (u32, u32),
+    radius: f32,
+) -> (Hierarchy, Vec<LensTimeSample>, Vec<[f32; 3]>) {
+    let area = ScreenArea { width: width as f32, height: height as f32, max_reach: max_reach(radius) };
+    let (hierarchy, order) = Hierarchy::build(samples, lens, z_near, &area);
+    (hierarchy, reorder(samples, &order), reorder(colours, &order))
 }
