@@ -601,6 +601,43 @@ pub(crate) mod tests {
         assert!(result.image.pixels.iter().all(|p| *p == [1.0; 3]), "{:?}", result.image.pixels);
     }
 
+    /// Stiff inputs of issue 7 item 11: zero-length secondary rays (the secondary hit on the
+    /// primary hit, as a ray that hits its own surface at once would give) and coincident hits
+    /// (several samples on the same point with the same normal). In the furnace (constant L)
+    /// every reconstruction is a convex combination of L, so every pixel must still be albedo ×
+    /// L, finite, and AO of a closed box stays 0.
+    #[test]
+    fn zero_length_secondary_rays_and_coincident_hits_stay_exact_in_the_furnace() {
+        let l = [3.0f32, 0.5, 2.0];
+        let degenerate = |mut s: IndirectSamples| {
+            for i in 0..s.class.len() {
+                if i % 5 == 0 {
+                    s.secondary_hit[i] = s.primary_hit[i];
+                    s.secondary_normal[i] = s.primary_normal[i];
+                    if let Some(d) = s.distance.as_mut() {
+                        d[i] = 0.0;
+                    }
+                } else if i % 7 == 0 {
+                    s.secondary_hit[i] = s.secondary_hit[i - 1];
+                    s.secondary_normal[i] = s.secondary_normal[i - 1];
+                    s.direction[i] = s.direction[i - 1];
+                }
+            }
+            s
+        };
+        let samples = degenerate(box_samples(6, 3, SampleKind::Indirect, None, |_| l));
+        let result = reconstruct_samples(&samples, GatherTarget::Indirect, &settings(32)).unwrap();
+        let expected = [0.5 * l[0], 0.25 * l[1], l[2]];
+        for p in &result.image.pixels {
+            for c in 0..3 {
+                assert!((p[c] - expected[c]).abs() <= 1e-5 * expected[c], "{p:?} vs {expected:?}");
+            }
+        }
+        let ao = degenerate(box_samples(6, 3, SampleKind::Ao, None, |_| l));
+        let result = reconstruct_samples(&ao, GatherTarget::Visibility { ao_radius: 5.0 }, &settings(32)).unwrap();
+        assert!(result.image.pixels.iter().all(|p| *p == [0.0; 3]), "{:?}", result.image.pixels);
+    }
+
     #[test]
     fn glossy_files_and_wrong_effects_are_refused_by_name() {
         let mut samples = box_samples(2, 1, SampleKind::Indirect, None, |_| [1.0; 3]);
