@@ -198,9 +198,9 @@ pub fn registry() -> Vec<Box<dyn Method>> {
     let mut methods: Vec<Box<dyn Method>> =
         vec![Box::new(crate::box_filter::BoxFilter), Box::new(crate::oidn::Oidn::default())];
     methods.extend(FilteredIndirect::all().into_iter().map(|m| Box::new(m) as Box<dyn Method>));
-    methods.push(Box::new(crate::tlfr::method::Tlfr));
-    methods.push(Box::new(crate::tlfr::method::TlfrNearest));
-    methods.push(Box::new(crate::tlfr::method::TlfrBandwidth));
+    methods.push(Box::new(crate::tlfr::method::TLFR));
+    methods.push(Box::new(crate::tlfr::method::TLFR_NEAREST));
+    methods.push(Box::new(crate::tlfr::method::TLFR_BANDWIDTH));
     methods.push(Box::new(crate::ilfr::method::Ilfr));
     methods.push(Box::new(crate::ilfr::method::IlfrRecursive));
     methods

@@ -1,7 +1,7 @@
-//! `tlfr` and `tlfr-nn` (`nearest`) as `lfr compare` methods: reads the effect's `lens-time` file, measures R on its
-//! pattern, indexes the samples and integrates N = `recon_rays` reconstruction locations per
-//! pixel (effects `dof`, `motion`, `dof-motion`; `soft-shadow` with the light samples too,
-//! `shadows`).
+//! `tlfr`, `tlfr-nn` (`nearest`) and `tlfr-bw` (`bandwidth`) as `lfr compare` methods: reads the
+//! effect's `lens-time` file, measures R on its pattern, indexes the samples and integrates N =
+//! `recon_rays` reconstruction locations per pixel (effects `dof`, `motion`, `dof-motion`;
+//! `tlfr` also `soft-shadow` with the light samples, `shadows`).
 
 use std::time::Instant;
 
@@ -23,48 +23,59 @@ use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
 /// Random reprojections for measuring R.
 pub const RADIUS_TRIALS: u32 = 32;
 
-pub struct Tlfr;
+/// A TLFR method of `lfr compare`: the same reconstruction, finishing each location with
+/// `value`, optionally with the bandwidth extension; `tlfr` also takes soft shadows.
+pub struct TlfrMethod {
+    name: &'static str,
+    description: &'static str,
+    value: Reconstruct,
+    bandwidth_scale: Option<f32>,
+    soft_shadows: bool,
+}
+
+/// `tlfr`: the paper's reconstruction (effects `dof`, `motion`, `dof-motion`, `soft-shadow`).
+pub const TLFR: TlfrMethod = TlfrMethod {
+    name: "tlfr",
+    description: "temporal light field reconstruction (Lehtinen et al. 2011)",
+    value: reconstruct,
+    bandwidth_scale: None,
+    soft_shadows: true,
+};
 
 /// `tlfr-nn`: the same reconstruction with the nearest sample's radiance instead of the filter
 /// (`nearest`); effects `dof`, `motion`, `dof-motion`.
-pub struct TlfrNearest;
+pub const TLFR_NEAREST: TlfrMethod = TlfrMethod {
+    name: "tlfr-nn",
+    description: "temporal light field reconstruction, nearest reprojected sample of the covering surface instead of \
+                  the filter",
+    value: reconstruct_nearest,
+    bandwidth_scale: None,
+    soft_shadows: false,
+};
 
 /// `tlfr-bw`: the reconstruction with the bandwidth extension (Figure 14, `bandwidth`): each
 /// sample also weighted by a Gaussian in lens distance matched to its BRDF's bandwidth; effects
 /// `dof`, `motion`, `dof-motion`.
-pub struct TlfrBandwidth;
+pub const TLFR_BANDWIDTH: TlfrMethod = TlfrMethod {
+    name: "tlfr-bw",
+    description: "temporal light field reconstruction with the bandwidth extension (Figure 14) for glossy surfaces",
+    value: reconstruct,
+    bandwidth_scale: Some(DEFAULT_BANDWIDTH_SCALE),
+    soft_shadows: false,
+};
 
-/// The sample file of `inputs`, or an error naming `method`.
-fn samples_path<'a>(inputs: &'a Inputs, method: &str) -> Result<&'a std::path::Path, MethodError> {
-    inputs.samples.as_deref().ok_or_else(|| MethodError::Failed(format!("{method} needs a sample file")))
-}
-
-/// `output` when it has the comparison's size; an error naming `path` otherwise.
-fn of_comparison_size(output: Output, path: &std::path::Path, inputs: &Inputs) -> Result<Output, MethodError> {
-    if (output.image.width, output.image.height) != (inputs.width, inputs.height) {
-        return Err(MethodError::Failed(format!(
-            "{}: samples are {}x{}, the comparison is {}x{}",
-            path.display(),
-            output.image.width,
-            output.image.height,
-            inputs.width,
-            inputs.height
-        )));
-    }
-    Ok(output)
-}
-
-impl Method for TlfrNearest {
+impl Method for TlfrMethod {
     fn name(&self) -> &str {
-        "tlfr-nn"
+        self.name
     }
 
     fn description(&self) -> &'static str {
-        "temporal light field reconstruction, nearest reprojected sample of the covering surface instead of the filter"
+        self.description
     }
 
     fn supports(&self, effect: Effect) -> bool {
         matches!(effect, Effect::Dof | Effect::Motion | Effect::DofMotion)
+            || (self.soft_shadows && effect == Effect::SoftShadow)
     }
 
     fn input(&self) -> Input {
@@ -76,77 +87,34 @@ impl Method for TlfrNearest {
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        let path = samples_path(inputs, self.name())?;
-        let settings = TlfrSettings { locations: recon_rays, ..TlfrSettings::default() };
-        of_comparison_size(reconstruct_file_with(reconstruct_nearest, path, &settings)?, path, inputs)
-    }
-}
-
-impl Method for TlfrBandwidth {
-    fn name(&self) -> &str {
-        "tlfr-bw"
-    }
-
-    fn description(&self) -> &'static str {
-        "temporal light field reconstruction with the bandwidth extension (Figure 14) for glossy surfaces"
-    }
-
-    fn supports(&self, effect: Effect) -> bool {
-        matches!(effect, Effect::Dof | Effect::Motion | Effect::DofMotion)
-    }
-
-    fn input(&self) -> Input {
-        Input::Samples
-    }
-
-    fn default_recon_rays(&self) -> Vec<u32> {
-        vec![32, 128]
-    }
-
-    fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        let path = samples_path(inputs, self.name())?;
-        let settings = TlfrSettings {
-            locations: recon_rays,
-            bandwidth_scale: Some(DEFAULT_BANDWIDTH_SCALE),
-            ..TlfrSettings::default()
-        };
-        of_comparison_size(reconstruct_file(path, &settings)?, path, inputs)
-    }
-}
-
-impl Method for Tlfr {
-    fn name(&self) -> &str {
-        "tlfr"
-    }
-
-    fn description(&self) -> &'static str {
-        "temporal light field reconstruction (Lehtinen et al. 2011)"
-    }
-
-    fn supports(&self, effect: Effect) -> bool {
-        matches!(effect, Effect::Dof | Effect::Motion | Effect::DofMotion | Effect::SoftShadow)
-    }
-
-    fn input(&self) -> Input {
-        Input::Samples
-    }
-
-    fn default_recon_rays(&self) -> Vec<u32> {
-        vec![32, 128]
-    }
-
-    fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        let path = samples_path(inputs, self.name())?;
-        let settings = TlfrSettings { locations: recon_rays, ..TlfrSettings::default() };
+        let path = inputs
+            .samples
+            .as_deref()
+            .ok_or_else(|| MethodError::Failed(format!("{} needs a sample file", self.name)))?;
+        let settings =
+            TlfrSettings { locations: recon_rays, bandwidth_scale: self.bandwidth_scale, ..TlfrSettings::default() };
         let output = if inputs.effect == Effect::SoftShadow {
             let light_path = inputs.light_samples.as_ref().ok_or_else(|| {
-                MethodError::Failed("tlfr soft shadows need the light samples of the same seed and spp".into())
+                MethodError::Failed(format!(
+                    "{} soft shadows need the light samples of the same seed and spp",
+                    self.name
+                ))
             })?;
             super::shadows::reconstruct_soft_shadow(path, light_path, &settings)?
         } else {
-            reconstruct_file(path, &settings)?
+            reconstruct_file_with(self.value, path, &settings)?
         };
-        of_comparison_size(output, path, inputs)
+        if (output.image.width, output.image.height) != (inputs.width, inputs.height) {
+            return Err(MethodError::Failed(format!(
+                "{}: samples are {}x{}, the comparison is {}x{}",
+                path.display(),
+                output.image.width,
+                output.image.height,
+                inputs.width,
+                inputs.height
+            )));
+        }
+        Ok(output)
     }
 }
 
