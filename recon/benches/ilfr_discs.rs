@@ -129,28 +129,12 @@ fn trace(o: [f32; 3], d: [f32; 3]) -> Option<(f32, [f32; 3])> {
 fn synthetic_cornell(width: u32, height: u32, spp: u32) -> IndirectSamples {
     let n = (width * height * spp) as usize;
     let mut rng = Rng(7);
-    let mut s = IndirectSamples {
-        path: format!("synthetic Cornell box {width}x{height} at {spp} spp"),
-        kind: SampleKind::Indirect,
-        width,
-        height,
-        spp,
-        class: Vec::with_capacity(n),
-        film: Vec::with_capacity(n),
-        primary_hit: Vec::with_capacity(n),
-        primary_normal: Vec::with_capacity(n),
-        direction: Vec::with_capacity(n),
-        secondary_hit: Vec::with_capacity(n),
-        secondary_normal: Vec::with_capacity(n),
-        radiance: None,
-        distance: None,
-        kappa: None,
-        albedo: None,
-        weight: None,
-        direct: None,
-        secondary_albedo: None,
-        secondary_direct: None,
-    };
+    let mut s = IndirectSamples::empty(
+        format!("synthetic Cornell box {width}x{height} at {spp} spp"),
+        SampleKind::Indirect,
+        (width, height, spp),
+        n,
+    );
     let camera = [0.5, 0.5, 0.999];
     let tan_half = 0.75f32;
     for y in 0..height {

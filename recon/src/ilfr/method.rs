@@ -398,28 +398,7 @@ pub(crate) mod tests {
         radiance: impl Fn([f32; 3]) -> [f32; 3],
     ) -> IndirectSamples {
         let n = (size * size * spp) as usize;
-        let mut s = IndirectSamples {
-            path: "synthetic.lfrs".into(),
-            kind,
-            width: size,
-            height: size,
-            spp,
-            class: Vec::with_capacity(n),
-            film: Vec::new(),
-            primary_hit: Vec::new(),
-            primary_normal: Vec::new(),
-            direction: Vec::new(),
-            secondary_hit: Vec::new(),
-            secondary_normal: Vec::new(),
-            radiance: None,
-            distance: None,
-            kappa: None,
-            albedo: None,
-            weight: None,
-            direct: None,
-            secondary_albedo: None,
-            secondary_direct: None,
-        };
+        let mut s = IndirectSamples::empty("synthetic.lfrs".into(), kind, (size, size, spp), n);
         let (mut radiances, mut distances, mut albedo) = (Vec::new(), Vec::new(), Vec::new());
         let mut state = 12345u64;
         for y in 0..size {

@@ -66,6 +66,32 @@ pub struct IndirectSamples {
 }
 
 impl IndirectSamples {
+    /// No records yet, room for `capacity` in the always-present arrays, no optional field.
+    pub fn empty(path: String, kind: SampleKind, (width, height, spp): (u32, u32, u32), capacity: usize) -> Self {
+        IndirectSamples {
+            path,
+            kind,
+            width,
+            height,
+            spp,
+            class: Vec::with_capacity(capacity),
+            film: Vec::with_capacity(capacity),
+            primary_hit: Vec::with_capacity(capacity),
+            primary_normal: Vec::with_capacity(capacity),
+            direction: Vec::with_capacity(capacity),
+            secondary_hit: Vec::with_capacity(capacity),
+            secondary_normal: Vec::with_capacity(capacity),
+            radiance: None,
+            distance: None,
+            kappa: None,
+            albedo: None,
+            weight: None,
+            direct: None,
+            secondary_albedo: None,
+            secondary_direct: None,
+        }
+    }
+
     pub fn len(&self) -> usize {
         self.class.len()
     }
@@ -150,28 +176,7 @@ pub fn read_indirect(file: &SampleFile) -> Result<IndirectSamples, String> {
         }
     };
 
-    let mut samples = IndirectSamples {
-        path: path.clone(),
-        kind,
-        width: header.width,
-        height: header.height,
-        spp: header.spp,
-        class: Vec::with_capacity(n),
-        film: Vec::with_capacity(n),
-        primary_hit: Vec::with_capacity(n),
-        primary_normal: Vec::with_capacity(n),
-        direction: Vec::with_capacity(n),
-        secondary_hit: Vec::with_capacity(n),
-        secondary_normal: Vec::with_capacity(n),
-        radiance: None,
-        distance: None,
-        kappa: None,
-        albedo: None,
-        weight: None,
-        direct: None,
-        secondary_albedo: None,
-        secondary_direct: None,
-    };
+    let mut samples = IndirectSamples::empty(path.clone(), kind, (header.width, header.height, header.spp), n);
     for i in 0..n {
         let (x, y) = (film_x[i], film_y[i]);
         if !(x.is_finite() && y.is_finite()) {

@@ -274,11 +274,6 @@ mod tests {
         use SampleClass::*;
         let class = vec![CameraMiss, NoSecondaryRay, Escaped, Hit];
         let samples = IndirectSamples {
-            path: "test".into(),
-            kind: sampleio::SampleKind::Indirect,
-            width: 4,
-            height: 1,
-            spp: 1,
             film: vec![[0.5; 2]; 4],
             primary_hit: vec![[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [3.0, 0.0, 0.0]],
             primary_normal: vec![[0.0; 3], UP, UP, UP],
@@ -286,14 +281,7 @@ mod tests {
             secondary_hit: vec![[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [3.0, 3.0, 4.0]],
             secondary_normal: vec![[0.0; 3], [0.0; 3], [0.0; 3], [0.0, 0.0, -1.0]],
             class,
-            radiance: None,
-            distance: None,
-            kappa: None,
-            albedo: None,
-            weight: None,
-            direct: None,
-            secondary_albedo: None,
-            secondary_direct: None,
+            ..IndirectSamples::empty("test".into(), sampleio::SampleKind::Indirect, (4, 1, 1), 0)
         };
         let rays = input_rays(&samples, &samples.hits());
         assert_eq!(
