@@ -186,19 +186,7 @@ impl Camera {
     }
 }
 
-/// Maps the unit square onto the unit disk preserving stratification (Shirley-Chiu).
-pub fn concentric_disk(square: Vec2) -> Vec2 {
-    let offset = 2.0 * square - Vec2::ONE;
-    if offset.x == 0.0 && offset.y == 0.0 {
-        return Vec2::ZERO;
-    }
-    let (r, theta) = if offset.x.abs() > offset.y.abs() {
-        (offset.x, std::f32::consts::FRAC_PI_4 * (offset.y / offset.x))
-    } else {
-        (offset.y, std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (offset.x / offset.y))
-    };
-    Vec2::new(r * theta.cos(), r * theta.sin())
-}
+pub use shading::concentric_disk;
 
 #[cfg(test)]
 mod tests {
@@ -268,15 +256,5 @@ mod tests {
         let b = cam.project(focused, Vec2::new(0.9, 0.2), w, h).unwrap();
         assert!((a - b).length() < 1e-3);
         assert!((c1 / 4.0 + c2).abs() < 1e-4);
-    }
-
-    #[test]
-    fn concentric_disk_stays_inside_the_unit_disk() {
-        for i in 0..=20 {
-            for j in 0..=20 {
-                let p = concentric_disk(Vec2::new(i as f32 / 20.0, j as f32 / 20.0));
-                assert!(p.length() <= 1.0 + 1e-6);
-            }
-        }
     }
 }

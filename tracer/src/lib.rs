@@ -7,7 +7,8 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod accel;
-pub mod bsdf;
+/// The BSDF lives in the workspace crate `shading`, shared with `recon` (docs/ilfr-design.md, G4).
+pub use shading as bsdf;
 pub mod camera;
 pub mod error;
 pub mod integrator;

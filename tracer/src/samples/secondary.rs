@@ -22,6 +22,12 @@
 //! | `bandwidth` | f16 | glossy `indirect` | κ of the von Mises-Fisher lobe at h (Eq. 2); 0 for diffuse |
 //! | `albedo` | f16 × 3 | `indirect` | reflectance at o (demodulation) |
 //! | `weight` | f16 × 3 | glossy `indirect` | BSDF sampling weight f·\|cos\|/pdf of ω at o; for a Lambertian o it equals `albedo`, so it is left out of all-diffuse scenes |
+//! | `origin_base_color` | f16 × 3 | glossy `indirect` | o's BSDF (`shading::Bsdf`), textures resolved: base colour |
+//! | `origin_metallic` | f16 | glossy `indirect` | metalness in [0, 1] |
+//! | `origin_roughness` | f16 | glossy `indirect` | GGX roughness, α = roughness² (≥ 1e-3, as the BSDF clamps it) |
+//! | `origin_specular` | f16 | glossy `indirect` | dielectric specular weight in [0, 1] |
+//! | `origin_f0` | f16 | glossy `indirect` | dielectric reflectance at normal incidence, ((ior − 1)/(ior + 1))² |
+//! | `origin_geometric_normal` | u16 × 2 | glossy `indirect` | geometric normal at o on the shading normal's side, octahedral: directions below it are never traced |
 //! | `direct` | f32 × 3 | `indirect` | direct light at o towards the camera (emission of o, next-event estimation at o, and emitters hit by this ray, MIS-weighted) |
 //! | `secondary_albedo` | f16 × 3 | `indirect` | reflectance at h |
 //! | `secondary_direct` | f16 × 3 | `indirect` | the part of L that h reflects straight from emitters (clamped to ±65504) |
@@ -125,6 +131,9 @@ pub struct SecondaryLayout {
     pub bandwidth: bool,
     /// The BSDF sampling weight at o (glossy scenes; it equals `albedo` for Lambertian o).
     pub weight: bool,
+    /// o's BSDF parameters and geometric normal, for a final gather that samples o's BSDF
+    /// (glossy scenes; a Lambertian o needs only `albedo`).
+    pub origin_bsdf: bool,
     /// Motion vectors are stored as f16 unless a mesh moves further than f16 can hold.
     pub motion_type: FieldType,
 }
@@ -141,6 +150,7 @@ impl SecondaryLayout {
             time: scene.has_motion(),
             bandwidth: kind == SecondaryKind::Indirect && glossy,
             weight: kind == SecondaryKind::Indirect && glossy,
+            origin_bsdf: kind == SecondaryKind::Indirect && glossy,
             motion_type: if scene.meshes.iter().all(|m| m.motion.abs().max_element() <= F16_MOTION_LIMIT) {
                 FieldType::F16
             } else {
@@ -216,6 +226,20 @@ impl SecondaryLayout {
                     3,
                     "",
                     "BSDF sampling weight f |cos| / pdf of the direction at o",
+                ));
+            }
+            if self.origin_bsdf {
+                fields.push(f("origin_base_color", FieldType::F16, 3, "", "base colour of the BSDF at o"));
+                fields.push(f("origin_metallic", FieldType::F16, 1, "", "metalness of the BSDF at o"));
+                fields.push(f("origin_roughness", FieldType::F16, 1, "", "GGX roughness at o (alpha = roughness^2)"));
+                fields.push(f("origin_specular", FieldType::F16, 1, "", "dielectric specular weight at o"));
+                fields.push(f("origin_f0", FieldType::F16, 1, "", "dielectric reflectance at normal incidence at o"));
+                fields.push(f(
+                    "origin_geometric_normal",
+                    FieldType::U16,
+                    2,
+                    octahedral,
+                    "geometric normal at o, on the side of the shading normal",
                 ));
             }
             fields.push(f("direct", FieldType::F32, 3, "W/(m^2 sr)", "direct light at o towards the camera"));
@@ -470,6 +494,12 @@ fn trace_secondary(
         if layout.weight {
             values.extend_from_slice(&clamp_f16(weight).to_array());
         }
+        if layout.origin_bsdf {
+            let bsdf = &surface.bsdf;
+            values.extend_from_slice(&clamp_f16(bsdf.base_color).to_array());
+            values.extend_from_slice(&[bsdf.metallic, bsdf.alpha.sqrt(), bsdf.specular, bsdf.f0]);
+            values.extend_from_slice(&encode_octahedral(surface.geometric_normal));
+        }
         values.extend_from_slice(&finite_or_zero(direct).to_array());
         values.extend_from_slice(&secondary_hit.map_or(Vec3::ZERO, |h| h.bsdf.albedo()).to_array());
         values.extend_from_slice(&clamp_f16(secondary.direct).to_array());
@@ -513,6 +543,9 @@ fn push_miss(values: &mut Vec<f32>, layout: &SecondaryLayout, environment: Vec3)
         values.extend_from_slice(&[0.0; 3]); // albedo
         if layout.weight {
             values.extend_from_slice(&[0.0; 3]);
+        }
+        if layout.origin_bsdf {
+            values.extend_from_slice(&[0.0; 9]); // BSDF parameters and geometric normal: none
         }
         values.extend_from_slice(&environment.to_array());
         values.extend_from_slice(&[0.0; 6]); // secondary albedo and direct

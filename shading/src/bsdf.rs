@@ -17,7 +17,7 @@
 
 use std::f32::consts::{FRAC_1_PI, PI};
 
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 
 /// Smallest GGX alpha used: roughness 1e-3 squared.
 pub const MIN_ALPHA: f32 = 1e-6;
@@ -107,13 +107,6 @@ fn sample_visible_normal(wo: Vec3, alpha: f32, u: [f32; 2]) -> Vec3 {
     p2 = (1.0 - s) * (1.0 - p1 * p1).max(0.0).sqrt() + s * p2;
     let nh = t1 * p1 + t2 * p2 + vh * (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt();
     Vec3::new(alpha * nh.x, alpha * nh.y, nh.z.max(0.0)).normalize()
-}
-
-/// Cosine-weighted hemisphere direction.
-pub fn sample_cosine_hemisphere(u: [f32; 2]) -> Vec3 {
-    let d = crate::camera::concentric_disk(Vec2::new(u[0], u[1]));
-    let z = (1.0 - d.length_squared()).max(0.0).sqrt();
-    Vec3::new(d.x, d.y, z)
 }
 
 #[inline]
@@ -232,7 +225,7 @@ impl Bsdf {
             let h = sample_visible_normal(wo, self.alpha, u);
             reflect(wo, h)
         } else {
-            sample_cosine_hemisphere(u)
+            crate::warp::sample_cosine_hemisphere(u)
         };
         if wi.z <= 0.0 {
             return None;
@@ -249,39 +242,10 @@ impl Bsdf {
     }
 }
 
-/// An orthonormal frame around a unit normal (Duff et al. 2017).
-#[derive(Clone, Copy, Debug)]
-pub struct Frame {
-    pub tangent: Vec3,
-    pub bitangent: Vec3,
-    pub normal: Vec3,
-}
-
-impl Frame {
-    pub fn new(normal: Vec3) -> Frame {
-        let sign = 1.0f32.copysign(normal.z);
-        let a = -1.0 / (sign + normal.z);
-        let b = normal.x * normal.y * a;
-        let tangent = Vec3::new(1.0 + sign * normal.x * normal.x * a, sign * b, -sign * normal.x);
-        let bitangent = Vec3::new(b, sign + normal.y * normal.y * a, -normal.y);
-        Frame { tangent, bitangent, normal }
-    }
-
-    #[inline]
-    pub fn to_local(&self, w: Vec3) -> Vec3 {
-        Vec3::new(w.dot(self.tangent), w.dot(self.bitangent), w.dot(self.normal))
-    }
-
-    #[inline]
-    pub fn to_world(&self, w: Vec3) -> Vec3 {
-        self.tangent * w.x + self.bitangent * w.y + self.normal * w.z
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sampler::Sampler;
+    use crate::test_points::hammersley;
 
     fn direction(theta: f32) -> Vec3 {
         Vec3::new(theta.sin(), 0.0, theta.cos())
@@ -291,9 +255,8 @@ mod tests {
     fn albedo_importance(bsdf: &Bsdf, wo: Vec3, n: u32) -> Vec3 {
         let mut sum = Vec3::ZERO;
         for i in 0..n {
-            let mut s = Sampler::new(3, 1, 2, i);
-            let u_lobe = s.next_1d();
-            if let Some(sample) = bsdf.sample(wo, u_lobe, s.next_2d()) {
+            let [u_lobe, u0, u1] = hammersley(i, n);
+            if let Some(sample) = bsdf.sample(wo, u_lobe, [u0, u1]) {
                 sum += sample.weight;
             }
         }
@@ -304,7 +267,8 @@ mod tests {
     fn albedo_uniform(bsdf: &Bsdf, wo: Vec3, n: u32) -> Vec3 {
         let mut sum = Vec3::ZERO;
         for i in 0..n {
-            let u = Sampler::new(5, 4, 3, i).next_2d();
+            let [_, u0, u1] = hammersley(i, n);
+            let u = [u0, u1];
             let z = u[0];
             let r = (1.0 - z * z).max(0.0).sqrt();
             let phi = 2.0 * PI * u[1];
@@ -381,7 +345,8 @@ mod tests {
         let n = 1 << 16;
         let mut sum = 0.0f64;
         for i in 0..n {
-            let u = Sampler::new(9, 0, 0, i).next_2d();
+            let [_, u0, u1] = hammersley(i, n);
+            let u = [u0, u1];
             let z = u[0];
             let r = (1.0 - z * z).max(0.0).sqrt();
             let phi = 2.0 * PI * u[1];
@@ -410,23 +375,5 @@ mod tests {
         let wo = direction(0.3);
         assert_eq!(bsdf.eval(wo, Vec3::new(0.0, 0.0, -1.0)), Vec3::ZERO);
         assert_eq!(bsdf.pdf(Vec3::new(0.0, 0.3, -1.0).normalize(), Vec3::Z), 0.0);
-    }
-
-    #[test]
-    fn frame_is_orthonormal_for_all_normals() {
-        for n in [
-            Vec3::Z,
-            -Vec3::Z,
-            Vec3::X,
-            Vec3::new(0.3, -0.4, 0.866).normalize(),
-            Vec3::new(0.0, 0.0, -0.99999).normalize(),
-        ] {
-            let f = Frame::new(n);
-            assert!((f.tangent.length() - 1.0).abs() < 1e-5);
-            assert!((f.bitangent.length() - 1.0).abs() < 1e-5);
-            assert!(f.tangent.dot(f.normal).abs() < 1e-5 && f.bitangent.dot(f.normal).abs() < 1e-5);
-            let w = Vec3::new(0.1, 0.7, -0.2).normalize();
-            assert!((f.to_world(f.to_local(w)) - w).length() < 1e-5);
-        }
     }
 }

@@ -1,0 +1,40 @@
+//! Shading shared by the tracer and the reconstructions: the metallic-roughness BSDF
+//! (`bsdf.rs`), the shading frame (`frame.rs`) and the square-to-disk/hemisphere maps
+//! (`warp.rs`).
+//!
+//! The tracer draws secondary rays with it; ILFR's final gather (paper Eq. 3) draws its
+//! reconstruction rays from the primary hit's BSDF and weights them with the same code, so the
+//! two cannot drift apart (docs/ilfr-design.md, gap G4). `recon` never depends on the tracer;
+//! both depend on this crate.
+
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+mod bsdf;
+mod frame;
+mod warp;
+
+pub use bsdf::*;
+pub use frame::Frame;
+pub use warp::{concentric_disk, sample_cosine_hemisphere};
+
+#[cfg(test)]
+pub(crate) mod test_points {
+    /// Point i of an n-point 3D Hammersley set: (radical inverse base 3, (i + ½)/n, radical
+    /// inverse base 2 + ½/n). Deterministic and well stratified, for the quadrature tests; the
+    /// half-cell shifts keep points off the square's edges, where the disk map puts them on
+    /// the horizon.
+    pub fn hammersley(i: u32, n: u32) -> [f32; 3] {
+        let shifted = (radical_inverse(i, 2) as f64 + 0.5 / n as f64).min(1.0 - 1e-7);
+        [radical_inverse(i, 3), (i as f32 + 0.5) / n as f32, shifted as f32]
+    }
+
+    fn radical_inverse(mut i: u32, base: u32) -> f32 {
+        let (mut value, mut scale) = (0.0f64, 1.0f64 / base as f64);
+        while i > 0 {
+            value += (i % base) as f64 * scale;
+            i /= base;
+            scale /= base as f64;
+        }
+        value as f32
+    }
+}
