@@ -154,8 +154,10 @@ impl Bsdf {
         self.metallic > 0.0 || self.specular > 0.0
     }
 
-    /// Probability of drawing from the specular lobe for this ωo.
-    fn specular_probability(&self, wo: Vec3) -> f32 {
+    /// Probability with which `sample` draws from the specular lobe for this ωo: the lobes'
+    /// reflectance estimates, clamped to [0.1, 0.9] when both exist; 0 without a specular lobe,
+    /// 1 without a diffuse one.
+    pub fn specular_probability(&self, wo: Vec3) -> f32 {
         if !self.has_specular() {
             return 0.0;
         }
@@ -205,14 +207,34 @@ impl Bsdf {
             return 0.0;
         }
         let p_spec = self.specular_probability(wo);
-        let pdf_diffuse = wi.z * FRAC_1_PI;
+        let [pdf_spec, pdf_diffuse] = self.lobe_pdfs(wo, wi);
         if p_spec == 0.0 {
             return pdf_diffuse;
+        }
+        p_spec * pdf_spec + (1.0 - p_spec) * pdf_diffuse
+    }
+
+    /// Solid-angle densities of ωi under each lobe's sampling alone: [specular (visible
+    /// normals), diffuse (cosine)], 0 below either horizon. A caller that draws a fixed number
+    /// of directions from each lobe weights them with these (multi-sample MIS, balance heuristic).
+    pub fn lobe_pdfs(&self, wo: Vec3, wi: Vec3) -> [f32; 2] {
+        if wo.z <= 0.0 || wi.z <= 0.0 {
+            return [0.0; 2];
+        }
+        let pdf_diffuse = wi.z * FRAC_1_PI;
+        if !self.has_specular() {
+            return [0.0, pdf_diffuse];
         }
         let h = (wo + wi).normalize_or_zero();
         let pdf_spec =
             if h == Vec3::ZERO { 0.0 } else { smith_g1(wo, self.alpha) * ggx_d(h, self.alpha) / (4.0 * wo.z) };
-        p_spec * pdf_spec + (1.0 - p_spec) * pdf_diffuse
+        [pdf_spec, pdf_diffuse]
+    }
+
+    /// A direction from the specular lobe alone (visible normals, reflected), for `lobe_pdfs`;
+    /// it may lie below the horizon (then `eval` and both densities are 0).
+    pub fn sample_specular(&self, wo: Vec3, u: [f32; 2]) -> Vec3 {
+        reflect(wo, sample_visible_normal(wo, self.alpha, u))
     }
 
     /// Draws ωi for ωo from the lobe mixture.
@@ -221,12 +243,7 @@ impl Bsdf {
             return None;
         }
         let p_spec = self.specular_probability(wo);
-        let wi = if u_lobe < p_spec {
-            let h = sample_visible_normal(wo, self.alpha, u);
-            reflect(wo, h)
-        } else {
-            crate::warp::sample_cosine_hemisphere(u)
-        };
+        let wi = if u_lobe < p_spec { self.sample_specular(wo, u) } else { crate::warp::sample_cosine_hemisphere(u) };
         if wi.z <= 0.0 {
             return None;
         }
@@ -323,6 +340,44 @@ mod tests {
                 let a = albedo_importance(&bsdf, wo, 1 << 14);
                 let b = albedo_uniform(&bsdf, wo, 1 << 16);
                 assert!((a - b).abs().max_element() < 0.01, "r {roughness} m {metallic} θ {theta}: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_fixed_split_between_the_lobes_with_balance_weights_gives_the_albedo() {
+        // n_s directions from the specular lobe, n_d from the diffuse one, each weighted
+        // f·cos / ((n_s/N) p_s + (n_d/N) p_d): the one-sample mixture estimator's albedo for any
+        // split (uniform hemisphere sampling misses the narrow lobe of roughness 0.05).
+        for (roughness, metallic) in [(0.3f32, 1.0f32), (0.6, 0.0), (0.05, 0.5)] {
+            let bsdf = Bsdf::new(Vec3::new(0.9, 0.6, 0.3), metallic, roughness, 1.0);
+            let wo = direction(0.7);
+            let expected = albedo_importance(&bsdf, wo, 1 << 16);
+            for (n_spec, n_diffuse) in [(1u32 << 13, 1u32 << 13), (1 << 14, 1 << 12)] {
+                let n = (n_spec + n_diffuse) as f32;
+                let weight = |wi: Vec3| {
+                    let [p_spec, p_diffuse] = bsdf.lobe_pdfs(wo, wi);
+                    let mixture = (n_spec as f32 * p_spec + n_diffuse as f32 * p_diffuse) / n;
+                    if mixture > 0.0 {
+                        bsdf.eval(wo, wi) / mixture
+                    } else {
+                        Vec3::ZERO
+                    }
+                };
+                let mut sum = Vec3::ZERO;
+                for i in 0..n_spec {
+                    let [_, u0, u1] = hammersley(i, n_spec);
+                    sum += weight(bsdf.sample_specular(wo, [u0, u1]));
+                }
+                for i in 0..n_diffuse {
+                    let [_, u0, u1] = hammersley(i, n_diffuse);
+                    sum += weight(crate::warp::sample_cosine_hemisphere([u0, u1]));
+                }
+                let estimate = sum / n;
+                assert!(
+                    (estimate - expected).abs().max_element() < 0.01,
+                    "r {roughness} m {metallic} split {n_spec}/{n_diffuse}: {estimate} vs {expected}"
+                );
             }
         }
     }

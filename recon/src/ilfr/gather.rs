@@ -7,9 +7,10 @@
 //!   distributed about its shading normal m_i, from o_i lifted by `offset` along m_i. For a
 //!   Lambertian o the sampling weight f·cos/p is its albedo, so the hit's value is
 //!   albedo_i · (1/N') Σ RECONSTRUCT over the N' rays that found support (the authors
-//!   normalise by the supported count as well). Glossy primary hits need the BSDF parameters of
-//!   o, which our files do not carry (design gap G1): a file with a `weight` field (written only
-//!   for glossy scenes) is refused with an error naming it.
+//!   normalise by the supported count as well). Glossy files carry o's BSDF: there the N
+//!   directions and their weights f·cos/p come from it (`bsdf_rays`), the hit's value is
+//!   (1/N') Σ weight_j · RECONSTRUCT, and directions below o's geometric normal count as
+//!   supported samples of value 0. A glossy file without o's BSDF (an older dump) is refused.
 //! - Support: a ray that meets no splat takes the radiance of the nearest *sky sample* (an
 //!   input ray that escaped, with the environment radiance it carried) among the primary hits
 //!   of the pixel's 5×5 neighbourhood, if that one lies within twice the neighbourhood's angular
@@ -29,6 +30,7 @@
 
 use rayon::prelude::*;
 
+use super::bsdf_rays::bsdf_rays;
 use super::disc::Ray;
 use super::reconstruct::{nearest_sky, ReconstructStats, Reconstructor, Scratch, SkySample};
 use super::samples::{IndirectSamples, SampleClass};
@@ -104,10 +106,10 @@ pub fn gather(
     let path = &samples.path;
     let albedo = match target {
         GatherTarget::Indirect => {
-            if samples.weight.is_some() {
+            if samples.weight.is_some() && samples.primary_shading.is_none() {
                 return Err(format!(
-                    "{path}: the file has the field `weight`, written for glossy scenes: gathering at glossy primary \
-                     hits needs their BSDF parameters, which the `indirect` format does not carry yet (design gap G1)"
+                    "{path}: the file has the field `weight` (a glossy scene) but not `origin_base_color` and the other \
+                     fields of o's BSDF that the final gather at glossy primary hits samples: dump the samples again"
                 ));
             }
             if samples.radiance.is_none() {
@@ -234,7 +236,7 @@ fn hit_rays(samples: &IndirectSamples, i: usize, per_hit: u32, settings: &Gather
     let o = samples.primary_hit[i];
     let origin = [0, 1, 2].map(|a| o[a] + settings.offset * normal[a]);
     let (tangent, bitangent) = orthonormal_basis(normal);
-    let scramble = hash(settings.seed ^ hash(i as u32 ^ 0x6a09_e667));
+    let scramble = hit_scramble(i, settings);
     (0..per_hit).map(move |j| {
         let (u, v) = sobol_2d_scrambled(j, scramble);
         let local = cosine_hemisphere(u, v);
@@ -243,13 +245,39 @@ fn hit_rays(samples: &IndirectSamples, i: usize, per_hit: u32, settings: &Gather
     })
 }
 
+/// RECONSTRUCT along `ray`, or the nearest sky sample when no surface supports it; `None`
+/// when neither does (counted).
+fn incident_radiance(
+    ray: &Ray,
+    reconstructor: &Reconstructor,
+    (sky, min_cosine): (&[SkySample], Option<f32>),
+    scratch: &mut Scratch,
+    stats: &mut GatherStats,
+) -> Option<[f32; 3]> {
+    if let Some(f) = reconstructor.radiance(ray, scratch, &mut stats.reconstruct) {
+        return Some(f.radiance);
+    }
+    let from_sky = min_cosine.and_then(|c| nearest_sky(sky, ray.direction, c));
+    if from_sky.is_some() {
+        stats.sky_rays += 1;
+    } else {
+        stats.unsupported_rays += 1;
+    }
+    from_sky
+}
+
+/// The seed of primary hit i's directions.
+fn hit_scramble(i: usize, settings: &GatherSettings) -> u32 {
+    hash(settings.seed ^ hash(i as u32 ^ 0x6a09_e667))
+}
+
 #[allow(clippy::too_many_arguments)]
 fn indirect_at(
     samples: &IndirectSamples,
     i: usize,
     albedo: [f32; 3],
     reconstructor: &Reconstructor,
-    (sky, min_cosine): (&[SkySample], Option<f32>),
+    sky: (&[SkySample], Option<f32>),
     (per_hit, settings): (u32, &GatherSettings),
     scratch: &mut Scratch,
     stats: &mut GatherStats,
@@ -260,36 +288,52 @@ fn indirect_at(
     }
     stats.primary_hits += 1;
     let (mut sum, mut supported) = ([0.0f64; 3], 0u32);
-    for ray in hit_rays(samples, i, per_hit, settings) {
-        let radiance = match reconstructor.radiance(&ray, scratch, &mut stats.reconstruct) {
-            Some(f) => Some(f.radiance),
-            None => {
-                let from_sky = min_cosine.and_then(|c| nearest_sky(sky, ray.direction, c));
-                if from_sky.is_some() {
-                    stats.sky_rays += 1;
-                } else {
-                    stats.unsupported_rays += 1;
-                }
-                from_sky
-            }
-        };
-        if let Some(l) = radiance {
-            for c in 0..3 {
-                sum[c] += l[c] as f64;
-            }
-            supported += 1;
+    let mut add = |l: [f32; 3], weight: [f32; 3]| {
+        for c in 0..3 {
+            sum[c] += (weight[c] * l[c]) as f64;
         }
-    }
-    let incident = if supported > 0 {
-        sum.map(|s| (s / supported as f64) as f32)
-    } else {
-        stats.unsupported_hits += 1;
-        match class {
-            SampleClass::Hit | SampleClass::Escaped => samples.radiance.as_ref().map_or([0.0; 3], |r| r[i]),
-            SampleClass::CameraMiss | SampleClass::NoSecondaryRay => [0.0; 3],
+        supported += 1;
+    };
+    let scale = match &samples.primary_shading {
+        // Lambertian o (all-diffuse files): cosine rays, the albedo as their common weight.
+        None => {
+            for ray in hit_rays(samples, i, per_hit, settings) {
+                if let Some(l) = incident_radiance(&ray, reconstructor, sky, scratch, stats) {
+                    add(l, [1.0; 3]);
+                }
+            }
+            albedo
+        }
+        // o's own BSDF: directions and weights f·cos/p from it (`bsdf_rays`).
+        Some(shading) => {
+            let (o, normal) = (samples.primary_hit[i], samples.primary_normal[i]);
+            for weighted in bsdf_rays(&shading[i], o, normal, per_hit, hit_scramble(i, settings), settings.offset) {
+                match weighted.ray {
+                    // Below the surface: a sample of value 0, as the tracer counts it.
+                    None => add([0.0; 3], [0.0; 3]),
+                    Some(ray) => {
+                        if let Some(l) = incident_radiance(&ray, reconstructor, sky, scratch, stats) {
+                            add(l, weighted.weight);
+                        }
+                    }
+                }
+            }
+            [1.0; 3]
         }
     };
-    [0, 1, 2].map(|c| albedo[c] * incident[c])
+    if supported > 0 {
+        return [0, 1, 2].map(|c| scale[c] * (sum[c] / supported as f64) as f32);
+    }
+    // No support at all: the sample's own estimate, weight · L (the box value).
+    stats.unsupported_hits += 1;
+    match class {
+        SampleClass::Hit | SampleClass::Escaped => {
+            let weight = samples.weight.as_ref().map_or(albedo, |w| w[i]);
+            let radiance = samples.radiance.as_ref().map_or([0.0; 3], |r| r[i]);
+            [0, 1, 2].map(|c| weight[c] * radiance[c])
+        }
+        SampleClass::CameraMiss | SampleClass::NoSecondaryRay => [0.0; 3],
+    }
 }
 
 fn visibility_at(

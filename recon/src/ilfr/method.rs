@@ -1,16 +1,16 @@
-//! `ilfr` as a `lfr compare` method (effects `indirect` and `ao`): reads the effect's `indirect`
+//! `ilfr` as a `lfr compare` method (effects `indirect`, `glossy` and `ao`): reads the effect's `indirect`
 //! or `ao` file, sizes the splats (§2.2), builds the hierarchy (§2.3), shrinks (§2.3.1) and
 //! gathers `recon_rays` reconstruction rays per pixel (Eq. 3, §3.3). Its notes give the time
 //! split (read, splat sizing, hierarchy, shrinking, recursive filtering, reconstruction) and the
 //! counts of each stage.
 //!
-//! `ilfr-recursive` (effect `indirect`) is the same with one pass of recursive filtering (§4,
+//! `ilfr-recursive` (effects `indirect`, `glossy`) is the same with one pass of recursive filtering (§4,
 //! [`super::recursive`]) with 16 rays per secondary hit before the final gather; a second method
 //! name rather than an option, since only the filtered path-tracing pipeline parses `NAME:options`.
 //!
 //! The image is the quantity the harness's reference measures: for `indirect` the light the
 //! primary hit reflects after at least one more bounce (albedo × reconstructed incident
-//! radiance; `direct` is not added), for `ao` the ambient visibility within the AO radius
+//! radiance, or o's BSDF-weighted sum in glossy files; `direct` is not added), for `ao` the ambient visibility within the AO radius
 //! (1 = unoccluded, 1 where the camera ray escaped).
 
 use std::time::Instant;
@@ -42,7 +42,7 @@ impl Method for Ilfr {
     }
 
     fn supports(&self, effect: Effect) -> bool {
-        matches!(effect, Effect::Indirect | Effect::Ao)
+        matches!(effect, Effect::Indirect | Effect::Glossy | Effect::Ao)
     }
 
     fn input(&self) -> Input {
@@ -71,7 +71,7 @@ impl Method for IlfrRecursive {
     }
 
     fn supports(&self, effect: Effect) -> bool {
-        effect == Effect::Indirect
+        matches!(effect, Effect::Indirect | Effect::Glossy)
     }
 
     fn input(&self) -> Input {
@@ -90,7 +90,7 @@ impl Method for IlfrRecursive {
 fn run_ilfr(name: &str, inputs: &Inputs, settings: IlfrSettings) -> Result<Output, MethodError> {
     let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed(format!("{name} needs a sample file")))?;
     let target = match inputs.effect {
-        Effect::Indirect => GatherTarget::Indirect,
+        Effect::Indirect | Effect::Glossy => GatherTarget::Indirect,
         Effect::Ao if settings.recursive_passes == 0 => GatherTarget::Visibility { ao_radius: inputs.ao_radius },
         other => return Err(MethodError::Unsupported(format!("{name} does not reconstruct {}", other.name()))),
     };
@@ -257,10 +257,11 @@ pub fn reconstruct_samples(
     target: GatherTarget,
     settings: &IlfrSettings,
 ) -> Result<Reconstructed, MethodError> {
-    if target == GatherTarget::Indirect && samples.weight.is_some() {
+    if target == GatherTarget::Indirect && samples.weight.is_some() && samples.primary_shading.is_none() {
         return Err(MethodError::Unsupported(format!(
-            "{}: the field `weight` marks a glossy scene; gathering at glossy primary hits needs their BSDF \
-             parameters, which the `indirect` format does not carry yet (docs/ilfr-design.md gap G1)",
+            "{}: the field `weight` marks a glossy scene, but the file lacks `origin_base_color` and the other fields \
+             of o's BSDF that the final gather at glossy primary hits samples (written by the tracer since \
+             docs/ilfr-design.md G1): dump the samples again",
             samples.path
         )));
     }
@@ -351,7 +352,7 @@ pub fn reconstruct_samples(
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::ilfr::samples::SampleClass;
+    use crate::ilfr::samples::{PrimaryShading, SampleClass};
     use sampleio::SampleKind;
 
     /// The inside of the box [−1, 1]² × [0, 2] (or only its floor and a ceiling at `ceiling`
@@ -496,6 +497,107 @@ pub(crate) mod tests {
         assert!(mean_error < 0.02 && worst < 0.06, "mean {mean_error}, worst {worst}");
     }
 
+    /// Gives the box's floor the BSDF `bsdf`, seen from `eye`, as a glossy file carries it.
+    fn with_floor_bsdf(mut samples: IndirectSamples, bsdf: shading::Bsdf, eye: [f32; 3]) -> IndirectSamples {
+        let shading = samples
+            .primary_hit
+            .iter()
+            .map(|o| PrimaryShading {
+                bsdf,
+                geometric_normal: [0.0, 0.0, 1.0],
+                to_eye: crate::ilfr::gather::normalize([0, 1, 2].map(|a| eye[a] - o[a])),
+            })
+            .collect();
+        samples.primary_shading = Some(shading);
+        samples.weight = samples.albedo.clone();
+        samples
+    }
+
+    /// ∫ f·cos L(h(ω)) dω at `o` by the BSDF's own one-sample mixture, 2^12 directions traced to
+    /// the walls of the closed box: an estimator independent of the gather's lobe split.
+    fn reflected_by_brute_force(
+        o: [f32; 3],
+        bsdf: &shading::Bsdf,
+        eye: [f32; 3],
+        radiance: impl Fn([f32; 3]) -> f32,
+    ) -> [f64; 3] {
+        let to_eye = glam::Vec3::from(eye) - glam::Vec3::from(o);
+        let wo = to_eye.normalize();
+        let n = 64u32;
+        let mut sum = [0.0f64; 3];
+        for i in 0..n * n {
+            let u = [((i / n) as f32 + 0.5) / n as f32, ((i % n) as f32 + 0.5) / n as f32];
+            let u_lobe = (crate::ilfr::gather::hash(i) >> 8) as f32 / (1u32 << 24) as f32;
+            // The floor's frame is the world's: local = world.
+            if let Some(s) = bsdf.sample(wo, u_lobe, u) {
+                let l = radiance(box_exit(o, s.wi.to_array(), 2.0, false).unwrap().0) as f64;
+                for (total, w) in sum.iter_mut().zip(s.weight.to_array()) {
+                    *total += w as f64 * l;
+                }
+            }
+        }
+        sum.map(|v| v / (n * n) as f64)
+    }
+
+    /// The brute-force value of pixel (x, y): the mean over its samples' primary hits.
+    fn pixel_by_brute_force(
+        samples: &IndirectSamples,
+        (x, y): (u32, u32),
+        bsdf: &shading::Bsdf,
+        eye: [f32; 3],
+        radiance: impl Fn([f32; 3]) -> f32 + Copy,
+    ) -> [f64; 3] {
+        let spp = samples.spp as usize;
+        let first = (y * samples.width + x) as usize * spp;
+        let mut sum = [0.0f64; 3];
+        for i in first..first + spp {
+            let value = reflected_by_brute_force(samples.primary_hit[i], bsdf, eye, radiance);
+            for (total, v) in sum.iter_mut().zip(value) {
+                *total += v / spp as f64;
+            }
+        }
+        sum
+    }
+
+    #[test]
+    fn glossy_floors_reflect_a_constant_and_a_ramp_within_the_filter_error() {
+        let eye = [0.3, -0.2, 1.9];
+        for (roughness, metallic) in [(0.3f32, 1.0f32), (0.6, 0.0), (0.0, 1.0)] {
+            let bsdf = shading::Bsdf::new(glam::Vec3::new(0.9, 0.6, 0.3), metallic, roughness, 1.0);
+            // Furnace: constant L, so each pixel is the mean weight × L, the directional albedo.
+            let l = 3.0f32;
+            let furnace = with_floor_bsdf(box_samples(6, 2, SampleKind::Indirect, None, |_| [l; 3]), bsdf, eye);
+            let result = reconstruct_samples(&furnace, GatherTarget::Indirect, &settings(1024)).unwrap();
+            for y in 0..6u32 {
+                for x in 0..6u32 {
+                    let expected = pixel_by_brute_force(&furnace, (x, y), &bsdf, eye, |_| l);
+                    let got = result.image.get(x, y);
+                    for c in 0..3 {
+                        let error = (got[c] as f64 - expected[c]).abs() / expected[c];
+                        assert!(error < 0.01, "r {roughness} m {metallic} ({x}, {y}): {got:?} vs {expected:?}");
+                    }
+                }
+            }
+            // Ramp: L = h_z. The gather against brute force at the pixels' primary hits.
+            let ramp = with_floor_bsdf(box_samples(8, 8, SampleKind::Indirect, None, |h| [h[2]; 3]), bsdf, eye);
+            let result = reconstruct_samples(&ramp, GatherTarget::Indirect, &settings(256)).unwrap();
+            let (mut mean_error, mut mean_value) = (0.0f64, 0.0f64);
+            for y in 0..8u32 {
+                for x in 0..8u32 {
+                    let expected = pixel_by_brute_force(&ramp, (x, y), &bsdf, eye, |h| h[2]);
+                    let got = result.image.get(x, y);
+                    assert!(got.iter().all(|v| v.is_finite()));
+                    mean_error += (got[0] as f64 - expected[0]).abs() / 64.0;
+                    mean_value += expected[0] / 64.0;
+                }
+            }
+            assert!(
+                mean_error < 0.05 * mean_value,
+                "r {roughness} m {metallic}: mean error {mean_error} of {mean_value}"
+            );
+        }
+    }
+
     #[test]
     fn ambient_occlusion_of_an_open_plane_and_a_closed_box() {
         // A floor under a 6 × 6 ceiling 5 units up; radius 1: nothing occludes.
@@ -618,18 +720,19 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn glossy_files_and_wrong_effects_are_refused_by_name() {
+    fn glossy_files_without_the_origin_bsdf_and_wrong_effects_are_refused_by_name() {
         let mut samples = box_samples(2, 1, SampleKind::Indirect, None, |_| [1.0; 3]);
         samples.weight = samples.albedo.clone();
         let error = reconstruct_samples(&samples, GatherTarget::Indirect, &settings(4)).unwrap_err();
         assert!(
-            matches!(&error, MethodError::Unsupported(m) if m.contains("synthetic.lfrs") && m.contains("`weight`"))
+            matches!(&error, MethodError::Unsupported(m) if m.contains("synthetic.lfrs") && m.contains("`origin_base_color`"))
         );
         let ao = box_samples(2, 1, SampleKind::Ao, None, |_| [1.0; 3]);
         let error = reconstruct_samples(&ao, GatherTarget::Indirect, &settings(4)).unwrap_err();
         assert!(error.to_string().contains("`radiance`"), "{error}");
         let error = reconstruct_samples(&ao, GatherTarget::Visibility { ao_radius: 0.0 }, &settings(4)).unwrap_err();
         assert!(error.to_string().contains("AO radius"), "{error}");
-        assert!(Ilfr.supports(Effect::Indirect) && Ilfr.supports(Effect::Ao) && !Ilfr.supports(Effect::Glossy));
+        assert!(Ilfr.supports(Effect::Indirect) && Ilfr.supports(Effect::Ao) && Ilfr.supports(Effect::Glossy));
+        assert!(!IlfrRecursive.supports(Effect::Ao) && !Ilfr.supports(Effect::Dof));
     }
 }

@@ -26,8 +26,9 @@
 //!   samples for radiance, visible for AO): `reconstruct`.
 //! - ✓ Eq. 1 and Eq. 3, the final gather at Lambertian primary hits (cosine-distributed,
 //!   Owen-scrambled Sobol' directions, albedo-weighted, normalised by the supported rays) and
-//!   ambient occlusion (Section 3.3): `gather`. ✗ Glossy primary hits (needs the BSDF of o,
-//!   design gap G1): refused with an error naming the file's `weight` field.
+//!   ambient occlusion (Section 3.3): `gather`; at glossy primary hits, directions and weights
+//!   f·cos/p from o's own BSDF (read from the file, the tracer's `shading::Bsdf`), split between
+//!   the lobes with multi-sample MIS: `bsdf_rays`.
 //! - ✓ Section 4, recursive filtering: at every Lambertian secondary hit (κ below the glossy
 //!   threshold) 16 cosine rays reconstruct the incident light, and the sample's radiance becomes
 //!   `secondary_direct + secondary_albedo × their mean` before the final gather: `recursive`,
@@ -39,6 +40,7 @@
 //!   (`ilfr-recursive` still needs its line in `crate::method::registry`). ✗ `ilfr-dof`
 //!   (Section 3.4).
 
+pub mod bsdf_rays;
 pub mod bvh;
 pub mod disc;
 pub mod filter;

@@ -63,7 +63,31 @@ pub struct IndirectSamples {
     pub secondary_albedo: Option<Vec<[f32; 3]>>,
     /// The part of L that h reflects straight from emitters (`indirect`).
     pub secondary_direct: Option<Vec<[f32; 3]>>,
+    /// o's BSDF, geometric normal and view direction (glossy `indirect` files; zeros for a camera
+    /// miss).
+    pub primary_shading: Option<Vec<PrimaryShading>>,
 }
+
+/// What the final gather needs to shade a primary hit with its own BSDF (paper Eq. 3; design
+/// gaps G1, G2): read from the `origin_*` BSDF fields, the header's camera and `u`, `v`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PrimaryShading {
+    pub bsdf: shading::Bsdf,
+    /// Unit geometric normal at o, on the side of the shading normal: no direction below it.
+    pub geometric_normal: [f32; 3],
+    /// ωo: unit direction from o to the point on the lens its camera ray left from.
+    pub to_eye: [f32; 3],
+}
+
+/// The fields of o's BSDF with their components, in record order.
+pub const PRIMARY_BSDF_FIELDS: [(&str, usize); 6] = [
+    ("origin_base_color", 3),
+    ("origin_metallic", 1),
+    ("origin_roughness", 1),
+    ("origin_specular", 1),
+    ("origin_f0", 1),
+    ("origin_geometric_normal", 2),
+];
 
 impl IndirectSamples {
     /// No records yet, room for `capacity` in the always-present arrays, no optional field.
@@ -89,6 +113,7 @@ impl IndirectSamples {
             direct: None,
             secondary_albedo: None,
             secondary_direct: None,
+            primary_shading: None,
         }
     }
 
@@ -243,7 +268,88 @@ pub fn read_indirect(file: &SampleFile) -> Result<IndirectSamples, String> {
     }
     samples.kappa = kappa;
     samples.distance = distance;
+    samples.primary_shading = read_primary_shading(file, &samples, &column, &bad)?;
     Ok(samples)
+}
+
+/// Reads an optional column with its expected components (`None` when the file lacks it).
+type ColumnReader<'a> = dyn Fn(&str, usize) -> Result<Option<Vec<f32>>, String> + 'a;
+
+/// o's BSDF from the `origin_*` fields (all or none), ωo from the header's camera and the lens
+/// position. Values out of the BSDF's ranges are errors naming the field and the sample.
+fn read_primary_shading(
+    file: &SampleFile,
+    samples: &IndirectSamples,
+    column: &ColumnReader,
+    bad: &dyn Fn(&str, usize, &str) -> String,
+) -> Result<Option<Vec<PrimaryShading>>, String> {
+    let path = &samples.path;
+    let mut columns = Vec::with_capacity(PRIMARY_BSDF_FIELDS.len());
+    for (name, components) in PRIMARY_BSDF_FIELDS {
+        columns.push((name, column(name, components)?));
+    }
+    if columns.iter().all(|(_, c)| c.is_none()) {
+        return Ok(None);
+    }
+    if let Some((missing, _)) = columns.iter().find(|(_, c)| c.is_none()) {
+        return Err(format!("{path}: the file has some of o's BSDF fields but lacks `{missing}`"));
+    }
+    let columns: Vec<Vec<f32>> = columns.into_iter().map(|(_, c)| c.unwrap_or_default()).collect();
+    let [base, metallic, roughness, specular, f0, geometric] = &columns[..] else { unreachable!() };
+    let camera = file.header().camera.as_ref().ok_or_else(|| {
+        format!("{path}: o's BSDF needs the header's `camera` (where the view direction at o comes from)")
+    })?;
+    let (u, v) = (column("u", 1)?, column("v", 1)?);
+    let to_f32 = |a: [f64; 3]| a.map(|c| c as f32);
+    let (position, right, up) = (to_f32(camera.position), to_f32(camera.right), to_f32(camera.up));
+    let aperture = camera.aperture_radius as f32;
+    let mut per_sample = Vec::with_capacity(samples.len());
+    for i in 0..samples.len() {
+        if samples.class[i] == SampleClass::CameraMiss {
+            per_sample.push(PrimaryShading {
+                bsdf: shading::Bsdf { base_color: glam::Vec3::ZERO, metallic: 0.0, alpha: 1.0, specular: 0.0, f0: 0.0 },
+                geometric_normal: [0.0; 3],
+                to_eye: [0.0; 3],
+            });
+            continue;
+        }
+        let base_color = [base[3 * i], base[3 * i + 1], base[3 * i + 2]];
+        if !base_color.iter().all(|c| c.is_finite() && *c >= 0.0) {
+            return Err(bad("origin_base_color", i, &format!("{base_color:?}, not a colour ≥ 0")));
+        }
+        let unit = |name: &str, values: &[f32]| {
+            let value = values[i];
+            if (0.0..=1.0).contains(&value) {
+                Ok(value)
+            } else {
+                Err(bad(name, i, &format!("{value}, not in [0, 1]")))
+            }
+        };
+        let (metallic, roughness) = (unit("origin_metallic", metallic)?, unit("origin_roughness", roughness)?);
+        let (specular, f0) = (unit("origin_specular", specular)?, unit("origin_f0", f0)?);
+        let geometric_normal = decode_octahedral([geometric[2 * i], geometric[2 * i + 1]])
+            .ok_or_else(|| bad("origin_geometric_normal", i, "no vector at a primary hit"))?;
+        let (lens_u, lens_v) = (u.as_ref().map_or(0.0, |u| u[i]), v.as_ref().map_or(0.0, |v| v[i]));
+        if !(lens_u.is_finite() && lens_v.is_finite()) {
+            return Err(bad(if lens_u.is_finite() { "v" } else { "u" }, i, "not finite"));
+        }
+        // The tracer stores v along image +y (down): the lens point is p + r (u·right − v·up).
+        let eye = [0, 1, 2].map(|a| position[a] + aperture * (lens_u * right[a] - lens_v * up[a]));
+        let o = samples.primary_hit[i];
+        let to_eye = super::gather::normalize([0, 1, 2].map(|a| eye[a] - o[a]));
+        per_sample.push(PrimaryShading {
+            bsdf: shading::Bsdf {
+                base_color: glam::Vec3::from(base_color),
+                metallic,
+                alpha: (roughness * roughness).max(shading::MIN_ALPHA),
+                specular,
+                f0,
+            },
+            geometric_normal,
+            to_eye,
+        });
+    }
+    Ok(Some(per_sample))
 }
 
 #[cfg(test)]
@@ -389,6 +495,75 @@ mod tests {
         let samples = read_indirect(&SampleFile::open(&path).unwrap()).unwrap();
         assert!(samples.kappa.is_none());
         assert_eq!(samples.kappa_of(3), 0.0, "no `bandwidth`: κ = 0");
+    }
+
+    /// `four_records` with o's BSDF, the lens position and the camera block: rows and spec.
+    fn with_primary_bsdf(metallic: f32, leave_out: Option<&str>) -> (HeaderSpec, Vec<Vec<f32>>) {
+        let mut spec = indirect_spec(true);
+        for (name, components) in PRIMARY_BSDF_FIELDS {
+            if Some(name) != leave_out {
+                let ty = if name == "origin_geometric_normal" { FieldType::U16 } else { FieldType::F16 };
+                spec = spec.field(FieldSpec::new(name, ty, components as u32));
+            }
+        }
+        spec = spec.field(FieldSpec::new("u", FieldType::F32, 1)).field(FieldSpec::new("v", FieldType::F32, 1));
+        spec.camera = Some(crate::tlfr::lens::tests::camera());
+        let rows = four_records()
+            .iter()
+            .map(|r| {
+                let mut values = row(r, true);
+                let bsdf: [(&str, Vec<f32>); 6] = [
+                    ("origin_base_color", vec![0.5, 0.25, 1.0]),
+                    ("origin_metallic", vec![metallic]),
+                    ("origin_roughness", vec![0.5]),
+                    ("origin_specular", vec![1.0]),
+                    ("origin_f0", vec![0.04]),
+                    ("origin_geometric_normal", encode([0.0, 0.6, 0.8]).to_vec()),
+                ];
+                for (name, v) in bsdf {
+                    if Some(name) != leave_out {
+                        values.extend(v);
+                    }
+                }
+                values.extend([0.5, -0.5]); // u, v
+                values
+            })
+            .collect();
+        (spec, rows)
+    }
+
+    #[test]
+    fn the_primary_bsdf_and_the_view_direction_are_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let (spec, rows) = with_primary_bsdf(0.75, None);
+        let samples = read_indirect(&SampleFile::open(write(dir.path(), spec, &rows)).unwrap()).unwrap();
+        let shading = samples.primary_shading.as_ref().expect("the file has o's BSDF");
+        let hit = &shading[3];
+        assert_eq!(hit.bsdf.metallic, 0.75);
+        assert_eq!(hit.bsdf.alpha, 0.25, "α = roughness²");
+        assert_eq!(hit.bsdf.base_color, glam::Vec3::new(0.5, 0.25, 1.0));
+        assert!((hit.bsdf.f0 - 0.04).abs() < 1e-4 && hit.bsdf.specular == 1.0);
+        assert!((glam::Vec3::from(hit.geometric_normal) - glam::Vec3::new(0.0, 0.6, 0.8)).length() < 1e-4);
+        // Camera at the origin, right = +x, up = −y, lens radius 0.1: (u, v) = (0.5, −0.5) is
+        // the lens point (0.05, −0.05, 0); o = (1, 2, 3) for the escaped record.
+        let expected = glam::Vec3::new(0.05 - 1.0, -0.05 - 2.0, -3.0).normalize();
+        assert!((glam::Vec3::from(shading[2].to_eye) - expected).length() < 1e-5, "{:?}", shading[2].to_eye);
+        assert_eq!(shading[0].to_eye, [0.0; 3], "a camera miss has no view direction");
+    }
+
+    #[test]
+    fn partial_or_out_of_range_primary_bsdfs_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let (spec, rows) = with_primary_bsdf(0.75, Some("origin_f0"));
+        let error = read_indirect(&SampleFile::open(write(dir.path(), spec, &rows)).unwrap()).unwrap_err();
+        assert!(error.contains("samples.lfrs") && error.contains("`origin_f0`"), "{error}");
+        let (spec, rows) = with_primary_bsdf(1.5, None);
+        let error = read_indirect(&SampleFile::open(write(dir.path(), spec, &rows)).unwrap()).unwrap_err();
+        assert!(error.contains("`origin_metallic` of sample 1") && error.contains("not in [0, 1]"), "{error}");
+        let (mut spec, rows) = with_primary_bsdf(0.5, None);
+        spec.camera = None;
+        let error = read_indirect(&SampleFile::open(write(dir.path(), spec, &rows)).unwrap()).unwrap_err();
+        assert!(error.contains("`camera`"), "{error}");
     }
 
     #[test]

@@ -90,7 +90,7 @@ impl LensModel {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// A camera block as the tracer writes it: 64×48 pixels, fx = fy = 80, principal point at
