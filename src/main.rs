@@ -3,6 +3,7 @@
 
 mod bench;
 mod bench_filters;
+mod bench_ilfr;
 mod compare;
 mod export;
 mod filter;
@@ -45,6 +46,9 @@ enum Command {
     /// Times the guided filter (1/3/4 guide channels, radii 8-32), A-Trous and the
     /// cross-bilateral filter on the same guide buffers, with ratios from the same run.
     BenchFilters(bench_filters::BenchFiltersArgs),
+    /// Indirect light field reconstruction: reconstruction rays per second beside Embree's on the
+    /// same rays, the time split, and time against input spp (the paper's scaling study).
+    BenchIlfr(bench_ilfr::BenchIlfrArgs),
     /// Filtered path tracing (Bauszat et al. 2011): guide rays, filtered indirect light,
     /// additional eye rays by the geometry-aware lookup, composite; a multi-layer EXR and PNG.
     Filter(filter::FilterArgs),
@@ -241,6 +245,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => bench::run(args),
         Command::Compare(args) => compare::run(args),
         Command::BenchFilters(args) => bench_filters::run(args),
+        Command::BenchIlfr(args) => bench_ilfr::run(args),
         Command::Filter(args) => filter::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
     };

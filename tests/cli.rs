@@ -288,3 +288,47 @@ fn bench_filters_reports_ratios_from_one_run() {
         assert!(ms.is_finite() && ms > 0.0, "{row}");
     }
 }
+
+/// `lfr bench-ilfr` traces the gather's own rays through Embree in the same run: as many rays as
+/// the gather reconstructed (rays per hit × primary hits; the command itself fails on any
+/// mismatch), the scaling ratio of the first spp is exactly 1, and every rate is positive.
+#[test]
+fn bench_ilfr_replays_the_gathers_rays_through_embree() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("bench.json");
+    let scene = project_root().join("scenes/cornell.toml");
+    let result = lfr(&[
+        "bench-ilfr",
+        "--scenes",
+        scene.to_str().unwrap(),
+        "--width",
+        "16",
+        "--height",
+        "12",
+        "--spp",
+        "1,2",
+        "--recon-rays",
+        "8",
+        "--repeats",
+        "1",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(result.status.success(), "{}", String::from_utf8_lossy(&result.stderr));
+    let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let rows = rows.as_array().unwrap();
+    assert_eq!(rows.len(), 2);
+    assert_eq!(rows[0]["time_over_first_spp"], 1.0);
+    for (row, spp) in rows.iter().zip([1u64, 2]) {
+        // 8 / spp rays per primary hit; most camera rays hit the box, some see the background.
+        let hits = row["primary_hits"].as_u64().unwrap();
+        assert!(hits > 16 * 12 * spp / 2 && hits < 16 * 12 * spp, "{row}");
+        assert_eq!(row["reconstruction_rays"].as_u64().unwrap(), hits * (8 / spp), "{row}");
+        for key in ["traced_paths_per_s", "reconstruction_rays_per_s", "embree_rays_per_s", "ilfr_total_s"] {
+            let value = row[key].as_f64().unwrap();
+            assert!(value.is_finite() && value > 0.0, "{key}: {row}");
+        }
+    }
+    let result = lfr(&["bench-ilfr", "--spp", "0"]);
+    assert!(!result.status.success() && stderr(&result).contains("--spp"));
+}

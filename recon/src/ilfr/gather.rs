@@ -195,6 +195,28 @@ pub fn gather(
     Ok((Image::from_pixels(width, height, pixels), stats))
 }
 
+/// Every ray the gather of the `indirect` target reconstructs, primary hit by primary hit in
+/// file order (`None` where a BSDF direction points below the surface and nothing is traced):
+/// for benchmarks that trace the same rays with another engine.
+pub fn reconstruction_rays(samples: &IndirectSamples, settings: &GatherSettings) -> Vec<Ray> {
+    let per_hit = rays_per_hit(settings.rays_per_pixel, samples.spp.max(1));
+    let mut rays = Vec::new();
+    for i in 0..samples.len() {
+        if samples.class[i] == SampleClass::CameraMiss {
+            continue;
+        }
+        match &samples.primary_shading {
+            None => rays.extend(hit_rays(samples, i, per_hit, settings)),
+            Some(shading) => {
+                let (o, normal) = (samples.primary_hit[i], samples.primary_normal[i]);
+                let weighted = bsdf_rays(&shading[i], o, normal, per_hit, hit_scramble(i, settings), settings.offset);
+                rays.extend(weighted.filter_map(|w| w.ray));
+            }
+        }
+    }
+    rays
+}
+
 /// The sky samples of the pixels within `radius` of (x, y) into `out`, and the angular spacing
 /// sqrt(2π / n) of the n secondary rays there (`None` without any).
 pub(super) fn sky_samples(

@@ -183,6 +183,9 @@ pub struct Reconstructed {
     pub gather: GatherStats,
     /// One entry per recursive pass.
     pub recursive: Vec<RecursiveStats>,
+    /// The gather's settings (offset in scene units included), so that a benchmark can trace
+    /// its very rays elsewhere ([`super::gather::reconstruction_rays`]).
+    pub gather_settings: GatherSettings,
 }
 
 impl Reconstructed {
@@ -346,6 +349,7 @@ pub fn reconstruct_samples(
         shrinking,
         gather: gathered,
         recursive,
+        gather_settings,
     })
 }
 
