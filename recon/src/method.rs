@@ -203,6 +203,7 @@ pub fn registry() -> Vec<Box<dyn Method>> {
     methods.push(Box::new(crate::tlfr::method::TLFR_BANDWIDTH));
     methods.push(Box::new(crate::ilfr::method::Ilfr));
     methods.push(Box::new(crate::ilfr::method::IlfrRecursive));
+    methods.push(Box::new(crate::ilfr::method::IlfrDof));
     methods
 }
 

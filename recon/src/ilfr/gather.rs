@@ -43,6 +43,9 @@ pub enum GatherTarget {
     Indirect,
     /// Ambient visibility within `ao_radius` (the harness's `ao` image).
     Visibility { ao_radius: f32 },
+    /// Radiance along camera rays through the pixel and the lens (§3.4; the input rays are
+    /// camera rays, [`super::lens`]).
+    Lens(super::lens::LensCamera),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -80,7 +83,7 @@ pub struct GatherStats {
 }
 
 impl GatherStats {
-    fn add(&mut self, other: &GatherStats) {
+    pub(super) fn add(&mut self, other: &GatherStats) {
         self.reconstruct.add(&other.reconstruct);
         self.primary_hits += other.primary_hits;
         self.sky_rays += other.sky_rays;
@@ -103,9 +106,15 @@ pub fn gather(
     target: GatherTarget,
     settings: &GatherSettings,
 ) -> Result<(Image, GatherStats), String> {
+    // From here on: `None` gathers indirect light, `Some(radius)` ambient visibility.
+    let ao_radius = match target {
+        GatherTarget::Lens(camera) => return super::lens::gather_lens(samples, reconstructor, &camera, settings),
+        GatherTarget::Indirect => None,
+        GatherTarget::Visibility { ao_radius } => Some(ao_radius),
+    };
     let path = &samples.path;
-    let albedo = match target {
-        GatherTarget::Indirect => {
+    let albedo = match ao_radius {
+        None => {
             if samples.weight.is_some() && samples.primary_shading.is_none() {
                 return Err(format!(
                     "{path}: the file has the field `weight` (a glossy scene) but not `origin_base_color` and the other \
@@ -117,7 +126,7 @@ pub fn gather(
             }
             Some(samples.albedo.as_ref().ok_or_else(|| format!("{path}: indirect light needs the field `albedo`"))?)
         }
-        GatherTarget::Visibility { ao_radius } => {
+        Some(ao_radius) => {
             if !(ao_radius.is_finite() && ao_radius > 0.0) {
                 return Err(format!("the AO radius must be positive, got {ao_radius}"));
             }
@@ -145,9 +154,9 @@ pub fn gather(
             let row = (0..width)
                 .map(|x| {
                     let first = (y as usize * width as usize + x as usize) * spp as usize;
-                    let sky_spacing = match target {
-                        GatherTarget::Indirect => sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky),
-                        GatherTarget::Visibility { .. } => None,
+                    let sky_spacing = match ao_radius {
+                        None => sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky),
+                        Some(_) => None,
                     };
                     let min_cosine = sky_spacing.map(|spacing| {
                         let angle = (settings.sky_spacing_factor * spacing).min(std::f32::consts::PI);
@@ -155,8 +164,8 @@ pub fn gather(
                     });
                     let mut sum = [0.0f64; 3];
                     for i in first..first + spp as usize {
-                        let value = match target {
-                            GatherTarget::Indirect => indirect_at(
+                        let value = match ao_radius {
+                            None => indirect_at(
                                 samples,
                                 i,
                                 albedo.map(|a| a[i]).unwrap_or([0.0; 3]),
@@ -166,7 +175,7 @@ pub fn gather(
                                 &mut scratch,
                                 &mut stats,
                             ),
-                            GatherTarget::Visibility { ao_radius } => visibility_at(
+                            Some(ao_radius) => visibility_at(
                                 samples,
                                 i,
                                 ao_radius,

@@ -21,6 +21,7 @@ use super::bvh::DiscBvh;
 use super::disc::Disc;
 use super::filter::SplatShading;
 use super::gather::{gather, rays_per_hit, GatherSettings, GatherStats, GatherTarget};
+use super::lens::read_primary_rays;
 use super::reconstruct::Reconstructor;
 use super::recursive::{recursive_pass, RecursiveSettings, RecursiveStats};
 use super::samples::{read_indirect, IndirectSamples};
@@ -84,6 +85,60 @@ impl Method for IlfrRecursive {
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
         run_ilfr(self.name(), inputs, IlfrSettings { recon_rays, recursive_passes: 1, ..IlfrSettings::default() })
+    }
+}
+
+/// `ilfr` on camera rays (paper §3.4): defocus from a static `lens-time` file, the input of
+/// `tlfr`, so that both reconstruct the very same samples ([`super::lens`]).
+pub struct IlfrDof;
+
+impl Method for IlfrDof {
+    fn name(&self) -> &str {
+        "ilfr-dof"
+    }
+
+    fn description(&self) -> &'static str {
+        "indirect light field reconstruction's machinery on camera rays: defocus (Lehtinen et al. 2012 §3.4)"
+    }
+
+    fn supports(&self, effect: Effect) -> bool {
+        effect == Effect::Dof
+    }
+
+    fn input(&self) -> Input {
+        Input::Samples
+    }
+
+    fn default_recon_rays(&self) -> Vec<u32> {
+        vec![128]
+    }
+
+    fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
+        let name = self.name();
+        if inputs.effect != Effect::Dof {
+            return Err(MethodError::Unsupported(format!("{name} does not reconstruct {}", inputs.effect.name())));
+        }
+        let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed(format!("{name} needs a sample file")))?;
+        let settings = IlfrSettings { recon_rays, ..IlfrSettings::default() };
+        let start = Instant::now();
+        let file = SampleFile::open(path)?;
+        let (samples, camera, ray_stats) = read_primary_rays(&file).map_err(MethodError::Unsupported)?;
+        drop(file);
+        let read_s = start.elapsed().as_secs_f64();
+        let mut result = reconstruct_samples(&samples, GatherTarget::Lens(camera), &settings)?;
+        result.timings.read_s = read_s;
+        let mut notes = result.notes(&samples, &settings);
+        notes.push(format!(
+            "{} hits took the normal of their ray (depth gradient not usable); rays per pixel {}",
+            ray_stats.normals_from_the_ray, recon_rays
+        ));
+        Ok(Output {
+            image: result.image,
+            preprocess_s: result.timings.preprocess_s(),
+            recon_s: result.timings.reconstruct_s,
+            external_peak_rss_mb: None,
+            notes,
+        })
     }
 }
 

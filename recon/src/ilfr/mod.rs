@@ -45,6 +45,7 @@ pub mod bvh;
 pub mod disc;
 pub mod filter;
 pub mod gather;
+pub mod lens;
 pub mod method;
 pub mod neighbours;
 pub mod reconstruct;
