@@ -128,10 +128,14 @@ impl Method for IlfrDof {
         let mut result = reconstruct_samples(&samples, GatherTarget::Lens(camera), &settings)?;
         result.timings.read_s = read_s;
         let mut notes = result.notes(&samples, &settings);
-        notes.push(format!(
-            "{} hits took the normal of their ray (depth gradient not usable); rays per pixel {}",
-            ray_stats.normals_from_the_ray, recon_rays
-        ));
+        let [_, _, escaped, hits] = samples.class_counts();
+        // The second note speaks of primary hits; here the input rays are the camera rays.
+        notes[1] = format!(
+            "{} camera rays: {hits} splats, {escaped} escaped; {recon_rays} reconstruction rays per pixel; {} hits took \
+             the normal of their ray (depth gradient not usable)",
+            samples.len(),
+            ray_stats.normals_from_the_ray
+        );
         Ok(Output {
             image: result.image,
             preprocess_s: result.timings.preprocess_s(),
