@@ -662,6 +662,66 @@ pub(crate) mod tests {
     }
 
     #[test]
+    fn kappa_zero_everywhere_is_the_diffuse_filter_bit_for_bit() {
+        // A glossy file whose `bandwidth` is 0 everywhere filters every splat with the tent,
+        // exactly as a file without the field.
+        let bsdf = shading::Bsdf::new(glam::Vec3::new(0.9, 0.6, 0.3), 1.0, 0.3, 1.0);
+        let without =
+            with_floor_bsdf(box_samples(6, 2, SampleKind::Indirect, None, |h| [h[2]; 3]), bsdf, [0.3, -0.2, 1.9]);
+        let mut with_zero = without.clone();
+        with_zero.kappa = Some(vec![0.0; with_zero.len()]);
+        let a = reconstruct_samples(&without, GatherTarget::Indirect, &settings(64)).unwrap();
+        let b = reconstruct_samples(&with_zero, GatherTarget::Indirect, &settings(64)).unwrap();
+        assert_eq!(a.image.pixels, b.image.pixels);
+        assert_eq!(b.gather.reconstruct.glossy, 0);
+    }
+
+    #[test]
+    fn scattered_single_sample_leaves_keep_every_pixel_within_the_input_range() {
+        // Dense foliage: every other secondary hit is moved onto a tiny leaf of its own (random
+        // position in a slab, random normal facing the ray), so most surfaces hold one sample,
+        // and radiances span 1e-3 to 1e6. The diffuse reconstruction is a weighted mean of
+        // sample radiances (or a sky sample, or the sample itself): each pixel stays within
+        // albedo × [min L, max L], finite.
+        let mut samples = box_samples(8, 4, SampleKind::Indirect, None, |_| [1.0; 3]);
+        let mut state = 777u64;
+        let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
+        for i in 0..samples.len() {
+            if samples.class[i] != SampleClass::Hit {
+                continue;
+            }
+            let l = if rng(&mut state) < 0.1 { 1e6 } else { 1e-3 + rng(&mut state) };
+            samples.radiance.as_mut().unwrap()[i] = [l; 3];
+            lo = lo.min(l);
+            hi = hi.max(l);
+            if i % 2 == 0 {
+                let o = samples.primary_hit[i];
+                let t = 0.2 + 1.2 * rng(&mut state);
+                let d = samples.direction[i];
+                samples.secondary_hit[i] = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
+                let n = crate::ilfr::gather::normalize([
+                    rng(&mut state) - 0.5,
+                    rng(&mut state) - 0.5,
+                    rng(&mut state) - 0.5,
+                ]);
+                let facing = n[0] * d[0] + n[1] * d[1] + n[2] * d[2] < 0.0;
+                samples.secondary_normal[i] = if facing { n } else { n.map(|c| -c) };
+            }
+        }
+        let result = reconstruct_samples(&samples, GatherTarget::Indirect, &settings(64)).unwrap();
+        for p in &result.image.pixels {
+            // Albedo (0.5, 0.25, 1); sums in f64, so a small relative slack.
+            for (c, albedo) in [0.5f32, 0.25, 1.0].into_iter().enumerate() {
+                assert!(
+                    p[c].is_finite() && p[c] >= albedo * lo * (1.0 - 1e-5) && p[c] <= albedo * hi * (1.0 + 1e-5),
+                    "{p:?}"
+                );
+            }
+        }
+        assert!(result.gather.reconstruct.merged_small_surfaces > 0, "the small-surface rule met the leaves");
+    }
+
+    #[test]
     fn ambient_occlusion_of_an_open_plane_and_a_closed_box() {
         // A floor under a 6 × 6 ceiling 5 units up; radius 1: nothing occludes.
         let open = box_samples(6, 2, SampleKind::Ao, Some(5.0), |_| [0.0; 3]);
