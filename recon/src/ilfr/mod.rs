@@ -1,7 +1,7 @@
 //! Indirect light field reconstruction (Lehtinen, Aila, Laine, Durand 2012, "Reconstructing the
 //! Indirect Light Field for Global Illumination"; the text is in
 //! `shared/papers/indirect-light-field-reconstruction-2012.txt`, the design in
-//! `docs/ilfr-design.md`). Issue 7, in progress: slices 1–6 and 9 of the design's implementation order.
+//! `docs/ilfr-design.md`). Issue 7, in progress: slices 1–10 of the design's implementation order (10: defocus only).
 //!
 //! Paper → code (✓ implemented, ✗ not yet):
 //! - ✓ Section 2.1, the input tuple {L, o, h, n_o, n_h, κ} from `indirect` / `ao` files read
@@ -14,7 +14,7 @@
 //!   oriented-disc points, the alternative of issue item 2, are measured against it in
 //!   `benches/ilfr_discs.rs` and checked hit for hit in `tests/ilfr_embree_discs.rs`: 1.2–1.5×
 //!   faster walks, 20× slower refits; we keep ours (docs/ilfr-design.md, "Slice 7"). Motion
-//!   boxes are not built yet (Section 3.4, `lens`).
+//!   boxes are not built yet (Section 3.4 with moving geometry).
 //! - ✓ Section 2.3.1, consistent visibility, shrinking splats that block input rays, with a
 //!   deterministic parallel minimum and a refit: `shrink`.
 //! - ✓ Section 2.3.2 and Figure 5, apparent surfaces by the event-line conflict test (and the
@@ -34,11 +34,12 @@
 //!   `secondary_direct + secondary_albedo × their mean` before the final gather: `recursive`,
 //!   switched on by the method name `ilfr-recursive`. ✗ Glossy secondary hits keep their
 //!   radiance (their BSDF is not in the files, design gap G3).
-//! - ✗ Section 3.4, motion and defocus from primary rays: `lens`.
-//! - ✓ The `Method`s `ilfr` (effects `indirect`, `ao`) and `ilfr-recursive` (`indirect`, with
-//!   Section 4) for `lfr compare`, time split and counts in their notes: `method`
-//!   (`ilfr-recursive` still needs its line in `crate::method::registry`). ✗ `ilfr-dof`
-//!   (Section 3.4).
+//! - ✓ Section 3.4, defocus from primary rays: the camera rays of a static `lens-time` file as
+//!   input rays (hit normals from the depth gradient), reconstruction rays through pixel and
+//!   lens: `lens`. ✗ Motion (moving splats).
+//! - ✓ The `Method`s `ilfr` (effects `indirect`, `glossy`, `ao`), `ilfr-recursive` (`indirect`,
+//!   `glossy`, with Section 4) and `ilfr-dof` (`dof`, Section 3.4) for `lfr compare`, with the
+//!   time split and counts in their notes: `method`.
 
 pub mod bsdf_rays;
 pub mod bvh;
