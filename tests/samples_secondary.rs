@@ -183,6 +183,39 @@ fn assert_origin_bsdf_reproduces_the_weight(scene: &Scene, file: &SampleFile) {
         checked += 1;
     }
     assert!(checked > file.len() / 2, "{checked} of {}", file.len());
+    // h's BSDF (gap G3) is the one whose albedo the file stores as `secondary_albedo`.
+    let (hit_base, hit_metallic, hit_roughness, hit_specular, hit_f0, hit_normal, secondary_albedo) = (
+        column("hit_base_color"),
+        column("hit_metallic"),
+        column("hit_roughness"),
+        column("hit_specular"),
+        column("hit_f0"),
+        column("hit_normal"),
+        column("secondary_albedo"),
+    );
+    let mut hits = 0;
+    for i in 0..file.len() {
+        if octahedral(&hit_normal, i) == Vec3::ZERO {
+            assert_eq!(vec3(&hit_base, i), Vec3::ZERO, "sample {i}: no hit, no BSDF");
+            continue;
+        }
+        let bsdf = Bsdf {
+            base_color: vec3(&hit_base, i),
+            metallic: hit_metallic[i],
+            alpha: (hit_roughness[i] * hit_roughness[i]).max(MIN_ALPHA),
+            specular: hit_specular[i],
+            f0: hit_f0[i],
+        };
+        let error = (bsdf.albedo() - vec3(&secondary_albedo, i)).abs().max_element();
+        assert!(
+            error < 5e-3,
+            "sample {i}: albedo {} from h's BSDF, {} stored",
+            bsdf.albedo(),
+            vec3(&secondary_albedo, i)
+        );
+        hits += 1;
+    }
+    assert!(hits > file.len() / 20, "{hits} of {}", file.len()); // most rays escape to the black sky
 }
 
 #[test]
@@ -271,8 +304,9 @@ fn lens_motion_and_gloss_add_their_fields_within_120_bytes() {
     for name in ["u", "v", "t", "origin_motion", "hit_motion", "bandwidth"] {
         assert!(fields.iter().any(|f| f == name), "missing {name} in {fields:?}");
     }
-    // The paper's 30 floats (120 B) plus o's BSDF (18 B), which the paper's gather takes from the scene.
-    assert!(file.header().record_size <= 138, "ILFR target: {} bytes", file.header().record_size);
+    // The paper's 30 floats (120 B) plus the BSDFs of o and h (32 B), which the paper's gather
+    // and recursive step take from the scene.
+    assert!(file.header().record_size <= 152, "ILFR target: {} bytes", file.header().record_size);
     let bandwidth = file.column("bandwidth").unwrap();
     assert!(bandwidth.iter().all(|k| k.is_finite() && *k >= 0.0));
     assert!(bandwidth.iter().any(|&k| k > 0.0), "the metal heads and floor are glossy");

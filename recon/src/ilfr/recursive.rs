@@ -27,10 +27,12 @@
 //! escaped input ray carries no reflected light, so this is the environment's reflected part, 0
 //! in tracer files) or is left out; M' = the supported rays; M' = 0 keeps L_j.
 //!
-//! Skipped (L_j kept): samples without a secondary hit, and glossy hits (κ_j ≥
-//! [`GLOSSY_KAPPA`], the filter's glossy threshold): `secondary_albedo` only describes a
-//! Lambertian h, reflecting with a glossy BSDF needs its parameters, which the format does not
-//! carry (design gap G3). Hits with κ below the threshold are treated as Lambertian.
+//! Glossy files carry h's BSDF (`hit_base_color` and the rest, design gap G3): there every h
+//! reflects with it, L_j' = secondary_direct_j + (1/M') Σ f·cos/p · RECONSTRUCT, directions and
+//! weights from [`super::bsdf_rays`] with ωo = −ω_j (towards o_j). Skipped (L_j kept): samples
+//! without a secondary hit and, in files without h's BSDF, glossy hits (κ_j ≥ [`GLOSSY_KAPPA`]);
+//! there hits below the threshold are treated as Lambertian. A glossy file (`weight`) without
+//! h's BSDF is refused.
 //!
 //! Several passes (Jacobi: each pass reconstructs from the previous pass's radiances) add one
 //! bounce of filtered light each: in a furnace of albedo a and emission E, one pass maps a
@@ -38,11 +40,12 @@
 
 use rayon::prelude::*;
 
+use super::bsdf_rays::{bsdf_rays, WeightedRay};
 use super::disc::Ray;
 use super::filter::GLOSSY_KAPPA;
 use super::gather::{cosine_hemisphere, hash, normalize, orthonormal_basis, sky_samples, sobol_2d_scrambled};
 use super::reconstruct::{nearest_sky, ReconstructStats, Reconstructor, Scratch};
-use super::samples::{IndirectSamples, SampleClass};
+use super::samples::{IndirectSamples, PrimaryShading, SampleClass};
 
 /// How a recursive pass runs.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -109,6 +112,12 @@ pub fn recursive_pass(
     let path = &samples.path;
     let field = |name: &str| format!("{path}: recursive filtering needs the field `{name}` (docs/sample-format.md)");
     let secondary_albedo = samples.secondary_albedo.as_ref().ok_or_else(|| field("secondary_albedo"))?;
+    if samples.weight.is_some() && samples.secondary_bsdf.is_none() {
+        return Err(format!(
+            "{path}: a glossy file (it has `weight`) without `hit_base_color` and the other fields of h's BSDF: \
+             recursive filtering at glossy secondary hits needs them; dump the samples again"
+        ));
+    }
     let secondary_direct = samples.secondary_direct.as_ref().ok_or_else(|| field("secondary_direct"))?;
     if current.len() != samples.len() {
         return Err(format!("{path}: {} radiances for {} samples", current.len(), samples.len()));
@@ -132,7 +141,7 @@ pub fn recursive_pass(
                     if samples.class[i] != SampleClass::Hit {
                         return current[i];
                     }
-                    if samples.kappa_of(i) >= GLOSSY_KAPPA {
+                    if samples.secondary_bsdf.is_none() && samples.kappa_of(i) >= GLOSSY_KAPPA {
                         stats.glossy_kept += 1;
                         return current[i];
                     }
@@ -145,8 +154,39 @@ pub fn recursive_pass(
                         &mut sky,
                     );
                     let min_cosine = spacing.map(|s| (settings.sky_spacing_factor * s).min(std::f32::consts::PI).cos());
+                    // h's BSDF when the file has it (weights f·cos/p from it), else a Lambertian
+                    // h: cosine rays, `secondary_albedo` as their common weight.
+                    let (rays, scale): (Vec<WeightedRay>, [f32; 3]) = match &samples.secondary_bsdf {
+                        Some(bsdfs) => {
+                            let h = PrimaryShading {
+                                bsdf: bsdfs[i],
+                                geometric_normal: samples.secondary_normal[i],
+                                to_eye: samples.direction[i].map(|c| -c),
+                            };
+                            let weighted = bsdf_rays(
+                                &h,
+                                samples.secondary_hit[i],
+                                samples.secondary_normal[i],
+                                settings.rays_per_hit,
+                                hit_scramble(i, settings),
+                                settings.offset,
+                            );
+                            (weighted.collect(), [1.0; 3])
+                        }
+                        None => (
+                            secondary_rays(samples, i, settings)
+                                .map(|r| WeightedRay { ray: Some(r), weight: [1.0; 3] })
+                                .collect(),
+                            secondary_albedo[i],
+                        ),
+                    };
                     let (mut sum, mut supported) = ([0.0f64; 3], 0u32);
-                    for ray in secondary_rays(samples, i, settings) {
+                    for WeightedRay { ray, weight } in rays {
+                        // A direction below h's surface: a sample of value 0.
+                        let Some(ray) = ray else {
+                            supported += 1;
+                            continue;
+                        };
                         let radiance = match reconstructor.radiance(&ray, &mut scratch, &mut stats.reconstruct) {
                             Some(f) => Some(f.radiance),
                             None => {
@@ -161,7 +201,7 @@ pub fn recursive_pass(
                         };
                         if let Some(l) = radiance {
                             for c in 0..3 {
-                                sum[c] += l[c] as f64;
+                                sum[c] += (weight[c] * l[c]) as f64;
                             }
                             supported += 1;
                         }
@@ -171,8 +211,8 @@ pub fn recursive_pass(
                         return current[i];
                     }
                     stats.replaced += 1;
-                    let (albedo, direct) = (secondary_albedo[i], secondary_direct[i]);
-                    [0, 1, 2].map(|c| (direct[c] as f64 + albedo[c] as f64 * sum[c] / supported as f64) as f32)
+                    let direct = secondary_direct[i];
+                    [0, 1, 2].map(|c| (direct[c] as f64 + scale[c] as f64 * sum[c] / supported as f64) as f32)
                 })
                 .collect();
             (values, stats)
@@ -194,14 +234,19 @@ fn secondary_rays(samples: &IndirectSamples, i: usize, settings: &RecursiveSetti
     let h = samples.secondary_hit[i];
     let origin = [0, 1, 2].map(|a| h[a] + settings.offset * normal[a]);
     let (tangent, bitangent) = orthonormal_basis(normal);
-    // A constant apart from the gather's, so the two direction sets are not correlated.
-    let scramble = hash(settings.seed ^ hash(i as u32 ^ 0xbb67_ae85));
+    let scramble = hit_scramble(i, settings);
     (0..settings.rays_per_hit).map(move |k| {
         let (u, v) = sobol_2d_scrambled(k, scramble);
         let local = cosine_hemisphere(u, v);
         let direction = [0, 1, 2].map(|a| local[0] * tangent[a] + local[1] * bitangent[a] + local[2] * normal[a]);
         Ray { origin, direction: normalize(direction) }
     })
+}
+
+/// The seed of secondary hit i's directions: a constant apart from the gather's, so that the
+/// two direction sets are not correlated.
+fn hit_scramble(i: usize, settings: &RecursiveSettings) -> u32 {
+    hash(settings.seed ^ hash(i as u32 ^ 0xbb67_ae85))
 }
 
 #[cfg(test)]
@@ -252,6 +297,49 @@ mod tests {
 
     fn close(got: f32, expected: f64) -> bool {
         (got as f64 - expected).abs() <= 1e-6 * expected.abs().max(1.0)
+    }
+
+    #[test]
+    fn glossy_secondary_hits_reflect_with_their_own_bsdf() {
+        // Every sample carries the same radiance c, h's direct part d and h's BSDF (a rough
+        // metal, a rough dielectric, a mirror): one pass gives d + (directional albedo of h's
+        // BSDF towards o) × c per hit, the albedo estimated independently by the BSDF's own
+        // one-sample mixture.
+        let (c, d) = (2.0f32, [0.1f32, 0.2, 0.3]);
+        for (roughness, metallic) in [(0.3f32, 1.0f32), (0.7, 0.0), (0.0, 1.0)] {
+            let bsdf = shading::Bsdf::new(glam::Vec3::new(0.9, 0.6, 0.3), metallic, roughness, 1.0);
+            let mut samples = with_secondary(box_samples(8, 2, SampleKind::Indirect, None, |_| [c; 3]), [0.5; 3], d);
+            samples.secondary_bsdf = Some(vec![bsdf; samples.len()]);
+            samples.kappa = Some(vec![40.0; samples.len()]);
+            let (once, stats) = one_pass(&samples, 512).unwrap();
+            assert_eq!(stats.glossy_kept, 0);
+            assert_eq!(stats.replaced as usize + stats.unsupported_kept as usize, samples.len());
+            assert!(stats.unsupported_kept * 50 <= stats.replaced, "{stats:?}");
+            for (i, l) in once.iter().enumerate() {
+                if *l == [c; 3] {
+                    continue; // kept: no ray of this hit found support
+                }
+                let frame = shading::Frame::new(glam::Vec3::from(samples.secondary_normal[i]));
+                let wo = frame.to_local(-glam::Vec3::from(samples.direction[i]));
+                let mut albedo = glam::Vec3::ZERO;
+                let n = 1u32 << 14;
+                for k in 0..n {
+                    let (u, v) = sobol_2d_scrambled(k, 3);
+                    let u_lobe = (hash(k ^ 0x1234_5678) >> 8) as f32 / (1u32 << 24) as f32;
+                    if let Some(sample) = bsdf.sample(wo, u_lobe, [u, v]) {
+                        albedo += sample.weight;
+                    }
+                }
+                albedo /= n as f32;
+                for k in 0..3 {
+                    let expected = d[k] + albedo[k] * c;
+                    assert!(
+                        (l[k] - expected).abs() < 0.015 * expected,
+                        "r {roughness} m {metallic} sample {i}: {l:?} vs {expected}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

@@ -66,6 +66,9 @@ pub struct IndirectSamples {
     /// o's BSDF, geometric normal and view direction (glossy `indirect` files; zeros for a camera
     /// miss).
     pub primary_shading: Option<Vec<PrimaryShading>>,
+    /// h's BSDF (glossy `indirect` files; neutral unless the sample is a `Hit`), for recursive
+    /// filtering at glossy secondary hits.
+    pub secondary_bsdf: Option<Vec<shading::Bsdf>>,
 }
 
 /// What the final gather needs to shade a primary hit with its own BSDF (paper Eq. 3; design
@@ -114,6 +117,7 @@ impl IndirectSamples {
             secondary_albedo: None,
             secondary_direct: None,
             primary_shading: None,
+            secondary_bsdf: None,
         }
     }
 
@@ -269,14 +273,73 @@ pub fn read_indirect(file: &SampleFile) -> Result<IndirectSamples, String> {
     samples.kappa = kappa;
     samples.distance = distance;
     samples.primary_shading = read_primary_shading(file, &samples, &column, &bad)?;
+    let is_hit = |i: usize| samples.class[i] == SampleClass::Hit;
+    samples.secondary_bsdf = read_bsdfs("hit", &samples, &column, &bad, &is_hit)?;
     Ok(samples)
 }
 
 /// Reads an optional column with its expected components (`None` when the file lacks it).
 type ColumnReader<'a> = dyn Fn(&str, usize) -> Result<Option<Vec<f32>>, String> + 'a;
 
-/// o's BSDF from the `origin_*` fields (all or none), ωo from the header's camera and the lens
-/// position. Values out of the BSDF's ranges are errors naming the field and the sample.
+/// The five BSDF fields `{prefix}_base_color`, `_metallic`, `_roughness`, `_specular`, `_f0`
+/// (all or none: `None` when the file has none), parsed for every sample where `used(i)`; a
+/// neutral BSDF elsewhere. Values out of the BSDF's ranges are errors naming field and sample.
+fn read_bsdfs(
+    prefix: &str,
+    samples: &IndirectSamples,
+    column: &ColumnReader,
+    bad: &dyn Fn(&str, usize, &str) -> String,
+    used: &dyn Fn(usize) -> bool,
+) -> Result<Option<Vec<shading::Bsdf>>, String> {
+    let names = ["base_color", "metallic", "roughness", "specular", "f0"].map(|n| format!("{prefix}_{n}"));
+    let mut columns = Vec::with_capacity(5);
+    for (k, name) in names.iter().enumerate() {
+        columns.push(column(name, if k == 0 { 3 } else { 1 })?);
+    }
+    if columns.iter().all(Option::is_none) {
+        return Ok(None);
+    }
+    if let Some(k) = columns.iter().position(Option::is_none) {
+        return Err(format!(
+            "{}: the file has some of the fields of {prefix}'s BSDF but lacks `{}`",
+            samples.path, names[k]
+        ));
+    }
+    let columns: Vec<Vec<f32>> = columns.into_iter().map(Option::unwrap_or_default).collect();
+    let [base, metallic, roughness, specular, f0] = &columns[..] else { unreachable!("five columns") };
+    let neutral = shading::Bsdf { base_color: glam::Vec3::ZERO, metallic: 0.0, alpha: 1.0, specular: 0.0, f0: 0.0 };
+    let mut bsdfs = Vec::with_capacity(samples.len());
+    for i in 0..samples.len() {
+        if !used(i) {
+            bsdfs.push(neutral);
+            continue;
+        }
+        let base_color = [base[3 * i], base[3 * i + 1], base[3 * i + 2]];
+        if !base_color.iter().all(|c| c.is_finite() && *c >= 0.0) {
+            return Err(bad(&names[0], i, &format!("{base_color:?}, not a colour ≥ 0")));
+        }
+        let unit = |k: usize, values: &[f32]| {
+            let value = values[i];
+            if (0.0..=1.0).contains(&value) {
+                Ok(value)
+            } else {
+                Err(bad(&names[k], i, &format!("{value}, not in [0, 1]")))
+            }
+        };
+        let roughness = unit(2, roughness)?;
+        bsdfs.push(shading::Bsdf {
+            base_color: glam::Vec3::from(base_color),
+            metallic: unit(1, metallic)?,
+            alpha: (roughness * roughness).max(shading::MIN_ALPHA),
+            specular: unit(3, specular)?,
+            f0: unit(4, f0)?,
+        });
+    }
+    Ok(Some(bsdfs))
+}
+
+/// o's BSDF from the `origin_*` fields (all or none, `origin_geometric_normal` included), ωo
+/// from the header's camera and the lens position.
 fn read_primary_shading(
     file: &SampleFile,
     samples: &IndirectSamples,
@@ -284,18 +347,17 @@ fn read_primary_shading(
     bad: &dyn Fn(&str, usize, &str) -> String,
 ) -> Result<Option<Vec<PrimaryShading>>, String> {
     let path = &samples.path;
-    let mut columns = Vec::with_capacity(PRIMARY_BSDF_FIELDS.len());
-    for (name, components) in PRIMARY_BSDF_FIELDS {
-        columns.push((name, column(name, components)?));
-    }
-    if columns.iter().all(|(_, c)| c.is_none()) {
-        return Ok(None);
-    }
-    if let Some((missing, _)) = columns.iter().find(|(_, c)| c.is_none()) {
-        return Err(format!("{path}: the file has some of o's BSDF fields but lacks `{missing}`"));
-    }
-    let columns: Vec<Vec<f32>> = columns.into_iter().map(|(_, c)| c.unwrap_or_default()).collect();
-    let [base, metallic, roughness, specular, f0, geometric] = &columns[..] else { unreachable!() };
+    let has_primary = |i: usize| samples.class[i] != SampleClass::CameraMiss;
+    let bsdfs = read_bsdfs("origin", samples, column, bad, &has_primary)?;
+    let geometric = column("origin_geometric_normal", 2)?;
+    let (bsdfs, geometric) = match (bsdfs, geometric) {
+        (None, None) => return Ok(None),
+        (Some(b), Some(g)) => (b, g),
+        (Some(_), None) => return Err(format!("{path}: the file has o's BSDF but lacks `origin_geometric_normal`")),
+        (None, Some(_)) => {
+            return Err(format!("{path}: the file has `origin_geometric_normal` but lacks `origin_base_color`"))
+        }
+    };
     let camera = file.header().camera.as_ref().ok_or_else(|| {
         format!("{path}: o's BSDF needs the header's `camera` (where the view direction at o comes from)")
     })?;
@@ -304,29 +366,11 @@ fn read_primary_shading(
     let (position, right, up) = (to_f32(camera.position), to_f32(camera.right), to_f32(camera.up));
     let aperture = camera.aperture_radius as f32;
     let mut per_sample = Vec::with_capacity(samples.len());
-    for i in 0..samples.len() {
-        if samples.class[i] == SampleClass::CameraMiss {
-            per_sample.push(PrimaryShading {
-                bsdf: shading::Bsdf { base_color: glam::Vec3::ZERO, metallic: 0.0, alpha: 1.0, specular: 0.0, f0: 0.0 },
-                geometric_normal: [0.0; 3],
-                to_eye: [0.0; 3],
-            });
+    for (i, bsdf) in bsdfs.into_iter().enumerate() {
+        if !has_primary(i) {
+            per_sample.push(PrimaryShading { bsdf, geometric_normal: [0.0; 3], to_eye: [0.0; 3] });
             continue;
         }
-        let base_color = [base[3 * i], base[3 * i + 1], base[3 * i + 2]];
-        if !base_color.iter().all(|c| c.is_finite() && *c >= 0.0) {
-            return Err(bad("origin_base_color", i, &format!("{base_color:?}, not a colour ≥ 0")));
-        }
-        let unit = |name: &str, values: &[f32]| {
-            let value = values[i];
-            if (0.0..=1.0).contains(&value) {
-                Ok(value)
-            } else {
-                Err(bad(name, i, &format!("{value}, not in [0, 1]")))
-            }
-        };
-        let (metallic, roughness) = (unit("origin_metallic", metallic)?, unit("origin_roughness", roughness)?);
-        let (specular, f0) = (unit("origin_specular", specular)?, unit("origin_f0", f0)?);
         let geometric_normal = decode_octahedral([geometric[2 * i], geometric[2 * i + 1]])
             .ok_or_else(|| bad("origin_geometric_normal", i, "no vector at a primary hit"))?;
         let (lens_u, lens_v) = (u.as_ref().map_or(0.0, |u| u[i]), v.as_ref().map_or(0.0, |v| v[i]));
@@ -337,17 +381,7 @@ fn read_primary_shading(
         let eye = [0, 1, 2].map(|a| position[a] + aperture * (lens_u * right[a] - lens_v * up[a]));
         let o = samples.primary_hit[i];
         let to_eye = super::gather::normalize([0, 1, 2].map(|a| eye[a] - o[a]));
-        per_sample.push(PrimaryShading {
-            bsdf: shading::Bsdf {
-                base_color: glam::Vec3::from(base_color),
-                metallic,
-                alpha: (roughness * roughness).max(shading::MIN_ALPHA),
-                specular,
-                f0,
-            },
-            geometric_normal,
-            to_eye,
-        });
+        per_sample.push(PrimaryShading { bsdf, geometric_normal, to_eye });
     }
     Ok(Some(per_sample))
 }

@@ -28,6 +28,7 @@
 //! | `origin_specular` | f16 | glossy `indirect` | dielectric specular weight in [0, 1] |
 //! | `origin_f0` | f16 | glossy `indirect` | dielectric reflectance at normal incidence, ((ior − 1)/(ior + 1))² |
 //! | `origin_geometric_normal` | u16 × 2 | glossy `indirect` | geometric normal at o on the shading normal's side, octahedral: directions below it are never traced |
+//! | `hit_base_color`, `hit_metallic`, `hit_roughness`, `hit_specular`, `hit_f0` | f16 × 3, f16 × 4 | glossy `indirect` | h's BSDF, as for o (zeros for an escaped ray): recursive filtering reflects at glossy h with it |
 //! | `direct` | f32 × 3 | `indirect` | direct light at o towards the camera (emission of o, next-event estimation at o, and emitters hit by this ray, MIS-weighted) |
 //! | `secondary_albedo` | f16 × 3 | `indirect` | reflectance at h |
 //! | `secondary_direct` | f16 × 3 | `indirect` | the part of L that h reflects straight from emitters (clamped to ±65504) |
@@ -131,8 +132,9 @@ pub struct SecondaryLayout {
     pub bandwidth: bool,
     /// The BSDF sampling weight at o (glossy scenes; it equals `albedo` for Lambertian o).
     pub weight: bool,
-    /// o's BSDF parameters and geometric normal, for a final gather that samples o's BSDF
-    /// (glossy scenes; a Lambertian o needs only `albedo`).
+    /// o's BSDF parameters and geometric normal, for a final gather that samples o's BSDF,
+    /// and h's BSDF, for recursive filtering at glossy h (glossy scenes; a Lambertian o or h
+    /// needs only `albedo` or `secondary_albedo`).
     pub origin_bsdf: bool,
     /// Motion vectors are stored as f16 unless a mesh moves further than f16 can hold.
     pub motion_type: FieldType,
@@ -251,6 +253,13 @@ impl SecondaryLayout {
                 "W/(m^2 sr)",
                 "part of radiance reflected at h straight from emitters",
             ));
+            if self.origin_bsdf {
+                fields.push(f("hit_base_color", FieldType::F16, 3, "", "base colour of the BSDF at h"));
+                fields.push(f("hit_metallic", FieldType::F16, 1, "", "metalness of the BSDF at h"));
+                fields.push(f("hit_roughness", FieldType::F16, 1, "", "GGX roughness at h (alpha = roughness^2)"));
+                fields.push(f("hit_specular", FieldType::F16, 1, "", "dielectric specular weight at h"));
+                fields.push(f("hit_f0", FieldType::F16, 1, "", "dielectric reflectance at normal incidence at h"));
+            }
         }
         fields
     }
@@ -503,6 +512,15 @@ fn trace_secondary(
         values.extend_from_slice(&finite_or_zero(direct).to_array());
         values.extend_from_slice(&secondary_hit.map_or(Vec3::ZERO, |h| h.bsdf.albedo()).to_array());
         values.extend_from_slice(&clamp_f16(secondary.direct).to_array());
+        if layout.origin_bsdf {
+            match &secondary_hit {
+                Some(h) => {
+                    values.extend_from_slice(&clamp_f16(h.bsdf.base_color).to_array());
+                    values.extend_from_slice(&[h.bsdf.metallic, h.bsdf.alpha.sqrt(), h.bsdf.specular, h.bsdf.f0]);
+                }
+                None => values.extend_from_slice(&[0.0; 7]),
+            }
+        }
     }
     values
 }
@@ -549,6 +567,9 @@ fn push_miss(values: &mut Vec<f32>, layout: &SecondaryLayout, environment: Vec3)
         }
         values.extend_from_slice(&environment.to_array());
         values.extend_from_slice(&[0.0; 6]); // secondary albedo and direct
+        if layout.origin_bsdf {
+            values.extend_from_slice(&[0.0; 7]); // h's BSDF: none
+        }
     }
 }
 
