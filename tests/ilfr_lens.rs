@@ -13,10 +13,10 @@ use sampleio::SampleFile;
 use tracer::samples::{lens_time, DumpSettings};
 use tracer::Accel;
 
-/// z = 4 + 0.5 x + 0.3 y, seen through an open lens focused at 3.
-#[test]
-fn hits_and_normals_from_the_depth_gradient_match_the_tilted_plane() {
-    let scene = scene_from_toml(
+/// z = 4 + 0.5 x + 0.3 y, seen through an open lens focused at 3, translating by `motion`
+/// (world space) over the shutter when it is not zero.
+fn tilted_plane(motion: [f32; 3]) -> tracer::Scene {
+    scene_from_toml(&format!(
         r#"
         [render]
         max_bounces = 0
@@ -36,8 +36,14 @@ fn hits_and_normals_from_the_depth_gradient_match_the_tilted_plane() {
         shape = "polygon"
         material = "lamp"
         points = [[-5, -4, 0.3], [5, -4, 5.3], [5, 4, 7.7], [-5, 4, 2.7]]
-        "#,
-    );
+        motion = {motion:?}
+        "#
+    ))
+}
+
+#[test]
+fn hits_and_normals_from_the_depth_gradient_match_the_tilted_plane() {
+    let scene = tilted_plane([0.0; 3]);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("lens.lfrs");
     let settings = DumpSettings { width: 24, height: 16, spp: 4, seed: 3, max_bounces: 0, threads: 0, progress: false };
@@ -64,4 +70,31 @@ fn hits_and_normals_from_the_depth_gradient_match_the_tilted_plane() {
         hits += 1;
     }
     assert_eq!(hits, 24 * 16 * 4);
+}
+
+/// The same plane moving by (0.4, 0.2, 0.3) over the shutter: every hit, moved to the middle of
+/// the shutter by its `motion` (the time splats are indexed at), lies on the plane as it is
+/// then, z − 0.15 = 4 + 0.5 (x − 0.2) + 0.3 (y − 0.1), whatever the sample's own time.
+#[test]
+fn moving_hits_brought_to_mid_shutter_lie_on_the_moved_plane() {
+    let motion = [0.4f32, 0.2, 0.3];
+    let scene = tilted_plane(motion);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("lens.lfrs");
+    let settings = DumpSettings { width: 24, height: 16, spp: 4, seed: 3, max_bounces: 0, threads: 0, progress: false };
+    lens_time::dump(&scene, &Accel::build(&scene).unwrap(), &settings, &path).unwrap();
+    let file = SampleFile::open(&path).unwrap();
+    let header_camera = file.header().camera.clone().unwrap();
+    let (samples, _, _) = read_primary_rays(&file).unwrap();
+    let times = samples.time.as_ref().expect("a moving scene has times");
+    assert!(times.iter().any(|&t| t < 0.25) && times.iter().any(|&t| t > 0.75));
+    let axis = |a: [f64; 3]| Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32);
+    let (position, right, up, forward) =
+        (axis(header_camera.position), axis(header_camera.right), axis(header_camera.up), axis(header_camera.forward));
+    let to_world = |c: [f32; 3]| right * c[0] - up * c[1] + forward * c[2];
+    for i in 0..samples.len() {
+        let p = position + to_world(samples.secondary_hit_at_middle(i));
+        let on_plane = 0.15 + 4.0 + 0.5 * (p.x - 0.2) + 0.3 * (p.y - 0.1);
+        assert!((p.z - on_plane).abs() < 2e-3, "sample {i} (t = {}): {p} is off the plane at mid-shutter", times[i]);
+    }
 }

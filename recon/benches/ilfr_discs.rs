@@ -195,7 +195,7 @@ fn reconstruction_rays(samples: &IndirectSamples, offset: f32, count: usize) -> 
             let i = hits[k * hits.len() / count];
             let n = samples.primary_normal[i];
             let origin = [0, 1, 2].map(|a| samples.primary_hit[i][a] + offset * n[a]);
-            Ray { origin, direction: cosine_about(n, &mut rng) }
+            Ray { time: 0.0, origin, direction: cosine_about(n, &mut rng) }
         })
         .collect()
 }

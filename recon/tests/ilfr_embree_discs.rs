@@ -109,7 +109,7 @@ fn embree_discs_collect_the_same_discs_as_our_bvh() {
     let rays = 800;
     for k in 0..rays {
         let origin = [0.05 + 0.9 * rng.next(), 0.05 + 0.9 * rng.next(), 0.05 + 0.9 * rng.next()];
-        let ray = Ray { origin, direction: rng.unit() };
+        let ray = Ray { time: 0.0, origin, direction: rng.unit() };
         // The reconstruction's window, and one like the retrace of an input ray.
         let (t_min, t_max) = if k % 2 == 0 { (0.0, f32::INFINITY) } else { (0.01, 0.2 + rng.next()) };
         let mine = ours(&bvh, &ray, t_min, t_max);
@@ -148,7 +148,7 @@ fn the_documented_differences_are_the_window_ends_and_grazing_rays() {
     let disc = Disc::new([0.0, 0.0, 1.0], [0.0, 0.0, 1.0], 0.5);
     let embree = embree_scene(&device, &[disc]);
     let bvh = DiscBvh::build(&[disc]).unwrap();
-    let up = Ray { origin: [0.1, 0.0, 0.0], direction: [0.0, 0.0, 1.0] };
+    let up = Ray { time: 0.0, origin: [0.1, 0.0, 0.0], direction: [0.0, 0.0, 1.0] };
     let count = |ray: &Ray, t_min: f32, t_max: f32| {
         (ours(&bvh, ray, t_min, t_max).len(), theirs(&embree, ray, t_min, t_max).0.len())
     };
@@ -163,19 +163,19 @@ fn the_documented_differences_are_the_window_ends_and_grazing_rays() {
     let flat = Disc::new([0.0; 3], [0.0, 0.0, 1.0], 1.0);
     let (embree_flat, bvh_flat) = (embree_scene(&device, &[flat]), DiscBvh::build(&[flat]).unwrap());
     let direction = [1.0, 0.0, -1e-8];
-    let grazing = Ray { origin: [-0.5, 0.0, 0.5e-8], direction };
+    let grazing = Ray { time: 0.0, origin: [-0.5, 0.0, 0.5e-8], direction };
     assert_eq!(ours(&bvh_flat, &grazing, 0.0, f32::INFINITY).len(), 0);
     assert_eq!(theirs(&embree_flat, &grazing, 0.0, f32::INFINITY).0.len(), 1);
     // In the plane: neither.
-    let in_plane = Ray { origin: [-0.5, 0.0, 0.0], direction: [1.0, 0.0, 0.0] };
+    let in_plane = Ray { time: 0.0, origin: [-0.5, 0.0, 0.0], direction: [1.0, 0.0, 0.0] };
     assert_eq!(ours(&bvh_flat, &in_plane, 0.0, f32::INFINITY).len(), 0);
     assert_eq!(theirs(&embree_flat, &in_plane, 0.0, f32::INFINITY).0.len(), 0);
     // Exactly on the rim (s = r = 1) both miss (strict < in both), and a radius of 0 never hits.
-    let rim = Ray { origin: [1.0, 0.0, 1.0], direction: [0.0, 0.0, -1.0] };
+    let rim = Ray { time: 0.0, origin: [1.0, 0.0, 1.0], direction: [0.0, 0.0, -1.0] };
     assert_eq!(ours(&bvh_flat, &rim, 0.0, 2.0).len(), 0);
     assert_eq!(theirs(&embree_flat, &rim, 0.0, 2.0).0.len(), 0);
     let dead = Disc { radius: 0.0, ..flat };
-    let centre = Ray { origin: [0.0, 0.0, 1.0], direction: [0.0, 0.0, -1.0] };
+    let centre = Ray { time: 0.0, origin: [0.0, 0.0, 1.0], direction: [0.0, 0.0, -1.0] };
     assert_eq!(theirs(&embree_scene(&device, &[dead]), &centre, 0.0, 2.0).0.len(), 0);
     assert_eq!(ours(&DiscBvh::build(&[dead]).unwrap(), &centre, 0.0, 2.0).len(), 0);
 }

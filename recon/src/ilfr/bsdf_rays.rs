@@ -84,7 +84,10 @@ pub fn bsdf_rays(
         if !(above && weight.is_finite()) {
             return WeightedRay { ray: None, weight: [0.0; 3] };
         }
-        WeightedRay { ray: Some(Ray { origin: start, direction: world.to_array() }), weight: weight.to_array() }
+        WeightedRay {
+            ray: Some(Ray { time: 0.0, origin: start, direction: world.to_array() }),
+            weight: weight.to_array(),
+        }
     })
 }
 

@@ -445,7 +445,7 @@ mod tests {
                     1 => (1e-3, 2.0),
                     _ => (0.5, 1.0 + rng.next() * 4.0),
                 };
-                (Ray { origin, direction }, t_min, t_max)
+                (Ray { time: 0.0, origin, direction }, t_min, t_max)
             })
             .collect()
     }
@@ -499,7 +499,7 @@ mod tests {
             Disc::new([0.0, 0.3, 2.0], [0.0, 0.6, 0.8], 0.5),
         ];
         let bvh = DiscBvh::build(&discs).unwrap();
-        let ray = Ray { origin: [0.0, 0.0, 0.0], direction: [0.0, 0.0, 1.0] };
+        let ray = Ray { time: 0.0, origin: [0.0, 0.0, 0.0], direction: [0.0, 0.0, 1.0] };
         let (mut stack, mut out) = (Vec::new(), Vec::new());
         bvh.collect_hits(&ray, 0.0, f32::INFINITY, &mut stack, &mut out);
         let mut ids: Vec<u32> = out.iter().map(|h| h.id).collect();
@@ -567,7 +567,7 @@ mod tests {
         // Empty, one disc, and 100 coincident discs (no centroid spread: split by order).
         let empty = DiscBvh::build(&[]).unwrap();
         let (mut stack, mut out) = (Vec::new(), Vec::new());
-        let ray = Ray { origin: [0.0, 0.0, 5.0], direction: [0.0, 0.0, -1.0] };
+        let ray = Ray { time: 0.0, origin: [0.0, 0.0, 5.0], direction: [0.0, 0.0, -1.0] };
         empty.collect_hits(&ray, 0.0, f32::INFINITY, &mut stack, &mut out);
         assert!(out.is_empty());
         let same = vec![Disc::new([0.0; 3], [0.0, 0.0, 1.0], 1.0); 100];
@@ -615,7 +615,7 @@ mod tests {
                 let z = 0.5 * (x * 0.7).sin() * (y * 0.5).cos() + 0.01;
                 let mut d = rng.unit();
                 d[2] = d[2].abs();
-                Ray { origin: [x, y, z], direction: d }
+                Ray { time: 0.0, origin: [x, y, z], direction: d }
             })
             .collect();
         let crossing: Vec<Ray> = (0..m)
@@ -624,7 +624,7 @@ mod tests {
                 let mut d = rng.unit();
                 d[2] = -d[2].abs().max(0.5);
                 let l = length(d);
-                Ray { origin: [x, y, 3.0], direction: [d[0] / l, d[1] / l, d[2] / l] }
+                Ray { time: 0.0, origin: [x, y, 3.0], direction: [d[0] / l, d[1] / l, d[2] / l] }
             })
             .collect();
         println!(

@@ -35,9 +35,11 @@ pub fn length(a: [f32; 3]) -> f32 {
     dot(a, a).sqrt()
 }
 
-/// A ray p + t·d with a unit direction d.
+/// A ray p + t·d with a unit direction d, at a time in [0, 1] over the shutter (only moving
+/// discs look at it; 0 where nothing moves).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Ray {
+    pub time: f32,
     pub origin: [f32; 3],
     pub direction: [f32; 3],
 }
@@ -51,6 +53,9 @@ pub struct Disc {
     pub normal: [f32; 3],
     /// r_i ≥ 0 (0: a dead splat, never hit).
     pub radius: f32,
+    /// Displacement over the shutter (zero for a static splat); `centre` is the position at
+    /// time 0.5 (§3.4 with moving geometry).
+    pub motion: [f32; 3],
 }
 
 impl Disc {
@@ -59,17 +64,43 @@ impl Disc {
     pub fn new(centre: [f32; 3], normal: [f32; 3], radius: f32) -> Disc {
         let l = length(normal);
         if l.is_finite() && l > 0.0 {
-            Disc { centre, normal: [normal[0] / l, normal[1] / l, normal[2] / l], radius }
+            Disc { centre, normal: [normal[0] / l, normal[1] / l, normal[2] / l], radius, motion: [0.0; 3] }
         } else {
-            Disc { centre, normal: [0.0, 0.0, 1.0], radius: 0.0 }
+            Disc { centre, normal: [0.0, 0.0, 1.0], radius: 0.0, motion: [0.0; 3] }
         }
     }
 
+    /// The same disc translating by `motion` over the shutter, `centre` being where it is at
+    /// time 0.5 (a non-finite motion is taken as none).
+    pub fn with_motion(self, motion: [f32; 3]) -> Disc {
+        let motion = if motion.iter().all(|c| c.is_finite()) { motion } else { [0.0; 3] };
+        Disc { motion, ..self }
+    }
+
+    /// Whether the disc moves.
+    #[inline]
+    pub fn moves(&self) -> bool {
+        self.motion != [0.0; 3]
+    }
+
+    /// The centre at `time` ∈ [0, 1]: centre + (time − 0.5)·motion (exactly `centre` for a
+    /// static disc).
+    #[inline]
+    pub fn centre_at(&self, time: f32) -> [f32; 3] {
+        if !self.moves() {
+            return self.centre;
+        }
+        let shift = time - 0.5;
+        [0, 1, 2].map(|a| self.centre[a] + shift * self.motion[a])
+    }
+
     /// The exact axis-aligned box of the disc, (lo, hi): a disc of radius r with unit normal n
-    /// reaches r·sqrt(1 − n_a²) from its centre along axis a.
+    /// reaches r·sqrt(1 − n_a²) from its centre along axis a. A moving disc's box holds it over
+    /// the whole shutter (the union of its boxes at times 0 and 1: linear motion).
     pub fn bounds(&self) -> ([f32; 3], [f32; 3]) {
-        let mut lo = self.centre;
-        let mut hi = self.centre;
+        let (start, end) = (self.centre_at(0.0), self.centre_at(1.0));
+        let mut lo = [0, 1, 2].map(|a| start[a].min(end[a]));
+        let mut hi = [0, 1, 2].map(|a| start[a].max(end[a]));
         for axis in 0..3 {
             let n = self.normal[axis];
             let half = self.radius * (1.0 - n * n).max(0.0).sqrt();
@@ -97,7 +128,7 @@ pub struct DiscHit {
 /// documentation. `t_max` may be +inf.
 #[inline]
 pub fn intersect(disc: &Disc, ray: &Ray, t_min: f32, t_max: f32) -> Option<DiscHit> {
-    let to_centre = sub(disc.centre, ray.origin);
+    let to_centre = sub(disc.centre_at(ray.time), ray.origin);
     let cosine = dot(disc.normal, ray.direction);
     // Each test is written so that NaN fails it.
     let steep_enough = cosine.abs() > GRAZING_COSINE;
@@ -135,28 +166,32 @@ mod tests {
         // t = 1.5, s = √0.5 ≈ 0.707 — inside; the centre's depth is 1.
         let disc = Disc::new([1.0, 0.0, 1.0], [1.0, 0.0, 1.0], 1.0);
         let up = [0.0, 0.0, 1.0];
-        assert_eq!(intersect(&disc, &Ray { origin: [0.0; 3], direction: up }, 0.0, f32::INFINITY), None);
-        let hit = intersect(&disc, &Ray { origin: [0.5, 0.0, 0.0], direction: up }, 0.0, f32::INFINITY).unwrap();
+        assert_eq!(intersect(&disc, &Ray { time: 0.0, origin: [0.0; 3], direction: up }, 0.0, f32::INFINITY), None);
+        let hit =
+            intersect(&disc, &Ray { time: 0.0, origin: [0.5, 0.0, 0.0], direction: up }, 0.0, f32::INFINITY).unwrap();
         assert!((hit.t - 1.5).abs() < 1e-6, "{hit:?}");
         assert!((hit.spatial - 0.5f32.sqrt()).abs() < 1e-6, "{hit:?}");
         assert!((hit.depth - 1.0).abs() < 1e-6);
         // n·d = 1/√2 > 0: the ray sees the back of the disc; reversed, the front.
         assert!(hit.back_facing);
-        let down = intersect(&disc, &Ray { origin: [0.5, 0.0, 3.0], direction: [0.0, 0.0, -1.0] }, 0.0, 10.0);
+        let down =
+            intersect(&disc, &Ray { time: 0.0, origin: [0.5, 0.0, 3.0], direction: [0.0, 0.0, -1.0] }, 0.0, 10.0);
         assert!(!down.unwrap().back_facing);
         // The t window is open at both ends.
-        assert!(intersect(&disc, &Ray { origin: [0.5, 0.0, 0.0], direction: up }, 1.5, 10.0).is_none());
-        assert!(intersect(&disc, &Ray { origin: [0.5, 0.0, 0.0], direction: up }, 0.0, 1.5).is_none());
-        assert!(intersect(&disc, &Ray { origin: [0.5, 0.0, 0.0], direction: up }, 0.0, 1.5001).is_some());
+        assert!(intersect(&disc, &Ray { time: 0.0, origin: [0.5, 0.0, 0.0], direction: up }, 1.5, 10.0).is_none());
+        assert!(intersect(&disc, &Ray { time: 0.0, origin: [0.5, 0.0, 0.0], direction: up }, 0.0, 1.5).is_none());
+        assert!(intersect(&disc, &Ray { time: 0.0, origin: [0.5, 0.0, 0.0], direction: up }, 0.0, 1.5001).is_some());
         // Behind the origin: no hit.
-        assert!(intersect(&disc, &Ray { origin: [0.5, 0.0, 5.0], direction: up }, 0.0, f32::INFINITY).is_none());
+        assert!(
+            intersect(&disc, &Ray { time: 0.0, origin: [0.5, 0.0, 5.0], direction: up }, 0.0, f32::INFINITY).is_none()
+        );
     }
 
     #[test]
     fn the_rim_is_where_the_distance_reaches_the_radius() {
         // Disc z = 0, radius 1; vertical rays at x = 1 ∓ 1e-5 hit and miss.
         let disc = Disc::new([0.0; 3], [0.0, 0.0, 1.0], 1.0);
-        let ray = |x: f32| Ray { origin: [x, 0.0, 1.0], direction: [0.0, 0.0, -1.0] };
+        let ray = |x: f32| Ray { time: 0.0, origin: [x, 0.0, 1.0], direction: [0.0, 0.0, -1.0] };
         assert!(intersect(&disc, &ray(1.0 - 1e-5), 0.0, 2.0).is_some());
         assert!(intersect(&disc, &ray(1.0 + 1e-5), 0.0, 2.0).is_none());
         // Exactly at the rim: s = r is a miss (the shrinking of §2.3.1 relies on this).
@@ -164,7 +199,7 @@ mod tests {
         // A slanted ray, 60° from the normal, through a point 0.9 from the centre.
         let d = normalize([3f32.sqrt(), 0.0, -1.0]);
         let origin = [0.9 - d[0] * 4.0, 0.0, -d[2] * 4.0];
-        let hit = intersect(&disc, &Ray { origin, direction: d }, 0.0, f32::INFINITY).unwrap();
+        let hit = intersect(&disc, &Ray { time: 0.0, origin, direction: d }, 0.0, f32::INFINITY).unwrap();
         assert!((hit.t - 4.0).abs() < 1e-5 && (hit.spatial - 0.9).abs() < 1e-5, "{hit:?}");
     }
 
@@ -172,13 +207,13 @@ mod tests {
     fn grazing_and_degenerate_discs_stay_finite() {
         let disc = Disc::new([0.0; 3], [0.0, 0.0, 1.0], 1.0);
         // A ray in the plane of the disc: n·d = 0, no hit (not a t of 0/0).
-        let in_plane = Ray { origin: [-5.0, 0.0, 0.0], direction: [1.0, 0.0, 0.0] };
+        let in_plane = Ray { time: 0.0, origin: [-5.0, 0.0, 0.0], direction: [1.0, 0.0, 0.0] };
         assert!(intersect(&disc, &in_plane, 0.0, f32::INFINITY).is_none());
         // Nearly grazing, aimed at the centre from half a unit away: n·d = 1e-8 is below the
         // threshold (no hit, although the exact plane point is the centre), 1e-6 above it.
         for (cosine, expect_hit) in [(1e-8f32, false), (1e-6, true)] {
             let d = normalize([1.0, 0.0, -cosine]);
-            let ray = Ray { origin: [-0.5, 0.0, 0.5 * cosine], direction: d };
+            let ray = Ray { time: 0.0, origin: [-0.5, 0.0, 0.5 * cosine], direction: d };
             let hit = intersect(&disc, &ray, 0.0, f32::INFINITY);
             assert_eq!(hit.is_some(), expect_hit, "{cosine}: {hit:?}");
             if let Some(hit) = hit {
@@ -186,20 +221,51 @@ mod tests {
             }
         }
         // Grazing rays far from the disc: a finite t, a finite distance, a miss.
-        let far = Ray { origin: [-1e4, 3.0, 1.0], direction: normalize([1.0, 0.0, -1e-5]) };
+        let far = Ray { time: 0.0, origin: [-1e4, 3.0, 1.0], direction: normalize([1.0, 0.0, -1e-5]) };
         assert!(intersect(&disc, &far, 0.0, f32::INFINITY).is_none());
         // Radius 0: even the ray through the exact centre misses.
         let dead = Disc::new([0.0; 3], [0.0, 0.0, 1.0], 0.0);
-        assert!(intersect(&dead, &Ray { origin: [0.0, 0.0, 1.0], direction: [0.0, 0.0, -1.0] }, 0.0, 2.0).is_none());
+        assert!(intersect(&dead, &Ray { time: 0.0, origin: [0.0, 0.0, 1.0], direction: [0.0, 0.0, -1.0] }, 0.0, 2.0)
+            .is_none());
         // A zero or NaN normal makes a dead disc, not NaN.
         for normal in [[0.0; 3], [f32::NAN, 0.0, 1.0]] {
             let disc = Disc::new([0.0; 3], normal, 1.0);
             assert_eq!(disc.radius, 0.0);
-            assert!(intersect(&disc, &Ray { origin: [0.0, 0.0, 1.0], direction: [0.0, 0.0, -1.0] }, 0.0, 2.0).is_none());
+            assert!(intersect(
+                &disc,
+                &Ray { time: 0.0, origin: [0.0, 0.0, 1.0], direction: [0.0, 0.0, -1.0] },
+                0.0,
+                2.0
+            )
+            .is_none());
         }
         // A NaN ray fails every comparison.
-        let nan = Ray { origin: [f32::NAN; 3], direction: [0.0, 0.0, -1.0] };
+        let nan = Ray { time: 0.0, origin: [f32::NAN; 3], direction: [0.0, 0.0, -1.0] };
         assert!(intersect(&disc, &nan, 0.0, f32::INFINITY).is_none());
+    }
+
+    #[test]
+    fn a_moving_disc_is_hit_where_it_is_at_the_rays_time_and_boxed_over_the_shutter() {
+        let motion = [2.0, -1.0, 0.5];
+        let moving = Disc::new([1.0, 0.0, 1.0], [1.0, 0.0, 1.0], 0.7).with_motion(motion);
+        let (lo, hi) = moving.bounds();
+        for time in [0.0f32, 0.3, 0.5, 1.0] {
+            let centre = moving.centre_at(time);
+            let fixed = Disc::new(centre, [1.0, 0.0, 1.0], 0.7);
+            let (flo, fhi) = fixed.bounds();
+            assert!((0..3).all(|a| lo[a] <= flo[a] && fhi[a] <= hi[a]), "time {time}: {flo:?}..{fhi:?} outside");
+            for origin in [[0.5, 0.0, 0.0], [1.9, -0.4, 0.0], [0.0, 0.3, -1.0]] {
+                let ray = Ray { time, origin, direction: normalize([0.1, 0.05, 1.0]) };
+                let at_rest = Ray { time: 0.0, ..ray };
+                assert_eq!(
+                    intersect(&moving, &ray, 0.0, f32::INFINITY),
+                    intersect(&fixed, &at_rest, 0.0, f32::INFINITY)
+                );
+            }
+        }
+        assert_eq!(moving.centre_at(0.5), [1.0, 0.0, 1.0]);
+        let still = Disc::new([1.0, 0.0, 1.0], [0.0, 0.0, 1.0], 1.0);
+        assert_eq!(still.with_motion([f32::NAN, 0.0, 0.0]), still, "non-finite motion is none");
     }
 
     #[test]

@@ -272,7 +272,7 @@ fn hit_rays(samples: &IndirectSamples, i: usize, per_hit: u32, settings: &Gather
         let (u, v) = sobol_2d_scrambled(j, scramble);
         let local = cosine_hemisphere(u, v);
         let direction = [0, 1, 2].map(|a| local[0] * tangent[a] + local[1] * bitangent[a] + local[2] * normal[a]);
-        Ray { origin, direction: normalize(direction) }
+        Ray { time: 0.0, origin, direction: normalize(direction) }
     })
 }
 

@@ -88,8 +88,8 @@ impl Method for IlfrRecursive {
     }
 }
 
-/// `ilfr` on camera rays (paper §3.4): defocus from a static `lens-time` file, the input of
-/// `tlfr`, so that both reconstruct the very same samples ([`super::lens`]).
+/// `ilfr` on camera rays (paper §3.4): defocus and motion blur from a `lens-time` file, the
+/// input of `tlfr`, so that both reconstruct the very same samples ([`super::lens`]).
 pub struct IlfrDof;
 
 impl Method for IlfrDof {
@@ -98,11 +98,11 @@ impl Method for IlfrDof {
     }
 
     fn description(&self) -> &'static str {
-        "indirect light field reconstruction's machinery on camera rays: defocus (Lehtinen et al. 2012 §3.4)"
+        "indirect light field reconstruction's machinery on camera rays: defocus and motion blur (Lehtinen et al. 2012 §3.4)"
     }
 
     fn supports(&self, effect: Effect) -> bool {
-        effect == Effect::Dof
+        matches!(effect, Effect::Dof | Effect::Motion | Effect::DofMotion)
     }
 
     fn input(&self) -> Input {
@@ -115,7 +115,7 @@ impl Method for IlfrDof {
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
         let name = self.name();
-        if inputs.effect != Effect::Dof {
+        if !self.supports(inputs.effect) {
             return Err(MethodError::Unsupported(format!("{name} does not reconstruct {}", inputs.effect.name())));
         }
         let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed(format!("{name} needs a sample file")))?;
@@ -336,8 +336,12 @@ pub fn reconstruct_samples(
     let sizing_s = start.elapsed().as_secs_f64();
 
     let start = Instant::now();
-    let discs: Vec<Disc> =
-        (0..points.position.len()).map(|k| Disc::new(points.position[k], points.normal[k], sized.radius[k])).collect();
+    // Splat k is hit sample hits[k] (the order `SplatPoints::gather` uses).
+    let hit_ids = if samples.secondary_motion.is_some() { samples.hits() } else { Vec::new() };
+    let motion = |k: usize| samples.secondary_motion.as_ref().map_or([0.0; 3], |m| m[hit_ids[k] as usize]);
+    let discs: Vec<Disc> = (0..points.position.len())
+        .map(|k| Disc::new(points.position[k], points.normal[k], sized.radius[k]).with_motion(motion(k)))
+        .collect();
     let mut bvh = DiscBvh::build(&discs).map_err(failed)?;
     drop(discs);
     let hierarchy_s = start.elapsed().as_secs_f64();

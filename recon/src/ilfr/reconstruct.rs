@@ -84,7 +84,7 @@ impl Reconstructor<'_> {
         stats.discs_tested += walk.discs_tested;
         stats.collected += scratch.hits.len() as u64;
         stats.near_field_back_faces +=
-            prepare_candidates(self.bvh, &scratch.hits, &self.surfaces, &mut scratch.candidates) as u64;
+            prepare_candidates(self.bvh, &scratch.hits, ray.time, &self.surfaces, &mut scratch.candidates) as u64;
         let surface = first_surface(ray, &scratch.candidates, &self.surfaces);
         match &surface {
             Some(s) => {
@@ -187,7 +187,11 @@ mod tests {
 
     /// A ray from `from` through the point `(x, y, z)`.
     fn ray_through(from: [f32; 3], target: [f32; 3]) -> Ray {
-        Ray { origin: from, direction: unit([target[0] - from[0], target[1] - from[1], target[2] - from[2]]) }
+        Ray {
+            time: 0.0,
+            origin: from,
+            direction: unit([target[0] - from[0], target[1] - from[1], target[2] - from[2]]),
+        }
     }
 
     #[test]
@@ -271,7 +275,7 @@ mod tests {
         let (mut scratch, mut stats) = (Scratch::default(), ReconstructStats::default());
         // Upwards from above the plane, and downwards beside it.
         for ray in [
-            Ray { origin: [0.0, 0.0, 1.0], direction: [0.0, 0.0, 1.0] },
+            Ray { time: 0.0, origin: [0.0, 0.0, 1.0], direction: [0.0, 0.0, 1.0] },
             ray_through([10.0, 10.0, 1.0], [10.0, 10.5, 0.0]),
         ] {
             assert_eq!(reconstructor.radiance(&ray, &mut scratch, &mut stats), None);
@@ -279,7 +283,7 @@ mod tests {
         }
         assert_eq!((stats.rays, stats.no_surface), (4, 4));
         // Visibility of the plane itself: within the radius → 0, beyond → 1.
-        let down = Ray { origin: [0.0, 0.0, 1.0], direction: [0.0, 0.0, -1.0] };
+        let down = Ray { time: 0.0, origin: [0.0, 0.0, 1.0], direction: [0.0, 0.0, -1.0] };
         assert_eq!(reconstructor.visibility(&down, 2.0, &mut scratch, &mut stats), 0.0);
         assert_eq!(reconstructor.visibility(&down, 0.5, &mut scratch, &mut stats), 1.0);
 

@@ -239,7 +239,7 @@ fn secondary_rays(samples: &IndirectSamples, i: usize, settings: &RecursiveSetti
         let (u, v) = sobol_2d_scrambled(k, scramble);
         let local = cosine_hemisphere(u, v);
         let direction = [0, 1, 2].map(|a| local[0] * tangent[a] + local[1] * bitangent[a] + local[2] * normal[a]);
-        Ray { origin, direction: normalize(direction) }
+        Ray { time: 0.0, origin, direction: normalize(direction) }
     })
 }
 

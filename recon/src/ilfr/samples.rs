@@ -69,6 +69,10 @@ pub struct IndirectSamples {
     /// h's BSDF (glossy `indirect` files; neutral unless the sample is a `Hit`), for recursive
     /// filtering at glossy secondary hits.
     pub secondary_bsdf: Option<Vec<shading::Bsdf>>,
+    /// Time of each ray over the shutter, and the displacement of its hit over the whole
+    /// shutter (moving `lens-time` input of the lens mode; `None`: nothing moves).
+    pub time: Option<Vec<f32>>,
+    pub secondary_motion: Option<Vec<[f32; 3]>>,
 }
 
 /// What the final gather needs to shade a primary hit with its own BSDF (paper Eq. 3; design
@@ -118,6 +122,8 @@ impl IndirectSamples {
             secondary_direct: None,
             primary_shading: None,
             secondary_bsdf: None,
+            time: None,
+            secondary_motion: None,
         }
     }
 
@@ -132,6 +138,23 @@ impl IndirectSamples {
     /// Indices of the samples whose secondary ray hit a surface (the splats), ascending.
     pub fn hits(&self) -> Vec<u32> {
         (0..self.len() as u32).filter(|&i| self.class[i as usize] == SampleClass::Hit).collect()
+    }
+
+    /// The time of sample i's ray (0 when nothing moves).
+    pub fn time_of(&self, i: usize) -> f32 {
+        self.time.as_ref().map_or(0.0, |t| t[i])
+    }
+
+    /// Where sample i's hit is at time 0.5, the time moving splats are indexed at.
+    pub fn secondary_hit_at_middle(&self, i: usize) -> [f32; 3] {
+        let h = self.secondary_hit[i];
+        match &self.secondary_motion {
+            Some(motion) => {
+                let shift = 0.5 - self.time_of(i);
+                [0, 1, 2].map(|a| h[a] + shift * motion[i][a])
+            }
+            None => h,
+        }
     }
 
     /// κ of sample i (0 when the file has no `bandwidth`).

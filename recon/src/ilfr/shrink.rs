@@ -40,6 +40,9 @@ pub struct InputRay {
     pub length: f32,
     /// The splat of its own hit (an index into the discs of the hierarchy), never shrunk by it.
     pub own_splat: Option<u32>,
+    /// Its time over the shutter (moving splats are tested where they were then; 0 when
+    /// nothing moves).
+    pub time: f32,
 }
 
 /// The ε of the window (design §3 #10).
@@ -94,7 +97,13 @@ pub fn input_rays(samples: &IndirectSamples, splat_sample_index: &[u32]) -> Vec<
             SampleClass::Escaped => f32::INFINITY,
             SampleClass::CameraMiss | SampleClass::NoSecondaryRay => continue,
         };
-        rays.push(InputRay { origin: samples.primary_hit[i], direction: samples.direction[i], length, own_splat });
+        rays.push(InputRay {
+            time: samples.time_of(i),
+            origin: samples.primary_hit[i],
+            direction: samples.direction[i],
+            length,
+            own_splat,
+        });
     }
     rays
 }
@@ -115,7 +124,7 @@ pub fn for_each_blocker(
     stack: &mut Vec<u32>,
     mut visit: impl FnMut(SplatHit),
 ) {
-    let geometric = Ray { origin: ray.origin, direction: ray.direction };
+    let geometric = Ray { time: ray.time, origin: ray.origin, direction: ray.direction };
     bvh.for_each_hit(&geometric, window.0, window.1, stack, |hit| {
         if Some(hit.id) != ray.own_splat {
             visit(hit)
@@ -228,13 +237,13 @@ mod tests {
             Disc::new([0.0, 0.0, 2.0 - 1e-3], normalize([0.2, 0.0, -1.0]), 0.5),
         ];
         let mut bvh = DiscBvh::build(&discs).unwrap();
-        let ray = InputRay { origin: [0.0; 3], direction: UP, length: 2.0, own_splat: Some(0) };
+        let ray = InputRay { time: 0.0, origin: [0.0; 3], direction: UP, length: 2.0, own_splat: Some(0) };
         let stats = shrink_splats(&mut bvh, &[ray], &ShrinkParams::default()).unwrap();
         let radii = bvh.radii();
         assert!((radii[1] - 0.3).abs() < 1e-6, "{radii:?}");
         assert_eq!([radii[0], radii[2], radii[3], radii[4]], [0.5, 1.0, 1.0, 0.5]);
         assert_eq!((stats.shrunk_splats, stats.crossings, stats.blocked_rays, stats.dead_splats), (1, 1, 1, 0));
-        let geometric = Ray { origin: [0.0; 3], direction: UP };
+        let geometric = Ray { time: 0.0, origin: [0.0; 3], direction: UP };
         assert!(intersect(&Disc { radius: radii[1], ..discs[1] }, &geometric, 0.0, 2.0).is_none());
         assert!(intersect(&discs[1], &geometric, 0.0, 2.0).is_some());
     }
@@ -244,7 +253,13 @@ mod tests {
         // An escaped ray along +x meets splats at x = 10 and x = 1000 (0.2 and 0.4 off the ray).
         let discs =
             [Disc::new([10.0, 0.2, 0.0], [1.0, 0.0, 0.0], 1.0), Disc::new([1000.0, 0.0, 0.4], [-1.0, 0.0, 0.0], 1.0)];
-        let ray = InputRay { origin: [0.0; 3], direction: [1.0, 0.0, 0.0], length: f32::INFINITY, own_splat: None };
+        let ray = InputRay {
+            time: 0.0,
+            origin: [0.0; 3],
+            direction: [1.0, 0.0, 0.0],
+            length: f32::INFINITY,
+            own_splat: None,
+        };
         let mut bvh = DiscBvh::build(&discs).unwrap();
         shrink_splats(&mut bvh, &[ray], &ShrinkParams::default()).unwrap();
         let radii = bvh.radii();
@@ -255,8 +270,8 @@ mod tests {
         assert_eq!(bvh.radii()[1], 1.0);
         // A ray through a centre kills the splat; one of length 0 does nothing.
         let mut bvh = DiscBvh::build(&discs).unwrap();
-        let through = InputRay { origin: [0.0, 0.2, 0.0], ..ray };
-        let zero = InputRay { origin: [10.0, 0.2, -1.0], direction: UP, length: 0.0, own_splat: None };
+        let through = InputRay { time: 0.0, origin: [0.0, 0.2, 0.0], ..ray };
+        let zero = InputRay { time: 0.0, origin: [10.0, 0.2, -1.0], direction: UP, length: 0.0, own_splat: None };
         let stats = shrink_splats(&mut bvh, &[through, zero], &ShrinkParams::default()).unwrap();
         assert_eq!(bvh.radii()[0], 0.0);
         assert_eq!((stats.dead_splats, stats.short_rays), (1, 1));
@@ -287,8 +302,14 @@ mod tests {
         assert_eq!(
             rays,
             [
-                InputRay { origin: [2.0, 0.0, 0.0], direction: UP, length: f32::INFINITY, own_splat: None },
-                InputRay { origin: [3.0, 0.0, 0.0], direction: [0.0, 0.6, 0.8], length: 5.0, own_splat: Some(0) },
+                InputRay { time: 0.0, origin: [2.0, 0.0, 0.0], direction: UP, length: f32::INFINITY, own_splat: None },
+                InputRay {
+                    time: 0.0,
+                    origin: [3.0, 0.0, 0.0],
+                    direction: [0.0, 0.6, 0.8],
+                    length: 5.0,
+                    own_splat: Some(0)
+                },
             ]
         );
     }
@@ -320,6 +341,7 @@ mod tests {
             let l = length(offset);
             discs.push(Disc::new(hit, normal, radius));
             rays.push(InputRay {
+                time: 0.0,
                 origin,
                 direction: [offset[0] / l, offset[1] / l, offset[2] / l],
                 length: l,
@@ -354,7 +376,9 @@ mod tests {
                 if Some(i as u32) == ray.own_splat {
                     continue;
                 }
-                if let Some(hit) = intersect(disc, &Ray { origin: ray.origin, direction: ray.direction }, t0, t1) {
+                if let Some(hit) =
+                    intersect(disc, &Ray { time: ray.time, origin: ray.origin, direction: ray.direction }, t0, t1)
+                {
                     radius[i] = radius[i].min(hit.spatial);
                 }
             }
@@ -413,9 +437,9 @@ mod tests {
                 let l = length(offset);
                 let direction = [offset[0] / l, offset[1] / l, offset[2] / l];
                 if j % 5 == 0 {
-                    InputRay { origin, direction, length: f32::INFINITY, own_splat: None }
+                    InputRay { time: 0.0, origin, direction, length: f32::INFINITY, own_splat: None }
                 } else {
-                    InputRay { origin, direction, length: l, own_splat: Some(own) }
+                    InputRay { time: 0.0, origin, direction, length: l, own_splat: Some(own) }
                 }
             })
             .collect();
@@ -459,11 +483,12 @@ mod tests {
                 let origin =
                     [target[0] + 2.0 * rng.next() - 1.0, target[1] + 2.0 * rng.next() - 1.0, 1.0 + 2.0 * rng.next()];
                 if j % 4 == 0 {
-                    return InputRay { origin, direction: UP, length: f32::INFINITY, own_splat: None };
+                    return InputRay { time: 0.0, origin, direction: UP, length: f32::INFINITY, own_splat: None };
                 }
                 let offset = super::super::disc::sub(discs[j].centre, origin);
                 let l = length(offset);
                 InputRay {
+                    time: 0.0,
                     origin,
                     direction: [offset[0] / l, offset[1] / l, offset[2] / l],
                     length: l,

@@ -108,11 +108,12 @@ pub struct SplatPoints<'a> {
 
 impl<'a> SplatPoints<'a> {
     /// The secondary hits of `samples` (their indices are `samples.hits()`), in copies that
-    /// live in `storage`.
+    /// live in `storage`; moving hits where they are at time 0.5, so that the samples of one
+    /// moving surface, taken at different times, are sized together.
     pub fn gather(samples: &super::samples::IndirectSamples, storage: &'a mut GatheredPoints) -> SplatPoints<'a> {
         let hits = samples.hits();
         let pick = |v: &[[f32; 3]]| hits.iter().map(|&i| v[i as usize]).collect::<Vec<_>>();
-        storage.position = pick(&samples.secondary_hit);
+        storage.position = hits.iter().map(|&i| samples.secondary_hit_at_middle(i as usize)).collect();
         storage.normal = pick(&samples.secondary_normal);
         storage.direction = pick(&samples.direction);
         storage.kappa = samples.kappa.as_ref().map(|k| hits.iter().map(|&i| k[i as usize]).collect());

@@ -89,9 +89,16 @@ impl Candidate {
     }
 }
 
-/// Turns the walk's hits into candidates: drops near-field back-facing splats when asked
-/// (`dropped` counts them), then sorts by (depth, index). `out` is cleared first.
-pub fn prepare_candidates(bvh: &DiscBvh, hits: &[SplatHit], params: &SurfaceParams, out: &mut Vec<Candidate>) -> usize {
+/// Turns the walk's hits (of a ray at `time`) into candidates, moving splats placed where they
+/// are at that time: drops near-field back-facing splats when asked (`dropped` counts them),
+/// then sorts by (depth, index). `out` is cleared first.
+pub fn prepare_candidates(
+    bvh: &DiscBvh,
+    hits: &[SplatHit],
+    time: f32,
+    params: &SurfaceParams,
+    out: &mut Vec<Candidate>,
+) -> usize {
     out.clear();
     let mut dropped = 0;
     for h in hits {
@@ -100,7 +107,7 @@ pub fn prepare_candidates(bvh: &DiscBvh, hits: &[SplatHit], params: &SurfacePara
             dropped += 1;
             continue;
         }
-        out.push(Candidate { id, centre: disc.centre, normal: disc.normal, radius: disc.radius, hit: h.hit });
+        out.push(Candidate { id, centre: disc.centre_at(time), normal: disc.normal, radius: disc.radius, hit: h.hit });
     }
     out.sort_by(|a, b| a.hit.depth.total_cmp(&b.hit.depth).then(a.id.cmp(&b.id)));
     dropped
@@ -260,7 +267,7 @@ mod tests {
     use crate::ilfr::disc::Disc;
 
     /// The ray of every test: from the origin along +y (depth = y).
-    const RAY: Ray = Ray { origin: [0.0; 3], direction: [0.0, 1.0, 0.0] };
+    const RAY: Ray = Ray { time: 0.0, origin: [0.0; 3], direction: [0.0, 1.0, 0.0] };
 
     fn unit(x: f32, y: f32, z: f32) -> [f32; 3] {
         normalize([x, y, z])
@@ -272,7 +279,7 @@ mod tests {
         let (mut stack, mut hits, mut out) = (Vec::new(), Vec::new(), Vec::new());
         bvh.collect_hits(&RAY, 0.0, f32::INFINITY, &mut stack, &mut hits);
         assert_eq!(hits.len(), discs.len(), "every test disc is hit");
-        prepare_candidates(&bvh, &hits, params, &mut out);
+        prepare_candidates(&bvh, &hits, RAY.time, params, &mut out);
         out
     }
 
@@ -436,10 +443,10 @@ mod tests {
         let bvh = DiscBvh::build(&discs).unwrap();
         let (mut stack, mut hits, mut out) = (Vec::new(), Vec::new(), Vec::new());
         bvh.collect_hits(&RAY, 0.0, f32::INFINITY, &mut stack, &mut hits);
-        assert_eq!(prepare_candidates(&bvh, &hits, &SurfaceParams::default(), &mut out), 1);
+        assert_eq!(prepare_candidates(&bvh, &hits, 0.0, &SurfaceParams::default(), &mut out), 1);
         assert_eq!(out.iter().map(|c| c.id).collect::<Vec<_>>(), [1]);
         let keep = SurfaceParams { backface_near_field_cull: false, ..SurfaceParams::default() };
-        assert_eq!(prepare_candidates(&bvh, &hits, &keep, &mut out), 0);
+        assert_eq!(prepare_candidates(&bvh, &hits, 0.0, &keep, &mut out), 0);
         assert_eq!(out.iter().map(|c| c.id).collect::<Vec<_>>(), [0, 1]);
         // At depth 0.6 > radius it stays even with the rule on.
         let far = [Disc::new([0.0, 0.6, 0.1], [0.0, 1.0, 0.0], 0.5), discs[1]];
