@@ -92,9 +92,9 @@ fn moving_hits_brought_to_mid_shutter_lie_on_the_moved_plane() {
     let (position, right, up, forward) =
         (axis(header_camera.position), axis(header_camera.right), axis(header_camera.up), axis(header_camera.forward));
     let to_world = |c: [f32; 3]| right * c[0] - up * c[1] + forward * c[2];
-    for i in 0..samples.len() {
+    for (i, time) in times.iter().enumerate() {
         let p = position + to_world(samples.secondary_hit_at_middle(i));
         let on_plane = 0.15 + 4.0 + 0.5 * (p.x - 0.2) + 0.3 * (p.y - 0.1);
-        assert!((p.z - on_plane).abs() < 2e-3, "sample {i} (t = {}): {p} is off the plane at mid-shutter", times[i]);
+        assert!((p.z - on_plane).abs() < 2e-3, "sample {i} (t = {time}): {p} is off the plane at mid-shutter");
     }
 }
