@@ -41,22 +41,31 @@ fn tilted_plane(motion: [f32; 3]) -> tracer::Scene {
     ))
 }
 
-#[test]
-fn hits_and_normals_from_the_depth_gradient_match_the_tilted_plane() {
-    let scene = tilted_plane([0.0; 3]);
+/// A 24 × 16, 4 spp `lens-time` dump of `scene`.
+fn dump_24x16(scene: &tracer::Scene) -> (tempfile::TempDir, SampleFile) {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("lens.lfrs");
     let settings = DumpSettings { width: 24, height: 16, spp: 4, seed: 3, max_bounces: 0, threads: 0, progress: false };
-    lens_time::dump(&scene, &Accel::build(&scene).unwrap(), &settings, &path).unwrap();
-    let file = SampleFile::open(&path).unwrap();
+    lens_time::dump(scene, &Accel::build(scene).unwrap(), &settings, &path).unwrap();
+    (dir, SampleFile::open(&path).unwrap())
+}
+
+/// The camera's position and the map of a camera-space vector (X along right, Y along −up, Z
+/// along forward) to world space, from the file's header.
+fn camera_frame(camera: &sampleio::Camera) -> (Vec3, impl Fn([f32; 3]) -> Vec3) {
+    let axis = |a: [f64; 3]| Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32);
+    let (right, up, forward) = (axis(camera.right), axis(camera.up), axis(camera.forward));
+    (axis(camera.position), move |c: [f32; 3]| right * c[0] - up * c[1] + forward * c[2])
+}
+
+#[test]
+fn hits_and_normals_from_the_depth_gradient_match_the_tilted_plane() {
+    let scene = tilted_plane([0.0; 3]);
+    let (_dir, file) = dump_24x16(&scene);
     let header_camera = file.header().camera.clone().unwrap();
     let (samples, _, stats) = read_primary_rays(&file).unwrap();
     assert_eq!(stats.normals_from_the_ray, 0);
-    let axis = |a: [f64; 3]| Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32);
-    let (position, right, up, forward) =
-        (axis(header_camera.position), axis(header_camera.right), axis(header_camera.up), axis(header_camera.forward));
-    // Camera space: X along right, Y along −up, Z along forward.
-    let to_world = |c: [f32; 3]| right * c[0] - up * c[1] + forward * c[2];
+    let (position, to_world) = camera_frame(&header_camera);
     let plane_normal = Vec3::new(0.5, 0.3, -1.0).normalize(); // facing the camera at the origin
     let mut hits = 0;
     for i in 0..samples.len() {
@@ -79,19 +88,12 @@ fn hits_and_normals_from_the_depth_gradient_match_the_tilted_plane() {
 fn moving_hits_brought_to_mid_shutter_lie_on_the_moved_plane() {
     let motion = [0.4f32, 0.2, 0.3];
     let scene = tilted_plane(motion);
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("lens.lfrs");
-    let settings = DumpSettings { width: 24, height: 16, spp: 4, seed: 3, max_bounces: 0, threads: 0, progress: false };
-    lens_time::dump(&scene, &Accel::build(&scene).unwrap(), &settings, &path).unwrap();
-    let file = SampleFile::open(&path).unwrap();
+    let (_dir, file) = dump_24x16(&scene);
     let header_camera = file.header().camera.clone().unwrap();
     let (samples, _, _) = read_primary_rays(&file).unwrap();
     let times = samples.time.as_ref().expect("a moving scene has times");
     assert!(times.iter().any(|&t| t < 0.25) && times.iter().any(|&t| t > 0.75));
-    let axis = |a: [f64; 3]| Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32);
-    let (position, right, up, forward) =
-        (axis(header_camera.position), axis(header_camera.right), axis(header_camera.up), axis(header_camera.forward));
-    let to_world = |c: [f32; 3]| right * c[0] - up * c[1] + forward * c[2];
+    let (position, to_world) = camera_frame(&header_camera);
     for (i, time) in times.iter().enumerate() {
         let p = position + to_world(samples.secondary_hit_at_middle(i));
         let on_plane = 0.15 + 4.0 + 0.5 * (p.x - 0.2) + 0.3 * (p.y - 0.1);

@@ -136,20 +136,31 @@ fn glossy_samples_carry_the_bsdf_weight_and_reproduce_the_image() {
     }
 }
 
+/// The BSDFs stored in the five fields `{prefix}_base_color`, … of every sample.
+fn stored_bsdfs(file: &SampleFile, prefix: &str) -> Vec<tracer::bsdf::Bsdf> {
+    let column =
+        |name: &str| file.column(&format!("{prefix}_{name}")).unwrap_or_else(|e| panic!("{prefix}_{name}: {e}"));
+    let (base, metallic, roughness, specular, f0) =
+        (column("base_color"), column("metallic"), column("roughness"), column("specular"), column("f0"));
+    (0..file.len())
+        .map(|i| tracer::bsdf::Bsdf {
+            base_color: vec3(&base, i),
+            metallic: metallic[i],
+            alpha: (roughness[i] * roughness[i]).max(tracer::bsdf::MIN_ALPHA),
+            specular: specular[i],
+            f0: f0[i],
+        })
+        .collect()
+}
+
 /// The stored BSDF of o (gap G1 of docs/ilfr-design.md) is the one that drew ω: evaluated
 /// again from the file alone, f·cos/pdf of ω for ωo towards the (pinhole) camera gives the
 /// stored `weight` up to the f16 rounding of the parameters, and every ω lies above the stored
 /// geometric normal (G2), which lies on the shading normal's side.
 fn assert_origin_bsdf_reproduces_the_weight(scene: &Scene, file: &SampleFile) {
-    use tracer::bsdf::{Bsdf, Frame, MIN_ALPHA};
+    use tracer::bsdf::Frame;
     let column = |name: &str| file.column(name).unwrap_or_else(|e| panic!("{name}: {e}"));
-    let (base, metallic, roughness, specular, f0) = (
-        column("origin_base_color"),
-        column("origin_metallic"),
-        column("origin_roughness"),
-        column("origin_specular"),
-        column("origin_f0"),
-    );
+    let origin_bsdfs = stored_bsdfs(file, "origin");
     let (geometric, shading, direction, origin, weight) = (
         column("origin_geometric_normal"),
         column("origin_normal"),
@@ -166,13 +177,7 @@ fn assert_origin_bsdf_reproduces_the_weight(scene: &Scene, file: &SampleFile) {
         let (n_geometric, n_shading) = (octahedral(&geometric, i), octahedral(&shading, i));
         assert!(wi.dot(n_geometric) > 0.0, "sample {i}: ω below the geometric normal");
         assert!(n_geometric.dot(n_shading) > 0.0, "sample {i}: normals on opposite sides");
-        let bsdf = Bsdf {
-            base_color: vec3(&base, i),
-            metallic: metallic[i],
-            alpha: (roughness[i] * roughness[i]).max(MIN_ALPHA),
-            specular: specular[i],
-            f0: f0[i],
-        };
+        let bsdf = origin_bsdfs[i];
         let frame = Frame::new(n_shading);
         let wo = frame.to_local((scene.camera.position - vec3(&origin, i)).normalize());
         let wi = frame.to_local(wi);
@@ -184,28 +189,15 @@ fn assert_origin_bsdf_reproduces_the_weight(scene: &Scene, file: &SampleFile) {
     }
     assert!(checked > file.len() / 2, "{checked} of {}", file.len());
     // h's BSDF (gap G3) is the one whose albedo the file stores as `secondary_albedo`.
-    let (hit_base, hit_metallic, hit_roughness, hit_specular, hit_f0, hit_normal, secondary_albedo) = (
-        column("hit_base_color"),
-        column("hit_metallic"),
-        column("hit_roughness"),
-        column("hit_specular"),
-        column("hit_f0"),
-        column("hit_normal"),
-        column("secondary_albedo"),
-    );
+    let (hit_bsdfs, hit_normal, secondary_albedo) =
+        (stored_bsdfs(file, "hit"), column("hit_normal"), column("secondary_albedo"));
     let mut hits = 0;
     for i in 0..file.len() {
         if octahedral(&hit_normal, i) == Vec3::ZERO {
-            assert_eq!(vec3(&hit_base, i), Vec3::ZERO, "sample {i}: no hit, no BSDF");
+            assert_eq!(hit_bsdfs[i].base_color, Vec3::ZERO, "sample {i}: no hit, no BSDF");
             continue;
         }
-        let bsdf = Bsdf {
-            base_color: vec3(&hit_base, i),
-            metallic: hit_metallic[i],
-            alpha: (hit_roughness[i] * hit_roughness[i]).max(MIN_ALPHA),
-            specular: hit_specular[i],
-            f0: hit_f0[i],
-        };
+        let bsdf = hit_bsdfs[i];
         let error = (bsdf.albedo() - vec3(&secondary_albedo, i)).abs().max_element();
         assert!(
             error < 5e-3,

@@ -91,6 +91,22 @@ pub fn bsdf_rays(
     })
 }
 
+/// The directional albedo of `bsdf` towards `wo` (local) by the BSDF's own one-sample mixture
+/// (`Bsdf::sample`) over `n` directions: the tests' independent estimate of what the gather's
+/// lobe split must average to.
+#[cfg(test)]
+pub(crate) fn mixture_albedo(bsdf: &shading::Bsdf, wo: Vec3, n: u32) -> Vec3 {
+    let mut sum = Vec3::ZERO;
+    for i in 0..n {
+        let (u, v) = sobol_2d_scrambled(i, 99);
+        let u_lobe = (hash(i ^ 0x51ed_270b) >> 8) as f32 / (1u32 << 24) as f32;
+        if let Some(s) = bsdf.sample(wo, u_lobe, [u, v]) {
+            sum += s.weight;
+        }
+    }
+    sum / n as f32
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -122,16 +138,7 @@ mod tests {
                 }
                 let mean = Vec3::new(sum[0] as f32, sum[1] as f32, sum[2] as f32) / n as f32;
                 let wo = Vec3::from(view(theta));
-                let mut reference = Vec3::ZERO;
-                let m = 1u32 << 16;
-                for i in 0..m {
-                    let (u, v) = sobol_2d_scrambled(i, 99);
-                    let u_lobe = (hash(i ^ 0x51ed_270b) >> 8) as f32 / (1u32 << 24) as f32;
-                    if let Some(s) = bsdf.sample(wo, u_lobe, [u, v]) {
-                        reference += s.weight;
-                    }
-                }
-                reference /= m as f32;
+                let reference = mixture_albedo(&bsdf, wo, 1 << 16);
                 assert!(
                     (mean - reference).abs().max_element() < 0.01,
                     "r {roughness} m {metallic} θ {theta}: {mean} vs {reference}"

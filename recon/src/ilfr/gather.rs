@@ -32,7 +32,7 @@ use rayon::prelude::*;
 
 use super::bsdf_rays::bsdf_rays;
 use super::disc::Ray;
-use super::reconstruct::{nearest_sky, ReconstructStats, Reconstructor, Scratch, SkySample};
+use super::reconstruct::{ReconstructStats, Reconstructor, Scratch, SkyFallbacks, SkySample};
 use super::samples::{IndirectSamples, SampleClass};
 use crate::image::Image;
 
@@ -74,10 +74,9 @@ pub struct GatherStats {
     pub reconstruct: ReconstructStats,
     /// Primary hits gathered.
     pub primary_hits: u64,
-    /// Rays with no surface that took a sky sample's radiance.
-    pub sky_rays: u64,
-    /// Rays with neither (left out of their hit's average).
-    pub unsupported_rays: u64,
+    /// Rays with no surface that took a sky sample's radiance, and those with neither (left out
+    /// of their hit's average).
+    pub fallbacks: SkyFallbacks,
     /// Primary hits none of whose rays had support (they kept their own input estimate).
     pub unsupported_hits: u64,
 }
@@ -86,8 +85,7 @@ impl GatherStats {
     pub(super) fn add(&mut self, other: &GatherStats) {
         self.reconstruct.add(&other.reconstruct);
         self.primary_hits += other.primary_hits;
-        self.sky_rays += other.sky_rays;
-        self.unsupported_rays += other.unsupported_rays;
+        self.fallbacks.add(&other.fallbacks);
         self.unsupported_hits += other.unsupported_hits;
     }
 }
@@ -195,13 +193,18 @@ pub fn gather(
             (row, stats)
         })
         .collect();
+    Ok(assemble_rows(width, height, rows))
+}
+
+/// The image and the summed counts of rows gathered in parallel, in row order.
+pub(super) fn assemble_rows(width: u32, height: u32, rows: Vec<(Vec<[f32; 3]>, GatherStats)>) -> (Image, GatherStats) {
     let mut stats = GatherStats::default();
     let mut pixels = Vec::with_capacity(width as usize * height as usize);
     for (row, row_stats) in rows {
         pixels.extend(row);
         stats.add(&row_stats);
     }
-    Ok((Image::from_pixels(width, height, pixels), stats))
+    (Image::from_pixels(width, height, pixels), stats)
 }
 
 /// Every ray the gather of the `indirect` target reconstructs, primary hit by primary hit in
@@ -276,27 +279,6 @@ fn hit_rays(samples: &IndirectSamples, i: usize, per_hit: u32, settings: &Gather
     })
 }
 
-/// RECONSTRUCT along `ray`, or the nearest sky sample when no surface supports it; `None`
-/// when neither does (counted).
-fn incident_radiance(
-    ray: &Ray,
-    reconstructor: &Reconstructor,
-    (sky, min_cosine): (&[SkySample], Option<f32>),
-    scratch: &mut Scratch,
-    stats: &mut GatherStats,
-) -> Option<[f32; 3]> {
-    if let Some(f) = reconstructor.radiance(ray, scratch, &mut stats.reconstruct) {
-        return Some(f.radiance);
-    }
-    let from_sky = min_cosine.and_then(|c| nearest_sky(sky, ray.direction, c));
-    if from_sky.is_some() {
-        stats.sky_rays += 1;
-    } else {
-        stats.unsupported_rays += 1;
-    }
-    from_sky
-}
-
 /// The seed of primary hit i's directions.
 fn hit_scramble(i: usize, settings: &GatherSettings) -> u32 {
     hash(settings.seed ^ hash(i as u32 ^ 0x6a09_e667))
@@ -329,7 +311,9 @@ fn indirect_at(
         // Lambertian o (all-diffuse files): cosine rays, the albedo as their common weight.
         None => {
             for ray in hit_rays(samples, i, per_hit, settings) {
-                if let Some(l) = incident_radiance(&ray, reconstructor, sky, scratch, stats) {
+                if let Some(l) =
+                    reconstructor.radiance_or_sky(&ray, sky, scratch, &mut stats.reconstruct, &mut stats.fallbacks)
+                {
                     add(l, [1.0; 3]);
                 }
             }
@@ -343,7 +327,13 @@ fn indirect_at(
                     // Below the surface: a sample of value 0, as the tracer counts it.
                     None => add([0.0; 3], [0.0; 3]),
                     Some(ray) => {
-                        if let Some(l) = incident_radiance(&ray, reconstructor, sky, scratch, stats) {
+                        if let Some(l) = reconstructor.radiance_or_sky(
+                            &ray,
+                            sky,
+                            scratch,
+                            &mut stats.reconstruct,
+                            &mut stats.fallbacks,
+                        ) {
                             add(l, weighted.weight);
                         }
                     }

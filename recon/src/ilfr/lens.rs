@@ -40,8 +40,8 @@ use rayon::prelude::*;
 use sampleio::{SampleFile, SampleKind};
 
 use super::disc::Ray;
-use super::gather::{hash, sky_samples, sobol_2d_scrambled, GatherSettings, GatherStats};
-use super::reconstruct::{nearest_sky, Reconstructor, Scratch};
+use super::gather::{assemble_rows, hash, sky_samples, sobol_2d_scrambled, GatherSettings, GatherStats};
+use super::reconstruct::{Reconstructor, Scratch};
 use super::samples::{IndirectSamples, SampleClass};
 use crate::image::Image;
 
@@ -277,18 +277,13 @@ pub fn gather_lens(
                         if moving {
                             ray.time = sobol_2d_scrambled(shuffle(j, time_shuffle), time_seed).0;
                         }
-                        let value = match reconstructor.radiance(&ray, &mut scratch, &mut stats.reconstruct) {
-                            Some(f) => Some(f.radiance),
-                            None => {
-                                let from_sky = min_cosine.and_then(|c| nearest_sky(&sky, ray.direction, c));
-                                if from_sky.is_some() {
-                                    stats.sky_rays += 1;
-                                } else {
-                                    stats.unsupported_rays += 1;
-                                }
-                                from_sky
-                            }
-                        };
+                        let value = reconstructor.radiance_or_sky(
+                            &ray,
+                            (&sky, min_cosine),
+                            &mut scratch,
+                            &mut stats.reconstruct,
+                            &mut stats.fallbacks,
+                        );
                         if let Some(l) = value {
                             for c in 0..3 {
                                 sum[c] += l[c] as f64;
@@ -313,13 +308,7 @@ pub fn gather_lens(
             (row, stats)
         })
         .collect();
-    let mut stats = GatherStats::default();
-    let mut pixels = Vec::with_capacity(width as usize * height as usize);
-    for (row, row_stats) in rows {
-        pixels.extend(row);
-        stats.add(&row_stats);
-    }
-    Ok((Image::from_pixels(width, height, pixels), stats))
+    Ok(assemble_rows(width, height, rows))
 }
 
 #[cfg(test)]

@@ -287,8 +287,8 @@ impl Reconstructed {
                 per_ray(r.collected),
                 per_ray(r.surface_members),
                 percent(r.no_surface),
-                percent(self.gather.sky_rays),
-                percent(self.gather.unsupported_rays),
+                percent(self.gather.fallbacks.sky_rays),
+                percent(self.gather.fallbacks.unsupported_rays),
                 percent(r.merged_small_surfaces),
                 percent(r.glossy),
                 self.gather.unsupported_hits
@@ -305,8 +305,8 @@ impl Reconstructed {
                 r.glossy_kept,
                 r.unsupported_kept,
                 100.0 * r.reconstruct.no_surface as f64 / rays,
-                100.0 * r.sky_rays as f64 / rays,
-                100.0 * r.unsupported_rays as f64 / rays,
+                100.0 * r.fallbacks.sky_rays as f64 / rays,
+                100.0 * r.fallbacks.unsupported_rays as f64 / rays,
             ));
         }
         notes
@@ -529,7 +529,7 @@ pub(crate) mod tests {
         assert_eq!(result.gather.primary_hits, 256);
         assert_eq!(result.gather.reconstruct.rays, 256 * 16);
         // Nearly every ray of a closed box finds a surface.
-        assert!(result.gather.unsupported_rays * 100 < result.gather.reconstruct.rays, "{:?}", result.gather);
+        assert!(result.gather.fallbacks.unsupported_rays * 100 < result.gather.reconstruct.rays, "{:?}", result.gather);
     }
 
     #[test]

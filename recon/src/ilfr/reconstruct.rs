@@ -109,6 +109,29 @@ impl Reconstructor<'_> {
         filtered
     }
 
+    /// [`Self::radiance`], or where no splat supports the ray the nearest sky sample within
+    /// `min_cosine` of it ([`nearest_sky`]; no fallback without a `min_cosine`); `None` when
+    /// neither. `fallbacks` counts the rays that took a sky sample and those left without support.
+    pub fn radiance_or_sky(
+        &self,
+        ray: &Ray,
+        (sky, min_cosine): (&[SkySample], Option<f32>),
+        scratch: &mut Scratch,
+        stats: &mut ReconstructStats,
+        fallbacks: &mut SkyFallbacks,
+    ) -> Option<[f32; 3]> {
+        if let Some(f) = self.radiance(ray, scratch, stats) {
+            return Some(f.radiance);
+        }
+        let from_sky = min_cosine.and_then(|c| nearest_sky(sky, ray.direction, c));
+        if from_sky.is_some() {
+            fallbacks.sky_rays += 1;
+        } else {
+            fallbacks.unsupported_rays += 1;
+        }
+        from_sky
+    }
+
     /// Ambient visibility along `ray` within `ao_radius`: 1 when the nearest apparent surface
     /// lies beyond the radius or there is none, 0 when within it, in between where its splats
     /// disagree (tent-weighted).
@@ -125,6 +148,20 @@ impl Reconstructor<'_> {
 pub struct SkySample {
     pub direction: [f32; 3],
     pub radiance: [f32; 3],
+}
+
+/// Rays without a supporting splat: those a sky sample stood in for, and those left out.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SkyFallbacks {
+    pub sky_rays: u64,
+    pub unsupported_rays: u64,
+}
+
+impl SkyFallbacks {
+    pub fn add(&mut self, other: &SkyFallbacks) {
+        self.sky_rays += other.sky_rays;
+        self.unsupported_rays += other.unsupported_rays;
+    }
 }
 
 /// The radiance of the sky sample whose direction is nearest to `query` (unit), if its cosine

@@ -44,7 +44,7 @@ use super::bsdf_rays::{bsdf_rays, WeightedRay};
 use super::disc::Ray;
 use super::filter::GLOSSY_KAPPA;
 use super::gather::{cosine_hemisphere, hash, normalize, orthonormal_basis, sky_samples, sobol_2d_scrambled};
-use super::reconstruct::{nearest_sky, ReconstructStats, Reconstructor, Scratch};
+use super::reconstruct::{ReconstructStats, Reconstructor, Scratch, SkyFallbacks};
 use super::samples::{IndirectSamples, PrimaryShading, SampleClass};
 
 /// How a recursive pass runs.
@@ -78,10 +78,9 @@ pub struct RecursiveStats {
     pub glossy_kept: u64,
     /// Lambertian secondary hits none of whose rays had support (left as they were).
     pub unsupported_kept: u64,
-    /// Rays with no surface that took a sky sample's radiance.
-    pub sky_rays: u64,
-    /// Rays with neither (left out of their hit's average).
-    pub unsupported_rays: u64,
+    /// Rays with no surface that took a sky sample's radiance, and those with neither (left out
+    /// of their hit's average).
+    pub fallbacks: SkyFallbacks,
 }
 
 impl RecursiveStats {
@@ -90,8 +89,7 @@ impl RecursiveStats {
         self.replaced += other.replaced;
         self.glossy_kept += other.glossy_kept;
         self.unsupported_kept += other.unsupported_kept;
-        self.sky_rays += other.sky_rays;
-        self.unsupported_rays += other.unsupported_rays;
+        self.fallbacks.add(&other.fallbacks);
     }
 }
 
@@ -187,18 +185,13 @@ pub fn recursive_pass(
                             supported += 1;
                             continue;
                         };
-                        let radiance = match reconstructor.radiance(&ray, &mut scratch, &mut stats.reconstruct) {
-                            Some(f) => Some(f.radiance),
-                            None => {
-                                let from_sky = min_cosine.and_then(|c| nearest_sky(&sky, ray.direction, c));
-                                if from_sky.is_some() {
-                                    stats.sky_rays += 1;
-                                } else {
-                                    stats.unsupported_rays += 1;
-                                }
-                                from_sky
-                            }
-                        };
+                        let radiance = reconstructor.radiance_or_sky(
+                            &ray,
+                            (&sky, min_cosine),
+                            &mut scratch,
+                            &mut stats.reconstruct,
+                            &mut stats.fallbacks,
+                        );
                         if let Some(l) = radiance {
                             for c in 0..3 {
                                 sum[c] += (weight[c] * l[c]) as f64;
@@ -321,16 +314,7 @@ mod tests {
                 }
                 let frame = shading::Frame::new(glam::Vec3::from(samples.secondary_normal[i]));
                 let wo = frame.to_local(-glam::Vec3::from(samples.direction[i]));
-                let mut albedo = glam::Vec3::ZERO;
-                let n = 1u32 << 14;
-                for k in 0..n {
-                    let (u, v) = sobol_2d_scrambled(k, 3);
-                    let u_lobe = (hash(k ^ 0x1234_5678) >> 8) as f32 / (1u32 << 24) as f32;
-                    if let Some(sample) = bsdf.sample(wo, u_lobe, [u, v]) {
-                        albedo += sample.weight;
-                    }
-                }
-                albedo /= n as f32;
+                let albedo = crate::ilfr::bsdf_rays::mixture_albedo(&bsdf, wo, 1 << 14);
                 for k in 0..3 {
                     let expected = d[k] + albedo[k] * c;
                     assert!(

@@ -231,11 +231,7 @@ impl SecondaryLayout {
                 ));
             }
             if self.origin_bsdf {
-                fields.push(f("origin_base_color", FieldType::F16, 3, "", "base colour of the BSDF at o"));
-                fields.push(f("origin_metallic", FieldType::F16, 1, "", "metalness of the BSDF at o"));
-                fields.push(f("origin_roughness", FieldType::F16, 1, "", "GGX roughness at o (alpha = roughness^2)"));
-                fields.push(f("origin_specular", FieldType::F16, 1, "", "dielectric specular weight at o"));
-                fields.push(f("origin_f0", FieldType::F16, 1, "", "dielectric reflectance at normal incidence at o"));
+                fields.extend(bsdf_fields("origin", "o"));
                 fields.push(f(
                     "origin_geometric_normal",
                     FieldType::U16,
@@ -254,11 +250,7 @@ impl SecondaryLayout {
                 "part of radiance reflected at h straight from emitters",
             ));
             if self.origin_bsdf {
-                fields.push(f("hit_base_color", FieldType::F16, 3, "", "base colour of the BSDF at h"));
-                fields.push(f("hit_metallic", FieldType::F16, 1, "", "metalness of the BSDF at h"));
-                fields.push(f("hit_roughness", FieldType::F16, 1, "", "GGX roughness at h (alpha = roughness^2)"));
-                fields.push(f("hit_specular", FieldType::F16, 1, "", "dielectric specular weight at h"));
-                fields.push(f("hit_f0", FieldType::F16, 1, "", "dielectric reflectance at normal incidence at h"));
+                fields.extend(bsdf_fields("hit", "h"));
             }
         }
         fields
@@ -267,6 +259,26 @@ impl SecondaryLayout {
     pub fn values_per_sample(&self) -> usize {
         self.fields().iter().map(|f| f.components as usize).sum()
     }
+}
+
+/// The five f16 fields of a BSDF (`shading::Bsdf`, roughness for α) at the point `at`.
+fn bsdf_fields(prefix: &str, at: &str) -> [FieldSpec; 5] {
+    let field = |name: &str, n: u32, meaning: String| {
+        FieldSpec::new(format!("{prefix}_{name}"), FieldType::F16, n).unit("").meaning(meaning)
+    };
+    [
+        field("base_color", 3, format!("base colour of the BSDF at {at}")),
+        field("metallic", 1, format!("metalness of the BSDF at {at}")),
+        field("roughness", 1, format!("GGX roughness at {at} (alpha = roughness^2)")),
+        field("specular", 1, format!("dielectric specular weight at {at}")),
+        field("f0", 1, format!("dielectric reflectance at normal incidence at {at}")),
+    ]
+}
+
+/// The values of `bsdf_fields` for `bsdf`.
+fn push_bsdf(values: &mut Vec<f32>, bsdf: &Bsdf) {
+    values.extend_from_slice(&clamp_f16(bsdf.base_color).to_array());
+    values.extend_from_slice(&[bsdf.metallic, bsdf.alpha.sqrt(), bsdf.specular, bsdf.f0]);
 }
 
 /// Writes `indirect` or `ao` samples of `scene` to `path`.
@@ -504,9 +516,7 @@ fn trace_secondary(
             values.extend_from_slice(&clamp_f16(weight).to_array());
         }
         if layout.origin_bsdf {
-            let bsdf = &surface.bsdf;
-            values.extend_from_slice(&clamp_f16(bsdf.base_color).to_array());
-            values.extend_from_slice(&[bsdf.metallic, bsdf.alpha.sqrt(), bsdf.specular, bsdf.f0]);
+            push_bsdf(&mut values, &surface.bsdf);
             values.extend_from_slice(&encode_octahedral(surface.geometric_normal));
         }
         values.extend_from_slice(&finite_or_zero(direct).to_array());
@@ -514,10 +524,7 @@ fn trace_secondary(
         values.extend_from_slice(&clamp_f16(secondary.direct).to_array());
         if layout.origin_bsdf {
             match &secondary_hit {
-                Some(h) => {
-                    values.extend_from_slice(&clamp_f16(h.bsdf.base_color).to_array());
-                    values.extend_from_slice(&[h.bsdf.metallic, h.bsdf.alpha.sqrt(), h.bsdf.specular, h.bsdf.f0]);
-                }
+                Some(h) => push_bsdf(&mut values, &h.bsdf),
                 None => values.extend_from_slice(&[0.0; 7]),
             }
         }
