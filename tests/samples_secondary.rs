@@ -169,7 +169,7 @@ fn assert_origin_bsdf_reproduces_the_weight(scene: &Scene, file: &SampleFile) {
         column("weight"),
     );
     let mut checked = 0;
-    for i in 0..file.len() {
+    for (i, bsdf) in origin_bsdfs.iter().enumerate() {
         let wi = octahedral(&direction, i);
         if wi == Vec3::ZERO {
             continue;
@@ -177,7 +177,6 @@ fn assert_origin_bsdf_reproduces_the_weight(scene: &Scene, file: &SampleFile) {
         let (n_geometric, n_shading) = (octahedral(&geometric, i), octahedral(&shading, i));
         assert!(wi.dot(n_geometric) > 0.0, "sample {i}: ω below the geometric normal");
         assert!(n_geometric.dot(n_shading) > 0.0, "sample {i}: normals on opposite sides");
-        let bsdf = origin_bsdfs[i];
         let frame = Frame::new(n_shading);
         let wo = frame.to_local((scene.camera.position - vec3(&origin, i)).normalize());
         let wi = frame.to_local(wi);
@@ -192,12 +191,11 @@ fn assert_origin_bsdf_reproduces_the_weight(scene: &Scene, file: &SampleFile) {
     let (hit_bsdfs, hit_normal, secondary_albedo) =
         (stored_bsdfs(file, "hit"), column("hit_normal"), column("secondary_albedo"));
     let mut hits = 0;
-    for i in 0..file.len() {
+    for (i, bsdf) in hit_bsdfs.iter().enumerate() {
         if octahedral(&hit_normal, i) == Vec3::ZERO {
-            assert_eq!(hit_bsdfs[i].base_color, Vec3::ZERO, "sample {i}: no hit, no BSDF");
+            assert_eq!(bsdf.base_color, Vec3::ZERO, "sample {i}: no hit, no BSDF");
             continue;
         }
-        let bsdf = hit_bsdfs[i];
         let error = (bsdf.albedo() - vec3(&secondary_albedo, i)).abs().max_element();
         assert!(
             error < 5e-3,
