@@ -297,7 +297,7 @@ impl Reconstructed {
         for (pass, r) in self.recursive.iter().enumerate() {
             let rays = r.reconstruct.rays.max(1) as f64;
             notes.push(format!(
-                "recursive pass {}: {} rays per secondary hit, {} hits replaced, {} glossy kept (gap G3), {} kept without \
+                "recursive pass {}: {} rays per secondary hit, {} hits replaced, {} glossy kept (no BSDF of h in the file), {} kept without \
                  support; {:.2}% of rays no surface ({:.2}% sky, {:.2}% unsupported)",
                 pass + 1,
                 settings.recursive_rays,

@@ -1,9 +1,10 @@
 //! Indirect light field reconstruction (Lehtinen, Aila, Laine, Durand 2012, "Reconstructing the
 //! Indirect Light Field for Global Illumination"; the text is in
 //! `shared/papers/indirect-light-field-reconstruction-2012.txt`, the design in
-//! `docs/ilfr-design.md`). Issue 7, in progress: slices 1–10 of the design's implementation order (10: defocus only).
+//! `docs/ilfr-design.md`, results in `docs/ilfr.md`). Issue 7: every slice of the design's
+//! implementation order has landed.
 //!
-//! Paper → code (✓ implemented, ✗ not yet):
+//! Paper → code:
 //! - ✓ Section 2.1, the input tuple {L, o, h, n_o, n_h, κ} from `indirect` / `ao` files read
 //!   through `sampleio`, with sample classes and octahedral decoding: `samples`.
 //! - ✓ Section 2.2, "Sampling Rate": the k-th nearest neighbour (k = 12) inside the vMF lobe of
@@ -29,17 +30,17 @@
 //!   ambient occlusion (Section 3.3): `gather`; at glossy primary hits, directions and weights
 //!   f·cos/p from o's own BSDF (read from the file, the tracer's `shading::Bsdf`), split between
 //!   the lobes with multi-sample MIS: `bsdf_rays`.
-//! - ✓ Section 4, recursive filtering: at every Lambertian secondary hit (κ below the glossy
-//!   threshold) 16 cosine rays reconstruct the incident light, and the sample's radiance becomes
-//!   `secondary_direct + secondary_albedo × their mean` before the final gather: `recursive`,
-//!   switched on by the method name `ilfr-recursive`. ✗ Glossy secondary hits keep their
-//!   radiance (their BSDF is not in the files, design gap G3).
-//! - ✓ Section 3.4, defocus from primary rays: the camera rays of a static `lens-time` file as
-//!   input rays (hit normals from the depth gradient), reconstruction rays through pixel and
-//!   lens: `lens`. ✗ Motion (moving splats).
+//! - ✓ Section 4, recursive filtering: at every secondary hit 16 rays reconstruct the incident
+//!   light, and the sample's radiance becomes `secondary_direct` + the reflected mean before the
+//!   final gather (cosine rays × `secondary_albedo` in diffuse files; h's own BSDF through
+//!   `bsdf_rays` in glossy files): `recursive`, switched on by the method name `ilfr-recursive`.
+//! - ✓ Section 3.4, motion and defocus from primary rays: the camera rays of a `lens-time` file
+//!   as input rays (hit normals from the depth gradient; moving splats from its `motion`, the
+//!   hierarchy's boxes swept over the shutter, `disc::Disc::centre_at`), reconstruction rays
+//!   through pixel, lens and shutter: `lens`.
 //! - ✓ The `Method`s `ilfr` (effects `indirect`, `glossy`, `ao`), `ilfr-recursive` (`indirect`,
-//!   `glossy`, with Section 4) and `ilfr-dof` (`dof`, Section 3.4) for `lfr compare`, with the
-//!   time split and counts in their notes: `method`.
+//!   `glossy`, with Section 4) and `ilfr-dof` (`dof`, `motion`, `dof-motion`; Section 3.4) for
+//!   `lfr compare`, with the time split and counts in their notes: `method`.
 
 pub mod bsdf_rays;
 pub mod bvh;

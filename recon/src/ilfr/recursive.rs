@@ -74,7 +74,7 @@ pub struct RecursiveStats {
     pub reconstruct: ReconstructStats,
     /// Secondary hits whose radiance was replaced.
     pub replaced: u64,
-    /// Glossy secondary hits (κ ≥ the glossy threshold) left as they were (gap G3).
+    /// Glossy secondary hits (κ ≥ the glossy threshold) left as they were: files without h's BSDF.
     pub glossy_kept: u64,
     /// Lambertian secondary hits none of whose rays had support (left as they were).
     pub unsupported_kept: u64,
