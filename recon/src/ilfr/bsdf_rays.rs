@@ -191,6 +191,19 @@ mod tests {
     }
 
     #[test]
+    fn a_view_from_below_the_surface_or_a_nan_view_reflects_nothing() {
+        // ωo below the shading horizon (a shading normal bent past the viewer) or not a number:
+        // no ray and weight 0, as the tracer draws no direction there.
+        let bsdf = shading::Bsdf::new(Vec3::splat(0.8), 0.5, 0.4, 1.0);
+        for to_eye in [[0.0, 0.6, -0.8], [f32::NAN, 0.0, 1.0]] {
+            let p = primary(bsdf, to_eye);
+            for r in bsdf_rays(&p, [0.0; 3], [0.0, 0.0, 1.0], 16, 2, 0.0) {
+                assert_eq!((r.ray, r.weight), (None, [0.0; 3]), "{to_eye:?}");
+            }
+        }
+    }
+
+    #[test]
     fn the_split_gives_each_lobe_a_ray_and_one_ray_picks_by_probability() {
         assert_eq!(lobe_split(0.0, 8, 1), (0, [0.0, 1.0]));
         assert_eq!(lobe_split(1.0, 8, 1), (8, [1.0, 0.0]));

@@ -522,6 +522,69 @@ mod tests {
         assert!(ilfr_error < 0.6 * box_error, "ilfr {ilfr_error}, box {box_error}");
     }
 
+    /// One 1×1 file with the given (z, t, motion z) records.
+    fn one_pixel_file(dir: &std::path::Path, records: &[(f32, f32, f32)]) -> std::path::PathBuf {
+        let mut spec = HeaderSpec::new(SampleKind::LensTime, 1, 1, records.len() as u32);
+        for (name, n) in [
+            ("x", 1),
+            ("y", 1),
+            ("u", 1),
+            ("v", 1),
+            ("z", 1),
+            ("radiance", 3),
+            ("depth_gradient", 2),
+            ("t", 1),
+            ("motion", 3),
+        ] {
+            spec = spec.field(FieldSpec::new(name, FieldType::F32, n));
+        }
+        let mut camera = header_camera();
+        camera.pixel_to_camera[0][2] = -0.5 / 80.0; // principal point at the single pixel's centre
+        camera.pixel_to_camera[1][2] = -0.5 / 80.0;
+        spec.camera = Some(camera);
+        let path = dir.join("one.lfrs");
+        let mut writer = SampleWriter::create(&path, spec).unwrap();
+        for &(z, t, motion_z) in records {
+            writer.push(&[0.5, 0.5, 0.3, -0.2, z, 1.0, 2.0, 3.0, 0.0, 0.0, t, 0.0, 0.0, motion_z]).unwrap();
+        }
+        writer.finish().unwrap()
+    }
+
+    #[test]
+    fn one_pixel_depth_near_zero_and_motion_through_the_lens_stay_finite() {
+        // A 1×1 image whose samples hit a wall 1e-3 and 0.5 in front of the lens that moves 12 units
+        // towards and through the camera over the shutter: at most times the wall is behind the
+        // lens. The pixel is a weighted mean of the samples (radiance (1, 2, 3)) or the sky.
+        let dir = tempfile::tempdir().unwrap();
+        let path = one_pixel_file(
+            dir.path(),
+            &[(1e-3, 0.0, -12.0), (0.5, 0.02, -12.0), (0.5, 0.9, -12.0), (f32::INFINITY, 0.5, 0.0)],
+        );
+        let (samples, camera, _) = read_primary_rays(&SampleFile::open(&path).unwrap()).unwrap();
+        let settings = IlfrSettings { recon_rays: 64, ..IlfrSettings::default() };
+        let result = reconstruct_samples(&samples, GatherTarget::Lens(camera), &settings).unwrap();
+        let p = result.image.get(0, 0);
+        assert!(p.iter().all(|v| v.is_finite()), "{p:?}");
+        for (c, top) in [1.0f32, 2.0, 3.0].into_iter().enumerate() {
+            assert!(p[c] >= 0.0 && p[c] <= top * (1.0 + 1e-5), "{p:?}");
+        }
+    }
+
+    #[test]
+    fn bad_depths_and_times_are_refused_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        for (record, field) in [
+            ((f32::NAN, 0.5, 0.0), "`z`"),
+            ((0.0, 0.5, 0.0), "`z`"),
+            ((1.0, 1.5, 0.0), "`t`"),
+            ((1.0, 0.5, f32::NAN), "`motion`"),
+        ] {
+            let path = one_pixel_file(dir.path(), &[record]);
+            let error = read_primary_rays(&SampleFile::open(&path).unwrap()).unwrap_err();
+            assert!(error.contains("one.lfrs") && error.contains(field), "{record:?}: {error}");
+        }
+    }
+
     #[test]
     fn motion_without_time_is_refused_by_name() {
         let dir = tempfile::tempdir().unwrap();
