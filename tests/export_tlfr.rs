@@ -6,29 +6,7 @@ mod common;
 
 use std::process::Command;
 
-use common::project_root;
-
-const SCENE: &str = r#"
-[render]
-max_bounces = 0
-[camera]
-position = [0, 0, 0]
-look_at = [0, 0, 1]
-fov = 40
-aperture_radius = 0.2
-focus_distance = 2.0
-[[material]]
-name = "lamp"
-base_color = [0, 0, 0]
-specular = 0
-emission = [2, 2, 2]
-two_sided_emission = true
-[[mesh]]
-shape = "polygon"
-material = "lamp"
-points = [[-0.25, -0.25, 4], [0.25, -0.25, 4], [0.25, 0.25, 4], [-0.25, 0.25, 4]]
-motion = [0.4, 0.1, 1.0]
-"#;
+use common::{emissive_polygon_toml, project_root, SQUARE_AT_DEPTH_4};
 
 fn lfr(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_lfr")).args(args).current_dir(project_root()).output().expect("lfr runs")
@@ -38,7 +16,7 @@ fn lfr(args: &[&str]) -> std::process::Output {
 fn tlfr_export_reads_back_and_reprojects_onto_the_geometry() {
     let dir = tempfile::tempdir().unwrap();
     let scene_path = dir.path().join("square.toml");
-    std::fs::write(&scene_path, SCENE).unwrap();
+    std::fs::write(&scene_path, emissive_polygon_toml(0.2, 2.0, 2.0, &SQUARE_AT_DEPTH_4, [0.4, 0.1, 1.0])).unwrap();
     let samples = dir.path().join("s.lfrs");
     let out = dir.path().join("s.tlfr");
     let (width, height, spp) = (24usize, 20usize, 8usize);

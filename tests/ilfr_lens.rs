@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::scene_from_toml;
+use common::emissive_polygon;
 use glam::Vec3;
 use recon::ilfr::lens::read_primary_rays;
 use recon::ilfr::samples::SampleClass;
@@ -16,29 +16,7 @@ use tracer::Accel;
 /// z = 4 + 0.5 x + 0.3 y, seen through an open lens focused at 3, translating by `motion`
 /// (world space) over the shutter when it is not zero.
 fn tilted_plane(motion: [f32; 3]) -> tracer::Scene {
-    scene_from_toml(&format!(
-        r#"
-        [render]
-        max_bounces = 0
-        [camera]
-        position = [0, 0, 0]
-        look_at = [0, 0, 1]
-        fov = 40
-        aperture_radius = 0.3
-        focus_distance = 3.0
-        [[material]]
-        name = "lamp"
-        base_color = [0, 0, 0]
-        specular = 0
-        emission = [1, 1, 1]
-        two_sided_emission = true
-        [[mesh]]
-        shape = "polygon"
-        material = "lamp"
-        points = [[-5, -4, 0.3], [5, -4, 5.3], [5, 4, 7.7], [-5, 4, 2.7]]
-        motion = {motion:?}
-        "#
-    ))
+    emissive_polygon(0.3, 3.0, 1.0, &[[-5.0, -4.0, 0.3], [5.0, -4.0, 5.3], [5.0, 4.0, 7.7], [-5.0, 4.0, 2.7]], motion)
 }
 
 /// A 24 × 16, 4 spp `lens-time` dump of `scene`.

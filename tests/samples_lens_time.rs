@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::scene_from_toml;
+use common::{emissive_polygon, SQUARE_AT_DEPTH_4};
 use sampleio::SampleFile;
 use tracer::samples::{lens_time, DumpSettings};
 use tracer::{Accel, Scene};
@@ -24,34 +24,8 @@ fn field_names(file: &SampleFile) -> Vec<String> {
 }
 
 /// An emissive square (radiance 2) 0.5 wide at depth 4 in front of a black void.
-const SQUARE: &str = r#"
-    [render]
-    max_bounces = 0
-    [camera]
-    position = [0, 0, 0]
-    look_at = [0, 0, 1]
-    fov = 40
-    aperture_radius = APERTURE
-    focus_distance = 2.0
-    [[material]]
-    name = "lamp"
-    base_color = [0, 0, 0]
-    specular = 0
-    emission = [2, 2, 2]
-    two_sided_emission = true
-    [[mesh]]
-    shape = "polygon"
-    material = "lamp"
-    points = [[-0.25, -0.25, 4], [0.25, -0.25, 4], [0.25, 0.25, 4], [-0.25, 0.25, 4]]
-    motion = MOTION
-"#;
-
 fn square(aperture: f32, motion: [f32; 3]) -> Scene {
-    scene_from_toml(
-        &SQUARE
-            .replace("APERTURE", &aperture.to_string())
-            .replace("MOTION", &format!("[{}, {}, {}]", motion[0], motion[1], motion[2])),
-    )
+    emissive_polygon(aperture, 2.0, 2.0, &SQUARE_AT_DEPTH_4, motion)
 }
 
 #[test]

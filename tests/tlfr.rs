@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::scene_from_toml;
+use common::{emissive_polygon, scene_from_toml, SQUARE_AT_DEPTH_4};
 use glam::{Vec2, Vec3};
 use recon::tlfr::dispersion::measure_radius;
 use recon::tlfr::reprojection::{near_limit, reproject, LensTime};
@@ -16,29 +16,7 @@ use tracer::{Accel, Scene};
 /// An emissive square 0.5 wide at depth 4, seen through an open lens focused at 2, moving by
 /// (0.4, 0.1, 1.0) over the shutter.
 fn moving_square() -> Scene {
-    scene_from_toml(
-        r#"
-        [render]
-        max_bounces = 0
-        [camera]
-        position = [0, 0, 0]
-        look_at = [0, 0, 1]
-        fov = 40
-        aperture_radius = 0.2
-        focus_distance = 2.0
-        [[material]]
-        name = "lamp"
-        base_color = [0, 0, 0]
-        specular = 0
-        emission = [2, 2, 2]
-        two_sided_emission = true
-        [[mesh]]
-        shape = "polygon"
-        material = "lamp"
-        points = [[-0.25, -0.25, 4], [0.25, -0.25, 4], [0.25, 0.25, 4], [-0.25, 0.25, 4]]
-        motion = [0.4, 0.1, 1.0]
-        "#,
-    )
+    emissive_polygon(0.2, 2.0, 2.0, &SQUARE_AT_DEPTH_4, [0.4, 0.1, 1.0])
 }
 
 fn dump(scene: &Scene, width: u32, height: u32, spp: u32) -> (tempfile::TempDir, std::path::PathBuf) {
@@ -167,29 +145,7 @@ fn tlfr_beats_the_box_filter_of_its_input_and_is_deterministic() {
 /// its edges, black a pixel and a half outside; without refocusing light spills beyond them.
 /// A static 1 × 1 emitting square at depth 4 seen through a 0.2 lens focused at 2.
 fn still_square() -> Scene {
-    scene_from_toml(
-        &r#"
-        [render]
-        max_bounces = 0
-        [camera]
-        position = [0, 0, 0]
-        look_at = [0, 0, 1]
-        fov = 40
-        aperture_radius = 0.2
-        focus_distance = 2.0
-        [[material]]
-        name = "lamp"
-        base_color = [0, 0, 0]
-        specular = 0
-        emission = [2, 2, 2]
-        two_sided_emission = true
-        [[mesh]]
-        shape = "polygon"
-        material = "lamp"
-        points = [[-0.5, -0.5, 4], [0.5, -0.5, 4], [0.5, 0.5, 4], [-0.5, 0.5, 4]]
-        "#
-        .replace("\n        ", "\n"),
-    )
+    emissive_polygon(0.2, 2.0, 2.0, &[[-0.5, -0.5, 4.0], [0.5, -0.5, 4.0], [0.5, 0.5, 4.0], [-0.5, 0.5, 4.0]], [0.0; 3])
 }
 
 #[test]

@@ -15,6 +15,51 @@ pub fn scene_from_toml(text: &str) -> Scene {
     scene
 }
 
+/// A camera at the origin looking along +z (40° field of view, lens radius `aperture`, focus at
+/// `focus`) at one two-sided emissive polygon of radiance `emission` moving by `motion` over the
+/// shutter, in a black void; paths end at their first hit. The text, for tests that write it to
+/// a file.
+pub fn emissive_polygon_toml(
+    aperture: f32,
+    focus: f32,
+    emission: f32,
+    points: &[[f32; 3]],
+    motion: [f32; 3],
+) -> String {
+    format!(
+        r#"
+        [render]
+        max_bounces = 0
+        [camera]
+        position = [0, 0, 0]
+        look_at = [0, 0, 1]
+        fov = 40
+        aperture_radius = {aperture:?}
+        focus_distance = {focus:?}
+        [[material]]
+        name = "lamp"
+        base_color = [0, 0, 0]
+        specular = 0
+        emission = [{emission:?}, {emission:?}, {emission:?}]
+        two_sided_emission = true
+        [[mesh]]
+        shape = "polygon"
+        material = "lamp"
+        points = {points:?}
+        motion = {motion:?}
+        "#
+    )
+}
+
+/// [`emissive_polygon_toml`] parsed.
+pub fn emissive_polygon(aperture: f32, focus: f32, emission: f32, points: &[[f32; 3]], motion: [f32; 3]) -> Scene {
+    scene_from_toml(&emissive_polygon_toml(aperture, focus, emission, points, motion))
+}
+
+/// The square 0.5 wide at depth 4 of the lens-time tests.
+pub const SQUARE_AT_DEPTH_4: [[f32; 3]; 4] =
+    [[-0.25, -0.25, 4.0], [0.25, -0.25, 4.0], [0.25, 0.25, 4.0], [-0.25, 0.25, 4.0]];
+
 pub fn project_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
