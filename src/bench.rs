@@ -149,8 +149,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         results.push(result);
     }
     if let Some(path) = &args.json {
-        let text = serde_json::to_string_pretty(&results)?;
-        tracer::output::write_atomically(path, |tmp| std::fs::write(tmp, &text).map_err(|e| e.to_string()))?;
+        crate::write_json(path, &results)?;
     }
     Ok(())
 }

@@ -139,9 +139,7 @@ pub fn run(args: &BenchFiltersArgs) -> Result<()> {
     }
     println!("ratio: time / guided filter with the 4-channel guide at radius 8, same run");
     if let Some(path) = &args.json {
-        let json = serde_json::to_vec_pretty(&timings)?;
-        tracer::output::write_atomically(path, |tmp| std::fs::write(tmp, &json).map_err(|e| e.to_string()))
-            .with_context(|| format!("writing {}", path.display()))?;
+        crate::write_json(path, &timings)?;
     }
     Ok(())
 }

@@ -204,8 +204,7 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
         }
     }
     if let Some(path) = &args.json {
-        let text = serde_json::to_string_pretty(&rows)?;
-        tracer::output::write_atomically(path, |tmp| std::fs::write(tmp, &text).map_err(|e| e.to_string()))?;
+        crate::write_json(path, &rows)?;
     }
     Ok(())
 }

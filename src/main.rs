@@ -125,6 +125,15 @@ struct RenderArgs {
     out: PathBuf,
 }
 
+/// Writes `value` as pretty JSON to `path` through a temporary file (no half-written output);
+/// the error names the file. The benchmarks' `--json`.
+pub fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
+    let json = serde_json::to_vec_pretty(value)?;
+    tracer::output::write_atomically(path, |tmp| std::fs::write(tmp, &json).map_err(|e| e.to_string()))
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
 /// Loads a scene file, or the embedded default when `path` is `None`.
 pub fn load_scene(path: Option<&Path>) -> Result<Scene> {
     let scene = match path {
