@@ -4,7 +4,7 @@
 //! t) and rejects it, so that traversal goes on and collects *every* disc along the ray, as
 //! `DiscBvh::collect_hits` does.
 //!
-//! Both hold the same discs: those `ilfr` makes from a sample file (`SplatPoints::gather`,
+//! Both hold the same discs: those `ilfr` makes from a sample file (`GatheredPoints::from_samples`,
 //! `size_splats`, `DiscBvh::build`, `shrink_splats`, as `ilfr::method` does), after shrinking.
 //! The rays are reconstruction rays as the gather makes them: from every primary hit lifted by
 //! 1e-4 × the scene diagonal along its normal, cosine-distributed about it (a fixed seed), t in
@@ -33,7 +33,7 @@ use recon::ilfr::bvh::DiscBvh;
 use recon::ilfr::disc::{Disc, Ray};
 use recon::ilfr::samples::{read_indirect, IndirectSamples, SampleClass};
 use recon::ilfr::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams};
-use recon::ilfr::splats::{size_splats, GatheredPoints, SplatParams, SplatPoints};
+use recon::ilfr::splats::{size_splats, GatheredPoints, SplatParams};
 use sampleio::{SampleFile, SampleKind};
 
 #[path = "../tests/support/embree_discs.rs"]
@@ -173,8 +173,8 @@ fn synthetic_cornell(width: u32, height: u32, spp: u32) -> IndirectSamples {
 /// The discs of `ilfr` for `samples` by input index: sized, shrunk; the radii before shrinking;
 /// the scene diagonal; and the splats shrunk.
 fn splat_discs(samples: &IndirectSamples) -> (Vec<Disc>, Vec<f32>, f32, usize) {
-    let mut storage = GatheredPoints::default();
-    let points = SplatPoints::gather(samples, &mut storage);
+    let storage = GatheredPoints::from_samples(samples);
+    let points = storage.points();
     let sized = size_splats(&points, &SplatParams::default()).expect("splat sizing");
     let discs: Vec<Disc> =
         (0..points.position.len()).map(|k| Disc::new(points.position[k], points.normal[k], sized.radius[k])).collect();

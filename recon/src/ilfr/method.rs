@@ -26,7 +26,7 @@ use super::reconstruct::Reconstructor;
 use super::recursive::{recursive_pass, RecursiveSettings, RecursiveStats};
 use super::samples::{read_indirect, IndirectSamples};
 use super::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams, ShrinkStats};
-use super::splats::{size_splats, GatheredPoints, SplatParams, SplatPoints, SplatStats};
+use super::splats::{size_splats, GatheredPoints, SplatParams, SplatStats};
 use super::surfaces::SurfaceParams;
 use crate::image::Image;
 use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
@@ -330,15 +330,13 @@ pub fn reconstruct_samples(
     let failed = |e: String| MethodError::Failed(format!("{}: {e}", samples.path));
 
     let start = Instant::now();
-    let mut storage = GatheredPoints::default();
-    let points = SplatPoints::gather(samples, &mut storage);
+    let storage = GatheredPoints::from_samples(samples);
+    let points = storage.points();
     let sized = size_splats(&points, &settings.splats).map_err(failed)?;
     let sizing_s = start.elapsed().as_secs_f64();
 
     let start = Instant::now();
-    // Splat k is hit sample hits[k] (the order `SplatPoints::gather` uses).
-    let hit_ids = if samples.secondary_motion.is_some() { samples.hits() } else { Vec::new() };
-    let motion = |k: usize| samples.secondary_motion.as_ref().map_or([0.0; 3], |m| m[hit_ids[k] as usize]);
+    let motion = |k: usize| storage.motion.as_ref().map_or([0.0; 3], |m| m[k]);
     let discs: Vec<Disc> = (0..points.position.len())
         .map(|k| Disc::new(points.position[k], points.normal[k], sized.radius[k]).with_motion(motion(k)))
         .collect();

@@ -252,15 +252,15 @@ mod tests {
     use crate::ilfr::method::tests::{box_exit, box_samples, settings};
     use crate::ilfr::method::{reconstruct_samples, IlfrSettings};
     use crate::ilfr::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams};
-    use crate::ilfr::splats::{size_splats, GatheredPoints, SplatParams, SplatPoints};
+    use crate::ilfr::splats::{size_splats, GatheredPoints, SplatParams};
     use crate::ilfr::surfaces::SurfaceParams;
     use sampleio::SampleKind;
 
     /// Sizes, indexes and shrinks the splats of `samples` (as `reconstruct_samples` does) and
     /// runs one recursive pass from the file's radiances.
     fn one_pass(samples: &IndirectSamples, rays_per_hit: u32) -> Result<(Vec<[f32; 3]>, RecursiveStats), String> {
-        let mut storage = GatheredPoints::default();
-        let points = SplatPoints::gather(samples, &mut storage);
+        let storage = GatheredPoints::from_samples(samples);
+        let points = storage.points();
         let sized = size_splats(&points, &SplatParams::default())?;
         let discs: Vec<Disc> = (0..points.position.len())
             .map(|k| Disc::new(points.position[k], points.normal[k], sized.radius[k]))

@@ -107,25 +107,6 @@ pub struct SplatPoints<'a> {
 }
 
 impl<'a> SplatPoints<'a> {
-    /// The secondary hits of `samples` (their indices are `samples.hits()`), in copies that
-    /// live in `storage`; moving hits where they are at time 0.5, so that the samples of one
-    /// moving surface, taken at different times, are sized together.
-    pub fn gather(samples: &super::samples::IndirectSamples, storage: &'a mut GatheredPoints) -> SplatPoints<'a> {
-        let hits = samples.hits();
-        let pick = |v: &[[f32; 3]]| hits.iter().map(|&i| v[i as usize]).collect::<Vec<_>>();
-        storage.position = hits.iter().map(|&i| samples.secondary_hit_at_middle(i as usize)).collect();
-        storage.normal = pick(&samples.secondary_normal);
-        storage.direction = pick(&samples.direction);
-        storage.kappa = samples.kappa.as_ref().map(|k| hits.iter().map(|&i| k[i as usize]).collect());
-        storage.sample_index = hits;
-        SplatPoints {
-            position: &storage.position,
-            normal: &storage.normal,
-            direction: &storage.direction,
-            kappa: storage.kappa.as_deref(),
-        }
-    }
-
     fn len(&self) -> usize {
         self.position.len()
     }
@@ -158,15 +139,46 @@ impl<'a> SplatPoints<'a> {
     }
 }
 
-/// Owned copies behind [`SplatPoints::gather`].
+/// The secondary hits of a sample file, in owned copies: what [`GatheredPoints::points`] lends
+/// to the sizing.
 #[derive(Clone, Debug, Default)]
 pub struct GatheredPoints {
     pub position: Vec<[f32; 3]>,
     pub normal: Vec<[f32; 3]>,
     pub direction: Vec<[f32; 3]>,
     pub kappa: Option<Vec<f32>>,
+    /// The displacement of each hit over the shutter (moving `lens-time` input only).
+    pub motion: Option<Vec<[f32; 3]>>,
     /// The sample index (in the file) of each hit.
     pub sample_index: Vec<u32>,
+}
+
+impl GatheredPoints {
+    /// The secondary hits of `samples` (their indices are `samples.hits()`); moving hits where
+    /// they are at time 0.5, so that the samples of one moving surface, taken at different
+    /// times, are sized together.
+    pub fn from_samples(samples: &super::samples::IndirectSamples) -> GatheredPoints {
+        let hits = samples.hits();
+        let pick = |v: &[[f32; 3]]| hits.iter().map(|&i| v[i as usize]).collect::<Vec<_>>();
+        GatheredPoints {
+            position: hits.iter().map(|&i| samples.secondary_hit_at_middle(i as usize)).collect(),
+            normal: pick(&samples.secondary_normal),
+            direction: pick(&samples.direction),
+            kappa: samples.kappa.as_ref().map(|k| hits.iter().map(|&i| k[i as usize]).collect()),
+            motion: samples.secondary_motion.as_deref().map(pick),
+            sample_index: hits,
+        }
+    }
+
+    /// The points for the sizing, borrowed.
+    pub fn points(&self) -> SplatPoints<'_> {
+        SplatPoints {
+            position: &self.position,
+            normal: &self.normal,
+            direction: &self.direction,
+            kappa: self.kappa.as_deref(),
+        }
+    }
 }
 
 /// How a radius was found.
