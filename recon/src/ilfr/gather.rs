@@ -387,16 +387,21 @@ pub(super) fn hash(mut x: u32) -> u32 {
     x
 }
 
-/// Nested uniform (Owen) scrambling of a 32-bit fixed-point coordinate by a hash that only
-/// lets each bit depend on the bits above it (Laine–Karras, with Vegdahl's constants).
-fn owen_scramble(x: u32, seed: u32) -> u32 {
-    let mut v = x.reverse_bits();
+/// The Laine–Karras hash with Vegdahl's constants: each output bit depends only on the input
+/// bits below it, so it permutes every block of 2^k consecutive values among themselves.
+pub(super) fn laine_karras(mut v: u32, seed: u32) -> u32 {
     v ^= v.wrapping_mul(0x3d20_adea);
     v = v.wrapping_add(seed);
     v = v.wrapping_mul((seed >> 16) | 1);
     v ^= v.wrapping_mul(0x0552_6c56);
     v ^= v.wrapping_mul(0x53a2_2864);
-    v.reverse_bits()
+    v
+}
+
+/// Nested uniform (Owen) scrambling of a 32-bit fixed-point coordinate: [`laine_karras`] on
+/// the reversed bits, so each bit depends only on the bits above it.
+fn owen_scramble(x: u32, seed: u32) -> u32 {
+    laine_karras(x.reverse_bits(), seed).reverse_bits()
 }
 
 /// Point `index` of the first two Sobol' dimensions (van der Corput in base 2, and the

@@ -40,7 +40,7 @@ use rayon::prelude::*;
 use sampleio::{SampleFile, SampleKind};
 
 use super::disc::Ray;
-use super::gather::{assemble_rows, hash, sky_samples, sobol_2d_scrambled, GatherSettings, GatherStats};
+use super::gather::{assemble_rows, hash, laine_karras, sky_samples, sobol_2d_scrambled, GatherSettings, GatherStats};
 use super::reconstruct::{Reconstructor, Scratch};
 use super::samples::{IndirectSamples, SampleClass};
 use crate::image::Image;
@@ -232,13 +232,7 @@ pub fn read_primary_rays(file: &SampleFile) -> Result<(IndirectSamples, LensCame
 /// Index shuffle (nested uniform scramble of the bit-reversed index), so that a second Sobol'
 /// pair indexed by it is independent of the first.
 fn shuffle(index: u32, seed: u32) -> u32 {
-    let mut v = index;
-    v ^= v.wrapping_mul(0x3d20_adea);
-    v = v.wrapping_add(seed);
-    v = v.wrapping_mul((seed >> 16) | 1);
-    v ^= v.wrapping_mul(0x0552_6c56);
-    v ^= v.wrapping_mul(0x53a2_2864);
-    v
+    laine_karras(index, seed)
 }
 
 /// The image of `rays_per_pixel` reconstruction rays per pixel through the pixel and the lens.
