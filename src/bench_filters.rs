@@ -1,7 +1,7 @@
 //! `lfr bench-filters`: the filters of the filtered path-tracing pipeline timed on the same
 //! guide buffers in one run (the guided filter's Table 2 of Bauszat et al. 2011): the guided
 //! filter with 1, 3 and 4 guide channels at radii 8–32 (its time must not grow with the
-//! radius), À-Trous at 4–6 iterations and the cross-bilateral filter at radii 16–32. Ratios are
+//! radius), exact and as the fast guided filter with subsampling 2, À-Trous at 4–6 iterations and the cross-bilateral filter at radii 16–32. Ratios are
 //! against the guided filter with the 4-channel guide at radius 8, measured in the same run.
 
 use std::path::PathBuf;
@@ -91,12 +91,15 @@ pub fn run(args: &BenchFiltersArgs) -> Result<()> {
             (GuideKind::Normal, "3 channels"),
             (GuideKind::NormalDepth, "4 channels"),
         ] {
-            for radius in [8, 16, 24, 32] {
-                let params = GuidedFilterParams { radius, guide: kind, ..GuidedFilterParams::default() };
-                let ms = best_of(args.repeats, || {
-                    guided_filter(&noisy, guide, &params).map(|_| ()).map_err(anyhow::Error::msg)
-                })?;
-                rows.push(("guided".into(), format!("{name}, radius {radius}"), ms));
+            for subsample in [1, 2] {
+                for radius in [8, 16, 24, 32] {
+                    let params = GuidedFilterParams { radius, guide: kind, subsample, ..GuidedFilterParams::default() };
+                    let ms = best_of(args.repeats, || {
+                        guided_filter(&noisy, guide, &params).map(|_| ()).map_err(anyhow::Error::msg)
+                    })?;
+                    let filter = if subsample == 1 { "guided".to_string() } else { format!("guided, s = {subsample}") };
+                    rows.push((filter, format!("{name}, radius {radius}"), ms));
+                }
             }
         }
         for iterations in [4, 5, 6] {

@@ -37,6 +37,9 @@ pub struct FilterArgs {
     /// ε of the depth channel (gif).
     #[arg(long)]
     epsilon_depth: Option<f32>,
+    /// Subsampling factor of the fast guided filter (gif*; 1 = the exact filter).
+    #[arg(long)]
+    subsample: Option<u32>,
     /// À-Trous iterations (atrous*).
     #[arg(long)]
     iterations: Option<u32>,
@@ -62,6 +65,7 @@ fn chosen_filter(args: &FilterArgs) -> Result<FilteredIndirect> {
         radius: args.radius,
         epsilon_normal: args.epsilon_normal,
         epsilon_depth: args.epsilon_depth,
+        subsample: args.subsample,
         iterations: args.iterations,
         lookup: None,
     };

@@ -244,7 +244,7 @@ impl FilteredIndirect {
 
 /// Settings that override a variant's defaults: from `lfr filter`'s flags, or from a
 /// `--methods` entry `NAME:key=value:...` with keys `radius`, `eps_normal`, `eps_depth`,
-/// `iterations`.
+/// `subsample`, `iterations`, `lookup`.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct FilterOptions {
     /// Window radius at an 800-pixel image (guided and cross-bilateral filters).
@@ -253,6 +253,8 @@ pub struct FilterOptions {
     pub epsilon_normal: Option<f32>,
     /// ε of the depth channel (guided filter with the normal + depth guide).
     pub epsilon_depth: Option<f32>,
+    /// Subsampling factor of the fast guided filter (1 = exact).
+    pub subsample: Option<u32>,
     /// À-Trous iterations.
     pub iterations: Option<u32>,
     /// The additional eye rays' lookup (`lookup=own-pixel` measures the naive reuse).
@@ -270,6 +272,7 @@ impl FilterOptions {
                 "radius" => options.radius = Some(value.parse().map_err(|e| bad(&e))?),
                 "eps_normal" => options.epsilon_normal = Some(value.parse().map_err(|e| bad(&e))?),
                 "eps_depth" => options.epsilon_depth = Some(value.parse().map_err(|e| bad(&e))?),
+                "subsample" => options.subsample = Some(value.parse().map_err(|e| bad(&e))?),
                 "iterations" => options.iterations = Some(value.parse().map_err(|e| bad(&e))?),
                 "lookup" => {
                     options.lookup = Some(match value {
@@ -278,7 +281,11 @@ impl FilterOptions {
                         _ => return Err(bad(&"the lookup is `geometry` or `own-pixel`")),
                     })
                 }
-                _ => return Err(format!("unknown option `{key}` (radius, eps_normal, eps_depth, iterations, lookup)")),
+                _ => {
+                    return Err(format!(
+                        "unknown option `{key}` (radius, eps_normal, eps_depth, subsample, iterations, lookup)"
+                    ))
+                }
             }
         }
         Ok(options)
@@ -295,6 +302,9 @@ impl FilterOptions {
         }
         if let Some(e) = self.epsilon_depth {
             parts.push(format!("eps_depth={e}"));
+        }
+        if let Some(s) = self.subsample {
+            parts.push(format!("subsample={s}"));
         }
         if let Some(i) = self.iterations {
             parts.push(format!("iterations={i}"));
@@ -332,6 +342,9 @@ impl FilteredIndirect {
         if options.radius == Some(0) {
             return Err("radius must be at least 1".into());
         }
+        if options.subsample == Some(0) {
+            return Err("subsample must be at least 1".into());
+        }
         for (option, value) in [("eps_normal", options.epsilon_normal), ("eps_depth", options.epsilon_depth)] {
             if let Some(value) = value {
                 if !(value.is_finite() && value > 0.0) {
@@ -350,10 +363,11 @@ impl FilteredIndirect {
                 params.radius = options.radius.unwrap_or(params.radius);
                 params.epsilon_normal = options.epsilon_normal.unwrap_or(params.epsilon_normal);
                 params.epsilon_depth = options.epsilon_depth.unwrap_or(params.epsilon_depth);
+                params.subsample = options.subsample.unwrap_or(params.subsample);
             }
             Filter::Bilateral(params) => {
-                if options.epsilon_normal.is_some() || options.epsilon_depth.is_some() {
-                    return misplaced("eps_normal/eps_depth");
+                if options.epsilon_normal.is_some() || options.epsilon_depth.is_some() || options.subsample.is_some() {
+                    return misplaced("eps_normal/eps_depth/subsample");
                 }
                 if options.iterations.is_some() {
                     return misplaced("iterations");
@@ -363,8 +377,12 @@ impl FilteredIndirect {
                 }
             }
             Filter::Atrous(params) => {
-                if options.epsilon_normal.is_some() || options.epsilon_depth.is_some() || options.radius.is_some() {
-                    return misplaced("radius/eps_normal/eps_depth");
+                if options.epsilon_normal.is_some()
+                    || options.epsilon_depth.is_some()
+                    || options.radius.is_some()
+                    || options.subsample.is_some()
+                {
+                    return misplaced("radius/eps_normal/eps_depth/subsample");
                 }
                 params.iterations = options.iterations.unwrap_or(params.iterations);
                 params.validate()?;
@@ -467,6 +485,10 @@ mod tests {
         assert_eq!(gif.name, "gif:radius=8:eps_normal=0.001:eps_depth=0.002", "canonical order");
         let Filter::Guided(params) = gif.filter else { panic!("gif is the guided filter") };
         assert_eq!((params.radius, params.epsilon_normal, params.epsilon_depth), (8, 0.001, 0.002));
+        assert_eq!(params.subsample, 1, "the exact filter unless asked");
+        let fast = FilteredIndirect::from_spec("gif:subsample=2").unwrap().unwrap();
+        let Filter::Guided(params) = fast.filter else { panic!("gif is the guided filter") };
+        assert_eq!((fast.name.as_str(), params.subsample), ("gif:subsample=2", 2));
         let naive = FilteredIndirect::from_spec("bilateral:lookup=own-pixel").unwrap().unwrap();
         assert_eq!((naive.name.as_str(), naive.lookup), ("bilateral:lookup=own-pixel", Lookup::OwnPixel));
         assert_eq!(FilteredIndirect::from_spec("gif").unwrap().unwrap().lookup, Lookup::GeometryAware);
@@ -479,6 +501,10 @@ mod tests {
             ("gif:radius", "key=value"),
             ("gif:radius=-1", "radius=-1"),
             ("gif:radius=0", "at least 1"),
+            ("gif:subsample=0", "at least 1"),
+            ("gif:subsample=1.5", "subsample=1.5"),
+            ("atrous:subsample=2", "does not apply"),
+            ("bilateral:subsample=2", "does not apply"),
             ("gif:eps_normal=0", "positive"),
             ("gif:eps_normal=inf", "positive"),
             ("gif:sigma=2", "unknown option"),

@@ -126,6 +126,11 @@ pub struct GuidedFilterParams {
     /// Scene-extent constant depth is divided by; `None` = the largest finite hit depth of the
     /// image.
     pub depth_extent: Option<f32>,
+    /// Subsampling factor s of the fast guided filter (He and Sun 2015): the coefficients are
+    /// fitted and box-averaged on s×s block means of the guide and the input with radius
+    /// `radius / s`, then bilinearly upsampled and evaluated against the full-resolution guide.
+    /// 1 (the default) is the exact filter of the paper.
+    pub subsample: u32,
 }
 
 impl Default for GuidedFilterParams {
@@ -137,6 +142,7 @@ impl Default for GuidedFilterParams {
             epsilon_normal: 0.01,
             epsilon_depth: 0.02,
             depth_extent: None,
+            subsample: 1,
         }
     }
 }
@@ -186,47 +192,57 @@ pub fn guide_channels(guide: &GuideBuffers, params: &GuidedFilterParams) -> Resu
         return Err(format!("guide buffers are inconsistent with their size {}x{}", guide.width, guide.height));
     }
     let scale = |n: f32| ((n + 1.0) * 0.5).clamp(0.0, 1.0);
-    let normal = |channel: usize| -> Vec<f32> {
-        guide.normal.par_iter().map(|&n| if is_escaped(n) { ESCAPED_NORMAL } else { scale(n[channel]) }).collect()
+    let extent = match (params.guide, params.depth_extent) {
+        (GuideKind::NormalDepth, Some(extent)) if !(extent.is_finite() && extent > 0.0) => {
+            return Err(format!("the depth extent must be finite and positive, got {extent}"));
+        }
+        (GuideKind::NormalDepth, Some(extent)) => extent,
+        (GuideKind::NormalDepth, None) => {
+            let max = guide
+                .normal
+                .par_iter()
+                .zip(&guide.depth)
+                .map(|(&n, &z)| if !is_escaped(n) && z.is_finite() { z } else { 0.0 })
+                .reduce(|| 0.0f32, f32::max);
+            if max > 0.0 {
+                max
+            } else {
+                1.0
+            }
+        }
+        _ => 1.0,
     };
-    match params.guide {
-        GuideKind::GreyNormal => Ok(vec![guide
-            .normal
-            .par_iter()
-            .map(|&n| if is_escaped(n) { ESCAPED_NORMAL } else { (scale(n[0]) + scale(n[1]) + scale(n[2])) / 3.0 })
-            .collect()]),
-        GuideKind::Normal => Ok((0..3).map(normal).collect()),
-        GuideKind::NormalDepth => {
-            let extent = match params.depth_extent {
-                Some(extent) if extent.is_finite() && extent > 0.0 => extent,
-                Some(extent) => return Err(format!("the depth extent must be finite and positive, got {extent}")),
-                None => {
-                    let max = guide
-                        .normal
-                        .iter()
-                        .zip(&guide.depth)
-                        .filter(|&(&n, &z)| !is_escaped(n) && z.is_finite())
-                        .fold(0.0f32, |max, (_, &z)| max.max(z));
-                    if max > 0.0 {
-                        max
-                    } else {
-                        1.0
+    // One pass over the pixels writes every channel, a row at a time.
+    let d = params.guide.channels();
+    if guide.normal.is_empty() {
+        return Ok(vec![Vec::new(); d]);
+    }
+    let width = guide.width as usize;
+    let mut planes = vec![vec![0.0f32; guide.normal.len()]; d];
+    let mut rows: Vec<_> = planes.iter_mut().map(|plane| plane.chunks_mut(width)).collect();
+    let row_sets: Vec<Vec<&mut [f32]>> =
+        (0..guide.height as usize).map(|_| rows.iter_mut().filter_map(|r| r.next()).collect()).collect();
+    row_sets.into_par_iter().enumerate().for_each(|(y, mut row)| {
+        let pixels = y * width..(y + 1) * width;
+        for (x, (&n, &z)) in guide.normal[pixels.clone()].iter().zip(&guide.depth[pixels]).enumerate() {
+            let escaped = is_escaped(n);
+            match params.guide {
+                GuideKind::GreyNormal => {
+                    row[0][x] = if escaped { ESCAPED_NORMAL } else { (scale(n[0]) + scale(n[1]) + scale(n[2])) / 3.0 }
+                }
+                GuideKind::Normal | GuideKind::NormalDepth => {
+                    for c in 0..3 {
+                        row[c][x] = if escaped { ESCAPED_NORMAL } else { scale(n[c]) };
+                    }
+                    if d == 4 {
+                        row[3][x] =
+                            if escaped || !z.is_finite() { ESCAPED_DEPTH } else { (z / extent).clamp(0.0, 1.0) };
                     }
                 }
-            };
-            let scaled = |(&n, &z): (&[f32; 3], &f32)| {
-                if is_escaped(n) || !z.is_finite() {
-                    ESCAPED_DEPTH
-                } else {
-                    (z / extent).clamp(0.0, 1.0)
-                }
-            };
-            let depth = guide.normal.par_iter().zip(&guide.depth).map(scaled).collect();
-            let mut planes: Vec<Vec<f32>> = (0..3).map(normal).collect();
-            planes.push(depth);
-            Ok(planes)
+            }
         }
-    }
+    });
+    Ok(planes)
 }
 
 /// Filters `noisy` guided by `guide` with the channels and ε of `params`.
@@ -242,7 +258,7 @@ pub fn guided_filter(
         ));
     }
     let planes = guide_channels(guide, params)?;
-    guided_filter_planes(noisy, &planes, &params.epsilons(), params.radius)
+    guided_filter_planes_subsampled(noisy, &planes, &params.epsilons(), params.radius, params.subsample)
 }
 
 /// Filters `noisy` guided by explicit guide planes (1..=4 planes of `width * height` finite
@@ -253,6 +269,21 @@ pub fn guided_filter_planes(
     epsilons: &[f32],
     radius: u32,
 ) -> Result<(Image, FilterReport), String> {
+    guided_filter_planes_subsampled(noisy, planes, epsilons, radius, 1)
+}
+
+/// `guided_filter_planes` as the fast guided filter with subsampling factor `subsample` (≥ 1;
+/// 1 is the exact filter): see `GuidedFilterParams::subsample` and the module's "Subsampling".
+pub fn guided_filter_planes_subsampled(
+    noisy: &Image,
+    planes: &[Vec<f32>],
+    epsilons: &[f32],
+    radius: u32,
+    subsample: u32,
+) -> Result<(Image, FilterReport), String> {
+    if subsample == 0 {
+        return Err("the subsampling factor must be at least 1, got 0".into());
+    }
     let (width, height) = (noisy.width as usize, noisy.height as usize);
     let count = width * height;
     if noisy.pixels.len() != count {
@@ -302,11 +333,22 @@ pub fn guided_filter_planes(
     let radius = (radius as usize).min(width.max(height));
     let eps: [f64; MAX_GUIDE_CHANNELS] = std::array::from_fn(|j| epsilons.get(j).map_or(0.0, |&e| e as f64));
     let grid = Grid { width, height, radius };
-    let (pixels, fallback_windows) = match d {
-        1 => filter::<1, 8, 6>(grid, input, planes, &eps),
-        2 => filter::<2, 14, 9>(grid, input, planes, &eps),
-        3 => filter::<3, 21, 12>(grid, input, planes, &eps),
-        _ => filter::<4, 29, 15>(grid, input, planes, &eps),
+    // Subsampling only where there is a window to shrink and the image is larger than a block.
+    let subsample = (subsample as usize).min(width.max(height));
+    let (pixels, fallback_windows) = if subsample > 1 && radius > 0 {
+        match d {
+            1 => filter_subsampled::<1, 8, 6>(grid, input, planes, &eps, subsample),
+            2 => filter_subsampled::<2, 14, 9>(grid, input, planes, &eps, subsample),
+            3 => filter_subsampled::<3, 21, 12>(grid, input, planes, &eps, subsample),
+            _ => filter_subsampled::<4, 29, 15>(grid, input, planes, &eps, subsample),
+        }
+    } else {
+        match d {
+            1 => filter::<1, 8, 6>(grid, input, planes, &eps),
+            2 => filter::<2, 14, 9>(grid, input, planes, &eps),
+            3 => filter::<3, 21, 12>(grid, input, planes, &eps),
+            _ => filter::<4, 29, 15>(grid, input, planes, &eps),
+        }
     };
     Ok((Image::from_pixels(noisy.width, noisy.height, pixels), FilterReport { sanitised_values, fallback_windows }))
 }
@@ -331,8 +373,11 @@ const CHUNK: usize = 128;
 /// Rows of box sums summed together in `box_rows`.
 const SCAN_ROWS: usize = 4;
 
-/// Strips are at least this many rows, and at least 8 r.
+/// Strips are at least this many rows, and at least 8 r, where the image has room for two such.
 const MIN_STRIP_ROWS: usize = 256;
+
+/// Otherwise an image is still cut in two where each half has at least this many rows and 4 r.
+const MIN_HALF_ROWS: usize = 64;
 
 impl Grid {
     /// Length of the per-row work arrays: the width rounded up to whole lane blocks.
@@ -345,10 +390,17 @@ impl Grid {
     /// bits for any thread count. Each boundary between strips costs about 3r rows of stage 1
     /// (the r coefficient rows beyond the strip on each side, and the first window), so strips
     /// are long: at least `MIN_STRIP_ROWS` and 8r rows, and an even number of them where there
-    /// are several (two cores share the work evenly).
+    /// are several (two cores share the work evenly). A shorter image is still cut in two halves
+    /// of at least `MIN_HALF_ROWS` and 4r rows, so that both cores work on it.
     fn strip_rows(&self) -> usize {
         let count = self.height / MIN_STRIP_ROWS.max(8 * self.radius);
-        let count = if count >= 2 { count / 2 * 2 } else { 1 };
+        let count = if count >= 2 {
+            count / 2 * 2
+        } else if self.height >= 2 * MIN_HALF_ROWS.max(4 * self.radius) {
+            2
+        } else {
+            1
+        };
         self.height.div_ceil(count)
     }
 
@@ -447,15 +499,22 @@ impl RowSource for CoefficientRing<'_> {
     }
 }
 
-/// What both stages share.
-struct Context<'a, const D: usize> {
+/// What both stages share: the grid, stage 1's source rows and the ε.
+struct Context<const D: usize, R> {
     grid: Grid,
-    planes: &'a [Vec<f32>],
-    input: &'a [[f32; 3]],
+    source: R,
     eps: [f64; D],
     /// Every Cholesky pivot of Σ + diag ε is at least min ε in exact arithmetic.
     min_pivot: f64,
     inverse_columns: Vec<f64>,
+}
+
+impl<const D: usize, R: RowSource<Value = f64>> Context<D, R> {
+    fn new(grid: Grid, source: R, eps: &[f64; MAX_GUIDE_CHANNELS]) -> Self {
+        let eps: [f64; D] = std::array::from_fn(|j| eps[j]);
+        let min_eps = eps.iter().fold(f64::INFINITY, |m, &e| m.min(e));
+        Context { grid, source, eps, min_pivot: 0.5 * min_eps, inverse_columns: grid.inverse_columns() }
+    }
 }
 
 /// The two stages for a d-channel guide (`M`, `Q`: `moment_count(D)`, `coefficient_count(D)`,
@@ -468,88 +527,412 @@ fn filter<const D: usize, const M: usize, const Q: usize>(
     planes: &[Vec<f32>],
     eps: &[f64; MAX_GUIDE_CHANNELS],
 ) -> (Vec<[f32; 3]>, usize) {
-    const { assert!(M == moment_count(D) && Q == coefficient_count(D)) };
-    let eps: [f64; D] = std::array::from_fn(|j| eps[j]);
-    let min_eps = eps.iter().fold(f64::INFINITY, |m, &e| m.min(e));
-    let context =
-        Context { grid, planes, input, eps, min_pivot: 0.5 * min_eps, inverse_columns: grid.inverse_columns() };
+    let channels = Channels { planes, input, width: grid.width, padded: grid.padded() };
+    let context = Context::<D, _>::new(grid, channels, eps);
     let strip = grid.strip_rows();
     let mut pixels = vec![[0.0f32; 3]; grid.width * grid.height];
     let fallback_windows = pixels
         .par_chunks_mut(strip * grid.width)
         .enumerate()
-        .map(|(s, out)| filter_strip::<D, M, Q>(&context, s * strip, out))
+        .map(|(s, out)| {
+            let y0 = s * strip;
+            let rows = y0..y0 + out.len() / grid.width;
+            let mut sink = Evaluate { planes, width: grid.width, y0, out };
+            filter_strip::<D, M, Q, _, _>(&context, rows.clone(), rows.end, &mut sink)
+        })
         .sum();
     (pixels, fallback_windows)
 }
 
-/// Both stages for the strip of output rows from `y0` on (`out`: whole rows). Stage 1 runs r
-/// rows ahead of stage 2, computing the coefficient rows the strip's windows reach (r rows
-/// beyond it on either side, computed again by the neighbouring strip) into a ring of 2r + 2
-/// rows, so no coefficient image is stored (see the module's "Memory"). Returns the fallback
-/// windows among the strip's own rows. Compiled for AVX-512 and AVX2 as well, picked at run
-/// time; everything it calls in its loops is inlined into it.
-#[multiversion::multiversion(targets("x86_64+avx512f+avx512vl+avx512dq+avx512bw+avx2+fma", "x86_64+avx2+fma"))]
-fn filter_strip<const D: usize, const M: usize, const Q: usize>(
-    context: &Context<D>,
+/// What stage 2 does with the window means of the coefficients, block by block.
+trait CoefficientSink<const D: usize, const Q: usize> {
+    /// The LANES pixels of row y from x0 on (`n` of them inside the image): their coefficient
+    /// means are `sums` (Q rows of `CHUNK`, this block's at `at`) times `scale`.
+    fn block(&mut self, y: usize, x0: usize, n: usize, sums: &[f64], at: usize, scale: &Lanes);
+    /// Called after the last block of row y.
+    fn row_done(&mut self, y: usize);
+}
+
+/// The exact filter's stage 2: `F = ā·I + b̄` per pixel, written to whole output rows from row
+/// `y0` on.
+struct Evaluate<'a> {
+    planes: &'a [Vec<f32>],
+    width: usize,
     y0: usize,
-    out: &mut [[f32; 3]],
+    out: &'a mut [[f32; 3]],
+}
+
+impl<const D: usize, const Q: usize> CoefficientSink<D, Q> for Evaluate<'_> {
+    #[inline(always)]
+    fn block(&mut self, y: usize, x0: usize, n: usize, sums: &[f64], at: usize, scale: &Lanes) {
+        let width = self.width;
+        let mut g = [[0.0f64; LANES]; D];
+        for (g, plane) in g.iter_mut().zip(self.planes) {
+            for (g, &v) in g.iter_mut().zip(&plane[y * width + x0..][..n]) {
+                *g = v as f64;
+            }
+        }
+        let f = evaluate::<D, Q>(sums, at, scale, &g);
+        for (l, pixel) in self.out[(y - self.y0) * width + x0..][..n].iter_mut().enumerate() {
+            *pixel = [f[0][l], f[1][l], f[2][l]];
+        }
+    }
+
+    #[inline(always)]
+    fn row_done(&mut self, _: usize) {}
+}
+
+/// Both stages for the strip of rows `own`: stage 2 runs over rows `own.start..end` (`end` may
+/// reach a row past the strip, for a sink that needs it) and hands its coefficient means to
+/// `sink`. Stage 1 runs r rows ahead of stage 2, computing the coefficient rows the strip's
+/// windows reach (r rows beyond it on either side, computed again by the neighbouring strip)
+/// into a ring of 2r + 2 rows, so no coefficient image is stored (see the module's "Memory").
+/// Returns the fallback windows among the rows `own`. Compiled for AVX-512 and AVX2 as well,
+/// picked at run time; everything it calls in its loops is inlined into it.
+#[multiversion::multiversion(targets("x86_64+avx512f+avx512vl+avx512dq+avx512bw+avx2+fma", "x86_64+avx2+fma"))]
+fn filter_strip<const D: usize, const M: usize, const Q: usize, R: RowSource<Value = f64>, S: CoefficientSink<D, Q>>(
+    context: &Context<D, R>,
+    own: std::ops::Range<usize>,
+    end: usize,
+    sink: &mut S,
 ) -> usize {
+    const { assert!(M == moment_count(D) && Q == coefficient_count(D)) };
     let grid = context.grid;
     let Grid { width, height, radius } = grid;
     let padded = grid.padded();
-    let y1 = y0 + out.len() / width;
     let row_len = Q * padded;
     let slots = (2 * radius + 2).min(height);
     let mut ring = vec![0.0f32; slots * row_len];
-    let channels = Channels { planes: context.planes, input: context.input, width, padded };
     let mut stage1 = SlidingBox::new(grid, moment_terms::<D>(), D + 3);
     let mut stage2 = SlidingBox::new(grid, (0..Q).map(|q| (q, None)).collect(), 0);
-    let mut next_coefficient_row = y0.saturating_sub(radius);
+    let mut next_coefficient_row = own.start.saturating_sub(radius);
     let mut fallbacks = 0;
-    for (y, out) in (y0..y1).zip(out.chunks_exact_mut(width)) {
+    for y in own.start..end {
         // Stage 1 (Eq. 8–9): window means of I, I Iᵀ, N and N I → a_k, b_k, up to row y + r.
         while next_coefficient_row <= (y + radius).min(height - 1) {
             let k = next_coefficient_row;
             let inverse_rows = 1.0 / grid.window_rows(k) as f64;
             let coefficients = &mut ring[k % slots * row_len..][..row_len];
-            stage1.row(&channels, k, |start, sums| {
+            stage1.row(&context.source, k, |start, sums| {
                 for x0 in (start..(start + CHUNK).min(width)).step_by(LANES) {
                     let scale = scale_block(context, x0, inverse_rows);
                     let fell_back = coefficient_block::<D, M, Q>(sums, x0 - start, x0, &scale, context, coefficients);
-                    if (y0..y1).contains(&k) {
+                    if own.contains(&k) {
                         fallbacks += fell_back[..LANES.min(width - x0)].iter().filter(|f| **f).count();
                     }
                 }
             });
             next_coefficient_row += 1;
         }
-        // Stage 2 (Eq. 6 averaged over the windows containing each pixel): F = ā·I + b̄.
+        // Stage 2 (Eq. 6 averaged over the windows containing each pixel): ā and b̄.
         let inverse_rows = 1.0 / grid.window_rows(y) as f64;
-        let guide: [&[f32]; D] = std::array::from_fn(|j| &context.planes[j][y * width..(y + 1) * width]);
         stage2.row(&CoefficientRing { values: &ring, slots, row_len }, y, |start, sums| {
             for x0 in (start..(start + CHUNK).min(width)).step_by(LANES) {
-                let n = LANES.min(width - x0);
-                let mut g = [[0.0f64; LANES]; D];
-                for (g, row) in g.iter_mut().zip(&guide) {
-                    for (g, &v) in g.iter_mut().zip(&row[x0..x0 + n]) {
-                        *g = v as f64;
-                    }
-                }
-                let f = evaluate::<D, Q>(sums, x0 - start, &scale_block(context, x0, inverse_rows), &g);
-                for (l, pixel) in out[x0..x0 + n].iter_mut().enumerate() {
-                    *pixel = [f[0][l], f[1][l], f[2][l]];
-                }
+                let scale = scale_block(context, x0, inverse_rows);
+                sink.block(y, x0, LANES.min(width - x0), sums, x0 - start, &scale);
             }
         });
+        sink.row_done(y);
     }
     fallbacks
+}
+
+/// The fast guided filter (module's "Subsampling"): both stages on s×s block means of the guide
+/// and the input with radius r / s (rounded, at least 1), then the coefficient means upsampled
+/// bilinearly and evaluated against the full-resolution guide, `F = ā↑·I + b̄↑`. Returns the
+/// pixels and the number of fallback windows (of the subsampled image).
+fn filter_subsampled<const D: usize, const M: usize, const Q: usize>(
+    grid: Grid,
+    input: &[[f32; 3]],
+    planes: &[Vec<f32>],
+    eps: &[f64; MAX_GUIDE_CHANNELS],
+    s: usize,
+) -> (Vec<[f32; 3]>, usize) {
+    let (low_width, low_height) = (grid.width.div_ceil(s), grid.height.div_ceil(s));
+    let low_radius = ((grid.radius + s / 2) / s).max(1).min(low_width.max(low_height));
+    let low = Grid { width: low_width, height: low_height, radius: low_radius };
+    let means = BlockMeans::new(grid, planes, input, s);
+    let context = Context::<D, _>::new(low, means, eps);
+    let rows = Resampling::new(grid.height, low_height, s);
+    let columns = Resampling::new(grid.width, low_width, s);
+    // The strips of the subsampled image, and for each the full-resolution rows whose upper
+    // bilinear neighbour lies in it (`rows.lower` never decreases).
+    let strip = low.strip_rows();
+    let mut jobs = Vec::new();
+    let mut pixels = vec![[0.0f32; 3]; grid.width * grid.height];
+    let mut rest = pixels.as_mut_slice();
+    let mut first_row = 0;
+    for y0 in (0..low_height).step_by(strip) {
+        let own = y0..(y0 + strip).min(low_height);
+        let end_row = rows.lower.partition_point(|&lower| lower < own.end);
+        let (out, tail) = std::mem::take(&mut rest).split_at_mut((end_row - first_row) * grid.width);
+        jobs.push((own, first_row, out));
+        rest = tail;
+        first_row = end_row;
+    }
+    let fallback_windows = jobs
+        .into_par_iter()
+        .map(|(own, first_row, out)| {
+            let mut sink = Upsample::<D, Q>::new(planes, grid.width, low, &rows, &columns, first_row, out);
+            // One stage-2 row past the strip: the bilinear neighbour below its last row.
+            let end = (own.end + 1).min(low_height);
+            filter_strip::<D, M, Q, _, _>(&context, own, end, &mut sink)
+        })
+        .sum();
+    (pixels, fallback_windows)
+}
+
+/// Stage 1's source rows for the fast guided filter: the means of the d guide planes and the
+/// three colour channels over s×s blocks of pixels (clipped at the right and bottom edges),
+/// summed in f64 and stored as f32, row by row: row j holds the d + 3 channels of subsampled
+/// row j one after the other, `width` values each.
+struct BlockMeans {
+    values: Vec<f32>,
+    width: usize,
+    padded: usize,
+    channels: usize,
+}
+
+impl BlockMeans {
+    /// The block means of `planes` and `input` on `grid` (full resolution).
+    fn new(grid: Grid, planes: &[Vec<f32>], input: &[[f32; 3]], s: usize) -> BlockMeans {
+        let Grid { width, height, .. } = grid;
+        let low_width = width.div_ceil(s);
+        let channels = planes.len() + 3;
+        let mut values = vec![0.0f32; channels * low_width * height.div_ceil(s)];
+        // 1 / (columns of block i); the rows of a block divide later.
+        let inverse_columns: Vec<f64> =
+            (0..low_width).map(|i| 1.0 / (((i + 1) * s).min(width) - i * s) as f64).collect();
+        values.par_chunks_mut(channels * low_width).enumerate().for_each_init(
+            || vec![0.0f64; channels * width],
+            |sums, (j, out)| {
+                let rows = j * s..((j + 1) * s).min(height);
+                let inverse_rows = 1.0 / rows.len() as f64;
+                sums.fill(0.0);
+                // Down the columns: s rows of each channel, one row of sums per channel.
+                for y in rows {
+                    let row = y * width..(y + 1) * width;
+                    let (guide, colours) = sums.split_at_mut(planes.len() * width);
+                    for (sums, plane) in guide.chunks_exact_mut(width).zip(planes) {
+                        for (sum, &v) in sums.iter_mut().zip(&plane[row.clone()]) {
+                            *sum += v as f64;
+                        }
+                    }
+                    let (red, rest) = colours.split_at_mut(width);
+                    let (green, blue) = rest.split_at_mut(width);
+                    for (((r, g), b), pixel) in red.iter_mut().zip(green).zip(blue).zip(&input[row]) {
+                        *r += pixel[0] as f64;
+                        *g += pixel[1] as f64;
+                        *b += pixel[2] as f64;
+                    }
+                }
+                // Along the rows: s columns at a time, divided by the block's pixels.
+                for (out, sums) in out.chunks_exact_mut(low_width).zip(sums.chunks_exact(width)) {
+                    for ((out, columns), inverse) in out.iter_mut().zip(sums.chunks(s)).zip(&inverse_columns) {
+                        *out = (columns.iter().sum::<f64>() * inverse * inverse_rows) as f32;
+                    }
+                }
+            },
+        );
+        BlockMeans { values, width: low_width, padded: low_width.div_ceil(LANES) * LANES, channels }
+    }
+}
+
+impl RowSource for BlockMeans {
+    type Value = f64;
+
+    #[inline(always)]
+    fn row<'a>(&'a self, y: usize, scratch: &'a mut [f64]) -> &'a [f64] {
+        let row = &self.values[y * self.channels * self.width..][..self.channels * self.width];
+        for (out, values) in scratch.chunks_exact_mut(self.padded).zip(row.chunks_exact(self.width)) {
+            for (out, &v) in out.iter_mut().zip(values) {
+                *out = f64::from(v);
+            }
+        }
+        scratch
+    }
+}
+
+/// Bilinear resampling from a subsampled axis (`low` samples, sample i centred on full
+/// coordinate (i + ½) s − ½) to every full-resolution index: the neighbours `lower` and
+/// `upper` (clamped to the axis) and the weight `t` of the upper one.
+struct Resampling {
+    lower: Vec<usize>,
+    upper: Vec<usize>,
+    t: Vec<f32>,
+    /// s, and the number of subsampled values.
+    phases: usize,
+    low: usize,
+}
+
+impl Resampling {
+    fn new(full: usize, low: usize, s: usize) -> Resampling {
+        let (mut lower, mut upper, mut t) = (Vec::with_capacity(full), Vec::with_capacity(full), Vec::new());
+        for i in 0..full {
+            let v = (i as f64 + 0.5) / s as f64 - 0.5;
+            let below = (v.floor().max(0.0) as usize).min(low - 1);
+            let above = (below + 1).min(low - 1);
+            lower.push(below);
+            upper.push(above);
+            t.push(if above == below { 0.0 } else { (v - below as f64).clamp(0.0, 1.0) as f32 });
+        }
+        Resampling { lower, upper, t, phases: s, low }
+    }
+
+    /// Resamples one row: `full[i] = (1 − t_i) low[lower_i] + t_i low[upper_i]`. Away from the
+    /// ends, full index i s + p has the neighbours i + o_p and i + o_p + 1 with the weight t_p
+    /// of its phase p (o_p is −1 or 0), so there each phase runs as a loop over contiguous
+    /// values instead of a gather.
+    #[inline(always)]
+    fn upsample(&self, low: &[f32], full: &mut [f32]) {
+        let s = self.phases;
+        let lerp = |t: f32, a: f32, b: f32| (1.0 - t) * a + t * b;
+        // Blocks 1 .. n − 1 are whole and interior: their neighbours lie within 0 ..= n − 1.
+        let interior = 1..(self.low - 1).max(1);
+        for p in 0..s {
+            let x = interior.start * s + p;
+            let Some((&first, &t)) = self.lower.get(x).zip(self.t.get(x)) else { break };
+            let blocks = full[interior.start * s..interior.end * s].chunks_exact_mut(s);
+            for ((block, &a), &b) in blocks.zip(&low[first..]).zip(&low[first + 1..]) {
+                block[p] = lerp(t, a, b);
+            }
+        }
+        let count = full.len();
+        let edges = (0..interior.start * s).chain(interior.end * s..count);
+        for x in edges {
+            full[x] = lerp(self.t[x], low[self.lower[x]], low[self.upper[x]]);
+        }
+    }
+}
+
+/// The fast guided filter's stage 2: upsamples each subsampled row's coefficient means along
+/// the row, keeps the last two such rows and, once both bilinear neighbours of a
+/// full-resolution row are there, blends them and evaluates `F = ā↑·I + b̄↑` against the full
+/// guide.
+struct Upsample<'a, const D: usize, const Q: usize> {
+    planes: &'a [Vec<f32>],
+    width: usize,
+    low_padded: usize,
+    low_height: usize,
+    rows: &'a Resampling,
+    columns: &'a Resampling,
+    /// The output rows from full-resolution row `first_row` on, and the next one to write.
+    first_row: usize,
+    next_row: usize,
+    out: &'a mut [[f32; 3]],
+    /// Coefficient means of the current subsampled row (Q rows of `low_padded`).
+    low: Vec<f32>,
+    /// Those of the previous and the current subsampled row upsampled along the row (Q rows of
+    /// `width`); whether `previous` holds a row yet.
+    previous: Vec<f32>,
+    current: Vec<f32>,
+    have_previous: bool,
+    /// The output accumulators (3 rows of `width`).
+    sums: Vec<f64>,
+}
+
+impl<'a, const D: usize, const Q: usize> Upsample<'a, D, Q> {
+    fn new(
+        planes: &'a [Vec<f32>],
+        width: usize,
+        low: Grid,
+        rows: &'a Resampling,
+        columns: &'a Resampling,
+        first_row: usize,
+        out: &'a mut [[f32; 3]],
+    ) -> Self {
+        let low_padded = low.padded();
+        Upsample {
+            planes,
+            width,
+            low_padded,
+            low_height: low.height,
+            rows,
+            columns,
+            first_row,
+            next_row: first_row,
+            out,
+            low: vec![0.0; Q * low_padded],
+            previous: vec![0.0; Q * width],
+            current: vec![0.0; Q * width],
+            have_previous: false,
+            sums: vec![0.0; 3 * width],
+        }
+    }
+
+    /// Writes the full-resolution rows whose upper bilinear neighbour is subsampled row
+    /// `lower`, blending `previous` (row `lower`) and `current` (the row below), or `current`
+    /// alone when `lower` is the last row.
+    #[inline(always)]
+    fn emit(&mut self, lower: usize, use_previous: bool) {
+        let width = self.width;
+        let end_row = self.first_row + self.out.len() / width;
+        while self.next_row < end_row && self.rows.lower[self.next_row] == lower {
+            let y = self.next_row;
+            let t = self.rows.t[y];
+            let above = if use_previous { &self.previous } else { &self.current };
+            let blended = |q: usize| {
+                let range = q * width..(q + 1) * width;
+                above[range.clone()]
+                    .iter()
+                    .zip(&self.current[range])
+                    .map(move |(&p, &c)| ((1.0 - t) * p + t * c) as f64)
+            };
+            for (c, sums) in self.sums.chunks_exact_mut(width).enumerate() {
+                for (sum, b) in sums.iter_mut().zip(blended(3 * D + c)) {
+                    *sum = b;
+                }
+                for j in 0..D {
+                    let guide = &self.planes[j][y * width..][..width];
+                    for ((sum, a), &g) in sums.iter_mut().zip(blended(c * D + j)).zip(guide) {
+                        *sum += a * g as f64;
+                    }
+                }
+            }
+            let out = &mut self.out[(y - self.first_row) * width..][..width];
+            let (red, rest) = self.sums.split_at(width);
+            let (green, blue) = rest.split_at(width);
+            let finite = |v: f64| v.clamp(-(f32::MAX as f64), f32::MAX as f64) as f32;
+            for (((pixel, &r), &g), &b) in out.iter_mut().zip(red).zip(green).zip(blue) {
+                *pixel = [finite(r), finite(g), finite(b)];
+            }
+            self.next_row += 1;
+        }
+    }
+}
+
+impl<const D: usize, const Q: usize> CoefficientSink<D, Q> for Upsample<'_, D, Q> {
+    #[inline(always)]
+    fn block(&mut self, _: usize, x0: usize, _: usize, sums: &[f64], at: usize, scale: &Lanes) {
+        for (q, row) in self.low.chunks_exact_mut(self.low_padded).enumerate() {
+            for ((mean, &sum), &scale) in
+                row[x0..x0 + LANES].iter_mut().zip(&sums[q * CHUNK + at..][..LANES]).zip(scale)
+            {
+                *mean = (sum * scale) as f32;
+            }
+        }
+    }
+
+    #[inline(always)]
+    fn row_done(&mut self, y: usize) {
+        std::mem::swap(&mut self.previous, &mut self.current);
+        for (up, low) in self.current.chunks_exact_mut(self.width).zip(self.low.chunks_exact(self.low_padded)) {
+            self.columns.upsample(low, up);
+        }
+        if self.have_previous {
+            self.emit(y - 1, true);
+        }
+        if y + 1 == self.low_height {
+            self.emit(y, false);
+        }
+        self.have_previous = true;
+    }
 }
 
 /// 1 / (pixels in the window) for the LANES columns from x0 on, in a row whose window has
 /// 1 / `inverse_rows` rows.
 #[inline(always)]
-fn scale_block<const D: usize>(context: &Context<D>, x0: usize, inverse_rows: f64) -> Lanes {
+fn scale_block<const D: usize, R>(context: &Context<D, R>, x0: usize, inverse_rows: f64) -> Lanes {
     let mut scale = [0.0; LANES];
     for (s, c) in scale.iter_mut().zip(&context.inverse_columns[x0..x0 + LANES]) {
         *s = c * inverse_rows;
@@ -569,7 +952,7 @@ fn coefficient_block<const D: usize, const M: usize, const Q: usize>(
     at: usize,
     x0: usize,
     scale: &Lanes,
-    context: &Context<D>,
+    context: &Context<D, impl Sized>,
     out: &mut [f32],
 ) -> [bool; LANES] {
     let padded = context.grid.padded();
@@ -1086,6 +1469,72 @@ mod tests {
             .collect()
     }
 
+    /// The fast guided filter (He and Sun 2015) by its definition: block means of the input and
+    /// the guide, the per-window regression on them with radius r / s, the explicit average of
+    /// a_k and b_k over the windows containing each subsampled pixel, then a and b bilinearly
+    /// interpolated at each pixel's position (clamped to the subsampled image) and applied to the
+    /// full-resolution guide.
+    fn naive_subsampled(noisy: &Image, planes: &[Vec<f32>], eps: &[f32], r: usize, s: usize) -> Vec<[f64; 3]> {
+        let (width, height) = (noisy.width as usize, noisy.height as usize);
+        let (low_width, low_height) = (width.div_ceil(s), height.div_ceil(s));
+        let block = |i: usize, j: usize| -> Vec<usize> {
+            let xs = i * s..((i + 1) * s).min(width);
+            (j * s..((j + 1) * s).min(height)).flat_map(|y| xs.clone().map(move |x| y * width + x)).collect()
+        };
+        let low_count = low_width * low_height;
+        let mean_of = |value: &dyn Fn(usize) -> f64, k: usize| {
+            let pixels = block(k % low_width, k / low_width);
+            (pixels.iter().map(|&p| value(p)).sum::<f64>() / pixels.len() as f64) as f32
+        };
+        let low_planes: Vec<Vec<f32>> =
+            planes.iter().map(|plane| (0..low_count).map(|k| mean_of(&|p| plane[p] as f64, k)).collect()).collect();
+        let low_pixels =
+            (0..low_count).map(|k| [0, 1, 2].map(|c| mean_of(&|p| noisy.pixels[p][c] as f64, k))).collect();
+        let low_noisy = Image::from_pixels(low_width as u32, low_height as u32, low_pixels);
+        let low_radius = ((r + s / 2) / s).max(1);
+        let d = planes.len();
+        let fitted: Vec<_> = (0..low_count)
+            .map(|k| {
+                let window = window(k % low_width, k / low_width, low_radius, low_width, low_height);
+                naive_regression(&low_noisy, &low_planes, eps, &window)
+            })
+            .collect();
+        // Per subsampled pixel: a (d × 3) then b (3), averaged over the windows containing it.
+        let averaged: Vec<Vec<f64>> = (0..low_count)
+            .map(|i| {
+                let windows = window(i % low_width, i / low_width, low_radius, low_width, low_height);
+                let mut sum = vec![0.0; 3 * d + 3];
+                for &k in &windows {
+                    let (a, b) = &fitted[k];
+                    for c in 0..3 {
+                        for j in 0..d {
+                            sum[c * d + j] += a[j][c];
+                        }
+                        sum[3 * d + c] += b[c];
+                    }
+                }
+                sum.iter().map(|v| v / windows.len() as f64).collect()
+            })
+            .collect();
+        let neighbours = |x: usize, n: usize| {
+            let u = ((x as f64 + 0.5) / s as f64 - 0.5).clamp(0.0, (n - 1) as f64);
+            let below = (u.floor() as usize).min(n - 1);
+            (below, (below + 1).min(n - 1), u - below as f64)
+        };
+        (0..width * height)
+            .map(|p| {
+                let ((x0, x1, wx), (y0, y1, wy)) =
+                    (neighbours(p % width, low_width), neighbours(p / width, low_height));
+                let at = |q: usize| {
+                    let row =
+                        |y: usize| (1.0 - wx) * averaged[y * low_width + x0][q] + wx * averaged[y * low_width + x1][q];
+                    (1.0 - wy) * row(y0) + wy * row(y1)
+                };
+                [0, 1, 2].map(|c| at(3 * d + c) + (0..d).map(|j| at(c * d + j) * planes[j][p] as f64).sum::<f64>())
+            })
+            .collect()
+    }
+
     fn assert_close(found: &Image, expected: &[[f64; 3]], tolerance: f64, what: &str) {
         assert_eq!(found.pixels.len(), expected.len());
         for (i, (f, e)) in found.pixels.iter().zip(expected).enumerate() {
@@ -1122,6 +1571,48 @@ mod tests {
             let (found, _) = guided_filter_planes(&noisy, &planes[..d], &eps[..d], 2).unwrap();
             assert_close(&found, &expected, 1e-4, &format!("d = {d}"));
         }
+    }
+
+    #[test]
+    fn subsampled_matches_its_definition() {
+        // Sizes that s divides and sizes it does not (partial blocks at the right and bottom),
+        // an image a single block tall, windows larger than the subsampled image.
+        let cases = [(13u32, 11u32, 2usize, 3u32), (16, 9, 3, 4), (7, 20, 2, 2), (10, 2, 2, 5), (9, 9, 4, 40)];
+        let mut rng = Rng(21);
+        for (width, height, s, radius) in cases {
+            let noisy = random_image(width, height, &mut rng);
+            for d in [1usize, 3, 4] {
+                let planes = random_planes(d, (width * height) as usize, &mut rng);
+                let eps = &[0.01, 0.02, 0.005, 0.03][..d];
+                let expected = naive_subsampled(&noisy, &planes, eps, radius as usize, s);
+                let run = || guided_filter_planes_subsampled(&noisy, &planes, eps, radius, s as u32).unwrap();
+                let (one, report) = in_pool(1, run);
+                let what = format!("{width}x{height}, s = {s}, radius {radius}, d = {d}");
+                assert_eq!(report, FilterReport::default(), "{what}");
+                assert_close(&one, &expected, 1e-4, &what);
+                let (many, _) = in_pool(3, run);
+                assert!(one == many, "{what}: threads change the result");
+            }
+        }
+    }
+
+    #[test]
+    fn subsampled_strips_give_the_same_bits_for_any_thread_count() {
+        // Tall enough that the subsampled image is cut into strips, whose boundaries need the
+        // row past each strip for the bilinear blend.
+        let mut rng = Rng(22);
+        let (width, height) = (11u32, 700u32);
+        let noisy = random_image(width, height, &mut rng);
+        let planes = random_planes(4, (width * height) as usize, &mut rng);
+        let eps = [0.01, 0.02, 0.005, 0.03];
+        let low = Grid { width: 6, height: 350, radius: 3 };
+        assert!(low.strip_rows() < 350, "one strip");
+        let run = || guided_filter_planes_subsampled(&noisy, &planes, &eps, 6, 2).unwrap();
+        let (one, _) = in_pool(1, run);
+        for threads in [2, 5] {
+            assert!(one == in_pool(threads, run).0, "{threads} threads");
+        }
+        assert_close(&one, &naive_subsampled(&noisy, &planes, &eps, 6, 2), 1e-4, "strips");
     }
 
     #[test]
@@ -1265,11 +1756,17 @@ mod tests {
         let pixels = (0..count).map(|i| [2.0 * planes[0][i] + 3.0 * planes[3][i] + 1.0; 3]).collect();
         let noisy = Image::from_pixels(width, height, pixels);
         let eps = [1e-6; 4];
-        for radius in [0u32, 2, 5, 100] {
-            let (found, _) = guided_filter_planes(&noisy, &planes, &eps, radius).unwrap();
-            for (f, n) in found.pixels.iter().zip(&noisy.pixels) {
-                for c in 0..3 {
-                    assert!((f[c] - n[c]).abs() < 1e-3, "radius {radius}: {} vs {}", f[c], n[c]);
+        // Block means of an affine function of the guide are the same function of the guide's
+        // block means, so the fast filter reproduces it too (with windows of 5 × 5 blocks or
+        // more: 3 × 3 block means of a random 4-channel guide are too close to degenerate for
+        // ε = 1e-6 to leave the fit at 1e-3).
+        for subsample in [1u32, 2, 3] {
+            for radius in [0u32, 2, 5, 100].into_iter().filter(|&r| subsample == 1 || r >= 2 * subsample) {
+                let (found, _) = guided_filter_planes_subsampled(&noisy, &planes, &eps, radius, subsample).unwrap();
+                for (f, n) in found.pixels.iter().zip(&noisy.pixels) {
+                    for c in 0..3 {
+                        assert!((f[c] - n[c]).abs() < 1e-3, "s = {subsample}, radius {radius}: {} vs {}", f[c], n[c]);
+                    }
                 }
             }
         }
@@ -1307,12 +1804,46 @@ mod tests {
         zeroed.pixels[40] = [0.5, 0.0, 0.5];
         let planes = random_planes(4, 63, &mut rng);
         let eps = [0.01; 4];
-        let (found, report) = guided_filter_planes(&noisy, &planes, &eps, 2).unwrap();
-        assert_eq!(report.sanitised_values, 3);
-        assert_eq!(found.nonfinite_pixels(), 0);
-        let (expected, report) = guided_filter_planes(&zeroed, &planes, &eps, 2).unwrap();
-        assert_eq!(report.sanitised_values, 0);
-        assert_eq!(found, expected);
+        for subsample in [1, 2] {
+            let (found, report) = guided_filter_planes_subsampled(&noisy, &planes, &eps, 2, subsample).unwrap();
+            assert_eq!(report.sanitised_values, 3);
+            assert_eq!(found.nonfinite_pixels(), 0);
+            let (expected, report) = guided_filter_planes_subsampled(&zeroed, &planes, &eps, 2, subsample).unwrap();
+            assert_eq!(report.sanitised_values, 0);
+            assert_eq!(found, expected);
+        }
+    }
+
+    #[test]
+    fn subsampled_extremes_stay_finite() {
+        let mut rng = Rng(23);
+        // A spike of 1e30 among values near 1, and f32::MAX: finite output, spike-free far away.
+        let mut noisy = random_image(12, 10, &mut rng);
+        noisy.pixels[5] = [1e30; 3];
+        noisy.pixels[100] = [f32::MAX; 3];
+        let planes = random_planes(4, 120, &mut rng);
+        for subsample in [2u32, 3, 1000] {
+            let (found, _) = guided_filter_planes_subsampled(&noisy, &planes, &[0.01; 4], 3, subsample).unwrap();
+            assert_eq!(found.nonfinite_pixels(), 0, "s = {subsample}");
+        }
+        // 1×1 and 2×2 images with blocks larger than the image: one block, the global mean
+        // regression, which for a single pixel is the pixel.
+        let one = random_image(1, 1, &mut rng);
+        let (found, _) =
+            guided_filter_planes_subsampled(&one, &random_planes(4, 1, &mut rng), &[0.01; 4], 5, 2).unwrap();
+        assert!(found.pixels[0].iter().zip(&one.pixels[0]).all(|(f, o)| (f - o).abs() < 1e-6));
+        let two = random_image(2, 2, &mut rng);
+        let planes = random_planes(4, 4, &mut rng);
+        for subsample in [2u32, 3] {
+            let (found, _) = guided_filter_planes_subsampled(&two, &planes, &[0.01; 4], 4, subsample).unwrap();
+            assert_close(&found, &naive_subsampled(&two, &planes, &[0.01; 4], 4, 2), 1e-5, "2x2");
+        }
+        // Black stays black; s = 0 is refused.
+        let black = Image::new(9, 5);
+        let (found, _) =
+            guided_filter_planes_subsampled(&black, &random_planes(3, 45, &mut rng), &[0.01; 3], 2, 2).unwrap();
+        assert!(found.pixels.iter().flatten().all(|&v| v == 0.0));
+        assert!(guided_filter_planes_subsampled(&black, &random_planes(3, 45, &mut rng), &[0.01; 3], 2, 0).is_err());
     }
 
     #[test]
