@@ -71,8 +71,12 @@ fn the_composite_of_a_white_furnace_is_the_environment() {
     let scene = dir.path().join("furnace.toml");
     std::fs::write(&scene, FURNACE).unwrap();
     let environment = [0.5f32, 1.0, 2.0];
-    for filter in ["gif", "bilateral", "atrous-sn"] {
-        let out = run_filter(dir.path(), &scene, &format!("{filter}.exr"), &["--spp", "4", "--filter", filter]);
+    let runs: [(&str, &[&str]); 4] =
+        [("gif", &[]), ("gif", &["--subsample", "2"]), ("bilateral", &[]), ("atrous-sn", &[])];
+    for (index, (filter, extra)) in runs.into_iter().enumerate() {
+        let mut args = vec!["--spp", "4", "--filter", filter];
+        args.extend_from_slice(extra);
+        let out = run_filter(dir.path(), &scene, &format!("{filter}-{index}.exr"), &args);
         assert!(out.with_extension("png").is_file());
         for (c, channel) in ["R", "G", "B"].iter().enumerate() {
             let beauty = exr_channel(&out, channel);
@@ -108,7 +112,7 @@ fn bad_filter_options_are_clear_errors_without_output() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("x.exr");
     let out = out.to_str().unwrap();
-    let cases: [(&[&str], &str); 7] = [
+    let cases: [(&[&str], &str); 9] = [
         (&["--filter", "median"], "gif-normal"),
         (&["--epsilon-normal", "0"], "--epsilon-normal"),
         (&["--epsilon-depth", "nan"], "--epsilon-depth"),
@@ -116,6 +120,8 @@ fn bad_filter_options_are_clear_errors_without_output() {
         (&["--iterations", "5"], "does not apply"),
         (&["--filter", "atrous", "--iterations", "40"], "iterations"),
         (&["--spp", "0"], "--spp"),
+        (&["--subsample", "0"], "at least 1"),
+        (&["--filter", "atrous", "--subsample", "2"], "does not apply"),
     ];
     for (extra, needle) in cases {
         let mut args = vec!["filter", "--width", "8", "--height", "8", "--out", out, "--quiet"];

@@ -29,8 +29,8 @@
 //!   normals and 0.01–0.03 for the depth values": `GuidedFilterParams::default` (24, 0.01,
 //!   0.02).
 //! - Table 2 (1024×768 on a GTX 285: 16 / 71 / 80 ms for d = 1 / 3 / 4, the same for every
-//!   radius): `benches/guided_filter.rs` (criterion, d = 1 / 3 / 4, radius 8–32) and the ignored
-//!   test `tests::timing_1024x768` time this implementation.
+//!   radius): `benches/guided_filter.rs` (criterion, d = 1 / 3 / 4, radius 8–32, exact and
+//!   subsampled) and the ignored test `tests::timing_1024x768` time this implementation.
 //!
 //! Choices the paper leaves open, and why:
 //! - Borders: windows are clipped to the image and every mean is taken over the pixels actually
@@ -86,6 +86,25 @@
 //! - Non-finite input values are replaced by 0 and counted (`FilterReport::sanitised_values`),
 //!   never propagated; non-finite explicit guide planes are rejected (`guide_channels` never
 //!   produces them: non-finite normals count as escaped, non-finite depth as far).
+//!
+//! Subsampling (not in the paper; He and Sun, "Fast Guided Filter", 2015), opt-in with
+//! `GuidedFilterParams::subsample` = s > 1 (`gif:subsample=2`):
+//! - `BlockMeans`: the guide planes and the input are averaged over s×s blocks (clipped at the
+//!   right and bottom edges), in f64, stored as f32.
+//! - Both stages run unchanged on the subsampled image with radius round(r / s) (at least 1),
+//!   so the window covers about the same pixels; stage 2 hands the coefficient means ā, b̄ to
+//!   `Upsample` instead of evaluating them.
+//! - `Upsample`: ā and b̄ are interpolated bilinearly (sample i centred on full coordinate
+//!   (i + ½)s − ½, clamped at the ends; `Resampling`) and evaluated against the
+//!   full-resolution guide, `F = ā↑ᵀ I + b̄↑`, so edges in the guide stay sharp at full
+//!   resolution while the regression sees s² fewer, less noisy pixels.
+//! - Cost: the two stages shrink by s²; what remains per full-resolution pixel is the block
+//!   mean, the bilinear blend of 3d + 3 coefficients and the evaluation. Measured quality and
+//!   speed are in `docs/guided-filter.md`.
+//! - Strips are cut on the subsampled image; each also computes the stage-2 row below its
+//!   last, the lower bilinear neighbour of its last full-resolution rows, so the result is the
+//!   same bit for bit for any thread count (tested) and matches the definition (a per-window
+//!   regression on explicit block means, explicit averaging and interpolation; tested).
 
 use rayon::prelude::*;
 
