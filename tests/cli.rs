@@ -280,9 +280,11 @@ fn bench_filters_reports_ratios_from_one_run() {
     assert!(result.status.success(), "{}", String::from_utf8_lossy(&result.stderr));
     let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     let rows = rows.as_array().unwrap();
-    assert_eq!(rows.len(), 12 + 3, "guided 3 guides x 4 radii, A-Trous 3 settings");
-    let baseline = rows.iter().find(|r| r["setting"] == "4 channels, radius 8").unwrap();
+    assert_eq!(rows.len(), 2 * 12 + 3, "guided exact and s = 2: 3 guides x 4 radii each, A-Trous 3 settings");
+    let baseline = rows.iter().find(|r| r["filter"] == "guided" && r["setting"] == "4 channels, radius 8").unwrap();
     assert_eq!(baseline["ratio_to_baseline"], 1.0);
+    let fast = rows.iter().filter(|r| r["filter"] == "guided, s = 2").count();
+    assert_eq!(fast, 12, "the fast guided filter at every guide and radius");
     for row in rows {
         let ms = row["milliseconds"].as_f64().unwrap();
         assert!(ms.is_finite() && ms > 0.0, "{row}");
