@@ -1627,8 +1627,10 @@ mod tests {
     #[test]
     fn subsampled_matches_its_definition() {
         // Sizes that s divides and sizes it does not (partial blocks at the right and bottom),
-        // an image a single block tall, windows larger than the subsampled image.
-        let cases = [(13u32, 11u32, 2usize, 3u32), (16, 9, 3, 4), (7, 20, 2, 2), (10, 2, 2, 5), (9, 9, 4, 40)];
+        // an image a single block tall, windows larger than the subsampled image; s = 2, 3, 4
+        // (the upsampling's unrolled loops) and 5 (its general one).
+        let cases =
+            [(13u32, 11u32, 2usize, 3u32), (16, 9, 3, 4), (7, 20, 2, 2), (10, 2, 2, 5), (9, 9, 4, 40), (31, 12, 5, 9)];
         let mut rng = Rng(21);
         for (width, height, s, radius) in cases {
             let noisy = random_image(width, height, &mut rng);
