@@ -1770,6 +1770,52 @@ mod tests {
     }
 
     #[test]
+    fn subsampled_keeps_a_depth_step() {
+        // A depth step (a silhouette) on a block boundary (x = 16) and inside a block (x = 17,
+        // whose block mean mixes the two surfaces): the fast filter fits its coefficients on
+        // block means but applies them to the full-resolution guide, so the step stays sharp.
+        let mut rng = Rng(24);
+        for step in [16usize, 17] {
+            let (width, height) = (32u32, 32u32);
+            let mut guide = flat_guide(width, height, [0.0, 0.0, 1.0], 2.0);
+            let mut noisy = Image::new(width, height);
+            let truth = |x: usize| if x < step { 1.0f32 } else { 5.0 };
+            for i in 0..(width * height) as usize {
+                if i % 32 >= step {
+                    guide.depth[i] = 10.0;
+                }
+                noisy.pixels[i] = [0; 3].map(|_| truth(i % 32) + (rng.unit() - 0.5) * 0.8);
+            }
+            let errors = |image: &Image| {
+                let (mut worst, mut sum) = (0.0f64, 0.0f64);
+                let columns = step - 6..step + 6;
+                for i in (0..32 * 32).filter(|i| columns.contains(&(i % 32))) {
+                    for c in 0..3 {
+                        let error = (image.pixels[i][c] as f64 - truth(i % 32) as f64).abs();
+                        (worst, sum) = (worst.max(error), sum + error);
+                    }
+                }
+                (worst, sum / (32 * 12 * 3) as f64)
+            };
+            let exact = GuidedFilterParams { radius: 6, ..Default::default() };
+            let flat = flat_guide(width, height, [0.0, 0.0, 1.0], 2.0);
+            let (box_worst, box_mean) = errors(&guided_filter(&noisy, &flat, &exact).unwrap().0);
+            let (exact_worst, exact_mean) = errors(&guided_filter(&noisy, &guide, &exact).unwrap().0);
+            let fast = GuidedFilterParams { subsample: 2, ..exact };
+            let (worst, mean) = errors(&guided_filter(&noisy, &guide, &fast).unwrap().0);
+            println!(
+                "step at {step}: s = 2 worst {worst:.3} mean {mean:.3}; exact {exact_worst:.3} {exact_mean:.3}; \
+                 box {box_worst:.3} {box_mean:.3}"
+            );
+            assert!(box_worst > 1.5, "the box filter blurs the step: {box_worst}");
+            // Measured: about 0.25 of the box's worst and 0.2 of its mean error, 1.1–1.4 times
+            // the exact filter's mean error (the mixed block costs most).
+            assert!(worst < 0.3 * box_worst && mean < 0.25 * box_mean, "step at {step}: {worst}, {mean}");
+            assert!(mean < 1.6 * exact_mean, "step at {step}: {mean} against the exact filter's {exact_mean}");
+        }
+    }
+
+    #[test]
     fn depth_step_is_preserved() {
         let mut rng = Rng(3);
         let (noisy, guide) = step_scene(&mut rng);
