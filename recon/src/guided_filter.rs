@@ -674,8 +674,8 @@ fn filter_subsampled<const D: usize, const M: usize, const Q: usize>(
     let context = Context::<D, _>::new(low, means, eps);
     let rows = Resampling::new(grid.height, low_height, s);
     let columns = Resampling::new(grid.width, low_width, s);
-    // The strips of the subsampled image, and for each the full-resolution rows whose upper
-    // bilinear neighbour lies in it (`rows.lower` never decreases).
+    // The strips of the subsampled image, and for each the full-resolution rows whose bilinear
+    // neighbour above (`rows.lower`, the smaller row index; it never decreases) lies in it.
     let strip = low.strip_rows();
     let mut jobs = Vec::new();
     let mut pixels = vec![[0.0f32; 3]; grid.width * grid.height];
@@ -911,8 +911,8 @@ impl<'a, const D: usize, const Q: usize> Upsample<'a, D, Q> {
         }
     }
 
-    /// Writes the full-resolution rows whose upper bilinear neighbour is subsampled row
-    /// `lower`, blending `previous` (row `lower`) and `current` (the row below), or `current`
+    /// Writes the full-resolution rows whose bilinear neighbour above (the smaller row index) is
+    /// subsampled row `lower`, blending `previous` (row `lower`) and `current` (the row below), or `current`
     /// alone when `lower` is the last row.
     #[inline(always)]
     fn emit(&mut self, lower: usize, use_previous: bool) {
