@@ -1770,6 +1770,22 @@ mod tests {
     }
 
     #[test]
+    fn subsampled_constant_and_rank_deficient_guides_stay_finite() {
+        // A flat wall (Σ = 0) and two identical channels (Σ singular) with s = 2: the solve's
+        // ε keeps both well posed; the result matches the definition and stays finite.
+        let mut rng = Rng(25);
+        let noisy = random_image(14, 9, &mut rng);
+        let flat = vec![vec![0.5f32; 126]; 4];
+        let plane = random_planes(1, 126, &mut rng).remove(0);
+        let twins = vec![plane.clone(), plane];
+        for (planes, eps) in [(flat, vec![0.01; 4]), (twins, vec![0.01, 0.02])] {
+            let (found, _) = guided_filter_planes_subsampled(&noisy, &planes, &eps, 3, 2).unwrap();
+            assert_eq!(found.nonfinite_pixels(), 0);
+            assert_close(&found, &naive_subsampled(&noisy, &planes, &eps, 3, 2), 1e-4, "degenerate guide, s = 2");
+        }
+    }
+
+    #[test]
     fn subsampled_keeps_a_depth_step() {
         // A depth step (a silhouette) on a block boundary (x = 16) and inside a block (x = 17,
         // whose block mean mixes the two surfaces): the fast filter fits its coefficients on
