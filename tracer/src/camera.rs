@@ -127,7 +127,12 @@ impl Camera {
     /// Primary ray through film position `film` (pixels, origin top-left) and `lens` (a point
     /// on the unit disk). Returns origin and unit direction.
     pub fn generate_ray(&self, film: Vec2, lens: Vec2, width: u32, height: u32) -> (Vec3, Vec3) {
-        let tan = self.tan_half_fov(width, height);
+        self.generate_ray_with_tan(self.tan_half_fov(width, height), film, lens, width, height)
+    }
+
+    /// `generate_ray` with `tan_half_fov(width, height)` computed by the caller once per image.
+    #[inline]
+    pub fn generate_ray_with_tan(&self, tan: Vec2, film: Vec2, lens: Vec2, width: u32, height: u32) -> (Vec3, Vec3) {
         let ndc_x = 2.0 * film.x / width as f32 - 1.0;
         let ndc_y = 1.0 - 2.0 * film.y / height as f32;
         let pinhole_dir = self.forward + self.right * (ndc_x * tan.x) + self.up * (ndc_y * tan.y);

@@ -284,22 +284,58 @@ pub struct Integrator<'a> {
     pub accel: &'a Accel,
     pub lights: &'a LightSampler,
     pub max_bounces: u32,
-    pub width: u32,
-    pub height: u32,
     /// An emissive mesh whose reflected light is also tallied on its own
     /// (`PathSample::split_emitter_light`): the planar light of the soft-shadow samples.
     pub split_emitter: Option<u32>,
+    width: u32,
+    height: u32,
+    /// Per-render constants, computed once instead of per camera ray: tan of half the field
+    /// of view along x and y, whether the camera has a lens and whether anything moves.
+    film_tan: Vec2,
+    has_lens: bool,
+    has_motion: bool,
 }
 
-impl Integrator<'_> {
+impl<'a> Integrator<'a> {
+    /// An integrator for images of `width` × `height` pixels and paths of up to `max_bounces`
+    /// bounces, without a split emitter.
+    pub fn new(
+        scene: &'a Scene,
+        accel: &'a Accel,
+        lights: &'a LightSampler,
+        max_bounces: u32,
+        width: u32,
+        height: u32,
+    ) -> Integrator<'a> {
+        Integrator {
+            scene,
+            accel,
+            lights,
+            max_bounces,
+            split_emitter: None,
+            width,
+            height,
+            film_tan: scene.camera.tan_half_fov(width, height),
+            has_lens: scene.camera.has_lens(),
+            has_motion: scene.has_motion(),
+        }
+    }
+
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
     /// Draws the camera coordinates of one sample in pixel (px, py): film position (box
     /// filter), lens position (only with an aperture) and time (only with motion).
     pub fn camera_sample(&self, px: u32, py: u32, sampler: &mut Sampler) -> CameraSample {
         let film = sampler.next_2d();
         let film = Vec2::new(px as f32 + film[0], py as f32 + film[1]);
-        let lens =
-            if self.scene.camera.has_lens() { concentric_disk(Vec2::from(sampler.next_2d())) } else { Vec2::ZERO };
-        let time = if self.scene.has_motion() { sampler.next_1d() } else { 0.0 };
+        let lens = if self.has_lens { concentric_disk(Vec2::from(sampler.next_2d())) } else { Vec2::ZERO };
+        let time = if self.has_motion { sampler.next_1d() } else { 0.0 };
         CameraSample { film, lens, time }
     }
 
@@ -316,8 +352,13 @@ impl Integrator<'_> {
         sampler: &mut Sampler,
         recorder: &mut R,
     ) -> PathSample {
-        let (origin, direction) =
-            self.scene.camera.generate_ray(camera_sample.film, camera_sample.lens, self.width, self.height);
+        let (origin, direction) = self.scene.camera.generate_ray_with_tan(
+            self.film_tan,
+            camera_sample.film,
+            camera_sample.lens,
+            self.width,
+            self.height,
+        );
         let ray = PathStart { origin, direction, time: camera_sample.time, bounce: 0, previous: None };
         let traced = self.trace_ray(&ray, sampler, recorder);
         PathSample {
@@ -437,14 +478,8 @@ impl Integrator<'_> {
                 let weight = match previous_bsdf_pdf {
                     None => 1.0,
                     Some(pdf) => {
-                        let light_pdf = self.lights.pdf_triangle(
-                            scene,
-                            hit.mesh,
-                            hit.triangle,
-                            time,
-                            previous_position,
-                            surface.position,
-                        );
+                        let light_pdf =
+                            self.lights.pdf_triangle(hit.mesh, hit.triangle, previous_position, surface.position);
                         power_heuristic(pdf, light_pdf)
                     }
                 };

@@ -15,9 +15,52 @@ use crate::scene::{PunctualLight, Scene};
 
 #[derive(Clone, Debug)]
 enum Emitter {
-    Triangle { mesh: u32, triangle: u32 },
+    Triangle(EmissiveTriangle),
     Punctual(PunctualLight),
     Environment,
+}
+
+/// An emissive triangle with what sampling it needs, computed once when the table is built
+/// instead of at every shading point: its corner `a` and edges at shutter open, its unit
+/// normal (counter-clockwise winding) and area, and its emission when no texture modulates it.
+/// Motion is a translation, so only the corner moves with time.
+#[derive(Clone, Debug)]
+struct EmissiveTriangle {
+    mesh: u32,
+    triangle: u32,
+    corner: Vec3,
+    edge_b: Vec3,
+    edge_c: Vec3,
+    motion: Vec3,
+    normal: Vec3,
+    area: f32,
+    /// Emission towards either side (`two_sided`) or the front side; `None` when a texture
+    /// modulates it and `triangle_emission` must look it up.
+    constant_emission: Option<Vec3>,
+    two_sided: bool,
+}
+
+impl EmissiveTriangle {
+    fn new(scene: &Scene, mesh: u32, triangle: u32) -> EmissiveTriangle {
+        let [a, b, c] = triangle_at(scene, mesh, triangle, 0.0);
+        let m = &scene.meshes[mesh as usize];
+        let material = &scene.materials[m.material as usize];
+        let cross = (b - a).cross(c - a);
+        let area = 0.5 * cross.length();
+        let textured = material.emission_texture.is_some() && m.uvs.is_some();
+        EmissiveTriangle {
+            mesh,
+            triangle,
+            corner: a,
+            edge_b: b - a,
+            edge_c: c - a,
+            motion: m.motion,
+            normal: if area > 0.0 { cross / (2.0 * area) } else { Vec3::ZERO },
+            area,
+            constant_emission: (!textured).then_some(material.emission),
+            two_sided: material.two_sided_emission,
+        }
+    }
 }
 
 /// Light arriving at a point from one sampled emitter.
@@ -100,7 +143,7 @@ impl LightSampler {
             let sides = if material.two_sided_emission { 2.0 } else { 1.0 };
             let lum = luminance(material.emission);
             for t in 0..mesh.indices.len() {
-                emitters.push(Emitter::Triangle { mesh: mi as u32, triangle: t as u32 });
+                emitters.push(Emitter::Triangle(EmissiveTriangle::new(scene, mi as u32, t as u32)));
                 power.push(lum * mesh.triangle_area(t) * PI * sides);
             }
         }
@@ -125,7 +168,7 @@ impl LightSampler {
         for (p, e) in power.iter_mut().zip(&emitters) {
             if !(*p > 0.0) || !p.is_finite() {
                 *p = match e {
-                    Emitter::Triangle { .. } => 1e-6,
+                    Emitter::Triangle(_) => 1e-6,
                     _ => 1e-3,
                 };
             }
@@ -157,19 +200,15 @@ impl LightSampler {
         let index = self.cdf.partition_point(|&c| c <= u_select).min(self.emitters.len() - 1);
         let select = self.probability[index];
         match &self.emitters[index] {
-            Emitter::Triangle { mesh, triangle } => {
-                let [a, b, c] = triangle_at(scene, *mesh, *triangle, time);
+            Emitter::Triangle(emitter) => {
+                if !(emitter.area > 0.0) {
+                    return None;
+                }
                 // Uniform point on the triangle; (b1, b2) are Embree's (u, v) barycentrics.
                 let su = u[0].sqrt();
                 let b1 = u[1] * su;
                 let b2 = su - b1;
-                let p = a * (1.0 - su) + b * b1 + c * b2;
-                let cross = (b - a).cross(c - a);
-                let area = 0.5 * cross.length();
-                if !(area > 0.0) {
-                    return None;
-                }
-                let ng = cross / (2.0 * area);
+                let p = emitter.corner + emitter.motion * time + emitter.edge_b * b1 + emitter.edge_c * b2;
                 let to_light = p - point;
                 let dist2 = to_light.length_squared();
                 if !(dist2 > 0.0) {
@@ -177,16 +216,29 @@ impl LightSampler {
                 }
                 let distance = dist2.sqrt();
                 let wi = to_light / distance;
-                let cos_light = ng.dot(-wi).abs();
+                let cos_signed = emitter.normal.dot(-wi);
+                let cos_light = cos_signed.abs();
                 if cos_light <= 1e-7 {
                     return None;
                 }
-                let le = triangle_emission(scene, *mesh, *triangle, Vec2::new(b1, b2), ng, -wi);
+                let le = match emitter.constant_emission {
+                    Some(emission) if emitter.two_sided || cos_signed > 0.0 => emission,
+                    Some(_) => return None,
+                    None => {
+                        triangle_emission(scene, emitter.mesh, emitter.triangle, Vec2::new(b1, b2), emitter.normal, -wi)
+                    }
+                };
                 if le == Vec3::ZERO {
                     return None;
                 }
-                let pdf = select * dist2 / (area * cos_light);
-                Some(LightSample { wi, distance, weighted_radiance: le / pdf, pdf: Some(pdf), mesh: Some(*mesh) })
+                let pdf = select * dist2 / (emitter.area * cos_light);
+                Some(LightSample {
+                    wi,
+                    distance,
+                    weighted_radiance: le / pdf,
+                    pdf: Some(pdf),
+                    mesh: Some(emitter.mesh),
+                })
             }
             Emitter::Punctual(light) => {
                 let (wi, distance, radiance) = punctual_incident(light, point)?;
@@ -211,24 +263,24 @@ impl LightSampler {
 
     /// Solid-angle pdf with which `sample` would have chosen the point `hit` on a mesh
     /// triangle, seen from `from`.
-    pub fn pdf_triangle(&self, scene: &Scene, mesh: u32, triangle: u32, time: f32, from: Vec3, hit: Vec3) -> f32 {
+    pub fn pdf_triangle(&self, mesh: u32, triangle: u32, from: Vec3, hit: Vec3) -> f32 {
         let Some(offset) = self.mesh_offset.get(mesh as usize).copied().flatten() else {
             return 0.0;
         };
-        let select = self.probability[(offset + triangle) as usize];
-        let [a, b, c] = triangle_at(scene, mesh, triangle, time);
-        let cross = (b - a).cross(c - a);
-        let area = 0.5 * cross.length();
+        let index = (offset + triangle) as usize;
+        let Some(Emitter::Triangle(emitter)) = self.emitters.get(index) else {
+            return 0.0;
+        };
         let to_light = hit - from;
         let dist2 = to_light.length_squared();
-        if !(area > 0.0) || !(dist2 > 0.0) {
+        if !(emitter.area > 0.0) || !(dist2 > 0.0) {
             return 0.0;
         }
-        let cos_light = (cross / (2.0 * area)).dot(to_light / dist2.sqrt()).abs();
+        let cos_light = emitter.normal.dot(to_light / dist2.sqrt()).abs();
         if cos_light <= 1e-7 {
             return 0.0;
         }
-        select * dist2 / (area * cos_light)
+        self.probability[index] * dist2 / (emitter.area * cos_light)
     }
 
     /// Solid-angle pdf of sampling the environment in any direction.
@@ -278,5 +330,146 @@ fn punctual_incident(light: &PunctualLight, point: Vec3) -> Option<(Vec3, f32, V
         PunctualLight::Directional { direction, irradiance } => {
             Some((-direction.normalize(), f32::INFINITY, *irradiance))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::shapes::polygon;
+    use crate::scene::Material;
+
+    /// A scene whose only emitter is the unit square at height 1 above the origin, spanning
+    /// [-0.5, 0.5]² and facing down (-z), plus a second, dim emitter far away so that selection
+    /// matters.
+    fn square_light_scene(radiance: Vec3, two_sided: bool, motion: Vec3) -> Scene {
+        let mut scene = Scene::empty("square-light");
+        scene.materials.push(Material { emission: radiance, two_sided_emission: two_sided, ..Material::default() });
+        scene.materials.push(Material { emission: Vec3::splat(0.01), ..Material::default() });
+        // Clockwise seen from above = counter-clockwise seen from below: faces -z.
+        let corners = [
+            Vec3::new(-0.5, -0.5, 1.0),
+            Vec3::new(-0.5, 0.5, 1.0),
+            Vec3::new(0.5, 0.5, 1.0),
+            Vec3::new(0.5, -0.5, 1.0),
+        ];
+        let mut light = polygon("light", &corners, 1);
+        light.motion = motion;
+        scene.meshes.push(light);
+        let far = [Vec3::new(10.0, 0.0, 5.0), Vec3::new(11.0, 0.0, 5.0), Vec3::new(10.0, 1.0, 5.0)];
+        scene.meshes.push(polygon("dim", &far, 2));
+        scene
+    }
+
+    /// Irradiance at `point` (normal +z) from a uniformly emitting polygon, by Lambert's
+    /// formula: E = L/2 Σ Θ_i (n · unit(r_i × r_{i+1})).
+    fn lambert_polygon_irradiance(point: Vec3, corners: &[Vec3], radiance: f32) -> f32 {
+        let mut sum = 0.0f64;
+        for i in 0..corners.len() {
+            let r0 = (corners[i] - point).normalize().as_dvec3();
+            let r1 = (corners[(i + 1) % corners.len()] - point).normalize().as_dvec3();
+            let angle = r0.dot(r1).clamp(-1.0, 1.0).acos();
+            sum += angle * r0.cross(r1).normalize().z;
+        }
+        (0.5 * radiance as f64 * sum.abs()) as f32
+    }
+
+    /// Monte Carlo irradiance at `point` (normal +z) from next-event samples, over a
+    /// rank-1 lattice in (u_select, u).
+    fn estimated_irradiance(lights: &LightSampler, scene: &Scene, point: Vec3, time: f32, only_mesh: u32) -> f32 {
+        let n = 1 << 18;
+        let mut sum = 0.0f64;
+        for i in 0..n {
+            let u_select = (i as f32 + 0.5) / n as f32;
+            let u = [(i as f32 * 0.754_877_7).fract(), (i as f32 * 0.569_840_3).fract()];
+            if let Some(sample) = lights.sample(scene, point, time, u_select, u) {
+                if sample.mesh == Some(only_mesh) {
+                    sum += (sample.weighted_radiance.x * sample.wi.z.max(0.0)) as f64;
+                }
+            }
+        }
+        (sum / n as f64) as f32
+    }
+
+    #[test]
+    fn area_light_sampling_gives_lamberts_polygon_irradiance() {
+        let scene = square_light_scene(Vec3::splat(3.0), false, Vec3::ZERO);
+        let lights = LightSampler::new(&scene);
+        for point in [Vec3::ZERO, Vec3::new(0.4, -0.2, 0.3), Vec3::new(-1.5, 0.5, 0.0)] {
+            let expected = lambert_polygon_irradiance(point, &scene.meshes[0].positions, 3.0);
+            let estimate = estimated_irradiance(&lights, &scene, point, 0.0, 0);
+            assert!((estimate / expected - 1.0).abs() < 5e-3, "{point}: {estimate} vs Lambert {expected}");
+        }
+    }
+
+    #[test]
+    fn a_moving_area_light_is_sampled_where_it_is_at_the_ray_time() {
+        let motion = Vec3::new(2.0, 0.0, 0.0);
+        let scene = square_light_scene(Vec3::splat(3.0), false, motion);
+        let lights = LightSampler::new(&scene);
+        let (time, point) = (0.7, Vec3::new(1.0, 0.3, 0.2));
+        let moved: Vec<Vec3> = scene.meshes[0].positions.iter().map(|&p| p + motion * time).collect();
+        let expected = lambert_polygon_irradiance(point, &moved, 3.0);
+        let estimate = estimated_irradiance(&lights, &scene, point, time, 0);
+        assert!((estimate / expected - 1.0).abs() < 5e-3, "{estimate} vs Lambert {expected}");
+    }
+
+    #[test]
+    fn sampled_density_matches_the_density_of_hitting_the_same_point() {
+        let scene = square_light_scene(Vec3::new(1.0, 2.0, 3.0), false, Vec3::new(0.0, 0.5, -0.25));
+        let lights = LightSampler::new(&scene);
+        let (time, point) = (0.3, Vec3::new(0.2, 0.1, 0.0));
+        let mut checked = 0;
+        for i in 0..500 {
+            let u_select = (i as f32 + 0.5) / 500.0;
+            let u = [(i as f32 * 0.754_877_7).fract(), (i as f32 * 0.569_840_3).fract()];
+            let Some(sample) = lights.sample(&scene, point, time, u_select, u) else { continue };
+            let Some(mesh) = sample.mesh else { continue };
+            // Which triangle holds the sampled point: the one whose plane-space barycentrics
+            // are all non-negative.
+            let hit = point + sample.wi * sample.distance;
+            let m = &scene.meshes[mesh as usize];
+            let triangle = (0..m.indices.len() as u32)
+                .find(|&t| {
+                    let [a, b, c] = triangle_at(&scene, mesh, t, time);
+                    let n = (b - a).cross(c - a);
+                    [(a, b), (b, c), (c, a)].iter().all(|&(p, q)| (q - p).cross(hit - p).dot(n) >= -1e-5)
+                })
+                .expect("the sampled point lies on a triangle of the mesh");
+            let pdf = lights.pdf_triangle(mesh, triangle, point, hit);
+            let sampled = sample.pdf.unwrap();
+            assert!((pdf / sampled - 1.0).abs() < 1e-3, "{pdf} vs {sampled}");
+            checked += 1;
+        }
+        assert!(checked > 400);
+    }
+
+    #[test]
+    fn one_sided_emitters_are_dark_from_behind_and_two_sided_ones_are_not() {
+        let above = Vec3::new(0.0, 0.0, 2.0);
+        let one_sided = square_light_scene(Vec3::ONE, false, Vec3::ZERO);
+        let lights = LightSampler::new(&one_sided);
+        let from_above = (0..100).filter_map(|i| lights.sample(&one_sided, above, 0.0, i as f32 / 100.0, [0.3, 0.6]));
+        assert_eq!(from_above.filter(|s| s.mesh == Some(0)).count(), 0);
+
+        let two_sided = square_light_scene(Vec3::ONE, true, Vec3::ZERO);
+        let lights = LightSampler::new(&two_sided);
+        let expected = lambert_polygon_irradiance(above, &two_sided.meshes[0].positions, 1.0);
+        // The receiver above faces down (normal -z), towards the light's back.
+        let estimate = {
+            let n = 1 << 16;
+            let mut sum = 0.0f64;
+            for i in 0..n {
+                let u_select = (i as f32 + 0.5) / n as f32;
+                let u = [(i as f32 * 0.754_877_7).fract(), (i as f32 * 0.569_840_3).fract()];
+                if let Some(s) = lights.sample(&two_sided, above, 0.0, u_select, u) {
+                    if s.mesh == Some(0) {
+                        sum += (s.weighted_radiance.x * (-s.wi.z).max(0.0)) as f64;
+                    }
+                }
+            }
+            (sum / n as f64) as f32
+        };
+        assert!((estimate / expected - 1.0).abs() < 1e-2, "{estimate} vs Lambert {expected}");
     }
 }

@@ -191,15 +191,7 @@ fn progress_bar(settings: &RenderSettings, len: u64, message: &str) -> ProgressB
 pub fn render(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result<Frame, RenderError> {
     settings.validate()?;
     let lights = LightSampler::new(scene);
-    let integrator = Integrator {
-        scene,
-        accel,
-        lights: &lights,
-        max_bounces: settings.max_bounces,
-        width: settings.width,
-        height: settings.height,
-        split_emitter: None,
-    };
+    let integrator = Integrator::new(scene, accel, &lights, settings.max_bounces, settings.width, settings.height);
     let tile_list = tiles(settings);
     let bar = progress_bar(settings, tile_list.len() as u64, "render");
     let pool = thread_pool(settings.threads)?;
@@ -224,15 +216,7 @@ pub fn render(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result
 pub fn record_rays(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result<Vec<RecordedRay>, RenderError> {
     settings.validate()?;
     let lights = LightSampler::new(scene);
-    let integrator = Integrator {
-        scene,
-        accel,
-        lights: &lights,
-        max_bounces: settings.max_bounces,
-        width: settings.width,
-        height: settings.height,
-        split_emitter: None,
-    };
+    let integrator = Integrator::new(scene, accel, &lights, settings.max_bounces, settings.width, settings.height);
     let pool = thread_pool(settings.threads)?;
     let per_tile: Vec<Vec<RecordedRay>> = pool.install(|| {
         tiles(settings)

@@ -247,7 +247,8 @@ pub fn guide_buffers(scene: &Scene, accel: &Accel, settings: &DumpSettings) -> R
     settings.validate()?;
     let lights = LightSampler::new(scene);
     let integrator = super::integrator(scene, accel, &lights, settings);
-    let direct_only = Integrator { max_bounces: 1, ..super::integrator(scene, accel, &lights, settings) };
+    let mut direct_only = super::integrator(scene, accel, &lights, settings);
+    direct_only.max_bounces = 1;
     let pool = crate::render::thread_pool(settings.threads)?;
     let pixels: Vec<GuidePixel> = pool.install(|| {
         (0..settings.width * settings.height)

@@ -202,8 +202,8 @@ fn dump_with(
 ) -> Result<DumpReport, RenderError> {
     settings.validate()?;
     let lights = LightSampler::new(scene);
-    let integrator =
-        crate::integrator::Integrator { split_emitter, ..super::integrator(scene, accel, &lights, settings) };
+    let mut integrator = super::integrator(scene, accel, &lights, settings);
+    integrator.split_emitter = split_emitter;
     let camera = &scene.camera;
     let spec = layout.header(scene, settings);
     write_samples(path, spec, settings, layout.values_per_sample(), |x, y, values| {

@@ -55,15 +55,7 @@ pub fn integrator<'a>(
     lights: &'a LightSampler,
     settings: &DumpSettings,
 ) -> Integrator<'a> {
-    Integrator {
-        scene,
-        accel,
-        lights,
-        max_bounces: settings.max_bounces,
-        width: settings.width,
-        height: settings.height,
-        split_emitter: None,
-    }
+    Integrator::new(scene, accel, lights, settings.max_bounces, settings.width, settings.height)
 }
 
 /// What a dump wrote.

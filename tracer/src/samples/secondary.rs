@@ -420,7 +420,7 @@ fn trace_secondary(
     let camera_sample = integrator.camera_sample(x, y, sampler);
     let time = camera_sample.time;
     let (origin, direction) =
-        scene.camera.generate_ray(camera_sample.film, camera_sample.lens, integrator.width, integrator.height);
+        scene.camera.generate_ray(camera_sample.film, camera_sample.lens, integrator.width(), integrator.height());
     let mut values = Vec::with_capacity(layout.values_per_sample());
     values.extend_from_slice(&[camera_sample.film.x, camera_sample.film.y]);
     if layout.lens {
