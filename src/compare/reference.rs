@@ -16,7 +16,7 @@ use super::effect::Tracing;
 use super::images::rgb_channels;
 
 /// Bumped whenever the tracer's estimators change what a reference contains.
-const ESTIMATOR_VERSION: &str = "lfr-reference/1";
+const ESTIMATOR_VERSION: &str = "lfr-reference/2";
 
 /// A reference: the mean of two halves, and the halves.
 pub struct Reference {

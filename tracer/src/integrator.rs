@@ -15,6 +15,7 @@ use crate::camera::concentric_disk;
 use crate::lights::{triangle_at, triangle_emission, LightSampler};
 use crate::sampler::Sampler;
 use crate::scene::Scene;
+use crate::texture::TextureRef;
 
 /// What one camera sample measured.
 #[derive(Clone, Copy, Debug, Default)]
@@ -112,6 +113,57 @@ impl RayRecorder for Vec<RecordedRay> {
     }
 }
 
+/// A ray cone (Akenine-Möller et al. 2019, "Texture Level of Detail Strategies for Real-Time
+/// Ray Tracing"): the width of the bundle of paths one sample stands for, growing linearly
+/// along the ray. It picks texture mip levels (`SurfacePoint::new`).
+///
+/// A camera ray starts at width 0 with an eighth of a pixel's angle (the finest footprint
+/// pbrt-v4's `Approximate_dp_dxy` uses, reached there at 64 spp). A bounce adds the angle one
+/// path gets of the sampled lobe when 64 paths share it: solid angle 1/(64 pdf), width √ of
+/// that, `BUNDLE_SHARE / √pdf` (0 for a mirror, about 0.2 rad for a Lambertian bounce).
+/// The footprints do not depend on the sample count, so renders at any spp converge to the
+/// same image and references stay comparable with sparse inputs.
+/// The linear share of a pixel's (or a lobe's) angle one path's cone takes: 1/8.
+pub const BUNDLE_SHARE: f32 = 0.125;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RayCone {
+    /// Width where the ray starts.
+    pub width: f32,
+    /// Width gained per unit of distance.
+    pub spread: f32,
+}
+
+impl RayCone {
+    /// Width at distance `t` along the ray.
+    #[inline]
+    pub fn width_at(&self, t: f32) -> f32 {
+        self.width + self.spread * t
+    }
+
+    /// The cone leaving a surface `t` along this one, in a direction drawn with density `pdf`.
+    #[inline]
+    pub fn after_bounce(&self, t: f32, pdf: f32) -> RayCone {
+        let added = BUNDLE_SHARE / pdf.sqrt();
+        let added = if added.is_nan() { 0.0 } else { added.clamp(0.0, 2.0) };
+        RayCone { width: self.width_at(t), spread: self.spread + added }
+    }
+}
+
+/// Level of detail, before a texture's own resolution and uv transform are added, of a lookup
+/// with a footprint `width` wide on a triangle with doubled world area `world_cross` and
+/// doubled uv area `uv_cross`, seen at cosine `cos_view`: log2 of the footprint's width in uv
+/// units (the ray-cone formula). −∞ (the finest level) for a zero width or degenerate uvs.
+#[inline]
+pub fn uv_level_of_detail(width: f32, world_cross: f32, uv_cross: f32, cos_view: f32) -> f32 {
+    let lod = (width / cos_view.abs().max(1e-3) * (uv_cross / world_cross).sqrt()).log2();
+    if lod.is_nan() {
+        f32::NEG_INFINITY
+    } else {
+        lod
+    }
+}
+
 /// Local geometry and material at a hit, oriented towards the outgoing direction.
 pub struct SurfacePoint {
     pub position: Vec3,
@@ -128,13 +180,16 @@ pub struct SurfacePoint {
 }
 
 impl SurfacePoint {
-    pub fn new(scene: &Scene, hit: &Hit, wo: Vec3, time: f32) -> SurfacePoint {
+    /// The surface at `hit`, its textures filtered over a footprint `footprint_width` wide
+    /// (a ray cone's width there; 0 for the finest level).
+    pub fn new(scene: &Scene, hit: &Hit, wo: Vec3, time: f32, footprint_width: f32) -> SurfacePoint {
         let mesh = &scene.meshes[hit.mesh as usize];
         let [a, b, c] = triangle_at(scene, hit.mesh, hit.triangle, time);
         let (u, v) = (hit.barycentric.x, hit.barycentric.y);
         let w = 1.0 - u - v;
         let position = a * w + b * u + c * v;
-        let winding_normal = (b - a).cross(c - a).normalize_or_zero();
+        let winding_cross = (b - a).cross(c - a);
+        let winding_normal = winding_cross.normalize_or_zero();
         let front_face = winding_normal.dot(wo) >= 0.0;
         let geometric_normal = if front_face { winding_normal } else { -winding_normal };
         let [ia, ib, ic] = mesh.indices[hit.triangle as usize];
@@ -156,18 +211,33 @@ impl SurfacePoint {
         if shading_normal.dot(wo) <= 1e-4 {
             shading_normal = geometric_normal;
         }
-        let uv = match &mesh.uvs {
-            Some(uvs) => uvs[ia as usize] * w + uvs[ib as usize] * u + uvs[ic as usize] * v,
-            None => Vec2::ZERO,
-        };
         let material = &scene.materials[mesh.material as usize];
+        let textured = material.base_color_texture.is_some() || material.metallic_roughness_texture.is_some();
+        let (uv, uv_lod) = match &mesh.uvs {
+            Some(uvs) => {
+                let [uv_a, uv_b, uv_c] = [uvs[ia as usize], uvs[ib as usize], uvs[ic as usize]];
+                let uv = uv_a * w + uv_b * u + uv_c * v;
+                let uv_lod = if textured && footprint_width > 0.0 {
+                    let uv_cross = (uv_b - uv_a).perp_dot(uv_c - uv_a).abs();
+                    uv_level_of_detail(footprint_width, winding_cross.length(), uv_cross, winding_normal.dot(wo))
+                } else {
+                    f32::NEG_INFINITY
+                };
+                (uv, uv_lod)
+            }
+            None => (Vec2::ZERO, f32::NEG_INFINITY),
+        };
+        let lookup = |t: &TextureRef| {
+            let texture = &scene.textures[t.index as usize];
+            texture.sample_filtered(t.apply(uv), uv_lod + t.half_log2_scale() + texture.half_log2_texels())
+        };
         let mut base_color = material.base_color;
         if let Some(t) = &material.base_color_texture {
-            base_color *= scene.textures[t.index as usize].sample(t.apply(uv)).truncate();
+            base_color *= lookup(t).truncate();
         }
         let (mut metallic, mut roughness) = (material.metallic, material.roughness);
         if let Some(t) = &material.metallic_roughness_texture {
-            let texel = scene.textures[t.index as usize].sample(t.apply(uv));
+            let texel = lookup(t);
             roughness *= texel.y;
             metallic *= texel.z;
         }
@@ -294,6 +364,8 @@ pub struct Integrator<'a> {
     film_tan: Vec2,
     has_lens: bool,
     has_motion: bool,
+    /// The ray cone's spread for camera rays (see `RayCone`).
+    camera_spread: f32,
 }
 
 impl<'a> Integrator<'a> {
@@ -307,6 +379,8 @@ impl<'a> Integrator<'a> {
         width: u32,
         height: u32,
     ) -> Integrator<'a> {
+        let film_tan = scene.camera.tan_half_fov(width, height);
+        let pixel_angle = (2.0 * film_tan.x / width.max(1) as f32).min(2.0 * film_tan.y / height.max(1) as f32);
         Integrator {
             scene,
             accel,
@@ -315,10 +389,23 @@ impl<'a> Integrator<'a> {
             split_emitter: None,
             width,
             height,
-            film_tan: scene.camera.tan_half_fov(width, height),
+            film_tan,
             has_lens: scene.camera.has_lens(),
             has_motion: scene.has_motion(),
+            camera_spread: pixel_angle * BUNDLE_SHARE,
         }
+    }
+
+    /// The ray cone of a camera ray.
+    pub fn camera_cone(&self) -> RayCone {
+        RayCone { width: 0.0, spread: self.camera_spread }
+    }
+
+    /// The ray cone leaving a surface at `position` in a direction drawn with density `pdf`,
+    /// when the path before it is not known: the camera ray's cone at that distance, bent.
+    pub fn cone_after_bounce_at(&self, position: Vec3, pdf: f32) -> RayCone {
+        let distance = (position - self.scene.camera.position).length();
+        self.camera_cone().after_bounce(distance, pdf)
     }
 
     pub fn width(&self) -> u32 {
@@ -450,6 +537,10 @@ impl<'a> Integrator<'a> {
             Some((pdf, position)) => (Some(pdf), position),
             None => (None, origin),
         };
+        let mut cone = match start.previous {
+            Some((pdf, position)) => self.cone_after_bounce_at(position, pdf),
+            None => self.camera_cone(),
+        };
 
         for bounce in start.bounce..=self.max_bounces {
             // Vertex level relative to the first hit: 0 = the first hit itself.
@@ -467,7 +558,8 @@ impl<'a> Integrator<'a> {
                 break;
             };
             let wo = -direction;
-            let surface = SurfacePoint::new(scene, &hit, wo, time);
+            let footprint_width = cone.width_at(hit.distance);
+            let surface = SurfacePoint::new(scene, &hit, wo, time, footprint_width);
 
             if level == 0 {
                 traced.first_hit = Some(FirstHit::new(&surface, hit.mesh, camera.depth(surface.position)));
@@ -518,6 +610,7 @@ impl<'a> Integrator<'a> {
                 break;
             }
             throughput *= bsdf_sample.weight;
+            cone = cone.after_bounce(hit.distance, bsdf_sample.pdf);
             previous_bsdf_pdf = Some(bsdf_sample.pdf);
             previous_position = surface.position;
             origin = surface.spawn_origin(wi);
@@ -532,5 +625,95 @@ impl<'a> Integrator<'a> {
             }
         }
         traced
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::f32::consts::{FRAC_1_PI, PI};
+
+    use super::*;
+    use crate::scene::shapes::polygon;
+    use crate::scene::Material;
+    use crate::texture::Texture;
+
+    #[test]
+    fn ray_cones_grow_linearly_and_bounces_add_the_lobe_share() {
+        let cone = RayCone { width: 0.5, spread: 0.01 };
+        assert_eq!(cone.width_at(10.0), 0.5 + 0.1);
+        // A mirror (delta lobe, infinite density) keeps the spread; a Lambertian bounce in the
+        // normal direction (pdf 1/π) adds BUNDLE_SHARE √π.
+        assert_eq!(cone.after_bounce(10.0, f32::INFINITY), RayCone { width: 0.6, spread: 0.01 });
+        let lambert = cone.after_bounce(10.0, FRAC_1_PI);
+        assert!((lambert.spread - (0.01 + BUNDLE_SHARE * PI.sqrt())).abs() < 1e-6);
+        // Vanishing or invalid densities add a bounded amount or nothing.
+        assert_eq!(cone.after_bounce(0.0, 0.0).spread, 0.01 + 2.0);
+        assert_eq!(cone.after_bounce(0.0, f32::NAN).spread, 0.01);
+    }
+
+    #[test]
+    fn level_of_detail_is_log2_of_the_footprint_in_uv_units() {
+        // A triangle of world area 4 mapped onto uv area 1: a footprint 2 wide covers 1 uv.
+        assert!((uv_level_of_detail(2.0, 8.0, 2.0, 1.0) - 0.0).abs() < 1e-6);
+        assert!((uv_level_of_detail(8.0, 8.0, 2.0, 1.0) - 2.0).abs() < 1e-6);
+        // Seen at 60° the footprint stretches by 1/cos = 2: one level coarser.
+        assert!((uv_level_of_detail(2.0, 8.0, 2.0, -0.5) - 1.0).abs() < 1e-6);
+        // Grazing views stay finite; no footprint or degenerate uvs mean the finest level.
+        assert!(uv_level_of_detail(2.0, 8.0, 2.0, 0.0).is_finite());
+        assert_eq!(uv_level_of_detail(0.0, 8.0, 2.0, 1.0), f32::NEG_INFINITY);
+        assert_eq!(uv_level_of_detail(2.0, 8.0, 0.0, 1.0), f32::NEG_INFINITY);
+        assert_eq!(uv_level_of_detail(0.0, 0.0, 0.0, 1.0), f32::NEG_INFINITY);
+    }
+
+    /// A 2 × 2 m floor at y = 0 with a 256 × 256 black-and-white checkerboard of single texels.
+    fn checkerboard_floor() -> Scene {
+        let mut scene = Scene::empty("checkerboard");
+        let raw: Vec<u8> = (0..256 * 256)
+            .flat_map(|i| {
+                let v = if (i % 256 + i / 256) % 2 == 0 { 255 } else { 0 };
+                [v, v, v, 255]
+            })
+            .collect();
+        scene.textures.push(Texture::from_rgba8("checker".into(), 256, 256, false, raw));
+        scene.materials.push(Material {
+            base_color: Vec3::ONE,
+            base_color_texture: Some(TextureRef::new(0)),
+            ..Material::default()
+        });
+        let corners = [
+            Vec3::new(-1.0, 0.0, -1.0),
+            Vec3::new(-1.0, 0.0, 1.0),
+            Vec3::new(1.0, 0.0, 1.0),
+            Vec3::new(1.0, 0.0, -1.0),
+        ];
+        let mut floor = polygon("floor", &corners, 1);
+        floor.uvs = Some(vec![Vec2::new(0.0, 0.0), Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)]);
+        scene.meshes.push(floor);
+        scene
+    }
+
+    #[test]
+    fn wide_footprints_see_the_texture_mean_and_narrow_ones_single_texels() {
+        let scene = checkerboard_floor();
+        let hit = |u: f32, v: f32| Hit {
+            distance: 1.0,
+            mesh: 0,
+            triangle: 0,
+            barycentric: Vec2::new(u, v),
+            geometric_normal: Vec3::Y,
+        };
+        let wo = Vec3::Y;
+        // Barycentrics at texel centres: the finest level returns the texel itself.
+        let (mut narrow, mut wide) = (Vec::new(), Vec::new());
+        for i in 0..50 {
+            let u = (i as f32 * 0.618_034).fract() * 0.45;
+            let v = (i as f32 * 0.754_877_7).fract() * 0.45;
+            narrow.push(SurfacePoint::new(&scene, &hit(u, v), wo, 0.0, 0.0).bsdf.base_color.x);
+            // A footprint of 0.5 m is 64 texels: level 6, a 4 × 4 checkerboard of means 0.5.
+            wide.push(SurfacePoint::new(&scene, &hit(u, v), wo, 0.0, 0.5).bsdf.base_color.x);
+        }
+        let spread = |values: &[f32]| values.iter().fold(0.0f32, |m, &x| m.max((x - 0.5).abs()));
+        assert!(spread(&narrow) > 0.3, "single texels are far from the mean: {narrow:?}");
+        assert!(spread(&wide) < 0.01, "wide footprints average the checkerboard: {wide:?}");
     }
 }

@@ -137,7 +137,7 @@ fn eye_ray(
         return EyeRay { film, direct: scene.environment, ..EyeRay::default() };
     };
     let wo = -direction;
-    let surface = SurfacePoint::new(scene, &hit, wo, 0.0);
+    let surface = SurfacePoint::new(scene, &hit, wo, 0.0, integrator.camera_cone().width_at(hit.distance));
     let frame = Frame::new(surface.shading_normal);
     let [u_select, u_lobe] = sampler.next_2d();
     let u_light = sampler.next_2d();
@@ -185,7 +185,7 @@ fn guide_pixel(
         };
     };
     let wo = -direction;
-    let surface = SurfacePoint::new(scene, &hit, wo, 0.0);
+    let surface = SurfacePoint::new(scene, &hit, wo, 0.0, integrator.camera_cone().width_at(hit.distance));
     let frame = Frame::new(surface.shading_normal);
     let emitted = surface.emission(scene, &hit, wo);
     let mut direct_sum = Vec3::ZERO;

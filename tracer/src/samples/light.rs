@@ -221,7 +221,13 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) 
             let (origin, direction) =
                 scene.camera.generate_ray(camera_sample.film, camera_sample.lens, settings.width, settings.height);
             let visible = accel.intersect(origin, direction, 0.0, f32::INFINITY, time).map(|hit| {
-                let surface = crate::integrator::SurfacePoint::new(scene, &hit, -direction, time);
+                let surface = crate::integrator::SurfacePoint::new(
+                    scene,
+                    &hit,
+                    -direction,
+                    time,
+                    integrator.camera_cone().width_at(hit.distance),
+                );
                 (surface.position, surface.geometric_normal)
             });
             let Some((p, p_normal)) = visible else {

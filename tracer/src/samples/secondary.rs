@@ -438,7 +438,8 @@ fn trace_secondary(
         return values;
     };
     let wo = -direction;
-    let surface = crate::integrator::SurfacePoint::new(scene, &hit, wo, time);
+    let footprint_width = integrator.camera_cone().width_at(hit.distance);
+    let surface = crate::integrator::SurfacePoint::new(scene, &hit, wo, time, footprint_width);
     let frame = Frame::new(surface.shading_normal);
     let wo_local = frame.to_local(wo);
     let emitted_at_origin = surface.emission(scene, &hit, wo);
@@ -478,7 +479,8 @@ fn trace_secondary(
                 // Only the first hit matters: trace one ray.
                 let mut traced = TracedRay::default();
                 if let Some(h) = integrator.accel.intersect(start.origin, wi, 0.0, f32::INFINITY, time) {
-                    let s = crate::integrator::SurfacePoint::new(scene, &h, -wi, time);
+                    let width = integrator.cone_after_bounce_at(surface.position, pdf).width_at(h.distance);
+                    let s = crate::integrator::SurfacePoint::new(scene, &h, -wi, time, width);
                     traced.first_hit = Some(FirstHit::new(&s, h.mesh, 0.0));
                 }
                 traced

@@ -626,7 +626,7 @@ impl<'a> Importer<'a> {
             return Ok(index);
         }
         let texture = match self.textures.get(&(image, !srgb)) {
-            Some(&other) => Texture { srgb, ..self.scene.textures[other as usize].clone() },
+            Some(&other) => self.scene.textures[other as usize].with_encoding(srgb),
             None => self.decode_image(image, srgb)?,
         };
         let index =
