@@ -18,29 +18,42 @@ pub struct TextureRef {
     /// Index into `Scene::textures`.
     pub index: u32,
     /// UV transform (`KHR_texture_transform`): uv' = M · (u, v, 1).
-    pub transform: Option<Mat3>,
+    transform: Option<Mat3>,
+    /// ½ log2 of the transform's area scale, computed once (see [`TextureRef::half_log2_scale`]).
+    half_log2_scale: f32,
 }
 
 impl TextureRef {
     pub fn new(index: u32) -> Self {
-        TextureRef { index, transform: None }
+        TextureRef { index, transform: None, half_log2_scale: 0.0 }
+    }
+
+    /// A reference through the uv transform `transform` (`None`: uv as stored).
+    pub fn with_transform(index: u32, transform: Option<Mat3>) -> Self {
+        let half_log2_scale = match &transform {
+            None => 0.0,
+            Some(m) => {
+                let area = (m.x_axis.x * m.y_axis.y - m.y_axis.x * m.x_axis.y).abs();
+                if area > 0.0 && area.is_finite() {
+                    0.5 * area.log2()
+                } else {
+                    0.0
+                }
+            }
+        };
+        TextureRef { index, transform, half_log2_scale }
+    }
+
+    /// The uv transform, if any.
+    pub fn transform(&self) -> Option<&Mat3> {
+        self.transform.as_ref()
     }
 
     /// log2 of how much the transform scales lengths in uv (½ log2 of its area scale), added
     /// to a lookup's level of detail.
     #[inline]
     pub fn half_log2_scale(&self) -> f32 {
-        match &self.transform {
-            None => 0.0,
-            Some(m) => {
-                let area = (m.x_axis.x * m.y_axis.y - m.y_axis.x * m.x_axis.y).abs();
-                if area > 0.0 {
-                    0.5 * area.log2()
-                } else {
-                    0.0
-                }
-            }
-        }
+        self.half_log2_scale
     }
 
     pub fn apply(&self, uv: Vec2) -> Vec2 {
@@ -259,10 +272,7 @@ impl Texture {
     /// Bilinear lookup in the finest level with repeat wrapping; (0,0) is the top-left corner
     /// of the image as stored (glTF and, after the loader flips v, OBJ conventions).
     pub fn sample(&self, uv: Vec2) -> Vec4 {
-        if self.texels.is_empty() {
-            return Vec4::ONE;
-        }
-        self.level(0).bilinear(uv, self.srgb)
+        self.sample_filtered(uv, 0.0)
     }
 
     /// Trilinear lookup at level of detail `lod` (0 = finest; each unit halves the
@@ -416,10 +426,12 @@ mod tests {
 
     #[test]
     fn uv_transform_scale_shifts_the_level() {
-        let scaled = TextureRef { index: 0, transform: Some(Mat3::from_scale(Vec2::new(4.0, 4.0))) };
+        let scaled = TextureRef::with_transform(0, Some(Mat3::from_scale(Vec2::new(4.0, 4.0))));
         assert!((scaled.half_log2_scale() - 2.0).abs() < 1e-6);
         assert_eq!(TextureRef::new(0).half_log2_scale(), 0.0);
-        let flat = TextureRef { index: 0, transform: Some(Mat3::from_scale(Vec2::new(0.0, 1.0))) };
+        let flat = TextureRef::with_transform(0, Some(Mat3::from_scale(Vec2::new(0.0, 1.0))));
         assert_eq!(flat.half_log2_scale(), 0.0);
+        let unbounded = TextureRef::with_transform(0, Some(Mat3::from_scale(Vec2::new(f32::INFINITY, 1.0))));
+        assert_eq!(unbounded.half_log2_scale(), 0.0);
     }
 }

@@ -616,7 +616,7 @@ impl<'a> Importer<'a> {
         }
         let index = self.texture_index(info.texture().source().index(), srgb)?;
         let transform = transform.map(|t| uv_transform(Vec2::from(t.offset()), t.rotation(), Vec2::from(t.scale())));
-        Ok(Some(TextureRef { index, transform }))
+        Ok(Some(TextureRef::with_transform(index, transform)))
     }
 
     /// Index in `scene.textures` of an image decoded as sRGB or linear. Each (image, encoding)
@@ -1062,7 +1062,7 @@ mod tests {
         // scale -> (0.5, 1.5); rotate (u' = cos u + sin v, v' = -sin u + cos v) -> (1.5, -0.5);
         // translate -> (2.0, -1.5).
         let m = uv_transform(Vec2::new(0.5, -1.0), std::f32::consts::FRAC_PI_2, Vec2::new(2.0, 3.0));
-        let texture = TextureRef { index: 0, transform: Some(m) };
+        let texture = TextureRef::with_transform(0, Some(m));
         let uv = texture.apply(Vec2::new(0.25, 0.5));
         assert!((uv - Vec2::new(2.0, -1.5)).abs().max_element() < 1e-6, "{uv}");
         let identity = uv_transform(Vec2::ZERO, 0.0, Vec2::ONE);
@@ -1122,7 +1122,7 @@ mod tests {
         }
         let uv = base.apply(Vec2::new(0.25, 0.5));
         assert!((uv - Vec2::new(2.0, -1.5)).abs().max_element() < 1e-5, "{uv}");
-        assert!(metallic_roughness.transform.is_none() && emission.transform.is_none());
+        assert!(metallic_roughness.transform().is_none() && emission.transform().is_none());
         let mask = masked.alpha.as_ref().expect("alpha mask");
         assert_eq!((&mask.texture, mask.channel, mask.factor, mask.cutoff), (&base, 3, 0.8, 0.3));
 
@@ -1195,7 +1195,7 @@ mod tests {
         assert_eq!(scene.meshes.len(), 1);
         let material = &scene.materials[scene.meshes[0].material as usize];
         let texture = material.metallic_roughness_texture.as_ref().expect("roughness texture");
-        assert!(texture.transform.is_some());
+        assert!(texture.transform().is_some());
         // offset (0, -23), scale (24, 24).
         let uv = texture.apply(Vec2::new(0.5, 0.5));
         assert!((uv - Vec2::new(12.0, -11.0)).abs().max_element() < 1e-4, "{uv}");
