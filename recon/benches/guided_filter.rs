@@ -11,27 +11,10 @@ use std::time::Duration;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use recon::guided_filter::guided_filter_planes_subsampled;
 use recon::image::Image;
+use recon::lcg::Lcg;
 
 const WIDTH: usize = 1024;
 const HEIGHT: usize = 768;
-
-/// SplitMix64: a tiny deterministic generator.
-struct Rng(u64);
-
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    fn unit(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-    }
-}
 
 fn normalize(v: [f32; 3]) -> [f32; 3] {
     let length = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
@@ -71,7 +54,7 @@ fn surface(x: usize, y: usize) -> ([f32; 3], f32, [f32; 3]) {
 /// normal their mean, depth over the scene extent) and a noisy input: shaded albedo times a
 /// heavy-tailed per-channel noise factor, as a few path-traced samples give.
 fn scene() -> (Image, Vec<Vec<f32>>) {
-    let mut rng = Rng(0x5EED);
+    let mut rng = Lcg(0x5EED);
     let extent = 6.5;
     let light = normalize([0.4, 0.8, 0.45]);
     let mut planes: Vec<Vec<f32>> = (0..5).map(|_| Vec::with_capacity(WIDTH * HEIGHT)).collect();
@@ -86,7 +69,7 @@ fn scene() -> (Image, Vec<Vec<f32>>) {
             }
             planes[4].push((depth / extent).clamp(0.0, 1.0));
             let shade = 0.2 + (n[0] * light[0] + n[1] * light[1] + n[2] * light[2]).max(0.0);
-            pixels.push(albedo.map(|a| a * shade * -(1.0 - rng.unit()).ln()));
+            pixels.push(albedo.map(|a| a * shade * -(1.0 - rng.uniform()).ln()));
         }
     }
     (Image::from_pixels(WIDTH as u32, HEIGHT as u32, pixels), planes)

@@ -34,6 +34,7 @@ use recon::ilfr::disc::{Disc, Ray};
 use recon::ilfr::samples::{read_indirect, IndirectSamples, SampleClass};
 use recon::ilfr::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams};
 use recon::ilfr::splats::{size_splats, GatheredPoints, SplatParams};
+use recon::lcg::Lcg;
 use sampleio::{SampleFile, SampleKind};
 
 #[path = "../tests/support/embree_discs.rs"]
@@ -55,22 +56,13 @@ fn embree_device(threads: u32) -> (Device, Arc<AtomicIsize>) {
 // ---------------------------------------------------------------------------------------------
 // Input: a sample file or a synthetic Cornell box, through the pipeline of `ilfr::method`.
 
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f32 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((self.0 >> 40) as f32) / (1u64 << 24) as f32
-    }
-}
-
 fn normalize(v: [f32; 3]) -> [f32; 3] {
     let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     [v[0] / l, v[1] / l, v[2] / l]
 }
 
 /// A cosine-distributed unit vector about the unit `n`.
-fn cosine_about(n: [f32; 3], rng: &mut Rng) -> [f32; 3] {
+fn cosine_about(n: [f32; 3], rng: &mut Lcg) -> [f32; 3] {
     let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
     let t = normalize([
         helper[1] * n[2] - helper[2] * n[1],
@@ -78,7 +70,7 @@ fn cosine_about(n: [f32; 3], rng: &mut Rng) -> [f32; 3] {
         helper[0] * n[1] - helper[1] * n[0],
     ]);
     let b = [n[1] * t[2] - n[2] * t[1], n[2] * t[0] - n[0] * t[2], n[0] * t[1] - n[1] * t[0]];
-    let (u, v) = (rng.next(), rng.next() * std::f32::consts::TAU);
+    let (u, v) = (rng.uniform(), rng.uniform() * std::f32::consts::TAU);
     let (r, z) = (u.sqrt(), (1.0 - u).max(0.0).sqrt());
     let (x, y) = (r * v.cos(), r * v.sin());
     normalize([0, 1, 2].map(|a| x * t[a] + y * b[a] + z * n[a]))
@@ -128,7 +120,7 @@ fn trace(o: [f32; 3], d: [f32; 3]) -> Option<(f32, [f32; 3])> {
 /// open face, one cosine-distributed secondary ray per primary hit.
 fn synthetic_cornell(width: u32, height: u32, spp: u32) -> IndirectSamples {
     let n = (width * height * spp) as usize;
-    let mut rng = Rng(7);
+    let mut rng = Lcg(7);
     let mut s = IndirectSamples::empty(
         format!("synthetic Cornell box {width}x{height} at {spp} spp"),
         SampleKind::Indirect,
@@ -140,7 +132,7 @@ fn synthetic_cornell(width: u32, height: u32, spp: u32) -> IndirectSamples {
     for y in 0..height {
         for x in 0..width {
             for _ in 0..spp {
-                let film = [x as f32 + rng.next(), y as f32 + rng.next()];
+                let film = [x as f32 + rng.uniform(), y as f32 + rng.uniform()];
                 let px = (2.0 * film[0] / width as f32 - 1.0) * tan_half * width as f32 / height as f32;
                 let py = (1.0 - 2.0 * film[1] / height as f32) * tan_half;
                 let (t, normal) = trace(camera, normalize([px, py, -1.0])).expect("the camera looks into the room");
@@ -189,7 +181,7 @@ fn splat_discs(samples: &IndirectSamples) -> (Vec<Disc>, Vec<f32>, f32, usize) {
 /// `count` reconstruction rays spread evenly over the primary hits.
 fn reconstruction_rays(samples: &IndirectSamples, offset: f32, count: usize) -> Vec<Ray> {
     let hits: Vec<usize> = (0..samples.len()).filter(|&i| samples.class[i] != SampleClass::CameraMiss).collect();
-    let mut rng = Rng(12345);
+    let mut rng = Lcg(12345);
     (0..count)
         .map(|k| {
             let i = hits[k * hits.len() / count];

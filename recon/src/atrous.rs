@@ -378,11 +378,7 @@ fn inverse_sigma(sigma: f64) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn lcg(state: &mut u64) -> f32 {
-        *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((*state >> 40) as f32) / (1u64 << 24) as f32
-    }
+    use crate::lcg::Lcg;
 
     /// A fronto-parallel plane at depth 2 with positions 0.01 apart.
     fn flat_guide(width: u32, height: u32) -> GuideBuffers {
@@ -401,21 +397,21 @@ mod tests {
 
     /// Random normals, depths, positions and secondary normals, with a few escaped pixels.
     fn messy_guide(width: u32, height: u32, seed: u64) -> GuideBuffers {
-        let mut state = seed;
+        let mut rng = Lcg(seed);
         let mut guide = flat_guide(width, height);
         let mut secondary = Vec::with_capacity(guide.pixel_count());
         for i in 0..guide.pixel_count() {
-            secondary.push([lcg(&mut state), lcg(&mut state), lcg(&mut state)]);
-            if lcg(&mut state) < 0.1 {
+            secondary.push([rng.uniform(), rng.uniform(), rng.uniform()]);
+            if rng.uniform() < 0.1 {
                 guide.normal[i] = [0.0; 3];
                 guide.depth[i] = 0.0;
                 guide.position[i] = [0.0; 3];
             } else {
-                let n = [lcg(&mut state) - 0.5, lcg(&mut state) - 0.5, 1.0];
+                let n = [rng.uniform() - 0.5, rng.uniform() - 0.5, 1.0];
                 let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
                 guide.normal[i] = n.map(|c| c / len);
-                guide.depth[i] = 0.5 + 10.0 * lcg(&mut state);
-                guide.position[i] = [lcg(&mut state), lcg(&mut state), guide.depth[i]];
+                guide.depth[i] = 0.5 + 10.0 * rng.uniform();
+                guide.position[i] = [rng.uniform(), rng.uniform(), guide.depth[i]];
             }
         }
         guide.secondary_normal = Some(secondary);
@@ -423,9 +419,8 @@ mod tests {
     }
 
     fn noise_image(width: u32, height: u32, seed: u64) -> Image {
-        let mut state = seed;
-        let pixels =
-            (0..width * height).map(|_| [lcg(&mut state), 2.0 * lcg(&mut state), lcg(&mut state) - 0.5]).collect();
+        let mut rng = Lcg(seed);
+        let pixels = (0..width * height).map(|_| [rng.uniform(), 2.0 * rng.uniform(), rng.uniform() - 0.5]).collect();
         Image::from_pixels(width, height, pixels)
     }
 
@@ -609,11 +604,11 @@ mod tests {
                 }
             }
         }
-        let mut state = seed;
+        let mut rng = Lcg(seed);
         let noisy = Image::from_pixels(
             width,
             height,
-            truth.pixels.iter().map(|p| p.map(|c| c + 0.3 * (lcg(&mut state) - 0.5))).collect(),
+            truth.pixels.iter().map(|p| p.map(|c| c + 0.3 * (rng.uniform() - 0.5))).collect(),
         );
         (guide, truth, noisy)
     }
@@ -654,12 +649,9 @@ mod tests {
                 truth.set(x, y, if left { [1.0; 3] } else { [0.0; 3] });
             }
         }
-        let mut state = 3;
-        let noisy = Image::from_pixels(
-            w,
-            h,
-            truth.pixels.iter().map(|p| p.map(|c| c + 0.3 * (lcg(&mut state) - 0.5))).collect(),
-        );
+        let mut rng = Lcg(3);
+        let noisy =
+            Image::from_pixels(w, h, truth.pixels.iter().map(|p| p.map(|c| c + 0.3 * (rng.uniform() - 0.5))).collect());
         guide.secondary_normal = Some(secondary);
         let without = AtrousParams::default();
         let with = AtrousParams { use_secondary_normal: true, ..without };

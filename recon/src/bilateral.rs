@@ -425,12 +425,7 @@ pub(crate) fn normalised_sq(d: f32, inverse_sigma: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A deterministic pseudo-random number in [0, 1).
-    fn lcg(state: &mut u64) -> f32 {
-        *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((*state >> 40) as f32) / (1u64 << 24) as f32
-    }
+    use crate::lcg::Lcg;
 
     fn flat_guide(width: u32, height: u32) -> GuideBuffers {
         let n = (width * height) as usize;
@@ -446,26 +441,25 @@ mod tests {
 
     /// Random normals, depths and a few escaped pixels.
     fn messy_guide(width: u32, height: u32, seed: u64) -> GuideBuffers {
-        let mut state = seed;
+        let mut rng = Lcg(seed);
         let mut guide = flat_guide(width, height);
         for i in 0..guide.pixel_count() {
-            if lcg(&mut state) < 0.1 {
+            if rng.uniform() < 0.1 {
                 guide.normal[i] = [0.0; 3];
                 guide.depth[i] = 0.0;
             } else {
-                let n = [lcg(&mut state) - 0.5, lcg(&mut state) - 0.5, 1.0];
+                let n = [rng.uniform() - 0.5, rng.uniform() - 0.5, 1.0];
                 let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
                 guide.normal[i] = n.map(|c| c / len);
-                guide.depth[i] = 0.5 + 10.0 * lcg(&mut state);
+                guide.depth[i] = 0.5 + 10.0 * rng.uniform();
             }
         }
         guide
     }
 
     fn noise_image(width: u32, height: u32, seed: u64) -> Image {
-        let mut state = seed;
-        let pixels =
-            (0..width * height).map(|_| [lcg(&mut state), 2.0 * lcg(&mut state), lcg(&mut state) - 0.5]).collect();
+        let mut rng = Lcg(seed);
+        let pixels = (0..width * height).map(|_| [rng.uniform(), 2.0 * rng.uniform(), rng.uniform() - 0.5]).collect();
         Image::from_pixels(width, height, pixels)
     }
 
@@ -630,12 +624,9 @@ mod tests {
                 truth.set(x, y, if x < w / 2 { [1.0; 3] } else { [0.0; 3] });
             }
         }
-        let mut state = 17;
-        let noisy = Image::from_pixels(
-            w,
-            h,
-            truth.pixels.iter().map(|p| p.map(|c| c + 0.2 * (lcg(&mut state) - 0.5))).collect(),
-        );
+        let mut rng = Lcg(17);
+        let noisy =
+            Image::from_pixels(w, h, truth.pixels.iter().map(|p| p.map(|c| c + 0.2 * (rng.uniform() - 0.5))).collect());
         let params = BilateralParams::with_radius(6);
         let (edge_aware, _) = cross_bilateral(&noisy, &guide, &params).unwrap();
         let (blind, _) = cross_bilateral(&noisy, &guide, &geometry_blind(6, params.sigma_spatial)).unwrap();

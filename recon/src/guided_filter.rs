@@ -1377,33 +1377,17 @@ fn box_rows(
 #[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
+    use crate::lcg::Lcg;
     use std::time::Instant;
 
-    /// SplitMix64: a tiny deterministic generator for test data.
-    struct Rng(u64);
-
-    impl Rng {
-        fn next_u64(&mut self) -> u64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^ (z >> 31)
-        }
-
-        /// Uniform in [0, 1).
-        fn unit(&mut self) -> f32 {
-            (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-        }
-    }
-
-    fn random_image(width: u32, height: u32, rng: &mut Rng) -> Image {
-        let pixels = (0..width * height).map(|_| [rng.unit(), rng.unit() * 2.0, rng.unit() * 0.5 + 3.0]).collect();
+    fn random_image(width: u32, height: u32, rng: &mut Lcg) -> Image {
+        let pixels =
+            (0..width * height).map(|_| [rng.uniform(), rng.uniform() * 2.0, rng.uniform() * 0.5 + 3.0]).collect();
         Image::from_pixels(width, height, pixels)
     }
 
-    fn random_planes(d: usize, count: usize, rng: &mut Rng) -> Vec<Vec<f32>> {
-        (0..d).map(|_| (0..count).map(|_| rng.unit()).collect()).collect()
+    fn random_planes(d: usize, count: usize, rng: &mut Lcg) -> Vec<Vec<f32>> {
+        (0..d).map(|_| (0..count).map(|_| rng.uniform()).collect()).collect()
     }
 
     fn flat_guide(width: u32, height: u32, normal: [f32; 3], depth: f32) -> GuideBuffers {
@@ -1602,7 +1586,7 @@ mod tests {
 
     #[test]
     fn matches_naive_per_window_definition() {
-        let mut rng = Rng(1);
+        let mut rng = Lcg(1);
         let (width, height) = (23, 17);
         let noisy = random_image(width, height, &mut rng);
         let planes = random_planes(4, (width * height) as usize, &mut rng);
@@ -1631,7 +1615,7 @@ mod tests {
         // (the upsampling's unrolled loops) and 5 (its general one).
         let cases =
             [(13u32, 11u32, 2usize, 3u32), (16, 9, 3, 4), (7, 20, 2, 2), (10, 2, 2, 5), (9, 9, 4, 40), (31, 12, 5, 9)];
-        let mut rng = Rng(21);
+        let mut rng = Lcg(21);
         for (width, height, s, radius) in cases {
             let noisy = random_image(width, height, &mut rng);
             for d in [1usize, 3, 4] {
@@ -1653,7 +1637,7 @@ mod tests {
     fn subsampled_strips_give_the_same_bits_for_any_thread_count() {
         // Tall enough that the subsampled image is cut into strips, whose boundaries need the
         // row past each strip for the bilinear blend.
-        let mut rng = Rng(22);
+        let mut rng = Lcg(22);
         let (width, height) = (11u32, 700u32);
         let noisy = random_image(width, height, &mut rng);
         let planes = random_planes(4, (width * height) as usize, &mut rng);
@@ -1672,7 +1656,7 @@ mod tests {
     fn same_bits_for_any_thread_count() {
         // Tall enough for several strips, which then run on different threads; the strips'
         // boundaries (coefficient rows computed by both neighbours) match the definition.
-        let mut rng = Rng(14);
+        let mut rng = Lcg(14);
         let (width, height) = (9u32, 1100u32);
         let noisy = random_image(width, height, &mut rng);
         let planes = random_planes(4, (width * height) as usize, &mut rng);
@@ -1695,7 +1679,7 @@ mod tests {
 
     #[test]
     fn constant_guide_gives_the_box_mean() {
-        let mut rng = Rng(2);
+        let mut rng = Lcg(2);
         let (width, height) = (19u32, 13u32);
         let noisy = random_image(width, height, &mut rng);
         let guide = flat_guide(width, height, [0.0, 0.0, 1.0], 3.0);
@@ -1736,7 +1720,7 @@ mod tests {
         }
     }
 
-    fn step_scene(rng: &mut Rng) -> (Image, GuideBuffers) {
+    fn step_scene(rng: &mut Lcg) -> (Image, GuideBuffers) {
         let (width, height) = (32u32, 32u32);
         let mut guide = flat_guide(width, height, [0.0, 0.0, 1.0], 2.0);
         let mut noisy = Image::new(width, height);
@@ -1747,7 +1731,7 @@ mod tests {
                 if x >= 16 {
                     guide.depth[i] = 10.0;
                 }
-                noisy.pixels[i] = [0; 3].map(|_| base + (rng.unit() - 0.5) * 0.8);
+                noisy.pixels[i] = [0; 3].map(|_| base + (rng.uniform() - 0.5) * 0.8);
             }
         }
         (noisy, guide)
@@ -1773,7 +1757,7 @@ mod tests {
     fn subsampled_constant_and_rank_deficient_guides_stay_finite() {
         // A flat wall (Σ = 0) and two identical channels (Σ singular) with s = 2: the solve's
         // ε keeps both well posed; the result matches the definition and stays finite.
-        let mut rng = Rng(25);
+        let mut rng = Lcg(25);
         let noisy = random_image(14, 9, &mut rng);
         let flat = vec![vec![0.5f32; 126]; 4];
         let plane = random_planes(1, 126, &mut rng).remove(0);
@@ -1790,7 +1774,7 @@ mod tests {
         // A depth step (a silhouette) on a block boundary (x = 16) and inside a block (x = 17,
         // whose block mean mixes the two surfaces): the fast filter fits its coefficients on
         // block means but applies them to the full-resolution guide, so the step stays sharp.
-        let mut rng = Rng(24);
+        let mut rng = Lcg(24);
         for step in [16usize, 17] {
             let (width, height) = (32u32, 32u32);
             let mut guide = flat_guide(width, height, [0.0, 0.0, 1.0], 2.0);
@@ -1800,7 +1784,7 @@ mod tests {
                 if i % 32 >= step {
                     guide.depth[i] = 10.0;
                 }
-                noisy.pixels[i] = [0; 3].map(|_| truth(i % 32) + (rng.unit() - 0.5) * 0.8);
+                noisy.pixels[i] = [0; 3].map(|_| truth(i % 32) + (rng.uniform() - 0.5) * 0.8);
             }
             let errors = |image: &Image| {
                 let (mut worst, mut sum) = (0.0f64, 0.0f64);
@@ -1833,7 +1817,7 @@ mod tests {
 
     #[test]
     fn depth_step_is_preserved() {
-        let mut rng = Rng(3);
+        let mut rng = Lcg(3);
         let (noisy, guide) = step_scene(&mut rng);
         let radius = 6u32;
         let boxed: Vec<[f32; 3]> = (0..32 * 32)
@@ -1864,7 +1848,7 @@ mod tests {
 
     #[test]
     fn affine_input_is_reproduced() {
-        let mut rng = Rng(4);
+        let mut rng = Lcg(4);
         let (width, height) = (21u32, 18u32);
         let count = (width * height) as usize;
         let planes = random_planes(4, count, &mut rng);
@@ -1889,7 +1873,7 @@ mod tests {
 
     #[test]
     fn huge_radius_is_the_global_regression() {
-        let mut rng = Rng(5);
+        let mut rng = Lcg(5);
         let (width, height) = (40u32, 27u32);
         let count = (width * height) as usize;
         let noisy = random_image(width, height, &mut rng);
@@ -1910,7 +1894,7 @@ mod tests {
 
     #[test]
     fn nonfinite_input_is_sanitised_and_counted() {
-        let mut rng = Rng(6);
+        let mut rng = Lcg(6);
         let mut noisy = random_image(9, 7, &mut rng);
         let mut zeroed = noisy.clone();
         noisy.pixels[3] = [f32::NAN, 1.0, f32::INFINITY];
@@ -1931,7 +1915,7 @@ mod tests {
 
     #[test]
     fn subsampled_extremes_stay_finite() {
-        let mut rng = Rng(23);
+        let mut rng = Lcg(23);
         // A spike of 1e30 among values near 1, and f32::MAX: finite output, spike-free far away.
         let mut noisy = random_image(12, 10, &mut rng);
         noisy.pixels[5] = [1e30; 3];
@@ -1963,7 +1947,7 @@ mod tests {
 
     #[test]
     fn black_stays_black() {
-        let mut rng = Rng(7);
+        let mut rng = Lcg(7);
         let noisy = Image::new(11, 6);
         let planes = random_planes(4, 66, &mut rng);
         for radius in [0u32, 1, 4, 50] {
@@ -1974,7 +1958,7 @@ mod tests {
 
     #[test]
     fn tiny_images() {
-        let mut rng = Rng(8);
+        let mut rng = Lcg(8);
         let one = random_image(1, 1, &mut rng);
         for radius in [0u32, 1, 24] {
             let (found, _) = guided_filter_planes(&one, &random_planes(4, 1, &mut rng), &[0.01; 4], radius).unwrap();
@@ -1999,7 +1983,7 @@ mod tests {
 
     #[test]
     fn rank_deficient_guide_stays_finite() {
-        let mut rng = Rng(9);
+        let mut rng = Lcg(9);
         let (width, height) = (24u32, 20u32);
         let mut guide = flat_guide(width, height, [0.0, 0.0, 1.0], 4.0);
         for (i, n) in guide.normal.iter_mut().enumerate() {
@@ -2035,8 +2019,8 @@ mod tests {
     fn fallback_when_epsilon_is_below_rounding() {
         // Two identical guide channels: Σ is singular with entries ~1/12, ε = 1e-30 is far below
         // the rounding error of the moments, so some windows must fall back to the box mean.
-        let mut rng = Rng(10);
-        let plane: Vec<f32> = (0..200).map(|_| rng.unit()).collect();
+        let mut rng = Lcg(10);
+        let plane: Vec<f32> = (0..200).map(|_| rng.uniform()).collect();
         let noisy = random_image(20, 10, &mut rng);
         let (found, report) =
             guided_filter_planes(&noisy, &[plane.clone(), plane.clone()], &[1e-30, 1e-30], 2).unwrap();
@@ -2048,7 +2032,7 @@ mod tests {
 
     #[test]
     fn bad_arguments_are_rejected() {
-        let mut rng = Rng(11);
+        let mut rng = Lcg(11);
         let noisy = random_image(4, 3, &mut rng);
         let planes = random_planes(2, 12, &mut rng);
         for bad in [0.0f32, -0.01, f32::NAN, f32::INFINITY] {
@@ -2105,10 +2089,10 @@ mod tests {
 
     #[test]
     fn large_image_keeps_f64_accuracy() {
-        let mut rng = Rng(12);
+        let mut rng = Lcg(12);
         let (width, height) = (2048u32, 2048u32);
         let count = (width * height) as usize;
-        let pixels = (0..count).map(|_| [0; 3].map(|_| 1000.0 + (rng.unit() - 0.5) * 2e-4)).collect();
+        let pixels = (0..count).map(|_| [0; 3].map(|_| 1000.0 + (rng.uniform() - 0.5) * 2e-4)).collect();
         let noisy = Image::from_pixels(width, height, pixels);
         let planes: Vec<Vec<f32>> = (0..4)
             .map(|j| {
@@ -2136,7 +2120,7 @@ mod tests {
     #[test]
     #[ignore]
     fn timing_1024x768() {
-        let mut rng = Rng(13);
+        let mut rng = Lcg(13);
         let (width, height) = (1024u32, 768u32);
         let noisy = random_image(width, height, &mut rng);
         let mut guide = flat_guide(width, height, [0.0, 0.0, 1.0], 1.0);

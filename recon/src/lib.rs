@@ -12,6 +12,7 @@ pub mod guide;
 pub mod guided_filter;
 pub mod ilfr;
 pub mod image;
+pub mod lcg;
 pub mod method;
 pub mod metrics;
 pub mod octahedral;

@@ -10,6 +10,7 @@
 use embree3::{BuildQuality, Device, IntersectContextExt};
 use recon::ilfr::bvh::DiscBvh;
 use recon::ilfr::disc::{intersect, Disc, Ray};
+use recon::lcg::Lcg;
 
 #[path = "support/embree_discs.rs"]
 mod embree_discs;
@@ -40,39 +41,24 @@ fn ours(bvh: &DiscBvh, ray: &Ray, t_min: f32, t_max: f32) -> Vec<(u32, f32)> {
     hits
 }
 
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f32 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((self.0 >> 40) as f32) / (1u64 << 24) as f32
-    }
-
-    fn unit(&mut self) -> [f32; 3] {
-        let (u, v) = (self.next() * 2.0 - 1.0, self.next() * std::f32::consts::TAU);
-        let r = (1.0 - u * u).max(0.0).sqrt();
-        [r * v.cos(), r * v.sin(), u]
-    }
-}
-
 /// Splats of a Cornell-like room [0, 1]³ open at z = 1: on the five walls with normals tilted by
 /// up to ≈ 0.3 rad (as estimated shading normals are), radii 0.02–0.15, and a few floating at
 /// random orientations; some with radius 0 (shrunk to nothing) and some duplicated.
 fn room_discs(n: usize, seed: u64) -> Vec<Disc> {
-    let mut rng = Rng(seed);
+    let mut rng = Lcg(seed);
     let mut discs: Vec<Disc> = Vec::with_capacity(n);
     for i in 0..n {
         let disc = if i % 7 == 6 {
-            Disc::new([rng.next(), rng.next(), rng.next()], rng.unit(), 0.01 + 0.1 * rng.next())
+            Disc::new([rng.uniform(), rng.uniform(), rng.uniform()], rng.unit_vector(), 0.01 + 0.1 * rng.uniform())
         } else {
             let wall = i % 5;
             let (axis, side) = [(0, 0.0), (0, 1.0), (1, 0.0), (1, 1.0), (2, 0.0)][wall];
-            let mut centre = [rng.next(), rng.next(), rng.next()];
+            let mut centre = [rng.uniform(), rng.uniform(), rng.uniform()];
             centre[axis] = side;
-            let tilt = rng.unit();
+            let tilt = rng.unit_vector();
             let mut normal = tilt.map(|t| 0.3 * t);
             normal[axis] += if side == 0.0 { 1.0 } else { -1.0 };
-            Disc::new(centre, normal, 0.02 + 0.13 * rng.next())
+            Disc::new(centre, normal, 0.02 + 0.13 * rng.uniform())
         };
         discs.push(match i % 53 {
             5 => Disc { radius: 0.0, ..disc },
@@ -104,14 +90,14 @@ fn embree_discs_collect_the_same_discs_as_our_bvh() {
     let discs = room_discs(800, 3);
     let bvh = DiscBvh::build(&discs).unwrap();
     let embree = embree_scene(&device, &discs);
-    let mut rng = Rng(11);
+    let mut rng = Lcg(11);
     let (mut hits, mut disagreeing_rays, mut duplicates) = (0, 0, 0);
     let rays = 800;
     for k in 0..rays {
-        let origin = [0.05 + 0.9 * rng.next(), 0.05 + 0.9 * rng.next(), 0.05 + 0.9 * rng.next()];
-        let ray = Ray { time: 0.0, origin, direction: rng.unit() };
+        let origin = [0.05 + 0.9 * rng.uniform(), 0.05 + 0.9 * rng.uniform(), 0.05 + 0.9 * rng.uniform()];
+        let ray = Ray { time: 0.0, origin, direction: rng.unit_vector() };
         // The reconstruction's window, and one like the retrace of an input ray.
-        let (t_min, t_max) = if k % 2 == 0 { (0.0, f32::INFINITY) } else { (0.01, 0.2 + rng.next()) };
+        let (t_min, t_max) = if k % 2 == 0 { (0.0, f32::INFINITY) } else { (0.01, 0.2 + rng.uniform()) };
         let mine = ours(&bvh, &ray, t_min, t_max);
         let (theirs, twice) = theirs(&embree, &ray, t_min, t_max);
         duplicates += twice;

@@ -394,32 +394,24 @@ fn partition(refs: &mut [BuildRef], left: impl Fn(&BuildRef) -> bool) -> usize {
 mod tests {
     use super::*;
     use crate::ilfr::disc::length;
-
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> f32 {
-            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((self.0 >> 40) as f32) / (1u64 << 24) as f32
-        }
-        fn unit(&mut self) -> [f32; 3] {
-            let (u, v) = (self.next() * 2.0 - 1.0, self.next() * std::f32::consts::TAU);
-            let r = (1.0 - u * u).max(0.0).sqrt();
-            [r * v.cos(), r * v.sin(), u]
-        }
-    }
+    use crate::lcg::Lcg;
 
     /// Discs on a bumpy surface and on a few random planes, with some duplicates and zero radii.
     fn random_discs(n: usize, seed: u64) -> Vec<Disc> {
-        let mut rng = Rng(seed);
+        let mut rng = Lcg(seed);
         let mut discs = Vec::with_capacity(n);
         for i in 0..n {
             let disc = if i % 3 == 0 {
-                Disc::new([rng.next() * 4.0, rng.next() * 4.0, rng.next() * 4.0], rng.unit(), rng.next() * 0.3)
+                Disc::new(
+                    [rng.uniform() * 4.0, rng.uniform() * 4.0, rng.uniform() * 4.0],
+                    rng.unit_vector(),
+                    rng.uniform() * 0.3,
+                )
             } else {
-                let (x, y) = (rng.next() * 4.0, rng.next() * 4.0);
+                let (x, y) = (rng.uniform() * 4.0, rng.uniform() * 4.0);
                 let z = 0.3 * (3.0 * x).sin() * (2.0 * y).cos();
                 let normal = [-0.9 * (3.0 * x).cos() * (2.0 * y).cos(), 0.6 * (3.0 * x).sin() * (2.0 * y).sin(), 1.0];
-                Disc::new([x, y, z], normal, 0.02 + rng.next() * 0.1)
+                Disc::new([x, y, z], normal, 0.02 + rng.uniform() * 0.1)
             };
             discs.push(match i % 101 {
                 7 => discs[i - 1],
@@ -431,11 +423,11 @@ mod tests {
     }
 
     fn random_rays(n: usize, seed: u64) -> Vec<(Ray, f32, f32)> {
-        let mut rng = Rng(seed);
+        let mut rng = Lcg(seed);
         (0..n)
             .map(|i| {
-                let origin = [rng.next() * 6.0 - 1.0, rng.next() * 6.0 - 1.0, rng.next() * 3.0 - 1.0];
-                let mut direction = rng.unit();
+                let origin = [rng.uniform() * 6.0 - 1.0, rng.uniform() * 6.0 - 1.0, rng.uniform() * 3.0 - 1.0];
+                let mut direction = rng.unit_vector();
                 if i % 17 == 0 {
                     // Axis-aligned directions exercise the 1/d guard.
                     direction = [0.0, 0.0, if i % 2 == 0 { 1.0 } else { -1.0 }];
@@ -443,7 +435,7 @@ mod tests {
                 let (t_min, t_max) = match i % 3 {
                     0 => (0.0, f32::INFINITY),
                     1 => (1e-3, 2.0),
-                    _ => (0.5, 1.0 + rng.next() * 4.0),
+                    _ => (0.5, 1.0 + rng.uniform() * 4.0),
                 };
                 (Ray { time: 0.0, origin, direction }, t_min, t_max)
             })
@@ -520,13 +512,13 @@ mod tests {
         let rays = random_rays(2000, 6);
         let before = assert_walk_equals_scan(&bvh, &rays);
         // Shrink every other disc to a pseudo-random fraction, some to zero.
-        let mut rng = Rng(9);
+        let mut rng = Lcg(9);
         let radii: Vec<f32> = bvh
             .radii()
             .iter()
             .enumerate()
             .map(|(i, &r)| match i % 4 {
-                0 => r * rng.next(),
+                0 => r * rng.uniform(),
                 1 => 0.0,
                 _ => r,
             })
@@ -592,11 +584,11 @@ mod tests {
         use rayon::prelude::*;
         let n = 200_000;
         // Splats on a bumpy 20 × 20 surface sized like slice 1's k = 12 radii (≈ 2 spacings).
-        let mut rng = Rng(1);
+        let mut rng = Lcg(1);
         let spacing = (400.0f32 / n as f32).sqrt();
         let discs: Vec<Disc> = (0..n)
             .map(|_| {
-                let (x, y) = (rng.next() * 20.0, rng.next() * 20.0);
+                let (x, y) = (rng.uniform() * 20.0, rng.uniform() * 20.0);
                 let z = 0.5 * (x * 0.7).sin() * (y * 0.5).cos();
                 let normal = [-0.35 * (x * 0.7).cos() * (y * 0.5).cos(), 0.25 * (x * 0.7).sin() * (y * 0.5).sin(), 1.0];
                 Disc::new([x, y, z], normal, 2.0 * spacing)
@@ -611,17 +603,17 @@ mod tests {
         // plane) and rays from 3 units above crossing it (the case of a ray meeting a surface).
         let leaving: Vec<Ray> = (0..m)
             .map(|_| {
-                let (x, y) = (rng.next() * 20.0, rng.next() * 20.0);
+                let (x, y) = (rng.uniform() * 20.0, rng.uniform() * 20.0);
                 let z = 0.5 * (x * 0.7).sin() * (y * 0.5).cos() + 0.01;
-                let mut d = rng.unit();
+                let mut d = rng.unit_vector();
                 d[2] = d[2].abs();
                 Ray { time: 0.0, origin: [x, y, z], direction: d }
             })
             .collect();
         let crossing: Vec<Ray> = (0..m)
             .map(|_| {
-                let (x, y) = (2.0 + rng.next() * 16.0, 2.0 + rng.next() * 16.0);
-                let mut d = rng.unit();
+                let (x, y) = (2.0 + rng.uniform() * 16.0, 2.0 + rng.uniform() * 16.0);
+                let mut d = rng.unit_vector();
                 d[2] = -d[2].abs().max(0.5);
                 let l = length(d);
                 Ray { time: 0.0, origin: [x, y, 3.0], direction: [d[0] / l, d[1] / l, d[2] / l] }

@@ -152,6 +152,7 @@ pub fn intersect(disc: &Disc, ray: &Ray, t_min: f32, t_max: f32) -> Option<DiscH
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::lcg::Lcg;
 
     fn normalize(v: [f32; 3]) -> [f32; 3] {
         let l = length(v);
@@ -271,11 +272,8 @@ mod tests {
     #[test]
     fn bounds_are_exact_for_tilted_discs() {
         // The box must hold every rim point and touch the rim on each side.
-        let mut state = 7u64;
-        let mut next = move || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((state >> 40) as f32) / (1u64 << 24) as f32 * 2.0 - 1.0
-        };
+        let mut rng = Lcg(7u64);
+        let mut next = move || rng.uniform() * 2.0 - 1.0;
         for _ in 0..50 {
             let disc = Disc::new([next(), next(), next()], [next(), next(), next() + 0.01], 0.5 + next().abs());
             let (lo, hi) = disc.bounds();

@@ -418,6 +418,7 @@ pub fn reconstruct_samples(
 pub(crate) mod tests {
     use super::*;
     use crate::ilfr::samples::{PrimaryShading, SampleClass};
+    use crate::lcg::Lcg;
     use sampleio::SampleKind;
 
     /// The inside of the box [−1, 1]² × [0, 2] (or only its floor and a ceiling at `ceiling`
@@ -448,11 +449,6 @@ pub(crate) mod tests {
         Some((h, n))
     }
 
-    fn rng(state: &mut u64) -> f32 {
-        *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((*state >> 40) as f32) / (1u64 << 24) as f32
-    }
-
     /// W×H pixels looking at the floor z = 0 of the box (pixel (x, y) ↦ floor point inside
     /// [−0.9, 0.9]²), `spp` cosine-distributed secondary rays per pixel, radiance of a hit
     /// `radiance(h)`; `ao` files carry distances instead.
@@ -466,13 +462,13 @@ pub(crate) mod tests {
         let n = (size * size * spp) as usize;
         let mut s = IndirectSamples::empty("synthetic.lfrs".into(), kind, (size, size, spp), n);
         let (mut radiances, mut distances, mut albedo) = (Vec::new(), Vec::new(), Vec::new());
-        let mut state = 12345u64;
+        let mut rng = Lcg(12345u64);
         for y in 0..size {
             for x in 0..size {
                 for _ in 0..spp {
-                    let (fx, fy) = (x as f32 + rng(&mut state), y as f32 + rng(&mut state));
+                    let (fx, fy) = (x as f32 + rng.uniform(), y as f32 + rng.uniform());
                     let o = [-0.9 + 1.8 * fx / size as f32, -0.9 + 1.8 * fy / size as f32, 0.0];
-                    let (u, v) = (rng(&mut state), rng(&mut state));
+                    let (u, v) = (rng.uniform(), rng.uniform());
                     let (r, phi) = (u.sqrt(), std::f32::consts::TAU * v);
                     let d = [r * phi.cos(), r * phi.sin(), (1.0 - u).max(0.0).sqrt()];
                     let exit = box_exit(o, d, open_ceiling.unwrap_or(2.0), open_ceiling.is_some());
@@ -686,26 +682,22 @@ pub(crate) mod tests {
         // sample radiances (or a sky sample, or the sample itself): each pixel stays within
         // albedo × [min L, max L], finite.
         let mut samples = box_samples(8, 4, SampleKind::Indirect, None, |_| [1.0; 3]);
-        let mut state = 777u64;
+        let mut rng = Lcg(777u64);
         let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
         for i in 0..samples.len() {
             if samples.class[i] != SampleClass::Hit {
                 continue;
             }
-            let l = if rng(&mut state) < 0.1 { 1e6 } else { 1e-3 + rng(&mut state) };
+            let l = if rng.uniform() < 0.1 { 1e6 } else { 1e-3 + rng.uniform() };
             samples.radiance.as_mut().unwrap()[i] = [l; 3];
             lo = lo.min(l);
             hi = hi.max(l);
             if i % 2 == 0 {
                 let o = samples.primary_hit[i];
-                let t = 0.2 + 1.2 * rng(&mut state);
+                let t = 0.2 + 1.2 * rng.uniform();
                 let d = samples.direction[i];
                 samples.secondary_hit[i] = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
-                let n = crate::ilfr::gather::normalize([
-                    rng(&mut state) - 0.5,
-                    rng(&mut state) - 0.5,
-                    rng(&mut state) - 0.5,
-                ]);
+                let n = crate::ilfr::gather::normalize([rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5]);
                 let facing = n[0] * d[0] + n[1] * d[1] + n[2] * d[2] < 0.0;
                 samples.secondary_normal[i] = if facing { n } else { n.map(|c| -c) };
             }

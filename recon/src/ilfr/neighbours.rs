@@ -194,13 +194,11 @@ impl Ord for Entry {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::lcg::Lcg;
 
     fn random_points(n: usize, seed: u64) -> Vec<[f32; 3]> {
-        let mut state = seed;
-        let mut next = move || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((state >> 40) as f32) / (1u64 << 24) as f32
-        };
+        let mut rng = Lcg(seed);
+        let mut next = move || rng.uniform();
         (0..n).map(|_| [next() * 4.0, next() * 4.0, (next() * 4.0).floor() * 0.25]).collect()
     }
 

@@ -213,6 +213,7 @@ pub fn shrink_splats(bvh: &mut DiscBvh, rays: &[InputRay], params: &ShrinkParams
 mod tests {
     use super::*;
     use crate::ilfr::disc::{intersect, Disc};
+    use crate::lcg::Lcg;
 
     const UP: [f32; 3] = [0.0, 0.0, 1.0];
 
@@ -314,25 +315,17 @@ mod tests {
         );
     }
 
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> f32 {
-            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((self.0 >> 40) as f32) / (1u64 << 24) as f32
-        }
-    }
-
     /// Two parallel planes: splats on z = 0 (facing up) and z = 1 (facing down) with a gap in the
     /// upper plane (no samples for |x − 2| < 0.25) that its neighbours' splats overlap, a third
     /// plane at z = 2 (facing down) and a plane far aside that no ray reaches. Rays go from the
     /// lower plane to the upper plane's samples (consistent) and through the gap to z = 2.
     fn two_planes() -> (Vec<Disc>, Vec<InputRay>, std::ops::Range<usize>) {
-        let mut rng = Rng(3);
+        let mut rng = Lcg(3);
         let mut discs = Vec::new();
         let mut rays = Vec::new();
         let radius = 0.3;
         for _ in 0..1500 {
-            let (x, y) = (rng.next() * 4.0, rng.next() * 4.0);
+            let (x, y) = (rng.uniform() * 4.0, rng.uniform() * 4.0);
             discs.push(Disc::new([x, y, 0.0], UP, radius));
         }
         let shoot = |discs: &mut Vec<Disc>, rays: &mut Vec<InputRay>, hit: [f32; 3], normal: [f32; 3]| {
@@ -349,7 +342,7 @@ mod tests {
             });
         };
         for _ in 0..1500 {
-            let (x, y) = (rng.next() * 4.0, rng.next() * 4.0);
+            let (x, y) = (rng.uniform() * 4.0, rng.uniform() * 4.0);
             if (x - 2.0).abs() >= 0.25 {
                 shoot(&mut discs, &mut rays, [x, y, 1.0], [0.0, 0.0, -1.0]);
             } else {
@@ -362,7 +355,7 @@ mod tests {
         }
         let aside = discs.len()..discs.len() + 200;
         for _ in 0..200 {
-            discs.push(Disc::new([20.0 + rng.next(), rng.next(), 0.5], [1.0, 0.0, 0.0], radius));
+            discs.push(Disc::new([20.0 + rng.uniform(), rng.uniform(), 0.5], [1.0, 0.0, 0.0], radius));
         }
         (discs, rays, aside)
     }
@@ -422,17 +415,17 @@ mod tests {
     #[test]
     fn random_scenes_match_the_definition_for_any_thread_count() {
         // Random discs and random rays between random points, some escaping.
-        let mut rng = Rng(17);
+        let mut rng = Lcg(17);
         let discs: Vec<Disc> = (0..2000)
             .map(|_| {
-                let n = normalize([rng.next() - 0.5, rng.next() - 0.5, rng.next() - 0.5 + 1e-3]);
-                Disc::new([rng.next() * 3.0, rng.next() * 3.0, rng.next() * 3.0], n, rng.next() * 0.3)
+                let n = normalize([rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5 + 1e-3]);
+                Disc::new([rng.uniform() * 3.0, rng.uniform() * 3.0, rng.uniform() * 3.0], n, rng.uniform() * 0.3)
             })
             .collect();
         let rays: Vec<InputRay> = (0..3000)
             .map(|j| {
                 let own = (j * 7 % discs.len()) as u32;
-                let origin = [rng.next() * 3.0, rng.next() * 3.0, rng.next() * 3.0];
+                let origin = [rng.uniform() * 3.0, rng.uniform() * 3.0, rng.uniform() * 3.0];
                 let offset = super::super::disc::sub(discs[own as usize].centre, origin);
                 let l = length(offset);
                 let direction = [offset[0] / l, offset[1] / l, offset[2] / l];
@@ -467,12 +460,12 @@ mod tests {
         // from 1 to 3 units up and up to 1 aside, a quarter escaping upwards. (Rays are not checked
         // against the true surface, so a few cross its hills: the counts are indicative only.)
         let n = 200_000;
-        let mut rng = Rng(1);
+        let mut rng = Lcg(1);
         let spacing = (400.0f32 / n as f32).sqrt();
         let height = |x: f32, y: f32| 0.5 * (x * 0.7).sin() * (y * 0.5).cos();
         let discs: Vec<Disc> = (0..n)
             .map(|_| {
-                let (x, y) = (rng.next() * 20.0, rng.next() * 20.0);
+                let (x, y) = (rng.uniform() * 20.0, rng.uniform() * 20.0);
                 let normal = [-0.35 * (x * 0.7).cos() * (y * 0.5).cos(), 0.25 * (x * 0.7).sin() * (y * 0.5).sin(), 1.0];
                 Disc::new([x, y, height(x, y)], normal, 2.0 * spacing)
             })
@@ -480,8 +473,11 @@ mod tests {
         let rays: Vec<InputRay> = (0..n)
             .map(|j| {
                 let target = discs[j].centre;
-                let origin =
-                    [target[0] + 2.0 * rng.next() - 1.0, target[1] + 2.0 * rng.next() - 1.0, 1.0 + 2.0 * rng.next()];
+                let origin = [
+                    target[0] + 2.0 * rng.uniform() - 1.0,
+                    target[1] + 2.0 * rng.uniform() - 1.0,
+                    1.0 + 2.0 * rng.uniform(),
+                ];
                 if j % 4 == 0 {
                     return InputRay { time: 0.0, origin, direction: UP, length: f32::INFINITY, own_splat: None };
                 }

@@ -413,6 +413,7 @@ impl Selector<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::lcg::Lcg;
 
     const UP: [f32; 3] = [0.0, 0.0, 1.0];
 
@@ -570,11 +571,8 @@ mod tests {
 
     /// A bumpy surface with random directions, κ from a small set and a few coincident hits.
     fn random_cloud(n: usize, seed: u64) -> Cloud {
-        let mut state = seed;
-        let mut next = move || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((state >> 40) as f32) / (1u64 << 24) as f32
-        };
+        let mut rng = Lcg(seed);
+        let mut next = move || rng.uniform();
         let mut cloud = Cloud { position: vec![], normal: vec![], direction: vec![], kappa: Some(vec![]) };
         for i in 0..n {
             let (x, y) = (next() * 4.0, next() * 4.0);

@@ -263,6 +263,7 @@ pub fn measure_radius(samples: &[LensTimeSample], width: u32, height: u32, spp: 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::lcg::Lcg;
 
     #[test]
     fn lattices_have_their_known_dispersion() {
@@ -299,20 +300,12 @@ mod tests {
                 30.0
             };
             let points: Vec<[f32; 2]> =
-                (0..count).map(|_| [spread * rng.next() - 1.0, spread * rng.next() - 2.0]).collect();
+                (0..count).map(|_| [spread * rng.uniform() - 1.0, spread * rng.uniform() - 2.0]).collect();
             let region = [0.0, -1.0, 8.0, 7.5];
             let step = [0.05, 0.13, 0.3][case % 3];
             let bounded = dispersion(&points, region, step);
             let scanned = dispersion_by_scan(&points, region, step);
             assert_eq!(bounded.map(f32::to_bits), scanned.map(f32::to_bits), "case {case}: {bounded:?} {scanned:?}");
-        }
-    }
-
-    struct Lcg(u64);
-    impl Lcg {
-        fn next(&mut self) -> f32 {
-            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (self.0 >> 40) as f32 / (1u64 << 24) as f32
         }
     }
 
@@ -327,11 +320,11 @@ mod tests {
                 for s in 0..spp {
                     let (i, j) = (s % n, s / n);
                     samples.push(LensTimeSample {
-                        x: x as f32 + (i as f32 + rng.next()) / n as f32,
-                        y: y as f32 + (j as f32 + rng.next()) / (spp.div_ceil(n)) as f32,
-                        u: 2.0 * rng.next() - 1.0,
-                        v: 2.0 * rng.next() - 1.0,
-                        t: rng.next(),
+                        x: x as f32 + (i as f32 + rng.uniform()) / n as f32,
+                        y: y as f32 + (j as f32 + rng.uniform()) / (spp.div_ceil(n)) as f32,
+                        u: 2.0 * rng.uniform() - 1.0,
+                        v: 2.0 * rng.uniform() - 1.0,
+                        t: rng.uniform(),
                         z: 1.0,
                         motion: [0.0; 3],
                     });

@@ -102,6 +102,7 @@ pub fn near_limit(depths: impl IntoIterator<Item = f32>) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::lcg::Lcg;
 
     fn lens() -> LensModel {
         // fx = fy = 80, principal point (32, 24), lens radius 0.1, focus 4.
@@ -119,26 +120,18 @@ mod tests {
         [cx + f * on_focus_plane[0] / focus, cy + f * on_focus_plane[1] / focus]
     }
 
-    struct Lcg(u64);
-    impl Lcg {
-        fn next(&mut self) -> f32 {
-            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (self.0 >> 40) as f32 / (1u64 << 24) as f32
-        }
-    }
-
     #[test]
     fn the_own_coordinates_leave_a_sample_in_place() {
         let mut rng = Lcg(7);
         for _ in 0..1000 {
             let sample = LensTimeSample {
-                x: 64.0 * rng.next(),
-                y: 48.0 * rng.next(),
-                u: 2.0 * rng.next() - 1.0,
-                v: 2.0 * rng.next() - 1.0,
-                t: rng.next(),
-                z: 0.5 + 10.0 * rng.next(),
-                motion: [rng.next() - 0.5, rng.next() - 0.5, rng.next() - 0.5],
+                x: 64.0 * rng.uniform(),
+                y: 48.0 * rng.uniform(),
+                u: 2.0 * rng.uniform() - 1.0,
+                v: 2.0 * rng.uniform() - 1.0,
+                t: rng.uniform(),
+                z: 0.5 + 10.0 * rng.uniform(),
+                motion: [rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5],
             };
             let at = LensTime { u: sample.u, v: sample.v, t: sample.t };
             let same = reproject(&sample, &lens(), at, 1e-3).unwrap();
@@ -151,13 +144,13 @@ mod tests {
     fn reprojection_agrees_with_projecting_the_moving_point() {
         let mut rng = Lcg(11);
         for _ in 0..1000 {
-            let start = [2.0 * rng.next() - 1.0, 2.0 * rng.next() - 1.0, 1.0 + 6.0 * rng.next()];
-            let motion = [rng.next() - 0.5, rng.next() - 0.5, 1.5 * (rng.next() - 0.5)];
+            let start = [2.0 * rng.uniform() - 1.0, 2.0 * rng.uniform() - 1.0, 1.0 + 6.0 * rng.uniform()];
+            let motion = [rng.uniform() - 0.5, rng.uniform() - 0.5, 1.5 * (rng.uniform() - 0.5)];
             let at_time = |t: f32| [start[0] + t * motion[0], start[1] + t * motion[1], start[2] + t * motion[2]];
-            let (u, v, t) = (2.0 * rng.next() - 1.0, 2.0 * rng.next() - 1.0, rng.next());
+            let (u, v, t) = (2.0 * rng.uniform() - 1.0, 2.0 * rng.uniform() - 1.0, rng.uniform());
             let [x, y] = project(at_time(t), u, v);
             let sample = LensTimeSample { x, y, u, v, t, z: at_time(t)[2], motion };
-            let target = LensTime { u: 2.0 * rng.next() - 1.0, v: 2.0 * rng.next() - 1.0, t: rng.next() };
+            let target = LensTime { u: 2.0 * rng.uniform() - 1.0, v: 2.0 * rng.uniform() - 1.0, t: rng.uniform() };
             let expected = project(at_time(target.t), target.u, target.v);
             let found = reproject(&sample, &lens(), target, 1e-3).unwrap();
             assert!(

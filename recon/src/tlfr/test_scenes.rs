@@ -9,6 +9,7 @@ use super::hierarchy::{reorder, Hierarchy};
 use super::lens::LensModel;
 use super::query::max_reach;
 use super::reprojection::LensTimeSample;
+pub use crate::lcg::Lcg;
 
 /// A rectangle [x0, x1] × [y0, y1] (camera space) at depth `z` at t = 0, displaced by `motion`
 /// over the shutter, with a constant colour.
@@ -41,26 +42,6 @@ impl ThinLens {
             fy: self.f,
             cx: 0.5 * self.width as f32,
             cy: 0.5 * self.height as f32,
-        }
-    }
-}
-
-/// A small deterministic generator (64-bit LCG, top 24 bits).
-pub struct Lcg(pub u64);
-
-impl Lcg {
-    pub fn uniform(&mut self) -> f32 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (self.0 >> 40) as f32 / (1u64 << 24) as f32
-    }
-
-    /// A point of the unit disk (rejection sampling).
-    pub fn disk(&mut self) -> (f32, f32) {
-        loop {
-            let (u, v) = (2.0 * self.uniform() - 1.0, 2.0 * self.uniform() - 1.0);
-            if u * u + v * v <= 1.0 {
-                return (u, v);
-            }
         }
     }
 }
