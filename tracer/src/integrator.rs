@@ -113,6 +113,10 @@ impl RayRecorder for Vec<RecordedRay> {
     }
 }
 
+/// The linear share of a pixel's (or a lobe's) angle one path's cone takes: 1/8 (see
+/// [`RayCone`]).
+pub const BUNDLE_SHARE: f32 = 0.125;
+
 /// A ray cone (Akenine-Möller et al. 2019, "Texture Level of Detail Strategies for Real-Time
 /// Ray Tracing"): the width of the bundle of paths one sample stands for, growing linearly
 /// along the ray. It picks texture mip levels (`SurfacePoint::new`).
@@ -123,9 +127,6 @@ impl RayRecorder for Vec<RecordedRay> {
 /// that, `BUNDLE_SHARE / √pdf` (0 for a mirror, about 0.2 rad for a Lambertian bounce).
 /// The footprints do not depend on the sample count, so renders at any spp converge to the
 /// same image and references stay comparable with sparse inputs.
-/// The linear share of a pixel's (or a lobe's) angle one path's cone takes: 1/8.
-pub const BUNDLE_SHARE: f32 = 0.125;
-
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RayCone {
     /// Width where the ray starts.

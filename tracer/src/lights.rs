@@ -143,8 +143,9 @@ impl LightSampler {
             let sides = if material.two_sided_emission { 2.0 } else { 1.0 };
             let lum = luminance(material.emission);
             for t in 0..mesh.indices.len() {
-                emitters.push(Emitter::Triangle(EmissiveTriangle::new(scene, mi as u32, t as u32)));
-                power.push(lum * mesh.triangle_area(t) * PI * sides);
+                let emitter = EmissiveTriangle::new(scene, mi as u32, t as u32);
+                power.push(lum * emitter.area * PI * sides);
+                emitters.push(Emitter::Triangle(emitter));
             }
         }
         for light in &scene.lights {
