@@ -31,6 +31,19 @@ pub struct PathSample {
     pub split_emitter_light: Vec3,
 }
 
+impl From<TracedRay> for PathSample {
+    /// A camera path's sample from what its camera ray gathered.
+    fn from(traced: TracedRay) -> PathSample {
+        PathSample {
+            direct: traced.emitted + traced.direct,
+            indirect: traced.beyond,
+            first_hit: traced.first_hit,
+            rays: traced.rays,
+            split_emitter_light: traced.split_emitter_light,
+        }
+    }
+}
+
 impl PathSample {
     pub fn radiance(&self) -> Vec3 {
         self.direct + self.indirect
@@ -273,6 +286,25 @@ impl SurfacePoint {
     }
 }
 
+/// Reads the vertex data (corners, normals, uvs) that [`SurfacePoint::new`] will need for each
+/// of `hits`, ahead of shading a batch of paths. The loads of different hits do not depend on
+/// each other, so their cache misses overlap here, where shading one hit at a time waits for
+/// each miss in turn (about −6 % of a Sponza render, `docs/performance.md`).
+pub fn preload_vertices(scene: &Scene, hits: &[Option<Hit>]) {
+    let mut loaded = 0.0f32;
+    for hit in hits.iter().flatten() {
+        let Some(mesh) = scene.meshes.get(hit.mesh as usize) else { continue };
+        let Some(&corners) = mesh.indices.get(hit.triangle as usize) else { continue };
+        for corner in corners.map(|i| i as usize) {
+            loaded += mesh.positions.get(corner).map_or(0.0, |p| p.x);
+            loaded += mesh.normals.as_ref().and_then(|n| n.get(corner)).map_or(0.0, |n| n.x);
+            loaded += mesh.uvs.as_ref().and_then(|uv| uv.get(corner)).map_or(0.0, |uv| uv.x);
+        }
+    }
+    // The sum is never used; observing it keeps the loads.
+    std::hint::black_box(loaded);
+}
+
 #[inline]
 fn power_heuristic(pdf_a: f32, pdf_b: f32) -> f32 {
     let a2 = pdf_a * pdf_a;
@@ -433,13 +465,8 @@ impl<'a> Integrator<'a> {
         self.trace_camera_sample(&camera_sample, sampler, recorder)
     }
 
-    /// Traces the path of a given camera sample; `sampler` supplies the path's dimensions.
-    pub fn trace_camera_sample<R: RayRecorder>(
-        &self,
-        camera_sample: &CameraSample,
-        sampler: &mut Sampler,
-        recorder: &mut R,
-    ) -> PathSample {
+    /// The ray a camera sample starts its path with.
+    pub fn camera_path_start(&self, camera_sample: &CameraSample) -> PathStart {
         let (origin, direction) = self.scene.camera.generate_ray_with_tan(
             self.film_tan,
             camera_sample.film,
@@ -447,15 +474,18 @@ impl<'a> Integrator<'a> {
             self.width,
             self.height,
         );
-        let ray = PathStart { origin, direction, time: camera_sample.time, bounce: 0, previous: None };
-        let traced = self.trace_ray(&ray, sampler, recorder);
-        PathSample {
-            direct: traced.emitted + traced.direct,
-            indirect: traced.beyond,
-            first_hit: traced.first_hit,
-            rays: traced.rays,
-            split_emitter_light: traced.split_emitter_light,
-        }
+        PathStart { origin, direction, time: camera_sample.time, bounce: 0, previous: None }
+    }
+
+    /// Traces the path of a given camera sample; `sampler` supplies the path's dimensions.
+    pub fn trace_camera_sample<R: RayRecorder>(
+        &self,
+        camera_sample: &CameraSample,
+        sampler: &mut Sampler,
+        recorder: &mut R,
+    ) -> PathSample {
+        let start = self.camera_path_start(camera_sample);
+        PathSample::from(self.trace_ray(&start, sampler, recorder))
     }
 
     /// Next-event estimation at `surface`: one emitter chosen by power, one shadow ray, the
@@ -470,163 +500,283 @@ impl<'a> Integrator<'a> {
         rays: &mut u32,
         recorder: &mut R,
     ) -> Vec3 {
-        self.next_event_from(surface, wo, time, u, rays, recorder).0
+        let frame = Frame::new(surface.shading_normal);
+        let Some(test) = self.light_sample_test(surface, &frame, wo, time, u, rays, recorder) else {
+            return Vec3::ZERO;
+        };
+        if self.is_occluded(&test) {
+            Vec3::ZERO
+        } else {
+            test.value
+        }
     }
 
-    /// `next_event` and the emissive mesh the light came from (`None` for punctual and
-    /// environment light, or when nothing arrives).
-    fn next_event_from<R: RayRecorder>(
+    /// Next-event estimation up to its shadow ray: one emitter chosen by power and the
+    /// power-heuristic weight against BSDF sampling. Returns the shadow ray (counted in `rays`
+    /// and recorded) with the reflected radiance towards `wo` it carries when unoccluded, or
+    /// `None` when no light can arrive and no ray is needed.
+    #[allow(clippy::too_many_arguments)]
+    fn light_sample_test<R: RayRecorder>(
         &self,
         surface: &SurfacePoint,
+        frame: &Frame,
         wo: Vec3,
         time: f32,
         u: [f32; 3],
         rays: &mut u32,
         recorder: &mut R,
-    ) -> (Vec3, Option<u32>) {
-        let frame = Frame::new(surface.shading_normal);
-        let wo_local = frame.to_local(wo);
+    ) -> Option<ShadowTest> {
         let (u_select, u_light) = (u[0], [u[1], u[2]]);
-        let Some(light) = self.lights.sample(self.scene, surface.position, time, u_select, u_light) else {
-            return (Vec3::ZERO, None);
-        };
+        let light = self.lights.sample(self.scene, surface.position, time, u_select, u_light)?;
         // Reject light from below the geometric surface (light leaking through).
         if light.wi.dot(surface.geometric_normal) <= 0.0 {
-            return (Vec3::ZERO, None);
+            return None;
         }
+        let wo_local = frame.to_local(wo);
         let wi_local = frame.to_local(light.wi);
         let f = surface.bsdf.eval(wo_local, wi_local);
         if f == Vec3::ZERO {
-            return (Vec3::ZERO, None);
+            return None;
         }
-        let shadow_origin = surface.spawn_origin(light.wi);
+        let origin = surface.spawn_origin(light.wi);
         // Stop short of the light's own surface by a relative margin.
         let t_max = if light.distance.is_finite() {
             let light_point = surface.position + light.wi * light.distance;
-            (light_point - shadow_origin).length() * (1.0 - 2e-4)
+            (light_point - origin).length() * (1.0 - 2e-4)
         } else {
             f32::INFINITY
         };
         *rays += 1;
-        recorder.record(RecordedRay { origin: shadow_origin, direction: light.wi, t_max, time, kind: RayKind::Shadow });
-        if !(t_max > 0.0) || self.accel.occluded(shadow_origin, light.wi, 0.0, t_max, time) {
-            return (Vec3::ZERO, None);
-        }
+        recorder.record(RecordedRay { origin, direction: light.wi, t_max, time, kind: RayKind::Shadow });
         let weight = match light.pdf {
             Some(light_pdf) => power_heuristic(light_pdf, surface.bsdf.pdf(wo_local, wi_local)),
             None => 1.0,
         };
         let value = f * light.weighted_radiance * weight;
-        if value.is_finite() {
-            (value, light.mesh)
-        } else {
-            (Vec3::ZERO, None)
-        }
+        let (value, emitter) = if value.is_finite() { (value, light.mesh) } else { (Vec3::ZERO, None) };
+        Some(ShadowTest { origin, direction: light.wi, t_max, time, value, emitter, level: 0 })
+    }
+
+    /// Whether a shadow ray is blocked (an empty segment counts as blocked).
+    #[inline]
+    pub fn is_occluded(&self, test: &ShadowTest) -> bool {
+        !(test.t_max > 0.0) || self.accel.occluded(test.origin, test.direction, 0.0, test.t_max, test.time)
     }
 
     /// Radiance arriving at `start.origin` along `start.direction`, split by where it was
     /// emitted relative to the first surface the ray hits (see `TracedRay`).
+    ///
+    /// One path at a time: the vertex steps of [`PathState`] with each ray traced as soon as
+    /// it is known. `render` runs the same steps over a batch of paths instead.
     pub fn trace_ray<R: RayRecorder>(&self, start: &PathStart, sampler: &mut Sampler, recorder: &mut R) -> TracedRay {
-        let scene = self.scene;
-        let camera = &scene.camera;
-        let time = start.time;
-        let mut origin = start.origin;
-        let mut direction = start.direction;
-        let mut traced = TracedRay::default();
-        let mut throughput = Vec3::ONE;
-        let (mut previous_bsdf_pdf, mut previous_position) = match start.previous {
+        let mut path = self.start_path(start, sampler.clone());
+        while let Some(ray) = self.next_ray(&mut path, recorder) {
+            let hit = self.accel.intersect(ray.origin, ray.direction, 0.0, ray.t_max, ray.time);
+            if let Some(test) = self.shade(&mut path, hit.as_ref(), recorder) {
+                let occluded = self.is_occluded(&test);
+                self.resolve_shadow(&mut path, &test, occluded);
+            }
+        }
+        *sampler = path.sampler;
+        path.traced
+    }
+
+    /// Adds the radiance of a shadow ray `shade` returned for `path`, unless it is `occluded`.
+    #[inline]
+    pub fn resolve_shadow(&self, path: &mut PathState, test: &ShadowTest, occluded: bool) {
+        if !occluded {
+            let from_split_emitter = test.emitter.is_some() && test.emitter == self.split_emitter;
+            path.traced.add_from(test.level, test.value, from_split_emitter);
+        }
+    }
+
+    /// The state of a path about to trace the ray `start`, drawing its dimensions from `sampler`.
+    pub fn start_path(&self, start: &PathStart, sampler: Sampler) -> PathState {
+        let (previous_bsdf_pdf, previous_position) = match start.previous {
             Some((pdf, position)) => (Some(pdf), position),
-            None => (None, origin),
+            None => (None, start.origin),
         };
-        let mut cone = match start.previous {
+        let cone = match start.previous {
             Some((pdf, position)) => self.cone_after_bounce_at(position, pdf),
             None => self.camera_cone(),
         };
-
-        for bounce in start.bounce..=self.max_bounces {
-            // Vertex level relative to the first hit: 0 = the first hit itself.
-            let level = bounce - start.bounce;
-            traced.rays += 1;
-            recorder.record(RecordedRay { origin, direction, t_max: f32::INFINITY, time, kind: RayKind::Closest });
-            let Some(hit) = self.accel.intersect(origin, direction, 0.0, f32::INFINITY, time) else {
-                if scene.environment.max_element() > 0.0 {
-                    let weight = match previous_bsdf_pdf {
-                        None => 1.0,
-                        Some(pdf) => power_heuristic(pdf, self.lights.pdf_environment()),
-                    };
-                    traced.add(level, throughput * scene.environment * weight);
-                }
-                break;
-            };
-            let wo = -direction;
-            let footprint_width = cone.width_at(hit.distance);
-            let surface = SurfacePoint::new(scene, &hit, wo, time, footprint_width);
-
-            if level == 0 {
-                traced.first_hit = Some(FirstHit::new(&surface, hit.mesh, camera.depth(surface.position)));
-            }
-
-            let emitted = surface.emission(scene, &hit, wo);
-            if emitted != Vec3::ZERO {
-                let weight = match previous_bsdf_pdf {
-                    None => 1.0,
-                    Some(pdf) => {
-                        let light_pdf =
-                            self.lights.pdf_triangle(hit.mesh, hit.triangle, previous_position, surface.position);
-                        power_heuristic(pdf, light_pdf)
-                    }
-                };
-                let from_split_emitter = self.split_emitter == Some(hit.mesh);
-                traced.add_from(level, throughput * emitted * weight, from_split_emitter);
-            }
-            if bounce == self.max_bounces {
-                break;
-            }
-
-            let frame = Frame::new(surface.shading_normal);
-            let wo_local = frame.to_local(wo);
-            let [u_light_select, u_lobe] = sampler.next_2d();
-            let u_light = sampler.next_2d();
-            let u_bsdf = sampler.next_2d();
-            let [u_roulette, _] = sampler.next_2d();
-
-            let (direct, emitter) = self.next_event_from(
-                &surface,
-                wo,
-                time,
-                [u_light_select, u_light[0], u_light[1]],
-                &mut traced.rays,
-                recorder,
-            );
-            // Light reflected at this vertex straight from an emitter is one level deeper.
-            let from_split_emitter = emitter.is_some() && emitter == self.split_emitter;
-            traced.add_from(level + 1, throughput * direct, from_split_emitter);
-
-            // Continue the path by BSDF sampling.
-            let Some(bsdf_sample) = surface.bsdf.sample(wo_local, u_lobe, u_bsdf) else {
-                break;
-            };
-            let wi = frame.to_world(bsdf_sample.wi);
-            if wi.dot(surface.geometric_normal) <= 0.0 {
-                break;
-            }
-            throughput *= bsdf_sample.weight;
-            cone = cone.after_bounce(hit.distance, bsdf_sample.pdf);
-            previous_bsdf_pdf = Some(bsdf_sample.pdf);
-            previous_position = surface.position;
-            origin = surface.spawn_origin(wi);
-            direction = wi;
-
-            if bounce >= 3 {
-                let survive = throughput.max_element().min(0.95);
-                if !(survive > 0.0) || u_roulette >= survive {
-                    break;
-                }
-                throughput /= survive;
-            }
+        PathState {
+            sampler,
+            origin: start.origin,
+            direction: start.direction,
+            time: start.time,
+            throughput: Vec3::ONE,
+            previous_bsdf_pdf,
+            previous_position,
+            cone,
+            bounce: start.bounce,
+            first_bounce: start.bounce,
+            alive: start.bounce <= self.max_bounces,
+            traced: TracedRay::default(),
         }
-        traced
     }
+
+    /// The closest-hit ray the path traces next (counted and recorded), or `None` when the
+    /// path has ended.
+    #[inline]
+    pub fn next_ray<R: RayRecorder>(&self, path: &mut PathState, recorder: &mut R) -> Option<RecordedRay> {
+        if !path.alive {
+            return None;
+        }
+        path.traced.rays += 1;
+        let ray = RecordedRay {
+            origin: path.origin,
+            direction: path.direction,
+            t_max: f32::INFINITY,
+            time: path.time,
+            kind: RayKind::Closest,
+        };
+        recorder.record(ray);
+        Some(ray)
+    }
+
+    /// One path vertex: what the path's last ray (from `next_ray`) found. Adds the emission
+    /// there (or the environment's on a miss), draws the light sample and the BSDF direction
+    /// that continues the path, and applies Russian roulette. Returns the light sample's
+    /// shadow ray, whose radiance [`PathState::resolve_shadow`] adds once its occlusion is
+    /// known; it must be resolved before the path's next ray is traced.
+    pub fn shade<R: RayRecorder>(
+        &self,
+        path: &mut PathState,
+        hit: Option<&Hit>,
+        recorder: &mut R,
+    ) -> Option<ShadowTest> {
+        let scene = self.scene;
+        let bounce = path.bounce;
+        // Vertex level relative to the first hit: 0 = the first hit itself.
+        let level = bounce - path.first_bounce;
+        path.alive = false;
+        let Some(hit) = hit else {
+            if scene.environment.max_element() > 0.0 {
+                let weight = match path.previous_bsdf_pdf {
+                    None => 1.0,
+                    Some(pdf) => power_heuristic(pdf, self.lights.pdf_environment()),
+                };
+                path.traced.add(level, path.throughput * scene.environment * weight);
+            }
+            return None;
+        };
+        let time = path.time;
+        let wo = -path.direction;
+        let footprint_width = path.cone.width_at(hit.distance);
+        let surface = SurfacePoint::new(scene, hit, wo, time, footprint_width);
+
+        if level == 0 {
+            path.traced.first_hit = Some(FirstHit::new(&surface, hit.mesh, scene.camera.depth(surface.position)));
+        }
+
+        let emitted = surface.emission(scene, hit, wo);
+        if emitted != Vec3::ZERO {
+            let weight = match path.previous_bsdf_pdf {
+                None => 1.0,
+                Some(pdf) => {
+                    let light_pdf =
+                        self.lights.pdf_triangle(hit.mesh, hit.triangle, path.previous_position, surface.position);
+                    power_heuristic(pdf, light_pdf)
+                }
+            };
+            let from_split_emitter = self.split_emitter == Some(hit.mesh);
+            path.traced.add_from(level, path.throughput * emitted * weight, from_split_emitter);
+        }
+        if bounce == self.max_bounces {
+            return None;
+        }
+
+        let frame = Frame::new(surface.shading_normal);
+        let wo_local = frame.to_local(wo);
+        let [u_light_select, u_lobe] = path.sampler.next_2d();
+        let u_light = path.sampler.next_2d();
+        let u_bsdf = path.sampler.next_2d();
+        let [u_roulette, _] = path.sampler.next_2d();
+
+        let mut shadow = self.light_sample_test(
+            &surface,
+            &frame,
+            wo,
+            time,
+            [u_light_select, u_light[0], u_light[1]],
+            &mut path.traced.rays,
+            recorder,
+        );
+        if let Some(test) = &mut shadow {
+            test.value *= path.throughput;
+            // Light reflected at this vertex straight from an emitter is one level deeper.
+            test.level = level + 1;
+        }
+
+        // Continue the path by BSDF sampling.
+        let Some(bsdf_sample) = surface.bsdf.sample(wo_local, u_lobe, u_bsdf) else {
+            return shadow;
+        };
+        let wi = frame.to_world(bsdf_sample.wi);
+        if wi.dot(surface.geometric_normal) <= 0.0 {
+            return shadow;
+        }
+        path.throughput *= bsdf_sample.weight;
+        path.cone = path.cone.after_bounce(hit.distance, bsdf_sample.pdf);
+        path.previous_bsdf_pdf = Some(bsdf_sample.pdf);
+        path.previous_position = surface.position;
+        path.origin = surface.spawn_origin(wi);
+        path.direction = wi;
+
+        if bounce >= 3 {
+            let survive = path.throughput.max_element().min(0.95);
+            if !(survive > 0.0) || u_roulette >= survive {
+                return shadow;
+            }
+            path.throughput /= survive;
+        }
+        path.bounce += 1;
+        path.alive = true;
+        shadow
+    }
+}
+
+/// A light sample's shadow ray and the radiance it brings when nothing blocks it.
+#[derive(Clone, Copy, Debug)]
+pub struct ShadowTest {
+    pub origin: Vec3,
+    pub direction: Vec3,
+    /// End of the segment tested (stops short of the light; infinite for distant light).
+    pub t_max: f32,
+    pub time: f32,
+    /// Radiance reflected towards the vertex's outgoing direction if unoccluded (times the
+    /// path throughput once [`Integrator::shade`] returns it).
+    pub value: Vec3,
+    /// The emissive mesh the light came from (`None` for punctual and environment light).
+    pub emitter: Option<u32>,
+    /// Level of the contribution in the path's `TracedRay` (set by `shade`).
+    pub level: u32,
+}
+
+/// One path between two of its rays: everything [`Integrator::shade`] carries from a vertex to
+/// the next, so paths can be advanced one at a time ([`Integrator::trace_ray`]) or a batch
+/// at a time (`render`) with bit-identical results.
+#[derive(Clone, Debug)]
+pub struct PathState {
+    /// The path's sample dimensions.
+    pub sampler: Sampler,
+    origin: Vec3,
+    direction: Vec3,
+    time: f32,
+    throughput: Vec3,
+    /// BSDF density of the last bounce and where it happened (MIS against light sampling).
+    previous_bsdf_pdf: Option<f32>,
+    previous_position: Vec3,
+    cone: RayCone,
+    /// Path vertex index of the surface the next ray will hit.
+    bounce: u32,
+    /// `bounce` of the path's first ray: contributions are levelled relative to it.
+    first_bounce: u32,
+    /// Whether the path traces another ray.
+    alive: bool,
+    /// What the path has gathered so far.
+    pub traced: TracedRay,
 }
 
 #[cfg(test)]

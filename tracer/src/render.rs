@@ -10,8 +10,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 
 use crate::accel::Accel;
+use crate::accel::Hit;
 use crate::error::RenderError;
-use crate::integrator::{Integrator, NoRecording, RayRecorder, RecordedRay};
+use crate::integrator::{
+    preload_vertices, Integrator, NoRecording, PathSample, PathState, RayRecorder, RecordedRay, ShadowTest,
+};
 use crate::lights::LightSampler;
 use crate::sampler::Sampler;
 use crate::scene::Scene;
@@ -103,6 +106,31 @@ struct PixelSum {
     invalid: u32,
 }
 
+impl PixelSum {
+    /// Adds one sample (dropping it, and counting it invalid, when its radiance is not finite).
+    fn add(&mut self, sample: &PathSample) {
+        let radiance = sample.radiance();
+        if !radiance.is_finite() {
+            self.invalid += 1;
+            return;
+        }
+        for c in 0..3 {
+            let v = radiance[c] as f64;
+            self.sum[c] += v;
+            self.sum_sq[c] += v * v;
+            self.direct[c] += sample.direct[c] as f64;
+            self.indirect[c] += sample.indirect[c] as f64;
+        }
+        if let Some(first) = sample.first_hit {
+            self.hits += 1;
+            self.albedo += first.albedo;
+            self.normal += first.normal;
+            self.position += first.position;
+            self.depth += first.depth as f64;
+        }
+    }
+}
+
 struct TileResult {
     x0: u32,
     y0: u32,
@@ -111,6 +139,14 @@ struct TileResult {
     rays: u64,
 }
 
+/// Renders one tile as a wavefront: for each sample index, the paths of all the tile's pixels
+/// advance together, one ray at a time: every live path's closest-hit ray is traced, then every
+/// hit is shaded, then every shadow ray is traced. Each phase runs one kind of work over
+/// independent paths, so the vertex data of all hits can be loaded ahead of shading with their
+/// cache misses overlapping (`preload_vertices`), which a single path's chain of dependent
+/// loads does not allow.
+/// Each path takes the same steps as `Integrator::trace_ray`, so the image is bit-identical
+/// to tracing the paths one at a time.
 fn render_tile<R: RayRecorder>(
     integrator: &Integrator,
     settings: &RenderSettings,
@@ -120,36 +156,53 @@ fn render_tile<R: RayRecorder>(
 ) -> TileResult {
     let x1 = (x0 + TILE).min(settings.width);
     let y1 = (y0 + TILE).min(settings.height);
-    let mut pixels = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+    let pixel_count = ((x1 - x0) * (y1 - y0)) as usize;
+    let mut pixels = vec![PixelSum::default(); pixel_count];
     let mut rays = 0u64;
-    for py in y0..y1 {
-        for px in x0..x1 {
-            let mut acc = PixelSum::default();
-            for index in 0..settings.spp {
+    let mut paths: Vec<PathState> = Vec::with_capacity(pixel_count);
+    let mut live: Vec<(usize, RecordedRay)> = Vec::with_capacity(pixel_count);
+    let mut hits: Vec<Option<Hit>> = Vec::with_capacity(pixel_count);
+    let mut shadows: Vec<(usize, ShadowTest)> = Vec::with_capacity(pixel_count);
+    for index in 0..settings.spp {
+        paths.clear();
+        for py in y0..y1 {
+            for px in x0..x1 {
                 let mut sampler = Sampler::new(settings.seed, px, py, index);
-                let sample = integrator.trace(px, py, &mut sampler, recorder);
-                rays += sample.rays as u64;
-                let radiance = sample.radiance();
-                if !radiance.is_finite() {
-                    acc.invalid += 1;
-                    continue;
-                }
-                for c in 0..3 {
-                    let v = radiance[c] as f64;
-                    acc.sum[c] += v;
-                    acc.sum_sq[c] += v * v;
-                    acc.direct[c] += sample.direct[c] as f64;
-                    acc.indirect[c] += sample.indirect[c] as f64;
-                }
-                if let Some(first) = sample.first_hit {
-                    acc.hits += 1;
-                    acc.albedo += first.albedo;
-                    acc.normal += first.normal;
-                    acc.position += first.position;
-                    acc.depth += first.depth as f64;
+                let camera_sample = integrator.camera_sample(px, py, &mut sampler);
+                paths.push(integrator.start_path(&integrator.camera_path_start(&camera_sample), sampler));
+            }
+        }
+        loop {
+            live.clear();
+            for (i, path) in paths.iter_mut().enumerate() {
+                if let Some(ray) = integrator.next_ray(path, recorder) {
+                    live.push((i, ray));
                 }
             }
-            pixels.push(acc);
+            if live.is_empty() {
+                break;
+            }
+            hits.clear();
+            hits.extend(
+                live.iter()
+                    .map(|(_, ray)| integrator.accel.intersect(ray.origin, ray.direction, 0.0, ray.t_max, ray.time)),
+            );
+            shadows.clear();
+            preload_vertices(integrator.scene, &hits);
+            for ((i, _), hit) in live.iter().zip(&hits) {
+                if let Some(test) = integrator.shade(&mut paths[*i], hit.as_ref(), recorder) {
+                    shadows.push((*i, test));
+                }
+            }
+            for (i, test) in &shadows {
+                let occluded = integrator.is_occluded(test);
+                integrator.resolve_shadow(&mut paths[*i], test, occluded);
+            }
+        }
+        for (acc, path) in pixels.iter_mut().zip(&paths) {
+            let sample = PathSample::from(path.traced);
+            rays += sample.rays as u64;
+            acc.add(&sample);
         }
     }
     TileResult { x0, y0, width: x1 - x0, pixels, rays }
