@@ -1,7 +1,8 @@
 //! The frame loop: pixels in 16×16 tiles, tiles in parallel on a rayon pool whose threads all
 //! run with flush-to-zero and denormals-are-zero (Embree's recommendation). Every sample's
 //! random numbers depend only on (seed, pixel, sample index), and each pixel is accumulated by
-//! one thread in sample order, so the image is bit-identical for any thread count.
+//! one thread in sample order, so the image is bit-identical for any thread count. Within a
+//! tile, each sample index's paths advance together as a wavefront (`render_tile`).
 
 use std::time::Instant;
 
@@ -9,8 +10,7 @@ use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 
-use crate::accel::Accel;
-use crate::accel::Hit;
+use crate::accel::{Accel, Hit};
 use crate::error::RenderError;
 use crate::integrator::{
     preload_vertices, Integrator, NoRecording, PathSample, PathState, RayRecorder, RecordedRay, ShadowTest,
@@ -145,6 +145,7 @@ struct TileResult {
 /// independent paths, so the vertex data of all hits can be loaded ahead of shading with their
 /// cache misses overlapping (`preload_vertices`), which a single path's chain of dependent
 /// loads does not allow.
+///
 /// Each path takes the same steps as `Integrator::trace_ray`, so the image is bit-identical
 /// to tracing the paths one at a time.
 fn render_tile<R: RayRecorder>(
