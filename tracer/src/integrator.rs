@@ -289,7 +289,7 @@ impl SurfacePoint {
 /// Reads the vertex data (corners, normals, uvs) that [`SurfacePoint::new`] will need for each
 /// of `hits`, ahead of shading a batch of paths. The loads of different hits do not depend on
 /// each other, so their cache misses overlap here, where shading one hit at a time waits for
-/// each miss in turn (about −6 % of a Sponza render, `docs/performance.md`).
+/// each miss in turn (about −5 % of a Sponza render, `docs/performance.md`).
 pub fn preload_vertices(scene: &Scene, hits: &[Option<Hit>]) {
     let mut loaded = 0.0f32;
     for hit in hits.iter().flatten() {
@@ -638,7 +638,7 @@ impl<'a> Integrator<'a> {
     /// One path vertex: what the path's last ray (from `next_ray`) found. Adds the emission
     /// there (or the environment's on a miss), draws the light sample and the BSDF direction
     /// that continues the path, and applies Russian roulette. Returns the light sample's
-    /// shadow ray, whose radiance [`PathState::resolve_shadow`] adds once its occlusion is
+    /// shadow ray, whose radiance [`Integrator::resolve_shadow`] adds once its occlusion is
     /// known; it must be resolved before the path's next ray is traced.
     pub fn shade<R: RayRecorder>(
         &self,
