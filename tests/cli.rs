@@ -259,6 +259,48 @@ fn every_sample_kind_dumps_from_its_scene_and_reads_back() {
     assert!(stderr(&result).contains(".exr"));
 }
 
+/// `lfr bench` times the tracer and the raw replay of its rays in alternating pairs: the pairs'
+/// ratios, their median and the best-against-best ratio are consistent with the seconds
+/// reported, and the replay traced exactly the rays the tracer counted (the command itself
+/// fails otherwise).
+#[test]
+fn bench_alternates_tracer_and_raw_replay() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("bench.json");
+    let result = lfr(&[
+        "bench",
+        "--scenes",
+        "scenes/cornell.toml",
+        "--width",
+        "24",
+        "--height",
+        "16",
+        "--spp",
+        "2",
+        "--repeats",
+        "3",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(result.status.success(), "{}", String::from_utf8_lossy(&result.stderr));
+    let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let rows = rows.as_array().unwrap();
+    assert_eq!(rows.len(), 1);
+    let row = &rows[0];
+    let number = |key: &str| row[key].as_f64().unwrap_or_else(|| panic!("{key} in {row}"));
+    // 24 x 16 pixels at 2 spp: at least one camera ray each.
+    assert!(number("rays") >= (24 * 16 * 2) as f64, "{row}");
+    let (tracer, raw) = (number("tracer_seconds"), number("raw_seconds"));
+    assert!(tracer > 0.0 && raw > 0.0, "{row}");
+    assert!((number("tracer_over_raw") - raw / tracer).abs() < 1e-9, "{row}");
+    let mut pairs: Vec<f64> = row["pair_ratios"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert_eq!(pairs.len(), 3, "one pair per repetition");
+    pairs.sort_by(f64::total_cmp);
+    assert_eq!(number("tracer_over_raw_median_pair"), pairs[1]);
+    assert!(pairs.iter().all(|r| r.is_finite() && *r > 0.0), "{row}");
+    assert!(number("speedup_all_threads_over_one") > 0.0, "{row}");
+}
+
 /// `lfr bench-filters` runs every filter on real guide buffers and reports ratios against its
 /// baseline from the same run (the baseline's own ratio is exactly 1).
 #[test]
