@@ -13,7 +13,15 @@
 //! GGX, texture filtering, shading normals, ray cones, motion, lenses, the first-hit layers)
 //! is left out, so its tracer/raw ratio bounds what scalar shading of this design can reach.
 //!
-//! `cargo run --release -p tracer --example shading_floor -- SCENE.toml [SPP] [REPEATS]`
+//! `cargo run --release -p tracer --example shading_floor -- SCENE.toml [SPP] [REPEATS] [batched]`
+//!
+//! With `batched`, the same estimator runs as a wavefront: a tile's paths advance together in
+//! structure-of-arrays lanes, and all per-vertex arithmetic (`shade_lanes`) runs 8 lanes per
+//! instruction with `wide::f32x8`, with counter-based hash random numbers; the Embree calls, the
+//! material and light gathers and the compaction of finished paths stay scalar. This bounds what
+//! SIMD shading of this design could reach (emissive triangles and the environment only). Build
+//! with `RUSTFLAGS="-C target-cpu=native"` for native 8-wide AVX; without, each `f32x8` is two
+//! SSE halves.
 
 use std::f32::consts::{FRAC_1_PI, PI};
 use std::path::PathBuf;
@@ -26,6 +34,7 @@ use tracer::lights::triangle_at;
 use tracer::render::thread_pool;
 use tracer::scene::{PunctualLight, Scene};
 use tracer::{Accel, RenderSettings};
+use wide::{f32x8, CmpGt, CmpLt};
 
 const WIDTH: u32 = 256;
 const HEIGHT: u32 = 256;
@@ -305,17 +314,463 @@ fn trace_path<R: Rays>(setup: &Setup, px: u32, py: u32, index: u32, rays: &mut R
     (radiance, traced)
 }
 
+/// A 32-bit counter-based random value (the lowbias32 finaliser of seed and counter), the kind a
+/// SIMD loop computes for 8 or 16 paths at once.
+#[inline(always)]
+fn hash_random(seed: u32, counter: u32) -> f32 {
+    let mut x = seed ^ counter.wrapping_mul(0x9e37_79b9);
+    x ^= x >> 16;
+    x = x.wrapping_mul(0x7feb_352d);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x846c_a68b);
+    x ^= x >> 16;
+    (x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
+}
+
+/// Three coordinates of one quantity over the lanes of a batch.
+#[derive(Clone, Default)]
+struct Lanes3 {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+}
+
+impl Lanes3 {
+    fn resize(&mut self, n: usize) {
+        self.x.resize(n, 0.0);
+        self.y.resize(n, 0.0);
+        self.z.resize(n, 0.0);
+    }
+    #[inline(always)]
+    fn get(&self, k: usize) -> Vec3 {
+        Vec3::new(self.x[k], self.y[k], self.z[k])
+    }
+    #[inline(always)]
+    fn set(&mut self, k: usize, v: Vec3) {
+        (self.x[k], self.y[k], self.z[k]) = (v.x, v.y, v.z);
+    }
+}
+
+/// The live paths of a tile, structure of arrays, compacted after every bounce; and per lane the
+/// current vertex's hit, material, light sample and shadow ray.
+#[derive(Default)]
+struct Batch {
+    pixel: Vec<u32>,
+    seed: Vec<u32>,
+    origin: Lanes3,
+    direction: Lanes3,
+    throughput: Lanes3,
+    radiance: Lanes3,
+    /// BSDF density of the last bounce; 0 for camera rays (no MIS).
+    previous_pdf: Vec<f32>,
+    distance: Vec<f32>,
+    winding_normal: Lanes3,
+    albedo: Lanes3,
+    emission: Lanes3,
+    light_corner: Lanes3,
+    light_edge_b: Lanes3,
+    light_edge_c: Lanes3,
+    light_normal: Lanes3,
+    light_emission: Lanes3,
+    random: [Vec<f32>; 6],
+    shadow_origin: Lanes3,
+    shadow_direction: Lanes3,
+    shadow_t_max: Vec<f32>,
+    shadow_value: Lanes3,
+    alive: Vec<bool>,
+}
+
+impl Batch {
+    fn resize_vertex(&mut self, n: usize) {
+        self.distance.resize(n, 0.0);
+        for lanes in [
+            &mut self.winding_normal,
+            &mut self.albedo,
+            &mut self.emission,
+            &mut self.light_corner,
+            &mut self.light_edge_b,
+            &mut self.light_edge_c,
+            &mut self.light_normal,
+            &mut self.light_emission,
+            &mut self.shadow_origin,
+            &mut self.shadow_direction,
+            &mut self.shadow_value,
+        ] {
+            lanes.resize(n);
+        }
+        for random in &mut self.random {
+            random.resize(n, 0.0);
+        }
+        self.shadow_t_max.resize(n, 0.0);
+        self.alive.resize(n, false);
+    }
+}
+
+/// The same estimator as `trace_path`, for emissive triangles and the environment only, with a
+/// tile's paths advanced together and the vertex arithmetic in SIMD (`shade_lanes`). Embree
+/// calls, material and light look-ups stay scalar.
+fn render_tile_batched<R: Rays>(setup: &Setup, x0: u32, y0: u32, spp: u32, rays: &mut R) -> (u64, f32) {
+    let lights = &setup.lights;
+    let environment = lights.environment;
+    let has_environment = environment.max_element() > 0.0;
+    let environment_pdf = 1.0 / (4.0 * PI * lights.choices as f32);
+    let triangle_choice = 1.0 / lights.choices as f32;
+    let mut b = Batch::default();
+    let (mut count, mut sum) = (0u64, 0.0f32);
+    for index in 0..spp {
+        b.pixel.clear();
+        b.seed.clear();
+        for lanes in [&mut b.origin, &mut b.direction, &mut b.throughput, &mut b.radiance] {
+            lanes.x.clear();
+            lanes.y.clear();
+            lanes.z.clear();
+        }
+        b.previous_pdf.clear();
+        for py in y0..(y0 + TILE).min(HEIGHT) {
+            for px in x0..(x0 + TILE).min(WIDTH) {
+                let seed = ((py * WIDTH + px) << 8) ^ index.wrapping_mul(0x2c1b_3c6d);
+                let film = Vec2::new(px as f32 + hash_random(seed, 0), py as f32 + hash_random(seed, 1));
+                let (origin, direction) =
+                    setup.scene.camera.generate_ray_with_tan(setup.film_tan, film, Vec2::ZERO, WIDTH, HEIGHT);
+                b.pixel.push(py * WIDTH + px);
+                b.seed.push(seed);
+                for (lanes, v) in [
+                    (&mut b.origin, origin),
+                    (&mut b.direction, direction),
+                    (&mut b.throughput, Vec3::ONE),
+                    (&mut b.radiance, Vec3::ZERO),
+                ] {
+                    lanes.x.push(v.x);
+                    lanes.y.push(v.y);
+                    lanes.z.push(v.z);
+                }
+                b.previous_pdf.push(0.0);
+            }
+        }
+        for bounce in 0..=setup.max_bounces {
+            let n = b.pixel.len();
+            if n == 0 {
+                break;
+            }
+            // Pad to whole vectors of 8 lanes; padding lanes miss and end.
+            let padded = n.div_ceil(8) * 8;
+            for lanes in [&mut b.origin, &mut b.direction, &mut b.throughput, &mut b.radiance] {
+                lanes.resize(padded);
+            }
+            b.previous_pdf.resize(padded, 0.0);
+            b.seed.resize(padded, 0);
+            b.resize_vertex(padded);
+            for k in n..padded {
+                b.distance[k] = f32::INFINITY;
+                b.winding_normal.set(k, Vec3::Z);
+                b.light_emission.set(k, Vec3::ZERO);
+            }
+            // Closest hits (scalar Embree calls) and the materials there.
+            for k in 0..n {
+                let (origin, direction) = (b.origin.get(k), b.direction.get(k));
+                count += 1;
+                rays.closest(origin, direction);
+                match setup.accel.intersect(origin, direction, 0.0, f32::INFINITY, 0.0) {
+                    Some(hit) => {
+                        b.distance[k] = hit.distance;
+                        b.winding_normal.set(k, hit.geometric_normal);
+                        b.albedo.set(k, setup.base_colors[hit.mesh as usize]);
+                        b.emission.set(k, setup.emissions[hit.mesh as usize]);
+                    }
+                    None => {
+                        b.distance[k] = f32::INFINITY;
+                        b.winding_normal.set(k, Vec3::Z);
+                        b.albedo.set(k, Vec3::ZERO);
+                        b.emission.set(k, Vec3::ZERO);
+                    }
+                }
+            }
+            // Random numbers for every lane, in a plain loop.
+            let counter = 2 + 6 * bounce;
+            for (j, random) in b.random.iter_mut().enumerate() {
+                for (value, &seed) in random.iter_mut().zip(&b.seed) {
+                    *value = hash_random(seed, counter + j as u32);
+                }
+            }
+            // Light choice and its data (scalar gathers); a lane whose choice is not a
+            // triangle gets a zero-emission light and the environment handles it below.
+            for k in 0..n {
+                let u_select = b.random[0][k] * lights.choices as f32;
+                let light = if u_select < 1.0 && !lights.triangles.is_empty() {
+                    let target = (u_select * lights.triangle_area).min(lights.triangle_area);
+                    let i = lights.triangle_cdf.partition_point(|&c| c <= target).min(lights.triangles.len() - 1);
+                    Some(&lights.triangles[i])
+                } else {
+                    None
+                };
+                match light {
+                    Some(l) => {
+                        b.light_corner.set(k, l.corner);
+                        b.light_edge_b.set(k, l.edge_b);
+                        b.light_edge_c.set(k, l.edge_c);
+                        b.light_normal.set(k, l.normal);
+                        b.light_emission.set(k, l.emission);
+                    }
+                    None => {
+                        b.light_emission.set(k, Vec3::ZERO);
+                        b.light_normal.set(k, Vec3::Z);
+                    }
+                }
+            }
+            shade_lanes(
+                &mut b,
+                padded,
+                bounce,
+                setup.max_bounces,
+                has_environment,
+                environment,
+                environment_pdf,
+                triangle_choice,
+                lights,
+            );
+            // Shadow rays (scalar Embree calls).
+            for k in 0..n {
+                let t_max = b.shadow_t_max[k];
+                if t_max > 0.0 {
+                    let (origin, direction) = (b.shadow_origin.get(k), b.shadow_direction.get(k));
+                    count += 1;
+                    rays.shadow(origin, direction, t_max);
+                    if !setup.accel.occluded(origin, direction, 0.0, t_max, 0.0) {
+                        b.radiance.set(k, b.radiance.get(k) + b.shadow_value.get(k));
+                    }
+                }
+            }
+            // Compaction: finished paths leave the batch.
+            let mut kept = 0;
+            for k in 0..n {
+                if b.alive[k] {
+                    b.pixel[kept] = b.pixel[k];
+                    b.seed[kept] = b.seed[k];
+                    for lanes in [&mut b.origin, &mut b.direction, &mut b.throughput, &mut b.radiance] {
+                        lanes.x[kept] = lanes.x[k];
+                        lanes.y[kept] = lanes.y[k];
+                        lanes.z[kept] = lanes.z[k];
+                    }
+                    b.previous_pdf[kept] = b.previous_pdf[k];
+                    kept += 1;
+                } else {
+                    sum += b.radiance.get(k).element_sum();
+                }
+            }
+            b.pixel.truncate(kept);
+            b.seed.truncate(kept);
+            for lanes in [&mut b.origin, &mut b.direction, &mut b.throughput, &mut b.radiance] {
+                lanes.x.truncate(kept);
+                lanes.y.truncate(kept);
+                lanes.z.truncate(kept);
+            }
+            b.previous_pdf.truncate(kept);
+        }
+        for k in 0..b.pixel.len() {
+            sum += b.radiance.get(k).element_sum();
+        }
+    }
+    (count, sum)
+}
+
+/// Three coordinates of 8 lanes.
+#[derive(Clone, Copy)]
+struct V3 {
+    x: f32x8,
+    y: f32x8,
+    z: f32x8,
+}
+
+impl V3 {
+    #[inline(always)]
+    fn load(l: &Lanes3, k: usize) -> V3 {
+        V3 { x: load(&l.x, k), y: load(&l.y, k), z: load(&l.z, k) }
+    }
+    #[inline(always)]
+    fn store(self, l: &mut Lanes3, k: usize) {
+        store(self.x, &mut l.x, k);
+        store(self.y, &mut l.y, k);
+        store(self.z, &mut l.z, k);
+    }
+    #[inline(always)]
+    fn splat(v: Vec3) -> V3 {
+        V3 { x: f32x8::splat(v.x), y: f32x8::splat(v.y), z: f32x8::splat(v.z) }
+    }
+    #[inline(always)]
+    fn add(self, o: V3) -> V3 {
+        V3 { x: self.x + o.x, y: self.y + o.y, z: self.z + o.z }
+    }
+    #[inline(always)]
+    fn sub(self, o: V3) -> V3 {
+        V3 { x: self.x - o.x, y: self.y - o.y, z: self.z - o.z }
+    }
+    #[inline(always)]
+    fn mul(self, o: V3) -> V3 {
+        V3 { x: self.x * o.x, y: self.y * o.y, z: self.z * o.z }
+    }
+    #[inline(always)]
+    fn scale(self, s: f32x8) -> V3 {
+        V3 { x: self.x * s, y: self.y * s, z: self.z * s }
+    }
+    #[inline(always)]
+    fn dot(self, o: V3) -> f32x8 {
+        self.x * o.x + self.y * o.y + self.z * o.z
+    }
+    #[inline(always)]
+    fn select(mask: f32x8, t: V3, f: V3) -> V3 {
+        V3 { x: mask.blend(t.x, f.x), y: mask.blend(t.y, f.y), z: mask.blend(t.z, f.z) }
+    }
+}
+
+#[inline(always)]
+fn load(v: &[f32], k: usize) -> f32x8 {
+    f32x8::new(v[k..k + 8].try_into().expect("8 lanes"))
+}
+
+#[inline(always)]
+fn store(value: f32x8, v: &mut [f32], k: usize) {
+    v[k..k + 8].copy_from_slice(&value.to_array());
+}
+
+/// The vertex arithmetic of every lane, 8 lanes per instruction (`wide::f32x8`): emission
+/// with MIS, the light sample and its shadow ray, the cosine-weighted bounce and roulette.
+/// Branch-free: every lane computes every case and masks pick the results.
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn shade_lanes(
+    b: &mut Batch,
+    n: usize,
+    bounce: u32,
+    max_bounces: u32,
+    has_environment: bool,
+    environment: Vec3,
+    environment_pdf: f32,
+    triangle_choice: f32,
+    lights: &Lights,
+) {
+    let zero = f32x8::ZERO;
+    let one = f32x8::ONE;
+    let tiny = f32x8::splat(1e-30);
+    let all = f32x8::splat(f32::from_bits(u32::MAX));
+    let mask_of = |flag: bool| if flag { all } else { zero };
+    let not_last = mask_of(bounce != max_bounces);
+    let roulette = mask_of(bounce >= 3);
+    let has_environment = mask_of(has_environment);
+    let environment = V3::splat(environment);
+    let environment_pdf = f32x8::splat(environment_pdf);
+    let triangle_area = f32x8::splat(lights.triangle_area);
+    let triangle_choice = f32x8::splat(triangle_choice);
+    let frac_1_pi = f32x8::splat(FRAC_1_PI);
+    let power = |a: f32x8, b: f32x8| a * a / (a * a + b * b).max(tiny);
+    for k in (0..n).step_by(8) {
+        let origin = V3::load(&b.origin, k);
+        let direction = V3::load(&b.direction, k);
+        let throughput = V3::load(&b.throughput, k);
+        let previous_pdf = load(&b.previous_pdf, k);
+        let had_bounce = previous_pdf.cmp_gt(zero);
+        let distance = load(&b.distance, k);
+        let hit = distance.cmp_lt(f32x8::splat(f32::INFINITY));
+        let mut radiance = V3::load(&b.radiance, k);
+        // Miss: the environment, MIS against its light sampling.
+        let env_weight = had_bounce.blend(power(previous_pdf, environment_pdf), one);
+        let env_factor = (!hit & has_environment).blend(env_weight, zero);
+        radiance = radiance.add(throughput.mul(environment).scale(env_factor));
+        let distance = hit.blend(distance, zero);
+        let position = origin.add(direction.scale(distance));
+        let winding = V3::load(&b.winding_normal, k);
+        let winding = winding.scale(one / winding.dot(winding).sqrt().max(tiny));
+        let facing = winding.dot(direction).cmp_lt(zero);
+        let normal = V3::select(facing, winding, V3 { x: -winding.x, y: -winding.y, z: -winding.z });
+        // Emission, MIS against light sampling of the triangle.
+        let emission = V3::load(&b.emission, k);
+        let to_hit = position.sub(origin);
+        let distance2 = to_hit.dot(to_hit);
+        let cos_light = (winding.dot(to_hit) / distance2.sqrt().max(tiny)).abs();
+        let light_pdf = distance2 / (cos_light * triangle_area).max(tiny) * triangle_choice;
+        let emission_weight = had_bounce.blend(power(previous_pdf, light_pdf), one);
+        let emission_factor = (hit & facing).blend(emission_weight, zero);
+        radiance = radiance.add(throughput.mul(emission).scale(emission_factor));
+        // Light sample on the chosen triangle, or the environment.
+        let albedo = V3::load(&b.albedo, k);
+        let largest = position.x.abs().max(position.y.abs()).max(position.z.abs());
+        let epsilon = (largest + f32x8::splat(1e-3)) * f32x8::splat(4e-6);
+        let spawn = position.add(normal.scale(epsilon));
+        let (u1, u2) = (load(&b.random[1], k), load(&b.random[2], k));
+        let flip = (u1 + u2).cmp_gt(one);
+        let bary_b = flip.blend(one - u1, u1);
+        let bary_c = flip.blend(one - u2, u2);
+        let light_point = V3::load(&b.light_corner, k)
+            .add(V3::load(&b.light_edge_b, k).scale(bary_b))
+            .add(V3::load(&b.light_edge_c, k).scale(bary_c));
+        let light_emission = V3::load(&b.light_emission, k);
+        let is_triangle = (light_emission.x + light_emission.y + light_emission.z).cmp_gt(zero);
+        let to_light = light_point.sub(position);
+        let light_distance = to_light.dot(to_light).sqrt();
+        let triangle_wi = to_light.scale(one / light_distance.max(tiny));
+        let cos_at_light = zero - V3::load(&b.light_normal, k).dot(triangle_wi);
+        let triangle_pdf = light_distance * light_distance / (cos_at_light * triangle_area).max(tiny) * triangle_choice;
+        // Environment direction, uniform on the sphere.
+        let z = one - f32x8::splat(2.0) * u1;
+        let r = (one - z * z).max(zero).sqrt();
+        let (sin_phi, cos_phi) = (u2 * f32x8::splat(2.0 * PI)).sin_cos();
+        let environment_wi = V3 { x: r * cos_phi, y: r * sin_phi, z };
+        let wi = V3::select(is_triangle, triangle_wi, environment_wi);
+        let pdf = is_triangle.blend(triangle_pdf, environment_pdf);
+        let incident = V3::select(is_triangle, light_emission, environment);
+        let cos = wi.dot(normal);
+        let weight = power(pdf, cos * frac_1_pi);
+        let value = throughput.mul(albedo).mul(incident).scale(frac_1_pi * cos * weight / pdf.max(tiny));
+        let valid = hit
+            & not_last
+            & cos.cmp_gt(zero)
+            & (!is_triangle | cos_at_light.cmp_gt(zero))
+            & (is_triangle | has_environment);
+        let t_max = is_triangle.blend(light_distance * f32x8::splat(1.0 - 2e-4), f32x8::splat(f32::INFINITY));
+        spawn.store(&mut b.shadow_origin, k);
+        wi.store(&mut b.shadow_direction, k);
+        store(valid.blend(t_max, zero), &mut b.shadow_t_max, k);
+        value.store(&mut b.shadow_value, k);
+        // Cosine-weighted bounce.
+        let radius = load(&b.random[3], k).sqrt();
+        let (sin_phi, cos_phi) = (load(&b.random[4], k) * f32x8::splat(2.0 * PI)).sin_cos();
+        let z = (one - radius * radius).max(zero).sqrt();
+        let sign = one.copysign(normal.z);
+        let a = (zero - one) / (sign + normal.z);
+        let bb = normal.x * normal.y * a;
+        let tangent = V3 { x: one + sign * normal.x * normal.x * a, y: sign * bb, z: zero - sign * normal.x };
+        let bitangent = V3 { x: bb, y: sign + normal.y * normal.y * a, z: zero - normal.y };
+        let new_direction = tangent.scale(radius * cos_phi).add(bitangent.scale(radius * sin_phi)).add(normal.scale(z));
+        let mut new_throughput = throughput.mul(albedo);
+        let survive = new_throughput.x.max(new_throughput.y).max(new_throughput.z).min(f32x8::splat(0.95));
+        let survives = !roulette | (survive.cmp_gt(zero) & load(&b.random[5], k).cmp_lt(survive));
+        new_throughput = V3::select(roulette, new_throughput.scale(one / survive.max(tiny)), new_throughput);
+        radiance.store(&mut b.radiance, k);
+        spawn.store(&mut b.origin, k);
+        new_direction.store(&mut b.direction, k);
+        new_throughput.store(&mut b.throughput, k);
+        store(z * frac_1_pi, &mut b.previous_pdf, k);
+        let alive = (hit & not_last & survives).to_array();
+        for (lane, &flag) in alive.iter().enumerate() {
+            b.alive[k + lane] = flag.to_bits() != 0;
+        }
+    }
+}
+
 fn tiles() -> Vec<(u32, u32)> {
     (0..HEIGHT).step_by(TILE as usize).flat_map(|y| (0..WIDTH).step_by(TILE as usize).map(move |x| (x, y))).collect()
 }
 
 /// Renders every tile; returns the rays traced and a checksum of the image (kept so that
 /// the shading cannot be optimised away).
-fn render<R: Rays + Send>(setup: &Setup, spp: u32, make: impl Fn() -> R + Sync) -> (Vec<R>, u64, f32) {
+fn render<R: Rays + Send>(setup: &Setup, spp: u32, batched: bool, make: impl Fn() -> R + Sync) -> (Vec<R>, u64, f32) {
     let per_tile: Vec<(R, u64, f32)> = tiles()
         .par_iter()
         .map(|&(x0, y0)| {
             let mut rays = make();
+            if batched {
+                let (count, sum) = render_tile_batched(setup, x0, y0, spp, &mut rays);
+                return (rays, count, sum);
+            }
             let (mut count, mut sum) = (0u64, 0.0f32);
             for py in y0..(y0 + TILE).min(HEIGHT) {
                 for px in x0..(x0 + TILE).min(WIDTH) {
@@ -339,6 +794,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let path = PathBuf::from(args.next().unwrap_or_else(|| "scenes/cornell.toml".into()));
     let spp: u32 = args.next().map(|s| s.parse()).transpose()?.unwrap_or(16);
     let repeats: u32 = args.next().map(|s| s.parse()).transpose()?.unwrap_or(3);
+    let batched = args.next().as_deref() == Some("batched");
     let scene = Scene::load(&path)?;
     let accel = Accel::build(&scene)?;
     let setup = Setup {
@@ -361,6 +817,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         film_tan: scene.camera.tan_half_fov(WIDTH, HEIGHT),
         max_bounces: scene.max_bounces,
     };
+    if batched && !setup.lights.directional.is_empty() {
+        return Err(format!(
+            "{}: the batched floor handles emissive triangles and the environment only",
+            path.display()
+        )
+        .into());
+    }
     let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let pool = thread_pool(threads)?;
     let mut best_floor = f64::INFINITY;
@@ -368,11 +831,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut checksum = 0.0;
     for _ in 0..repeats {
         let start = Instant::now();
-        let (_, count, sum) = pool.install(|| render(&setup, spp, || Count));
+        let (_, count, sum) = pool.install(|| render(&setup, spp, batched, || Count));
         best_floor = best_floor.min(start.elapsed().as_secs_f64());
         (ray_count, checksum) = (count, sum);
     }
-    let (recorded, recorded_count, _) = pool.install(|| render(&setup, spp, Record::default));
+    let (recorded, recorded_count, _) = pool.install(|| render(&setup, spp, batched, Record::default));
     assert_eq!(recorded_count, ray_count);
     let closest: Vec<Ray> = recorded.iter().flat_map(|r| r.closest.iter().copied()).collect();
     let shadow: Vec<Ray> = recorded.iter().flat_map(|r| r.shadow.iter().copied()).collect();
@@ -394,8 +857,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let tracer_mean =
         frame.beauty.iter().map(|p| p.element_sum() as f64).sum::<f64>() / (3 * frame.beauty.len()) as f64;
     println!(
-        "{}: minimal NEE path tracer, {WIDTH}x{HEIGHT} at {spp} spp, {threads} threads\n  floor    {:8.3} s  {:7.2} Mrays/s ({} rays: {} closest, {} shadow; mean radiance {:.4}, lfr render's {:.4})\n  raw      {:8.3} s  {:7.2} Mrays/s (same rays, Embree only)\n  floor/raw = {:.2}",
+        "{}: minimal NEE path tracer{}, {WIDTH}x{HEIGHT} at {spp} spp, {threads} threads\n  floor    {:8.3} s  {:7.2} Mrays/s ({} rays: {} closest, {} shadow; mean radiance {:.4}, lfr render's {:.4})\n  raw      {:8.3} s  {:7.2} Mrays/s (same rays, Embree only)\n  floor/raw = {:.2}",
         path.display(),
+        if batched { " (batched, SIMD shading)" } else { "" },
         best_floor,
         ray_count as f64 / best_floor / 1e6,
         ray_count,
