@@ -124,7 +124,11 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             tracer::render(&scene, &accel, &one)?.seconds.min(tracer::render(&scene, &accel, &one)?.seconds);
 
         let raw_rays = (closest.len() + shadow.len()) as u64;
-        assert_eq!(raw_rays, rays, "the recorded paths must be the timed paths");
+        anyhow::ensure!(
+            raw_rays == rays,
+            "{}: the recorded paths traced {raw_rays} rays but the timed render {rays}; the tracer is not deterministic",
+            scene.source.display()
+        );
         let result = SceneResult {
             scene: scene.source.display().to_string(),
             triangles: accel.triangle_count,
