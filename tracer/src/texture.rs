@@ -115,15 +115,47 @@ fn encode_srgb(linear: f32) -> u8 {
     (encoded * 255.0).round().clamp(0.0, 255.0) as u8
 }
 
+/// `code / 255` for every 8-bit code, so that decoding looks values up instead of dividing.
+const UNORM_TABLE: [f32; 256] = {
+    let mut table = [0.0f32; 256];
+    let mut code = 0;
+    while code < 256 {
+        table[code] = code as f32 / 255.0;
+        code += 1;
+    }
+    table
+};
+
 /// Decodes one 8-bit texel to linear RGBA.
 #[inline]
 fn decode(texel: [u8; 4], srgb: bool) -> Vec4 {
-    let a = texel[3] as f32 / 255.0;
-    if srgb {
-        let lut = srgb_table();
-        Vec4::new(lut[texel[0] as usize], lut[texel[1] as usize], lut[texel[2] as usize], a)
+    decode_with(texel, if srgb { srgb_table() } else { &UNORM_TABLE })
+}
+
+/// Decodes one 8-bit texel with `rgb_table` for the colour channels (alpha is always linear).
+#[inline]
+fn decode_with(texel: [u8; 4], rgb_table: &[f32; 256]) -> Vec4 {
+    Vec4::new(
+        rgb_table[texel[0] as usize],
+        rgb_table[texel[1] as usize],
+        rgb_table[texel[2] as usize],
+        UNORM_TABLE[texel[3] as usize],
+    )
+}
+
+/// `x.floor()` without a libm call (the baseline x86-64 target has no rounding instruction):
+/// exact for every finite value, since a float of magnitude 2²³ or more is already an integer.
+#[inline]
+fn floor_exact(x: f32) -> f32 {
+    if x.abs() < 8_388_608.0 {
+        let truncated = x as i32 as f32;
+        if truncated > x {
+            truncated - 1.0
+        } else {
+            truncated
+        }
     } else {
-        Vec4::new(texel[0] as f32 / 255.0, texel[1] as f32 / 255.0, texel[2] as f32 / 255.0, a)
+        x
     }
 }
 
@@ -180,13 +212,14 @@ impl Level<'_> {
         let u = if uv.x.is_finite() { uv.x } else { 0.0 };
         let v = if uv.y.is_finite() { uv.y } else { 0.0 };
         // Keep coordinates in a range where f32 keeps sub-texel precision.
-        let u = u - u.floor();
-        let v = v - v.floor();
+        let u = u - floor_exact(u);
+        let v = v - floor_exact(v);
         let (w, h) = (self.width, self.height);
         let x = u * w as f32 - 0.5;
         let y = v * h as f32 - 0.5;
-        let fx = x - x.floor();
-        let fy = y - y.floor();
+        let (floor_x, floor_y) = (floor_exact(x), floor_exact(y));
+        let fx = x - floor_x;
+        let fy = y - floor_y;
         // x.floor() is in [-1, w - 1] (u < 1 up to rounding): wrap without a division.
         let wrap = |i: f32, n: usize| -> usize {
             let i = i as isize;
@@ -198,11 +231,12 @@ impl Level<'_> {
                 i as usize
             }
         };
-        let x0 = wrap(x.floor(), w);
-        let y0 = wrap(y.floor(), h);
+        let x0 = wrap(floor_x, w);
+        let y0 = wrap(floor_y, h);
         let x1 = if x0 + 1 == w { 0 } else { x0 + 1 };
         let y1 = if y0 + 1 == h { 0 } else { y0 + 1 };
-        let texel = |x: usize, y: usize| decode(self.texels[y * w + x], srgb);
+        let table = if srgb { srgb_table() } else { &UNORM_TABLE };
+        let texel = |x: usize, y: usize| decode_with(self.texels[y * w + x], table);
         let a = texel(x0, y0).lerp(texel(x1, y0), fx);
         let b = texel(x0, y1).lerp(texel(x1, y1), fx);
         a.lerp(b, fy)
@@ -300,6 +334,37 @@ impl Texture {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn floor_exact_is_floor_for_every_finite_value() {
+        let mut values = vec![0.0f32, -0.0, 0.5, -0.5, 1.0, -1.0, 2.5, -2.5, 1e-30, -1e-30, 8_388_607.5, -8_388_607.5];
+        values.extend([8_388_608.0, -8_388_608.0, 3e9, -3e9, f32::MAX, f32::MIN, f32::MIN_POSITIVE]);
+        // Every float just below and above a few integers, and a hashed sweep of bit patterns.
+        for n in [-3.0f32, -1.0, 0.0, 1.0, 255.0, 4096.0] {
+            values.extend([n.next_down(), n, n.next_up()]);
+        }
+        let mut bits = 1u32;
+        for _ in 0..100_000 {
+            bits = bits.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
+            let x = f32::from_bits(bits);
+            if x.is_finite() {
+                values.push(x);
+            }
+        }
+        for x in values {
+            // Equal as numbers (floor(-0.0) may come out as +0.0, which no caller can tell).
+            assert_eq!(floor_exact(x), x.floor(), "floor of {x:e}");
+        }
+    }
+
+    #[test]
+    fn decoding_tables_give_the_divisions_they_replace() {
+        for code in 0..=255u8 {
+            let linear = decode([code, code, code, code], false);
+            assert_eq!(linear, Vec4::splat(code as f32 / 255.0));
+            assert_eq!(decode([0, 0, 0, code], true).w, code as f32 / 255.0, "alpha is linear in sRGB textures");
+        }
+    }
 
     #[test]
     fn srgb_decoding_matches_the_standard_curve() {
