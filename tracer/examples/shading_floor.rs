@@ -127,6 +127,14 @@ impl Lights {
         Lights { triangles, triangle_cdf, triangle_area, directional, environment, choices }
     }
 
+    /// The emissive triangle at fraction `u` ∈ [0, 1) of the total emissive area (chosen by
+    /// area); the scene must have one.
+    #[inline]
+    fn triangle_by_area(&self, u: f32) -> &AreaLight {
+        let target = u * self.triangle_area;
+        &self.triangles[self.triangle_cdf.partition_point(|&c| c <= target).min(self.triangles.len() - 1)]
+    }
+
     /// Solid-angle density of reaching an emissive triangle point `light_point` with normal
     /// `light_normal` from `from` by light sampling.
     #[inline]
@@ -154,9 +162,7 @@ fn sample_light(lights: &Lights, point: Vec3, rng: &mut Pcg32) -> Option<LightSa
     let mut choice = ((rng.next_f32() * choices) as u32).min(lights.choices - 1);
     if !lights.triangles.is_empty() {
         if choice == 0 {
-            let target = rng.next_f32() * lights.triangle_area;
-            let index = lights.triangle_cdf.partition_point(|&c| c <= target).min(lights.triangles.len() - 1);
-            let light = &lights.triangles[index];
+            let light = lights.triangle_by_area(rng.next_f32());
             let (mut b, mut c) = (rng.next_f32(), rng.next_f32());
             if b + c > 1.0 {
                 (b, c) = (1.0 - b, 1.0 - c);
@@ -355,7 +361,7 @@ impl Lanes3 {
 /// current vertex's hit, material, light sample and shadow ray.
 #[derive(Default)]
 struct Batch {
-    pixel: Vec<u32>,
+    /// Each live path's random seed; the first `live` entries (`render_tile_batched`) are paths.
     seed: Vec<u32>,
     origin: Lanes3,
     direction: Lanes3,
@@ -411,14 +417,9 @@ impl Batch {
 /// calls, material and light look-ups stay scalar.
 fn render_tile_batched<R: Rays>(setup: &Setup, x0: u32, y0: u32, spp: u32, rays: &mut R) -> (u64, f32) {
     let lights = &setup.lights;
-    let environment = lights.environment;
-    let has_environment = environment.max_element() > 0.0;
-    let environment_pdf = 1.0 / (4.0 * PI * lights.choices as f32);
-    let triangle_choice = 1.0 / lights.choices as f32;
     let mut b = Batch::default();
     let (mut count, mut sum) = (0u64, 0.0f32);
     for index in 0..spp {
-        b.pixel.clear();
         b.seed.clear();
         for lanes in [&mut b.origin, &mut b.direction, &mut b.throughput, &mut b.radiance] {
             lanes.x.clear();
@@ -432,7 +433,6 @@ fn render_tile_batched<R: Rays>(setup: &Setup, x0: u32, y0: u32, spp: u32, rays:
                 let film = Vec2::new(px as f32 + hash_random(seed, 0), py as f32 + hash_random(seed, 1));
                 let (origin, direction) =
                     setup.scene.camera.generate_ray_with_tan(setup.film_tan, film, Vec2::ZERO, WIDTH, HEIGHT);
-                b.pixel.push(py * WIDTH + px);
                 b.seed.push(seed);
                 for (lanes, v) in [
                     (&mut b.origin, origin),
@@ -447,8 +447,9 @@ fn render_tile_batched<R: Rays>(setup: &Setup, x0: u32, y0: u32, spp: u32, rays:
                 b.previous_pdf.push(0.0);
             }
         }
+        let mut live = b.seed.len();
         for bounce in 0..=setup.max_bounces {
-            let n = b.pixel.len();
+            let n = live;
             if n == 0 {
                 break;
             }
@@ -496,13 +497,7 @@ fn render_tile_batched<R: Rays>(setup: &Setup, x0: u32, y0: u32, spp: u32, rays:
             // triangle gets a zero-emission light and the environment handles it below.
             for k in 0..n {
                 let u_select = b.random[0][k] * lights.choices as f32;
-                let light = if u_select < 1.0 && !lights.triangles.is_empty() {
-                    let target = (u_select * lights.triangle_area).min(lights.triangle_area);
-                    let i = lights.triangle_cdf.partition_point(|&c| c <= target).min(lights.triangles.len() - 1);
-                    Some(&lights.triangles[i])
-                } else {
-                    None
-                };
+                let light = (u_select < 1.0 && !lights.triangles.is_empty()).then(|| lights.triangle_by_area(u_select));
                 match light {
                     Some(l) => {
                         b.light_corner.set(k, l.corner);
@@ -517,17 +512,7 @@ fn render_tile_batched<R: Rays>(setup: &Setup, x0: u32, y0: u32, spp: u32, rays:
                     }
                 }
             }
-            shade_lanes(
-                &mut b,
-                padded,
-                bounce,
-                setup.max_bounces,
-                has_environment,
-                environment,
-                environment_pdf,
-                triangle_choice,
-                lights,
-            );
+            shade_lanes(&mut b, padded, bounce, setup.max_bounces, lights);
             // Shadow rays (scalar Embree calls).
             for k in 0..n {
                 let t_max = b.shadow_t_max[k];
@@ -544,7 +529,6 @@ fn render_tile_batched<R: Rays>(setup: &Setup, x0: u32, y0: u32, spp: u32, rays:
             let mut kept = 0;
             for k in 0..n {
                 if b.alive[k] {
-                    b.pixel[kept] = b.pixel[k];
                     b.seed[kept] = b.seed[k];
                     for lanes in [&mut b.origin, &mut b.direction, &mut b.throughput, &mut b.radiance] {
                         lanes.x[kept] = lanes.x[k];
@@ -557,7 +541,7 @@ fn render_tile_batched<R: Rays>(setup: &Setup, x0: u32, y0: u32, spp: u32, rays:
                     sum += b.radiance.get(k).element_sum();
                 }
             }
-            b.pixel.truncate(kept);
+            live = kept;
             b.seed.truncate(kept);
             for lanes in [&mut b.origin, &mut b.direction, &mut b.throughput, &mut b.radiance] {
                 lanes.x.truncate(kept);
@@ -566,7 +550,7 @@ fn render_tile_batched<R: Rays>(setup: &Setup, x0: u32, y0: u32, spp: u32, rays:
             }
             b.previous_pdf.truncate(kept);
         }
-        for k in 0..b.pixel.len() {
+        for k in 0..live {
             sum += b.radiance.get(k).element_sum();
         }
     }
@@ -635,19 +619,8 @@ fn store(value: f32x8, v: &mut [f32], k: usize) {
 /// The vertex arithmetic of every lane, 8 lanes per instruction (`wide::f32x8`): emission
 /// with MIS, the light sample and its shadow ray, the cosine-weighted bounce and roulette.
 /// Branch-free: every lane computes every case and masks pick the results.
-#[allow(clippy::too_many_arguments)]
 #[inline(never)]
-fn shade_lanes(
-    b: &mut Batch,
-    n: usize,
-    bounce: u32,
-    max_bounces: u32,
-    has_environment: bool,
-    environment: Vec3,
-    environment_pdf: f32,
-    triangle_choice: f32,
-    lights: &Lights,
-) {
+fn shade_lanes(b: &mut Batch, n: usize, bounce: u32, max_bounces: u32, lights: &Lights) {
     let zero = f32x8::ZERO;
     let one = f32x8::ONE;
     let tiny = f32x8::splat(1e-30);
@@ -655,11 +628,11 @@ fn shade_lanes(
     let mask_of = |flag: bool| if flag { all } else { zero };
     let not_last = mask_of(bounce != max_bounces);
     let roulette = mask_of(bounce >= 3);
-    let has_environment = mask_of(has_environment);
-    let environment = V3::splat(environment);
-    let environment_pdf = f32x8::splat(environment_pdf);
+    let has_environment = mask_of(lights.environment.max_element() > 0.0);
+    let environment = V3::splat(lights.environment);
+    let environment_pdf = f32x8::splat(1.0 / (4.0 * PI * lights.choices as f32));
     let triangle_area = f32x8::splat(lights.triangle_area);
-    let triangle_choice = f32x8::splat(triangle_choice);
+    let triangle_choice = f32x8::splat(1.0 / lights.choices as f32);
     let frac_1_pi = f32x8::splat(FRAC_1_PI);
     let power = |a: f32x8, b: f32x8| a * a / (a * a + b * b).max(tiny);
     for k in (0..n).step_by(8) {
