@@ -13,7 +13,7 @@
 //! GGX, texture filtering, shading normals, ray cones, motion, lenses, the first-hit layers)
 //! is left out, so its tracer/raw ratio bounds what scalar shading of this design can reach.
 //!
-//! `cargo run --release -p tracer --example shading_floor -- SCENE.toml [SPP] [REPEATS] [batched]`
+//! `cargo run --release --manifest-path experiments/shading_floor/Cargo.toml -- SCENE.toml [SPP] [REPEATS] [batched]`
 //!
 //! With `batched`, the same estimator runs as a wavefront: a tile's paths advance together in
 //! structure-of-arrays lanes, and all per-vertex arithmetic (`shade_lanes`) runs 8 lanes per
