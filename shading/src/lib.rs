@@ -1,6 +1,7 @@
-//! Shading shared by the tracer and the reconstructions: the metallic-roughness BSDF
-//! (`bsdf.rs`), the shading frame (`frame.rs`) and the square-to-disk/hemisphere maps
-//! (`warp.rs`).
+//! Shading and sampling numerics shared by the tracer and the reconstructions: the
+//! metallic-roughness BSDF (`bsdf.rs`), the shading frame (`frame.rs`), the square-to-disk and
+//! hemisphere maps (`warp.rs`), and hashing, Owen scrambling, Sobol' and Halton points
+//! (`sampling.rs`).
 //!
 //! The tracer draws secondary rays with it; ILFR's final gather (paper Eq. 3) draws its
 //! reconstruction rays from the primary hit's BSDF and weights them with the same code, so the
@@ -11,6 +12,7 @@
 
 mod bsdf;
 mod frame;
+pub mod sampling;
 mod warp;
 
 pub use bsdf::*;
@@ -28,13 +30,5 @@ pub(crate) mod test_points {
         [radical_inverse(i, 3), (i as f32 + 0.5) / n as f32, shifted as f32]
     }
 
-    fn radical_inverse(mut i: u32, base: u32) -> f32 {
-        let (mut value, mut scale) = (0.0f64, 1.0f64 / base as f64);
-        while i > 0 {
-            value += (i % base) as f64 * scale;
-            i /= base;
-            scale /= base as f64;
-        }
-        value as f32
-    }
+    use crate::sampling::radical_inverse;
 }

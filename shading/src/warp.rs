@@ -39,6 +39,24 @@ mod tests {
     }
 
     #[test]
+    fn the_concentric_map_covers_the_disk_evenly() {
+        let n = 64;
+        let (mut inner, mut total) = (0, 0);
+        for i in 0..n {
+            for j in 0..n {
+                let p = concentric_disk(Vec2::new((i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32));
+                assert!(p.length_squared() <= 1.0 + 1e-6);
+                total += 1;
+                if p.length_squared() <= 0.25 {
+                    inner += 1;
+                }
+            }
+        }
+        // Area-preserving: a quarter of the points within radius 1/2.
+        assert!((inner as f32 / total as f32 - 0.25).abs() < 0.01);
+    }
+
+    #[test]
     fn cosine_directions_have_the_cosine_moments() {
         // E[cos θ] = 2/3 and E[cos² θ] = 1/2 under the density cos θ / π.
         let n = 1 << 14;

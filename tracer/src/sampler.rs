@@ -6,137 +6,12 @@
 //! dimension pair by the same scrambling so that pairs stay decorrelated ("padding", after
 //! Burley 2020, "Practical Hash-based Owen Scrambling"). Every value depends only on
 //! (seed, pixel, sample index, dimension), never on thread scheduling, so renders are
-//! bit-identical for any thread count.
+//! bit-identical for any thread count. The hash, scrambles and Sobol' dimensions are
+//! `shading::sampling`'s, shared with the reconstructions.
 
-/// 32-bit integer hash (the "lowbias32" finaliser).
-#[inline]
-pub fn hash_u32(mut x: u32) -> u32 {
-    x ^= x >> 16;
-    x = x.wrapping_mul(0x7feb_352d);
-    x ^= x >> 15;
-    x = x.wrapping_mul(0x846c_a68b);
-    x ^= x >> 16;
-    x
-}
-
-#[inline]
-pub fn hash_combine(a: u32, b: u32) -> u32 {
-    hash_u32(a ^ b.wrapping_add(0x9e37_79b9).wrapping_add(a << 6).wrapping_add(a >> 2))
-}
-
-/// Laine-Karras style permutation of the bits of `x`, applied from the low bit upwards: each
-/// output bit depends only on the input bits below it. Applied to a bit-reversed value it is a
-/// nested uniform scramble.
-#[inline]
-fn laine_karras_permutation(mut x: u32, seed: u32) -> u32 {
-    x ^= x.wrapping_mul(0x3d20_adea);
-    x = x.wrapping_add(seed);
-    x = x.wrapping_mul((seed >> 16) | 1);
-    x ^= x.wrapping_mul(0x0552_6c56);
-    x ^= x.wrapping_mul(0x53a2_2864);
-    x
-}
-
-/// Nested uniform (Owen) scramble of a 32-bit fixed-point value in [0, 1).
-#[inline]
-pub fn nested_uniform_scramble(x: u32, seed: u32) -> u32 {
-    laine_karras_permutation(x.reverse_bits(), seed).reverse_bits()
-}
-
-/// First Sobol' dimension: the van der Corput sequence in base 2.
+use shading::sampling::{hash_combine, hash_u32, laine_karras_permutation, sobol_dim1_reversed, to_unit_float};
 #[cfg(test)]
-fn sobol_dim0(index: u32) -> u32 {
-    index.reverse_bits()
-}
-
-/// Second Sobol' dimension (primitive polynomial x + 1, direction numbers
-/// v_k = v_{k-1} ^ (v_{k-1} >> 1)), by the bit-by-bit definition (reference for the tables).
-#[cfg(test)]
-fn sobol_dim1_reference(mut index: u32) -> u32 {
-    let mut v: u32 = 1 << 31;
-    let mut result = 0;
-    while index != 0 {
-        if index & 1 != 0 {
-            result ^= v;
-        }
-        index >>= 1;
-        v ^= v >> 1;
-    }
-    result
-}
-
-/// The generator matrix is linear over GF(2), so the image of an index is the XOR of the images
-/// of its four bytes: four tables of 256 entries, built at compile time.
-const SOBOL_DIM1_TABLES: [[u32; 256]; 4] = {
-    let mut directions = [0u32; 32];
-    let mut v: u32 = 1 << 31;
-    let mut k = 0;
-    while k < 32 {
-        directions[k] = v;
-        v ^= v >> 1;
-        k += 1;
-    }
-    let mut tables = [[0u32; 256]; 4];
-    let mut byte = 0;
-    while byte < 4 {
-        let mut value = 0;
-        while value < 256 {
-            let mut result = 0u32;
-            let mut bit = 0;
-            while bit < 8 {
-                if value & (1 << bit) != 0 {
-                    result ^= directions[byte * 8 + bit];
-                }
-                bit += 1;
-            }
-            tables[byte][value] = result;
-            value += 1;
-        }
-        byte += 1;
-    }
-    tables
-};
-
-/// Second Sobol' dimension.
-#[cfg(test)]
-fn sobol_dim1(index: u32) -> u32 {
-    let t = &SOBOL_DIM1_TABLES;
-    t[0][(index & 0xff) as usize]
-        ^ t[1][((index >> 8) & 0xff) as usize]
-        ^ t[2][((index >> 16) & 0xff) as usize]
-        ^ t[3][(index >> 24) as usize]
-}
-
-/// The tables with every entry bit-reversed: reversal is linear over GF(2) too.
-const SOBOL_DIM1_REVERSED_TABLES: [[u32; 256]; 4] = {
-    let mut tables = SOBOL_DIM1_TABLES;
-    let mut byte = 0;
-    while byte < 4 {
-        let mut value = 0;
-        while value < 256 {
-            tables[byte][value] = tables[byte][value].reverse_bits();
-            value += 1;
-        }
-        byte += 1;
-    }
-    tables
-};
-
-/// Second Sobol' dimension with its bits reversed.
-#[inline]
-fn sobol_dim1_reversed(index: u32) -> u32 {
-    let t = &SOBOL_DIM1_REVERSED_TABLES;
-    t[0][(index & 0xff) as usize]
-        ^ t[1][((index >> 8) & 0xff) as usize]
-        ^ t[2][((index >> 16) & 0xff) as usize]
-        ^ t[3][(index >> 24) as usize]
-}
-
-#[inline]
-fn to_unit_float(x: u32) -> f32 {
-    // 24 significant bits so the result is exactly representable and < 1.
-    (x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
-}
+use shading::sampling::{nested_uniform_scramble, sobol_dim0, sobol_dim1};
 
 /// Sample stream for one pixel and one sample index; dimensions are consumed in pairs.
 #[derive(Clone, Debug)]
@@ -200,31 +75,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn sobol_pairs_are_a_0_2_net_in_every_elementary_interval() {
-        // The first 16 points of Sobol' dims 0 and 1 put exactly one point in every
-        // elementary interval of area 1/16 (1x16, 2x8, 4x4, 8x2, 16x1).
-        let pts: Vec<(u32, u32)> = (0..16).map(|i| (sobol_dim0(i) >> 28, sobol_dim1(i) >> 28)).collect();
-        for log_x in 0..=4u32 {
-            let log_y = 4 - log_x;
-            let mut seen = std::collections::HashSet::new();
-            for &(x, y) in &pts {
-                seen.insert((x >> (4 - log_x), y >> (4 - log_y)));
-            }
-            assert_eq!(seen.len(), 16, "interval shape 2^{log_x} x 2^{log_y}");
-        }
-    }
-
-    #[test]
-    fn table_driven_sobol_matches_the_definition() {
-        let mut x = 1u32;
-        for i in 0..10_000u32 {
-            x = hash_u32(x ^ i);
-            assert_eq!(sobol_dim1(x), sobol_dim1_reference(x));
-            assert_eq!(sobol_dim1(i), sobol_dim1_reference(i));
-        }
-    }
-
-    #[test]
     fn next_2d_gives_the_bits_of_its_definition() {
         // The shortcut drops only bit reversals that cancel, so it must agree bit for bit with
         // the scrambles written out, over many seeds, pixels, indices and dimensions.
@@ -237,9 +87,6 @@ mod tests {
             for _ in 0..40 {
                 assert_eq!(fast.next_2d().map(f32::to_bits), reference.next_2d_by_definition().map(f32::to_bits));
             }
-        }
-        for i in 0..1000u32 {
-            assert_eq!(sobol_dim1_reversed(hash_u32(i)), sobol_dim1(hash_u32(i)).reverse_bits());
         }
     }
 

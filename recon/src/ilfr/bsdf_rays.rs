@@ -19,8 +19,8 @@
 use glam::Vec3;
 
 use super::disc::Ray;
-use super::gather::{hash, sobol_2d_scrambled};
 use super::samples::PrimaryShading;
+use shading::sampling::{hash_u32, sobol_2d_scrambled, to_unit_float};
 
 /// One direction of the estimate: its weight f·cos/p and, unless it points below the surface,
 /// the ray to reconstruct.
@@ -46,7 +46,7 @@ fn lobe_split(specular_probability: f32, per_hit: u32, scramble: u32) -> (u32, [
         return (n_spec, [fraction, 1.0 - fraction]);
     }
     // One ray, both lobes: the one-sample mixture.
-    let u = (hash(scramble ^ 0x1319_8a2e) >> 8) as f32 / (1u32 << 24) as f32;
+    let u = to_unit_float(hash_u32(scramble ^ 0x1319_8a2e));
     ((u < p) as u32, [p, 1.0 - p])
 }
 
@@ -67,7 +67,7 @@ pub fn bsdf_rays(
         if wo.z > 0.0 { lobe_split(bsdf.specular_probability(wo), per_hit, scramble) } else { (0, [0.0, 1.0]) };
     let start = [0, 1, 2].map(|a| origin[a] + offset * normal[a]);
     let geometric = Vec3::from(primary.geometric_normal);
-    let (spec_scramble, diffuse_scramble) = (hash(scramble ^ 0x4528_21e6), hash(scramble ^ 0x38d0_1377));
+    let (spec_scramble, diffuse_scramble) = (hash_u32(scramble ^ 0x4528_21e6), hash_u32(scramble ^ 0x38d0_1377));
     (0..per_hit).map(move |j| {
         let local = if j < n_spec {
             let (u, v) = sobol_2d_scrambled(j, spec_scramble);
@@ -99,7 +99,7 @@ pub(crate) fn mixture_albedo(bsdf: &shading::Bsdf, wo: Vec3, n: u32) -> Vec3 {
     let mut sum = Vec3::ZERO;
     for i in 0..n {
         let (u, v) = sobol_2d_scrambled(i, 99);
-        let u_lobe = (hash(i ^ 0x51ed_270b) >> 8) as f32 / (1u32 << 24) as f32;
+        let u_lobe = to_unit_float(hash_u32(i ^ 0x51ed_270b));
         if let Some(s) = bsdf.sample(wo, u_lobe, [u, v]) {
             sum += s.weight;
         }

@@ -29,8 +29,10 @@
 //! function of the input, so the image is bit-identical for any number of threads.
 
 use rayon::prelude::*;
+use shading::sampling::hash_u32;
 
 use super::bsdf_rays::bsdf_rays;
+use super::directions::cosine_rays;
 use super::disc::Ray;
 use super::reconstruct::{ReconstructStats, Reconstructor, Scratch, SkyFallbacks, SkySample};
 use super::samples::{IndirectSamples, SampleClass};
@@ -266,22 +268,12 @@ pub(super) fn sky_samples(
 /// The reconstruction rays of primary hit `i`: origin lifted along the normal, directions
 /// cosine-distributed about it.
 fn hit_rays(samples: &IndirectSamples, i: usize, per_hit: u32, settings: &GatherSettings) -> impl Iterator<Item = Ray> {
-    let normal = samples.primary_normal[i];
-    let o = samples.primary_hit[i];
-    let origin = [0, 1, 2].map(|a| o[a] + settings.offset * normal[a]);
-    let (tangent, bitangent) = orthonormal_basis(normal);
-    let scramble = hit_scramble(i, settings);
-    (0..per_hit).map(move |j| {
-        let (u, v) = sobol_2d_scrambled(j, scramble);
-        let local = cosine_hemisphere(u, v);
-        let direction = [0, 1, 2].map(|a| local[0] * tangent[a] + local[1] * bitangent[a] + local[2] * normal[a]);
-        Ray { time: 0.0, origin, direction: normalize(direction) }
-    })
+    cosine_rays(samples.primary_hit[i], samples.primary_normal[i], settings.offset, per_hit, hit_scramble(i, settings))
 }
 
 /// The seed of primary hit i's directions.
 fn hit_scramble(i: usize, settings: &GatherSettings) -> u32 {
-    hash(settings.seed ^ hash(i as u32 ^ 0x6a09_e667))
+    hash_u32(settings.seed ^ hash_u32(i as u32 ^ 0x6a09_e667))
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -377,139 +369,12 @@ fn visibility_at(
     [(sum / per_hit as f64) as f32; 3]
 }
 
-/// A 32-bit integer hash (the "lowbias32" mixer).
-pub(super) fn hash(mut x: u32) -> u32 {
-    x ^= x >> 16;
-    x = x.wrapping_mul(0x7feb_352d);
-    x ^= x >> 15;
-    x = x.wrapping_mul(0x846c_a68b);
-    x ^= x >> 16;
-    x
-}
-
-/// The Laine–Karras hash with Vegdahl's constants: each output bit depends only on the input
-/// bits below it, so it permutes every block of 2^k consecutive values among themselves.
-pub(super) fn laine_karras(mut v: u32, seed: u32) -> u32 {
-    v ^= v.wrapping_mul(0x3d20_adea);
-    v = v.wrapping_add(seed);
-    v = v.wrapping_mul((seed >> 16) | 1);
-    v ^= v.wrapping_mul(0x0552_6c56);
-    v ^= v.wrapping_mul(0x53a2_2864);
-    v
-}
-
-/// Nested uniform (Owen) scrambling of a 32-bit fixed-point coordinate: [`laine_karras`] on
-/// the reversed bits, so each bit depends only on the bits above it.
-fn owen_scramble(x: u32, seed: u32) -> u32 {
-    laine_karras(x.reverse_bits(), seed).reverse_bits()
-}
-
-/// Point `index` of the first two Sobol' dimensions (van der Corput in base 2, and the
-/// dimension with direction numbers v_1 = 1/2, v_{k+1} = v_k ⊕ v_k/2), as 32-bit fixed point.
-fn sobol_2d(index: u32) -> (u32, u32) {
-    let x = index.reverse_bits();
-    let (mut y, mut v, mut i) = (0u32, 1u32 << 31, index);
-    while i != 0 {
-        if i & 1 != 0 {
-            y ^= v;
-        }
-        i >>= 1;
-        v ^= v >> 1;
-    }
-    (x, y)
-}
-
-/// The scrambled point `index` in [0, 1)², the two dimensions scrambled independently.
-pub(super) fn sobol_2d_scrambled(index: u32, seed: u32) -> (f32, f32) {
-    let (x, y) = sobol_2d(index);
-    let to_unit = |v: u32| (v >> 8) as f32 / (1u32 << 24) as f32;
-    (to_unit(owen_scramble(x, hash(seed ^ 0x243f_6a88))), to_unit(owen_scramble(y, hash(seed ^ 0x85a3_08d3))))
-}
-
-/// Shirley–Chiu concentric map of [0, 1)² to the unit disk, lifted to the cosine-weighted
-/// hemisphere about +z.
-pub(super) fn cosine_hemisphere(u: f32, v: f32) -> [f32; 3] {
-    let (a, b) = (2.0 * u - 1.0, 2.0 * v - 1.0);
-    let (x, y) = if a == 0.0 && b == 0.0 {
-        (0.0, 0.0)
-    } else if a.abs() > b.abs() {
-        let phi = std::f32::consts::FRAC_PI_4 * (b / a);
-        (a * phi.cos(), a * phi.sin())
-    } else {
-        let phi = std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (a / b);
-        (b * phi.cos(), b * phi.sin())
-    };
-    [x, y, (1.0 - x * x - y * y).max(0.0).sqrt()]
-}
-
-/// Two unit vectors completing the unit `n` to a right-handed basis (Duff et al. 2017).
-pub(super) fn orthonormal_basis(n: [f32; 3]) -> ([f32; 3], [f32; 3]) {
-    let sign = 1.0f32.copysign(n[2]);
-    let a = -1.0 / (sign + n[2]);
-    let b = n[0] * n[1] * a;
-    ([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]], [b, sign + n[1] * n[1] * a, -n[1]])
-}
-
-pub(super) fn normalize(v: [f32; 3]) -> [f32; 3] {
-    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    if l > 0.0 {
-        v.map(|c| c / l)
-    } else {
-        v
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn scrambled_sobol_points_are_stratified() {
-        // A (0, 2)-net: 2^m points put exactly one in every elementary interval of area 2^−m,
-        // after nested scrambling too.
-        for seed in [0u32, 1, 0xdead_beef] {
-            let points: Vec<(f32, f32)> = (0..16).map(|j| sobol_2d_scrambled(j, seed)).collect();
-            for (nx, ny) in [(16usize, 1usize), (8, 2), (4, 4), (2, 8), (1, 16)] {
-                let mut cells = vec![0; 16];
-                for &(u, v) in &points {
-                    assert!((0.0..1.0).contains(&u) && (0.0..1.0).contains(&v));
-                    cells[(u * nx as f32) as usize * ny + (v * ny as f32) as usize] += 1;
-                }
-                assert!(cells.iter().all(|&c| c == 1), "seed {seed}, {nx}x{ny}: {cells:?}");
-            }
-        }
-        assert_ne!(sobol_2d_scrambled(3, 1), sobol_2d_scrambled(3, 2), "seeds give other points");
-    }
-
-    #[test]
-    fn cosine_directions_have_the_cosine_moments() {
-        // Under p(ω) = cosθ/π: E[cosθ] = 2/3, E[cos²θ] = 1/2, E[x] = E[y] = 0.
-        let n = 4096;
-        let (mut c1, mut c2, mut mx, mut my) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
-        for j in 0..n {
-            let (u, v) = sobol_2d_scrambled(j, 7);
-            let d = cosine_hemisphere(u, v);
-            assert!(((d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - 1.0).abs() < 1e-5 && d[2] >= 0.0);
-            c1 += d[2] as f64;
-            c2 += (d[2] * d[2]) as f64;
-            mx += d[0] as f64;
-            my += d[1] as f64;
-        }
-        let n = n as f64;
-        assert!((c1 / n - 2.0 / 3.0).abs() < 1e-3, "{}", c1 / n);
-        assert!((c2 / n - 0.5).abs() < 1e-3, "{}", c2 / n);
-        assert!((mx / n).abs() < 1e-3 && (my / n).abs() < 1e-3);
-    }
-
-    #[test]
-    fn the_basis_is_orthonormal_for_any_normal() {
-        for n in [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [0.6, 0.0, 0.8], [-0.48, 0.6, -0.64], [1.0, 0.0, 0.0]] {
-            let (t, b) = orthonormal_basis(n);
-            let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-            for (x, y, want) in [(t, t, 1.0), (b, b, 1.0), (n, n, 1.0), (t, b, 0.0), (t, n, 0.0), (b, n, 0.0)] {
-                assert!((dot(x, y) - want).abs() < 1e-6, "{n:?}");
-            }
-        }
+    fn rays_per_hit_rounds_up_and_gives_every_hit_one() {
         assert_eq!(rays_per_hit(256, 4), 64);
         assert_eq!(rays_per_hit(10, 4), 3);
         assert_eq!(rays_per_hit(0, 4), 1);

@@ -40,7 +40,9 @@ use rayon::prelude::*;
 use sampleio::{SampleFile, SampleKind};
 
 use super::disc::Ray;
-use super::gather::{assemble_rows, hash, laine_karras, sky_samples, sobol_2d_scrambled, GatherSettings, GatherStats};
+use shading::sampling::{hash_u32, laine_karras_permutation, sobol_2d_scrambled};
+
+use super::gather::{assemble_rows, sky_samples, GatherSettings, GatherStats};
 use super::reconstruct::{Reconstructor, Scratch};
 use super::samples::{IndirectSamples, SampleClass};
 use crate::image::Image;
@@ -232,7 +234,7 @@ pub fn read_primary_rays(file: &SampleFile) -> Result<(IndirectSamples, LensCame
 /// Index shuffle (nested uniform scramble of the bit-reversed index), so that a second Sobol'
 /// pair indexed by it is independent of the first.
 fn shuffle(index: u32, seed: u32) -> u32 {
-    laine_karras(index, seed)
+    laine_karras_permutation(index, seed)
 }
 
 /// The image of `rays_per_pixel` reconstruction rays per pixel through the pixel and the lens.
@@ -258,9 +260,10 @@ pub fn gather_lens(
                     let pixel = y as usize * width as usize + x as usize;
                     let min_cosine = sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky)
                         .map(|spacing| (settings.sky_spacing_factor * spacing).min(std::f32::consts::PI).cos());
-                    let seed = hash(settings.seed ^ hash(pixel as u32 ^ 0x2b7e_1516));
-                    let (film_seed, lens_seed, shuffle_seed) = (hash(seed ^ 1), hash(seed ^ 2), hash(seed ^ 3));
-                    let (time_seed, time_shuffle) = (hash(seed ^ 4), hash(seed ^ 5));
+                    let seed = hash_u32(settings.seed ^ hash_u32(pixel as u32 ^ 0x2b7e_1516));
+                    let (film_seed, lens_seed, shuffle_seed) =
+                        (hash_u32(seed ^ 1), hash_u32(seed ^ 2), hash_u32(seed ^ 3));
+                    let (time_seed, time_shuffle) = (hash_u32(seed ^ 4), hash_u32(seed ^ 5));
                     let (mut sum, mut supported) = ([0.0f64; 3], 0u32);
                     stats.primary_hits += 1; // here: pixels gathered
                     for j in 0..n {
@@ -412,7 +415,7 @@ mod tests {
         let mut writer = SampleWriter::create(&path, spec).unwrap();
         let mut state = 99u32;
         let mut next = || {
-            state = hash(state.wrapping_add(0x9e37_79b9));
+            state = hash_u32(state.wrapping_add(0x9e37_79b9));
             (state >> 8) as f32 / (1u32 << 24) as f32
         };
         for y in 0..48 {

@@ -566,7 +566,7 @@ pub(crate) mod tests {
             .map(|o| PrimaryShading {
                 bsdf,
                 geometric_normal: [0.0, 0.0, 1.0],
-                to_eye: crate::ilfr::gather::normalize([0, 1, 2].map(|a| eye[a] - o[a])),
+                to_eye: crate::ilfr::directions::normalize([0, 1, 2].map(|a| eye[a] - o[a])),
             })
             .collect();
         samples.primary_shading = Some(shading);
@@ -588,7 +588,7 @@ pub(crate) mod tests {
         let mut sum = [0.0f64; 3];
         for i in 0..n * n {
             let u = [((i / n) as f32 + 0.5) / n as f32, ((i % n) as f32 + 0.5) / n as f32];
-            let u_lobe = (crate::ilfr::gather::hash(i) >> 8) as f32 / (1u32 << 24) as f32;
+            let u_lobe = shading::sampling::to_unit_float(shading::sampling::hash_u32(i));
             // The floor's frame is the world's: local = world.
             if let Some(s) = bsdf.sample(wo, u_lobe, u) {
                 let l = radiance(box_exit(o, s.wi.to_array(), 2.0, false).unwrap().0) as f64;
@@ -697,7 +697,8 @@ pub(crate) mod tests {
                 let t = 0.2 + 1.2 * rng.uniform();
                 let d = samples.direction[i];
                 samples.secondary_hit[i] = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
-                let n = crate::ilfr::gather::normalize([rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5]);
+                let n =
+                    crate::ilfr::directions::normalize([rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5]);
                 let facing = n[0] * d[0] + n[1] * d[1] + n[2] * d[2] < 0.0;
                 samples.secondary_normal[i] = if facing { n } else { n.map(|c| -c) };
             }

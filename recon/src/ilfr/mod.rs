@@ -44,6 +44,7 @@
 
 pub mod bsdf_rays;
 pub mod bvh;
+pub mod directions;
 pub mod disc;
 pub mod filter;
 pub mod gather;

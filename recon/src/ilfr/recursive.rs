@@ -39,11 +39,13 @@
 //! sample radiance c to aE + a·c.
 
 use rayon::prelude::*;
+use shading::sampling::hash_u32;
 
 use super::bsdf_rays::{bsdf_rays, WeightedRay};
+use super::directions::cosine_rays;
 use super::disc::Ray;
 use super::filter::GLOSSY_KAPPA;
-use super::gather::{cosine_hemisphere, hash, normalize, orthonormal_basis, sky_samples, sobol_2d_scrambled};
+use super::gather::sky_samples;
 use super::reconstruct::{ReconstructStats, Reconstructor, Scratch, SkyFallbacks};
 use super::samples::{IndirectSamples, PrimaryShading, SampleClass};
 
@@ -223,29 +225,21 @@ pub fn recursive_pass(
 /// The reconstruction rays of secondary hit `i`: origin lifted along its normal, directions
 /// cosine-distributed about it.
 fn secondary_rays(samples: &IndirectSamples, i: usize, settings: &RecursiveSettings) -> impl Iterator<Item = Ray> {
-    let normal = samples.secondary_normal[i];
-    let h = samples.secondary_hit[i];
-    let origin = [0, 1, 2].map(|a| h[a] + settings.offset * normal[a]);
-    let (tangent, bitangent) = orthonormal_basis(normal);
     let scramble = hit_scramble(i, settings);
-    (0..settings.rays_per_hit).map(move |k| {
-        let (u, v) = sobol_2d_scrambled(k, scramble);
-        let local = cosine_hemisphere(u, v);
-        let direction = [0, 1, 2].map(|a| local[0] * tangent[a] + local[1] * bitangent[a] + local[2] * normal[a]);
-        Ray { time: 0.0, origin, direction: normalize(direction) }
-    })
+    cosine_rays(samples.secondary_hit[i], samples.secondary_normal[i], settings.offset, settings.rays_per_hit, scramble)
 }
 
 /// The seed of secondary hit i's directions: a constant apart from the gather's, so that the
 /// two direction sets are not correlated.
 fn hit_scramble(i: usize, settings: &RecursiveSettings) -> u32 {
-    hash(settings.seed ^ hash(i as u32 ^ 0xbb67_ae85))
+    hash_u32(settings.seed ^ hash_u32(i as u32 ^ 0xbb67_ae85))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::ilfr::bvh::DiscBvh;
+    use crate::ilfr::directions::normalize;
     use crate::ilfr::disc::Disc;
     use crate::ilfr::filter::SplatShading;
     use crate::ilfr::gather::GatherTarget;
@@ -379,13 +373,16 @@ mod tests {
         let (mut mean_error, mut count) = (0.0f64, 0usize);
         for (i, reconstructed) in once.iter().enumerate() {
             let (h, n) = (samples.secondary_hit[i], samples.secondary_normal[i]);
-            let (t, b) = orthonormal_basis(n);
+            let frame = shading::Frame::new(glam::Vec3::from(n));
+            let (t, b) = (frame.tangent.to_array(), frame.bitangent.to_array());
             let origin = [0, 1, 2].map(|a| h[a] + 1e-4 * n[a]);
             let (mut sum, mut reached) = (0.0f64, 0usize);
             let m = 64;
             for p in 0..m {
                 for q in 0..m {
-                    let l = cosine_hemisphere((p as f32 + 0.5) / m as f32, (q as f32 + 0.5) / m as f32);
+                    let l =
+                        shading::sample_cosine_hemisphere([(p as f32 + 0.5) / m as f32, (q as f32 + 0.5) / m as f32])
+                            .to_array();
                     let d = normalize([0, 1, 2].map(|a| l[0] * t[a] + l[1] * b[a] + l[2] * n[a]));
                     let (exit, exit_normal) = box_exit(origin, d, 2.0, false).unwrap();
                     if exit_normal[2] != 1.0 {

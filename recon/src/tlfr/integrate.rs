@@ -12,57 +12,41 @@
 //! Rows run in parallel (rayon); every value depends only on its pixel, so the image is the
 //! same for any thread count.
 
+use glam::Vec2;
 use rayon::prelude::*;
+use shading::concentric_disk;
+use shading::sampling::{hash_u32, radical_inverse, to_unit_float};
 
 use super::coverage::Point;
 use super::query::{reconstruct, QueryStats, Scene, Scratch};
 use super::reprojection::LensTime;
 use crate::image::Image;
 
-/// The radical inverse of `index` in `base`.
-pub(crate) fn radical_inverse(mut index: u32, base: u32) -> f32 {
-    let (mut result, mut scale) = (0.0f64, 1.0f64 / base as f64);
-    while index > 0 {
-        result += (index % base) as f64 * scale;
-        index /= base;
-        scale /= base as f64;
-    }
-    result as f32
+/// The Halton dimensions of pixel (x, y)'s locations, each Cranley–Patterson rotated by a hash
+/// of (seed, pixel, dimension): dimension `dimension` of location `j` is the radical inverse of
+/// j in `base` plus the pixel's shift for that dimension, modulo 1.
+pub(crate) struct RotatedHalton {
+    pixel_hash: u32,
 }
 
-pub(crate) fn hash(mut x: u32) -> u32 {
-    x ^= x >> 16;
-    x = x.wrapping_mul(0x7feb_352d);
-    x ^= x >> 15;
-    x = x.wrapping_mul(0x846c_a68b);
-    x ^ (x >> 16)
-}
-
-/// Shirley–Chiu concentric map of [0, 1)² onto the unit disk.
-pub fn concentric_disk(a: f32, b: f32) -> (f32, f32) {
-    let (x, y) = (2.0 * a - 1.0, 2.0 * b - 1.0);
-    if x == 0.0 && y == 0.0 {
-        return (0.0, 0.0);
+impl RotatedHalton {
+    pub(crate) fn new(seed: u32, x: u32, y: u32) -> RotatedHalton {
+        RotatedHalton { pixel_hash: hash_u32(seed ^ hash_u32(x.wrapping_mul(0x9e37_79b9) ^ hash_u32(y))) }
     }
-    let (r, phi) = if x.abs() > y.abs() {
-        (x, std::f32::consts::FRAC_PI_4 * (y / x))
-    } else {
-        (y, std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (x / y))
-    };
-    (r * phi.cos(), r * phi.sin())
+
+    pub(crate) fn dimension(&self, j: u32, base: u32, dimension: u32) -> f32 {
+        let shift = to_unit_float(hash_u32(self.pixel_hash ^ dimension.wrapping_mul(0x85eb_ca6b)));
+        let v = radical_inverse(j, base) + shift;
+        v - v.floor()
+    }
 }
 
 /// Location `j` of pixel (x, y): screen position and lens-time coordinates.
 pub fn location(seed: u32, x: u32, y: u32, j: u32, has_lens: bool, has_time: bool) -> ([f32; 2], LensTime) {
-    let pixel_hash = hash(seed ^ hash(x.wrapping_mul(0x9e37_79b9) ^ hash(y)));
-    let shift =
-        |dimension: u32| (hash(pixel_hash ^ dimension.wrapping_mul(0x85eb_ca6b)) >> 8) as f32 / (1u32 << 24) as f32;
-    let dim = |base: u32, dimension: u32| {
-        let v = radical_inverse(j, base) + shift(dimension);
-        v - v.floor()
-    };
+    let halton = RotatedHalton::new(seed, x, y);
+    let dim = |base: u32, dimension: u32| halton.dimension(j, base, dimension);
     let screen = [x as f32 + dim(2, 0), y as f32 + dim(3, 1)];
-    let (u, v) = if has_lens { concentric_disk(dim(5, 2), dim(7, 3)) } else { (0.0, 0.0) };
+    let (u, v) = if has_lens { concentric_disk(Vec2::new(dim(5, 2), dim(7, 3))).into() } else { (0.0, 0.0) };
     let t = if has_time { dim(11, 4) } else { 0.5 };
     (screen, LensTime { u, v, t })
 }
@@ -282,24 +266,6 @@ mod tests {
             let value = reconstruct(&scene, screen, early, &mut scratch, &mut stats).unwrap();
             assert!(value.iter().all(|v| v.is_finite()));
         }
-    }
-
-    #[test]
-    fn the_concentric_map_covers_the_disk_evenly() {
-        let n = 64;
-        let (mut inner, mut total) = (0, 0);
-        for i in 0..n {
-            for j in 0..n {
-                let (u, v) = concentric_disk((i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32);
-                assert!(u * u + v * v <= 1.0 + 1e-6);
-                total += 1;
-                if u * u + v * v <= 0.25 {
-                    inner += 1;
-                }
-            }
-        }
-        // Area-preserving: a quarter of the points within radius 1/2.
-        assert!((inner as f32 / total as f32 - 0.25).abs() < 0.01);
     }
 
     /// The CPU time of this process (user + system), seconds, where /proc tells it.

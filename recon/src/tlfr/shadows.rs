@@ -340,14 +340,8 @@ pub fn reconstruct_with_shadow(
 /// Light coordinates (ũ, ṽ) ∈ [−1, 1]² of location `j` of pixel (x, y): Halton bases 13 and 17
 /// with the pixel's Cranley–Patterson shift, continuing `integrate::location`'s dimensions.
 pub fn light_coordinates(seed: u32, x: u32, y: u32, j: u32) -> (f32, f32) {
-    use super::integrate::{hash, radical_inverse};
-    let pixel_hash = hash(seed ^ hash(x.wrapping_mul(0x9e37_79b9) ^ hash(y)));
-    let dim = |base: u32, dimension: u32| {
-        let shift = (hash(pixel_hash ^ dimension.wrapping_mul(0x85eb_ca6b)) >> 8) as f32 / (1u32 << 24) as f32;
-        let v = radical_inverse(j, base) + shift;
-        v - v.floor()
-    };
-    (2.0 * dim(13, 5) - 1.0, 2.0 * dim(17, 6) - 1.0)
+    let halton = super::integrate::RotatedHalton::new(seed, x, y);
+    (2.0 * halton.dimension(j, 13, 5) - 1.0, 2.0 * halton.dimension(j, 17, 6) - 1.0)
 }
 
 /// Reconstructs the soft-shadowed image of a soft-shadow `lens-time` file and its `light`

@@ -39,8 +39,9 @@ use crate::error::RenderError;
 use crate::integrator::{Integrator, NoRecording, PathStart, SurfacePoint};
 use crate::lights::LightSampler;
 use crate::output::{write_exr, Layer};
-use crate::sampler::{hash_combine, Sampler};
+use crate::sampler::Sampler;
 use crate::scene::Scene;
+use shading::sampling::hash_combine;
 
 /// The guide buffers of one image.
 #[derive(Clone, Debug, Default)]
