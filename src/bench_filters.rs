@@ -8,10 +8,10 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use recon::atrous::{atrous, AtrousParams};
-use recon::bilateral::{cross_bilateral, BilateralParams};
-use recon::filtered_indirect::demodulate;
-use recon::guided_filter::{guided_filter, GuideKind, GuidedFilterParams};
+use recon::baselines::atrous::{atrous, AtrousParams};
+use recon::baselines::bilateral::{cross_bilateral, BilateralParams};
+use recon::gif::filtered_indirect::demodulate;
+use recon::gif::guided_filter::{guided_filter, GuideKind, GuidedFilterParams};
 use serde::Serialize;
 use tracer::samples::DumpSettings;
 use tracer::Accel;

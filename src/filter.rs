@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use recon::filtered_indirect::{FilterOptions, FilteredIndirect};
+use recon::gif::filtered_indirect::{FilterOptions, FilteredIndirect};
 use recon::Image;
 use tracer::output::{write_exr, write_png, Layer};
 use tracer::Accel;

@@ -306,7 +306,8 @@ fn soft_shadow_errors(scene: &Scene) -> (recon::method::Output, f64, f64) {
     let tlfr_settings = recon::tlfr::method::TlfrSettings { locations: 32, ..Default::default() };
     let output = recon::tlfr::shadows::reconstruct_soft_shadow(&camera_path, &light_path, &tlfr_settings).unwrap();
     let (box_image, _) =
-        recon::box_filter::average(&SampleFile::open(&camera_path).unwrap(), recon::Effect::SoftShadow, 0.0).unwrap();
+        recon::baselines::box_filter::average(&SampleFile::open(&camera_path).unwrap(), recon::Effect::SoftShadow, 0.0)
+            .unwrap();
     let reference = common::render(scene, size, size, 4096, 11);
     let rmse = |pixels: &[[f32; 3]]| {
         let sum: f64 = pixels

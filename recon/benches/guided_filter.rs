@@ -9,7 +9,7 @@
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use recon::guided_filter::guided_filter_planes_subsampled;
+use recon::gif::guided_filter::guided_filter_planes_subsampled;
 use recon::image::Image;
 use recon::lcg::Lcg;
 

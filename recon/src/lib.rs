@@ -1,25 +1,31 @@
 //! Reconstructions and baselines. Every method reads its input through `sampleio` and never
-//! reaches into the tracer. `method` holds the trait and registry `lfr compare` runs them
-//! through; `metrics` the error measures every comparison reports.
+//! reaches into the tracer.
+//!
+//! One folder per technique: `tlfr/` (temporal light field reconstruction), `ilfr/` (indirect
+//! light field reconstruction), `gif/` (filtered path tracing with the guided image filter),
+//! `baselines/` (box average, cross-bilateral, À-Trous, Intel Open Image Denoise) and
+//! `metrics/` (PSNR, relative MSE, SSIM, error maps, HDR-FLIP). `method` is the interface the
+//! comparison harness runs them through, `registry` the one list of the methods with their
+//! effects and options (parsed by `options`). `image`, `octahedral`, `python` and `lcg` are the
+//! shared pieces below them (`lcg` generates test data only).
 
-pub mod atrous;
-pub mod bilateral;
-pub mod box_filter;
-pub mod eye_rays;
-pub mod filtered_indirect;
-pub mod flip;
-pub mod guide;
-pub mod guided_filter;
+#![forbid(unsafe_code)]
+
+pub mod baselines;
+pub mod error;
+pub mod gif;
 pub mod ilfr;
 pub mod image;
 pub mod lcg;
 pub mod method;
 pub mod metrics;
 pub mod octahedral;
-pub mod oidn;
+pub mod options;
 pub mod python;
+pub mod registry;
 pub mod tlfr;
 
+pub use error::Error;
 pub use image::Image;
 pub use method::{Effect, Method};
 pub use sampleio;

@@ -1,9 +1,9 @@
-//! The one interface every reconstruction and baseline implements, and the registry through
-//! which `lfr compare` finds them. A method names the inputs it reads (sample files of one
+//! The one interface every reconstruction and baseline implements (`crate::registry` lists
+//! them and builds them from `NAME:key=value` specs). A method names the inputs it reads (sample files of one
 //! kind, or the path-traced frame with its albedo and normal); the harness traces those inputs,
 //! times the tracing, and hands the method their paths or buffers. The method returns the
 //! reconstructed image of the effect's layer with its own time split into preprocess and
-//! reconstruct. Later issues add their methods to `registry`.
+//! reconstruct.
 
 use std::path::PathBuf;
 
@@ -82,7 +82,7 @@ pub enum Input {
 /// the noisy outgoing indirect light estimated at that very point with `spp` paths.
 #[derive(Clone, Debug)]
 pub struct GuideInput {
-    pub guide: crate::guide::GuideBuffers,
+    pub guide: crate::gif::guide::GuideBuffers,
     pub albedo: Image,
     /// Mean of `spp` estimates of the light the guide hit reflects after at least one more
     /// bounce (the indirect layer at the pixel centre).
@@ -90,7 +90,7 @@ pub struct GuideInput {
     /// Emitted plus directly reflected light at the guide hit (the environment for a miss).
     pub direct: Image,
     /// `spp − 1` additional eye rays per pixel (none at 1 spp).
-    pub eye_rays: crate::guide::EyeRays,
+    pub eye_rays: crate::gif::guide::EyeRays,
 }
 
 /// A path-traced frame: the effect's layer and the first-hit albedo and world-space normal.
@@ -169,14 +169,9 @@ impl From<sampleio::SampleError> for MethodError {
     }
 }
 
-/// A reconstruction or baseline `lfr compare` can run.
-pub trait Method: Send + Sync {
-    /// The `--methods` name.
-    fn name(&self) -> &str;
-    /// One line for reports and `--help`.
-    fn description(&self) -> &'static str;
-    /// Whether it handles `effect`.
-    fn supports(&self, effect: Effect) -> bool;
+/// A reconstruction or baseline `lfr compare` can run. What it is called, the effects it
+/// handles, its options and description are data in `crate::registry`, which builds it.
+pub trait Method: Send + Sync + std::fmt::Debug {
     /// What it reads.
     fn input(&self) -> Input;
     /// Reconstruction rays (or locations) per pixel to sweep by default; `[0]` for methods
@@ -192,34 +187,6 @@ pub trait Method: Send + Sync {
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError>;
 }
 
-/// Every method, in the order reports list them.
-pub fn registry() -> Vec<Box<dyn Method>> {
-    use crate::filtered_indirect::FilteredIndirect;
-    let mut methods: Vec<Box<dyn Method>> =
-        vec![Box::new(crate::box_filter::BoxFilter), Box::new(crate::oidn::Oidn::default())];
-    methods.extend(FilteredIndirect::all().into_iter().map(|m| Box::new(m) as Box<dyn Method>));
-    methods.push(Box::new(crate::tlfr::method::TLFR));
-    methods.push(Box::new(crate::tlfr::method::TLFR_NEAREST));
-    methods.push(Box::new(crate::tlfr::method::TLFR_BANDWIDTH));
-    methods.push(Box::new(crate::ilfr::method::Ilfr));
-    methods.push(Box::new(crate::ilfr::method::IlfrRecursive));
-    methods.push(Box::new(crate::ilfr::method::IlfrDof));
-    methods
-}
-
-/// The registered method `spec` names: a name, or for the filters of the filtered path-tracing
-/// pipeline also `NAME:key=value:...` (`filtered_indirect::FilterOptions`). `Ok(None)` when no
-/// method has that name; `Err` for bad options.
-pub fn find(spec: &str) -> Result<Option<Box<dyn Method>>, String> {
-    if let Some(filter) = crate::filtered_indirect::FilteredIndirect::from_spec(spec)? {
-        return Ok(Some(Box::new(filter)));
-    }
-    if spec.contains(':') {
-        return Err(format!("{spec}: only the filters (gif, bilateral, atrous and their variants) take options"));
-    }
-    Ok(registry().into_iter().find(|m| m.name() == spec))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -230,14 +197,5 @@ mod tests {
             assert_eq!(Effect::from_name(effect.name()), Some(effect));
         }
         assert_eq!(Effect::from_name("bokeh"), None);
-    }
-
-    #[test]
-    fn registry_names_are_unique() {
-        let names: Vec<_> = registry().iter().map(|m| m.name().to_string()).collect();
-        let mut sorted = names.clone();
-        sorted.sort();
-        sorted.dedup();
-        assert_eq!(sorted.len(), names.len(), "{names:?}");
     }
 }

@@ -4,7 +4,7 @@
 //! Flow: set the scene up for the effect (`effect`), trace or read the cached reference
 //! (`reference`), run the path-tracing ladder, then each method over input spp ×
 //! reconstruction rays with its inputs traced by the tracer and timed as `trace_s`; measure
-//! every image against the reference (`recon::metrics`, HDR-FLIP through `recon::flip`), read
+//! every image against the reference (`recon::metrics`, HDR-FLIP through `recon::metrics::flip`), read
 //! the verdicts off the PT curve (`verdict`), and write images, plots, `results.json`
 //! (`results`) and `report.md` (`report`).
 
@@ -24,7 +24,8 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use recon::method::{FrameInput, Input, Inputs, MethodError};
 use recon::metrics::{evaluate, psnr_db, ToneMap, PSNR_CEILING_DB};
-use recon::{Effect, Image, Method};
+use recon::registry::{self, Registered};
+use recon::{Effect, Image};
 use tracer::output::write_atomically;
 use tracer::Accel;
 
@@ -43,12 +44,17 @@ pub struct CompareArgs {
     #[arg(long)]
     pub scene: Option<PathBuf>,
     /// indirect, glossy, ao, dof, motion, dof-motion or soft-shadow.
-    #[arg(long, value_parser = parse_effect)]
-    pub effect: Effect,
+    #[arg(long, value_parser = parse_effect, required_unless_present = "list_methods")]
+    pub effect: Option<Effect>,
     /// Output directory (created): results.json, report.md, images/, plots.
+    #[arg(long, required_unless_present = "list_methods")]
+    pub out: Option<PathBuf>,
+    /// List every method with the effects it handles, its options (range, default) and a
+    /// description, and exit.
     #[arg(long)]
-    pub out: PathBuf,
-    /// Methods to compare, comma-separated (`lfr compare --list-methods` lists them).
+    pub list_methods: bool,
+    /// Methods to compare, comma-separated, each `NAME` or `NAME:key=value:...`
+    /// (`lfr compare --list-methods` lists them).
     #[arg(long, value_delimiter = ',', default_value = "box,oidn")]
     pub methods: Vec<String>,
     #[arg(long)]
@@ -104,14 +110,14 @@ pub struct CompareArgs {
 }
 
 /// The methods named on the command line, in order, without repeats.
-fn resolve_methods(names: &[String], effect: Effect) -> Result<Vec<Box<dyn Method>>> {
-    let mut methods: Vec<Box<dyn Method>> = Vec::new();
+fn resolve_methods(names: &[String], effect: Effect) -> Result<Vec<Registered>> {
+    let mut methods: Vec<Registered> = Vec::new();
     for name in names.iter().map(|n| n.trim()).filter(|n| !n.is_empty()) {
         if methods.iter().any(|m| m.name() == name) {
             continue;
         }
-        let Some(method) = recon::method::find(name).map_err(|e| anyhow::anyhow!("--methods: {e}"))? else {
-            let known: Vec<_> = recon::method::registry().iter().map(|m| m.name().to_string()).collect();
+        let Some(method) = registry::find(name).map_err(|e| anyhow::anyhow!("--methods: {e}"))? else {
+            let known: Vec<_> = registry::METHODS.iter().map(|m| m.name).collect();
             bail!("--methods: unknown method `{name}`; known: {}", known.join(", "));
         };
         if !method.supports(effect) {
@@ -280,8 +286,14 @@ fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
 }
 
 pub fn run(args: &CompareArgs) -> Result<()> {
+    if args.list_methods {
+        print!("{}", registry::listing());
+        return Ok(());
+    }
     let total_start = Instant::now();
-    let effect = args.effect;
+    let (Some(effect), Some(dir)) = (args.effect, args.out.as_deref()) else {
+        bail!("--effect and --out are required (or --list-methods)");
+    };
     if args.spp.is_empty() || args.spp.iter().any(|&s| s == 0 || s > 1 << 16) {
         bail!("--spp: every input sample count must be in 1..=65536, got {:?}", args.spp);
     }
@@ -333,7 +345,6 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     let tracing =
         Tracing { scene: &scene, accel: &accel, effect, width, height, max_bounces, ao_radius, threads: args.threads };
     let progress = !args.quiet;
-    let dir = &args.out;
     std::fs::create_dir_all(dir.join("images")).with_context(|| format!("creating {}", dir.display()))?;
 
     // The reference.
@@ -472,14 +483,14 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     }
 
     // HDR-FLIP, when the Python package is there: one process for every image.
-    let flip_available = recon::flip::available();
+    let flip_available = recon::metrics::flip::available();
     if flip_available {
         let scale = |image: &Image| {
             let pixels = image.pixels.iter().map(|p| p.map(|v| v * tone.exposure)).collect();
             Image::from_pixels(image.width, image.height, pixels)
         };
         let scaled: Vec<Image> = measured.iter().map(|m| scale(&m.image)).collect();
-        match recon::flip::hdr_flip_many(&scale(&reference.image), &scaled.iter().collect::<Vec<_>>()) {
+        match recon::metrics::flip::hdr_flip_many(&scale(&reference.image), &scaled.iter().collect::<Vec<_>>()) {
             Ok(Some(values)) => {
                 for (m, value) in measured.iter_mut().zip(values) {
                     m.run.flip = Some(value);

@@ -31,21 +31,11 @@ use super::surfaces::SurfaceParams;
 use crate::image::Image;
 use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
 
+/// `ilfr`: the paper's reconstruction (indirect light, glossy reflections, ambient occlusion).
+#[derive(Debug)]
 pub struct Ilfr;
 
 impl Method for Ilfr {
-    fn name(&self) -> &str {
-        "ilfr"
-    }
-
-    fn description(&self) -> &'static str {
-        "indirect light field reconstruction (Lehtinen et al. 2012)"
-    }
-
-    fn supports(&self, effect: Effect) -> bool {
-        matches!(effect, Effect::Indirect | Effect::Glossy | Effect::Ao)
-    }
-
     fn input(&self) -> Input {
         Input::Samples
     }
@@ -55,26 +45,17 @@ impl Method for Ilfr {
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        run_ilfr(self.name(), inputs, IlfrSettings { recon_rays, ..IlfrSettings::default() })
+        run_ilfr("ilfr", inputs, IlfrSettings { recon_rays, ..IlfrSettings::default() })
     }
 }
 
-/// `ilfr` with one pass of recursive filtering (paper §4) before the final gather.
-pub struct IlfrRecursive;
+/// `ilfr` with `passes` passes of recursive filtering (paper §4) before the final gather.
+#[derive(Debug)]
+pub struct IlfrRecursive {
+    pub passes: u32,
+}
 
 impl Method for IlfrRecursive {
-    fn name(&self) -> &str {
-        "ilfr-recursive"
-    }
-
-    fn description(&self) -> &'static str {
-        "indirect light field reconstruction with recursive filtering at the secondary hits (Lehtinen et al. 2012 §4)"
-    }
-
-    fn supports(&self, effect: Effect) -> bool {
-        matches!(effect, Effect::Indirect | Effect::Glossy)
-    }
-
     fn input(&self) -> Input {
         Input::Samples
     }
@@ -84,27 +65,17 @@ impl Method for IlfrRecursive {
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        run_ilfr(self.name(), inputs, IlfrSettings { recon_rays, recursive_passes: 1, ..IlfrSettings::default() })
+        let settings = IlfrSettings { recon_rays, recursive_passes: self.passes, ..IlfrSettings::default() };
+        run_ilfr("ilfr-recursive", inputs, settings)
     }
 }
 
 /// `ilfr` on camera rays (paper §3.4): defocus and motion blur from a `lens-time` file, the
 /// input of `tlfr`, so that both reconstruct the very same samples ([`super::lens`]).
+#[derive(Debug)]
 pub struct IlfrDof;
 
 impl Method for IlfrDof {
-    fn name(&self) -> &str {
-        "ilfr-dof"
-    }
-
-    fn description(&self) -> &'static str {
-        "indirect light field reconstruction's machinery on camera rays: defocus and motion blur (Lehtinen et al. 2012 §3.4)"
-    }
-
-    fn supports(&self, effect: Effect) -> bool {
-        matches!(effect, Effect::Dof | Effect::Motion | Effect::DofMotion)
-    }
-
     fn input(&self) -> Input {
         Input::Samples
     }
@@ -114,8 +85,8 @@ impl Method for IlfrDof {
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        let name = self.name();
-        if !self.supports(inputs.effect) {
+        let name = "ilfr-dof";
+        if !matches!(inputs.effect, Effect::Dof | Effect::Motion | Effect::DofMotion) {
             return Err(MethodError::Unsupported(format!("{name} does not reconstruct {}", inputs.effect.name())));
         }
         let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed(format!("{name} needs a sample file")))?;
@@ -850,7 +821,9 @@ pub(crate) mod tests {
         assert!(error.to_string().contains("`radiance`"), "{error}");
         let error = reconstruct_samples(&ao, GatherTarget::Visibility { ao_radius: 0.0 }, &settings(4)).unwrap_err();
         assert!(error.to_string().contains("AO radius"), "{error}");
-        assert!(Ilfr.supports(Effect::Indirect) && Ilfr.supports(Effect::Ao) && Ilfr.supports(Effect::Glossy));
-        assert!(!IlfrRecursive.supports(Effect::Ao) && !Ilfr.supports(Effect::Dof));
+        let (ilfr, recursive) =
+            (crate::registry::spec("ilfr").unwrap(), crate::registry::spec("ilfr-recursive").unwrap());
+        assert!([Effect::Indirect, Effect::Ao, Effect::Glossy].iter().all(|e| ilfr.effects.contains(e)));
+        assert!(!recursive.effects.contains(&Effect::Ao) && !ilfr.effects.contains(&Effect::Dof));
     }
 }

@@ -17,7 +17,7 @@ use super::query::{max_reach, reconstruct, Scene};
 use super::reprojection::{near_limit, LensTimeSample};
 use super::same_surface::window_half_width;
 use super::samples::{read_lens_time, refocus};
-use crate::box_filter::average;
+use crate::baselines::box_filter::average;
 use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
 
 /// Random reprojections for measuring R.
@@ -25,59 +25,34 @@ pub const RADIUS_TRIALS: u32 = 32;
 
 /// A TLFR method of `lfr compare`: the same reconstruction, finishing each location with
 /// `value`, optionally with the bandwidth extension; `tlfr` also takes soft shadows.
+#[derive(Clone, Copy, Debug)]
 pub struct TlfrMethod {
     name: &'static str,
-    description: &'static str,
     value: Reconstruct,
     bandwidth_scale: Option<f32>,
-    soft_shadows: bool,
 }
 
 /// `tlfr`: the paper's reconstruction (effects `dof`, `motion`, `dof-motion`, `soft-shadow`).
-pub const TLFR: TlfrMethod = TlfrMethod {
-    name: "tlfr",
-    description: "temporal light field reconstruction (Lehtinen et al. 2011)",
-    value: reconstruct,
-    bandwidth_scale: None,
-    soft_shadows: true,
-};
+pub const TLFR: TlfrMethod = TlfrMethod { name: "tlfr", value: reconstruct, bandwidth_scale: None };
 
 /// `tlfr-nn`: the same reconstruction with the nearest sample's radiance instead of the filter
 /// (`nearest`); effects `dof`, `motion`, `dof-motion`.
-pub const TLFR_NEAREST: TlfrMethod = TlfrMethod {
-    name: "tlfr-nn",
-    description: "temporal light field reconstruction, nearest reprojected sample of the covering surface instead of \
-                  the filter",
-    value: reconstruct_nearest,
-    bandwidth_scale: None,
-    soft_shadows: false,
-};
+pub const TLFR_NEAREST: TlfrMethod = TlfrMethod { name: "tlfr-nn", value: reconstruct_nearest, bandwidth_scale: None };
 
 /// `tlfr-bw`: the reconstruction with the bandwidth extension (Figure 14, `bandwidth`): each
 /// sample also weighted by a Gaussian in lens distance matched to its BRDF's bandwidth; effects
 /// `dof`, `motion`, `dof-motion`.
-pub const TLFR_BANDWIDTH: TlfrMethod = TlfrMethod {
-    name: "tlfr-bw",
-    description: "temporal light field reconstruction with the bandwidth extension (Figure 14) for glossy surfaces",
-    value: reconstruct,
-    bandwidth_scale: Some(DEFAULT_BANDWIDTH_SCALE),
-    soft_shadows: false,
-};
+pub const TLFR_BANDWIDTH: TlfrMethod =
+    TlfrMethod { name: "tlfr-bw", value: reconstruct, bandwidth_scale: Some(DEFAULT_BANDWIDTH_SCALE) };
+
+impl TlfrMethod {
+    /// This method with the bandwidth extension's scale set to `scale` (its default when `None`).
+    pub fn with_bandwidth_scale(self, scale: Option<f32>) -> TlfrMethod {
+        TlfrMethod { bandwidth_scale: scale.or(self.bandwidth_scale), ..self }
+    }
+}
 
 impl Method for TlfrMethod {
-    fn name(&self) -> &str {
-        self.name
-    }
-
-    fn description(&self) -> &'static str {
-        self.description
-    }
-
-    fn supports(&self, effect: Effect) -> bool {
-        matches!(effect, Effect::Dof | Effect::Motion | Effect::DofMotion)
-            || (self.soft_shadows && effect == Effect::SoftShadow)
-    }
-
     fn input(&self) -> Input {
         Input::Samples
     }

@@ -368,7 +368,7 @@ pub fn reconstruct_soft_shadow(
     let camera = read_lens_time(&camera_file).map_err(failed)?;
     let shading = read_shading(&camera_file, &camera).map_err(failed)?;
     let pose = CameraPose::from_camera(camera_file.header().camera.as_ref().expect("read_lens_time checked it"));
-    let (box_image, _) = crate::box_filter::average(&camera_file, Effect::SoftShadow, 0.0)?;
+    let (box_image, _) = crate::baselines::box_filter::average(&camera_file, Effect::SoftShadow, 0.0)?;
     let records = camera_file.len();
     drop(camera_file);
     let light_file = SampleFile::open(light_path)?;

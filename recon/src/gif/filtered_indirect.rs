@@ -30,12 +30,13 @@
 
 use std::time::Instant;
 
-use crate::atrous::{atrous, AtrousParams};
-use crate::bilateral::{cross_bilateral, BilateralParams};
-use crate::eye_rays::{composite, Composite, GuideLight, Lookup};
-use crate::guided_filter::{guided_filter, GuideKind, GuidedFilterParams};
+use crate::baselines::atrous::{atrous, AtrousParams};
+use crate::baselines::bilateral::{cross_bilateral, BilateralParams};
+use crate::gif::eye_rays::{composite, Composite, GuideLight, Lookup};
+use crate::gif::guided_filter::{guided_filter, GuideKind, GuidedFilterParams};
 use crate::image::Image;
-use crate::method::{Effect, GuideInput, Input, Inputs, Method, MethodError, Output};
+use crate::method::{GuideInput, Input, Inputs, Method, MethodError, Output};
+use crate::options::Options;
 
 /// The image size the paper's radii (24–32 pixels) refer to: its figures are about 800 pixels
 /// wide.
@@ -61,11 +62,10 @@ pub enum Filter {
 }
 
 /// A filter of the incident indirect light, as a `Method`.
+#[derive(Clone, Debug)]
 pub struct FilteredIndirect {
-    /// The `--methods` name: the variant's, followed by its options when any were set
-    /// (`gif:radius=8:eps_normal=0.001`).
+    /// The variant's name (`gif`, `atrous-sn`, …), for messages.
     pub name: String,
-    pub description: &'static str,
     pub filter: Filter,
     /// How the additional eye rays find their indirect light.
     pub lookup: Lookup,
@@ -75,8 +75,6 @@ impl FilteredIndirect {
     pub fn gif() -> FilteredIndirect {
         FilteredIndirect {
             name: "gif".into(),
-            description:
-                "guided image filter of the incident indirect light, normal + depth guide (Bauszat et al. 2011)",
             filter: Filter::Guided(GuidedFilterParams::default()),
             lookup: Lookup::GeometryAware,
         }
@@ -85,7 +83,6 @@ impl FilteredIndirect {
     pub fn bilateral() -> FilteredIndirect {
         FilteredIndirect {
             name: "bilateral".into(),
-            description: "cross-bilateral filter of the incident indirect light on normal and depth",
             filter: Filter::Bilateral(BilateralParams::default()),
             lookup: Lookup::GeometryAware,
         }
@@ -94,7 +91,6 @@ impl FilteredIndirect {
     pub fn atrous() -> FilteredIndirect {
         FilteredIndirect {
             name: "atrous".into(),
-            description: "edge-avoiding À-Trous wavelet filter of the incident indirect light (Dammertz et al. 2010)",
             filter: Filter::Atrous(AtrousParams::default()),
             lookup: Lookup::GeometryAware,
         }
@@ -104,7 +100,6 @@ impl FilteredIndirect {
     pub fn gif_normal() -> FilteredIndirect {
         FilteredIndirect {
             name: "gif-normal".into(),
-            description: "guided image filter with the 3-channel normal guide (Bauszat et al. 2011, Figure 5b)",
             filter: Filter::Guided(GuidedFilterParams { guide: GuideKind::Normal, ..GuidedFilterParams::default() }),
             lookup: Lookup::GeometryAware,
         }
@@ -114,7 +109,6 @@ impl FilteredIndirect {
     pub fn gif_grey() -> FilteredIndirect {
         FilteredIndirect {
             name: "gif-grey".into(),
-            description: "guided image filter with the 1-channel grey-normal guide (Bauszat et al. 2011, Figure 5a)",
             filter: Filter::Guided(GuidedFilterParams {
                 guide: GuideKind::GreyNormal,
                 ..GuidedFilterParams::default()
@@ -127,8 +121,6 @@ impl FilteredIndirect {
     pub fn atrous_secondary_normal() -> FilteredIndirect {
         FilteredIndirect {
             name: "atrous-sn".into(),
-            description:
-                "À-Trous with an extra range term on the secondary-hit normal (Lehtinen et al. 2012's baseline)",
             filter: Filter::Atrous(AtrousParams { use_secondary_normal: true, ..AtrousParams::default() }),
             lookup: Lookup::GeometryAware,
         }
@@ -274,60 +266,21 @@ pub struct FilterOptions {
 }
 
 impl FilterOptions {
-    /// Parses `key=value` pairs separated by `:`.
-    pub fn parse(text: &str) -> Result<FilterOptions, String> {
-        let mut options = FilterOptions::default();
-        for pair in text.split(':').filter(|p| !p.is_empty()) {
-            let (key, value) = pair.split_once('=').ok_or_else(|| format!("`{pair}` is not key=value"))?;
-            let bad = |e: &dyn std::fmt::Display| format!("{key}={value}: {e}");
-            match key {
-                "radius" => options.radius = Some(value.parse().map_err(|e| bad(&e))?),
-                "eps_normal" => options.epsilon_normal = Some(value.parse().map_err(|e| bad(&e))?),
-                "eps_depth" => options.epsilon_depth = Some(value.parse().map_err(|e| bad(&e))?),
-                "subsample" => options.subsample = Some(value.parse().map_err(|e| bad(&e))?),
-                "iterations" => options.iterations = Some(value.parse().map_err(|e| bad(&e))?),
-                "lookup" => {
-                    options.lookup = Some(match value {
-                        "geometry" => Lookup::GeometryAware,
-                        "own-pixel" => Lookup::OwnPixel,
-                        _ => return Err(bad(&"the lookup is `geometry` or `own-pixel`")),
-                    })
-                }
-                _ => {
-                    return Err(format!(
-                        "unknown option `{key}` (radius, eps_normal, eps_depth, subsample, iterations, lookup)"
-                    ))
-                }
-            }
+    /// The filter options of a `--methods` spec, parsed and range-checked by the registry
+    /// (`crate::options`): keys `radius`, `eps_normal`, `eps_depth`, `subsample`, `iterations`,
+    /// `lookup`.
+    pub fn from_options(options: &Options) -> FilterOptions {
+        FilterOptions {
+            radius: options.count("radius"),
+            epsilon_normal: options.real("eps_normal"),
+            epsilon_depth: options.real("eps_depth"),
+            subsample: options.count("subsample"),
+            iterations: options.count("iterations"),
+            lookup: options.choice("lookup").map(|word| match word {
+                "own-pixel" => Lookup::OwnPixel,
+                _ => Lookup::GeometryAware,
+            }),
         }
-        Ok(options)
-    }
-
-    /// The options in `parse`'s syntax, in a fixed order; empty when none is set.
-    pub fn spec(&self) -> String {
-        let mut parts = Vec::new();
-        if let Some(r) = self.radius {
-            parts.push(format!("radius={r}"));
-        }
-        if let Some(e) = self.epsilon_normal {
-            parts.push(format!("eps_normal={e}"));
-        }
-        if let Some(e) = self.epsilon_depth {
-            parts.push(format!("eps_depth={e}"));
-        }
-        if let Some(s) = self.subsample {
-            parts.push(format!("subsample={s}"));
-        }
-        if let Some(i) = self.iterations {
-            parts.push(format!("iterations={i}"));
-        }
-        if let Some(lookup) = self.lookup {
-            parts.push(match lookup {
-                Lookup::GeometryAware => "lookup=geometry".to_string(),
-                Lookup::OwnPixel => "lookup=own-pixel".to_string(),
-            });
-        }
-        parts.join(":")
     }
 }
 
@@ -337,17 +290,8 @@ impl FilteredIndirect {
         FilteredIndirect::all().into_iter().find(|f| f.name == name)
     }
 
-    /// `NAME` or `NAME:key=value:...`: `Ok(None)` when NAME is no variant of this pipeline.
-    pub fn from_spec(spec: &str) -> Result<Option<FilteredIndirect>, String> {
-        let (name, options) = spec.split_once(':').unwrap_or((spec, ""));
-        let Some(filter) = FilteredIndirect::named(name) else {
-            return Ok(None);
-        };
-        let options = FilterOptions::parse(options).map_err(|e| format!("{name}: {e}"))?;
-        filter.with_options(&options).map(Some)
-    }
-
-    /// This variant with `options` applied and checked; its name gains the options.
+    /// This variant with `options` applied and checked (options that do not apply to it are
+    /// errors: `lfr filter` passes its flags here).
     pub fn with_options(mut self, options: &FilterOptions) -> Result<FilteredIndirect, String> {
         let name = self.name.clone();
         let misplaced = |option: &str| Err(format!("{option} does not apply to {name}"));
@@ -401,27 +345,11 @@ impl FilteredIndirect {
             }
         }
         self.lookup = options.lookup.unwrap_or(self.lookup);
-        let spec = options.spec();
-        if !spec.is_empty() {
-            self.name = format!("{name}:{spec}");
-        }
         Ok(self)
     }
 }
 
 impl Method for FilteredIndirect {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn description(&self) -> &'static str {
-        self.description
-    }
-
-    fn supports(&self, effect: Effect) -> bool {
-        matches!(effect, Effect::Indirect | Effect::Glossy)
-    }
-
     fn input(&self) -> Input {
         Input::Guide
     }
@@ -467,7 +395,7 @@ impl Method for FilteredIndirect {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::guide::GuideBuffers;
+    use crate::gif::guide::GuideBuffers;
 
     fn flat_input(width: u32, height: u32, albedo: [f32; 3], noisy: impl Fn(u32, u32) -> [f32; 3]) -> GuideInput {
         let n = (width * height) as usize;
@@ -484,51 +412,48 @@ mod tests {
             albedo: Image::from_pixels(width, height, vec![albedo; n]),
             indirect: Image::from_pixels(width, height, indirect),
             direct: Image::from_pixels(width, height, vec![[0.0; 3]; n]),
-            eye_rays: crate::guide::EyeRays::default(),
+            eye_rays: crate::gif::guide::EyeRays::default(),
         }
     }
 
     #[test]
-    fn options_parse_apply_and_name_the_variant() {
-        let options = FilterOptions::parse("radius=8:eps_normal=0.001:eps_depth=0.002").unwrap();
-        assert_eq!(options.spec(), "radius=8:eps_normal=0.001:eps_depth=0.002");
-        assert_eq!(FilterOptions::parse(&options.spec()).unwrap(), options);
-        let gif = FilteredIndirect::from_spec("gif:eps_depth=0.002:radius=8:eps_normal=0.001").unwrap().unwrap();
-        assert_eq!(gif.name, "gif:radius=8:eps_normal=0.001:eps_depth=0.002", "canonical order");
+    fn options_apply_to_their_variant_and_misplaced_ones_are_errors() {
+        // Parsing and ranges are the registry's (`crate::registry` tests); here what the
+        // options do to each variant.
+        let set = |f: fn(&mut FilterOptions)| {
+            let mut options = FilterOptions::default();
+            f(&mut options);
+            options
+        };
+        let tuned = set(|o| (o.radius, o.epsilon_normal, o.epsilon_depth) = (Some(8), Some(0.001), Some(0.002)));
+        let gif = FilteredIndirect::gif().with_options(&tuned).unwrap();
         let Filter::Guided(params) = gif.filter else { panic!("gif is the guided filter") };
         assert_eq!((params.radius, params.epsilon_normal, params.epsilon_depth), (8, 0.001, 0.002));
         assert_eq!(params.subsample, 1, "the exact filter unless asked");
-        let fast = FilteredIndirect::from_spec("gif:subsample=2").unwrap().unwrap();
+        let fast = FilteredIndirect::gif().with_options(&set(|o| o.subsample = Some(2))).unwrap();
         let Filter::Guided(params) = fast.filter else { panic!("gif is the guided filter") };
-        assert_eq!((fast.name.as_str(), params.subsample), ("gif:subsample=2", 2));
-        let naive = FilteredIndirect::from_spec("bilateral:lookup=own-pixel").unwrap().unwrap();
-        assert_eq!((naive.name.as_str(), naive.lookup), ("bilateral:lookup=own-pixel", Lookup::OwnPixel));
-        assert_eq!(FilteredIndirect::from_spec("gif").unwrap().unwrap().lookup, Lookup::GeometryAware);
-        let atrous = FilteredIndirect::from_spec("atrous-sn:iterations=4").unwrap().unwrap();
+        assert_eq!(params.subsample, 2);
+        let naive = FilteredIndirect::bilateral().with_options(&set(|o| o.lookup = Some(Lookup::OwnPixel))).unwrap();
+        assert_eq!(naive.lookup, Lookup::OwnPixel);
+        assert_eq!(FilteredIndirect::gif().lookup, Lookup::GeometryAware);
+        let atrous =
+            FilteredIndirect::atrous_secondary_normal().with_options(&set(|o| o.iterations = Some(4))).unwrap();
         let Filter::Atrous(params) = atrous.filter else { panic!("atrous-sn is À-Trous") };
         assert!(params.use_secondary_normal && params.iterations == 4);
-        assert_eq!(FilteredIndirect::from_spec("gif").unwrap().unwrap().name, "gif");
-        assert!(FilteredIndirect::from_spec("median:radius=3").unwrap().is_none());
-        for (spec, needle) in [
-            ("gif:radius", "key=value"),
-            ("gif:radius=-1", "radius=-1"),
-            ("gif:radius=0", "at least 1"),
-            ("gif:subsample=0", "at least 1"),
-            ("gif:subsample=1.5", "subsample=1.5"),
-            ("atrous:subsample=2", "does not apply"),
-            ("bilateral:subsample=2", "does not apply"),
-            ("gif:eps_normal=0", "positive"),
-            ("gif:eps_normal=inf", "positive"),
-            ("gif:sigma=2", "unknown option"),
-            ("gif:iterations=3", "does not apply"),
-            ("gif-normal:eps_depth=0.01", "does not apply"),
-            ("bilateral:eps_normal=0.1", "does not apply"),
-            ("atrous:radius=4", "does not apply"),
-            ("atrous:iterations=99", "iteration"),
-            ("gif:lookup=bilinear", "own-pixel"),
+        for (variant, options, needle) in [
+            (FilteredIndirect::atrous(), set(|o| o.subsample = Some(2)), "does not apply"),
+            (FilteredIndirect::bilateral(), set(|o| o.subsample = Some(2)), "does not apply"),
+            (FilteredIndirect::gif(), set(|o| o.iterations = Some(3)), "does not apply"),
+            (FilteredIndirect::gif_normal(), set(|o| o.epsilon_depth = Some(0.01)), "does not apply"),
+            (FilteredIndirect::bilateral(), set(|o| o.epsilon_normal = Some(0.1)), "does not apply"),
+            (FilteredIndirect::atrous(), set(|o| o.radius = Some(4)), "does not apply"),
+            (FilteredIndirect::atrous(), set(|o| o.iterations = Some(99)), "iteration"),
+            (FilteredIndirect::gif(), set(|o| o.radius = Some(0)), "at least 1"),
+            (FilteredIndirect::gif(), set(|o| o.epsilon_normal = Some(f32::INFINITY)), "positive"),
         ] {
-            let error = FilteredIndirect::from_spec(spec).err().unwrap_or_else(|| panic!("{spec} must fail"));
-            assert!(error.contains(needle), "{spec}: {error}");
+            let name = variant.name.clone();
+            let error = variant.with_options(&options).err().unwrap_or_else(|| panic!("{name} {options:?} must fail"));
+            assert!(error.contains(needle), "{name} {options:?}: {error}");
         }
     }
 

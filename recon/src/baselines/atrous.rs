@@ -60,11 +60,11 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::bilateral::{
+use crate::baselines::bilateral::{
     check_inputs, check_sigma, exp_neg, finite, is_surface, normalised_sq, range_scale, sanitised_colours, Accumulator,
     FilterReport, MAX_EXPONENT, TILE,
 };
-use crate::guide::GuideBuffers;
+use crate::gif::guide::GuideBuffers;
 use crate::image::Image;
 
 /// The 1D B3-spline kernel; the 2D kernel is its outer product.

@@ -12,7 +12,7 @@
 use crate::image::Image;
 use crate::python;
 
-const SCRIPT: &str = include_str!("python/flip_metric.py");
+const SCRIPT: &str = include_str!("flip_metric.py");
 
 /// Whether `flip_evaluator` (and numpy) can be imported.
 pub fn available() -> bool {

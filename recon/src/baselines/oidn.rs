@@ -21,10 +21,10 @@
 use std::time::Instant;
 
 use crate::image::Image;
-use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
+use crate::method::{Input, Inputs, Method, MethodError, Output};
 use crate::python;
 
-const SCRIPT: &str = include_str!("python/oidn_denoise.py");
+const SCRIPT: &str = include_str!("oidn_denoise.py");
 
 /// The qualities `pyoidn.denoise` accepts.
 pub const QUALITIES: [&str; 4] = ["high", "balanced", "fast", "default"];
@@ -95,18 +95,6 @@ fn number(value: &serde_json::Value, key: &str) -> Result<f64, MethodError> {
 }
 
 impl Method for Oidn {
-    fn name(&self) -> &str {
-        "oidn"
-    }
-
-    fn description(&self) -> &'static str {
-        "Intel Open Image Denoise 2.5 (CPU, via pyoidn) on the box-filtered frame, HDR, with albedo and normal"
-    }
-
-    fn supports(&self, _effect: Effect) -> bool {
-        true
-    }
-
     fn input(&self) -> Input {
         Input::Frame
     }
@@ -190,7 +178,7 @@ impl Method for Oidn {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::method::FrameInput;
+    use crate::method::{Effect, FrameInput};
 
     const SIZE: u32 = 64;
 
@@ -340,11 +328,14 @@ mod tests {
 
     #[test]
     fn describes_itself() {
-        let oidn = Oidn::default();
+        let oidn = crate::registry::find("oidn").unwrap().unwrap();
         assert_eq!(oidn.name(), "oidn");
-        assert_eq!(oidn.quality, "high");
-        assert!(oidn.description().contains("Open Image Denoise 2.5"));
-        assert!(oidn.description().contains("pyoidn"));
+        assert_eq!(Oidn::default().quality, "high");
+        let fast = crate::registry::find("oidn:quality=fast").unwrap().unwrap();
+        assert_eq!(format!("{:?}", fast.method), format!("{:?}", Oidn { quality: "fast".into() }));
+        let description = crate::registry::spec("oidn").unwrap().description;
+        assert!(description.contains("Open Image Denoise 2.5"));
+        assert!(description.contains("pyoidn"));
         assert_eq!(oidn.input(), Input::Frame);
         assert!(Effect::ALL.iter().all(|&e| oidn.supports(e)));
     }

@@ -52,7 +52,7 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::guide::GuideBuffers;
+use crate::gif::guide::GuideBuffers;
 use crate::image::Image;
 
 /// Parameters of `cross_bilateral`; see the module documentation for the weight formulas.

@@ -108,7 +108,7 @@
 
 use rayon::prelude::*;
 
-use crate::guide::GuideBuffers;
+use crate::gif::guide::GuideBuffers;
 use crate::image::Image;
 
 /// Which guide the filter uses (paper, Figure 5: guide dimensionality).

@@ -21,21 +21,10 @@ use sampleio::{Field, SampleFile, SampleKind};
 use crate::image::Image;
 use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
 
+#[derive(Debug)]
 pub struct BoxFilter;
 
 impl Method for BoxFilter {
-    fn name(&self) -> &str {
-        "box"
-    }
-
-    fn description(&self) -> &'static str {
-        "per-pixel average of the input samples (path tracing at the input spp)"
-    }
-
-    fn supports(&self, _effect: Effect) -> bool {
-        true
-    }
-
     fn input(&self) -> Input {
         Input::Samples
     }

@@ -31,8 +31,8 @@
 
 use rayon::prelude::*;
 
-use crate::filtered_indirect::remodulated;
-use crate::guide::{EyeRay, EyeRays, GuideBuffers};
+use crate::gif::filtered_indirect::remodulated;
+use crate::gif::guide::{EyeRay, EyeRays, GuideBuffers};
 use crate::image::Image;
 
 /// The reconstructed image, split as the tracer splits it.

@@ -84,6 +84,10 @@
 //!
 //! The images must hold `width * height` pixels, as [`Image::from_pixels`] ensures; the
 //! metrics panic on an image that breaks this invariant.
+//!
+//! HDR-FLIP, the perceptual metric computed by NVIDIA's Python package, is in `flip`.
+
+pub mod flip;
 
 use std::fmt;
 

@@ -1,0 +1,367 @@
+//! Every method `lfr compare` can run, described as data: its name, the effects it handles,
+//! its options with their defaults and ranges, and one line of description. This is the only
+//! file that names the concrete methods; the harness finds them here by a spec
+//! `NAME[:key=value...]` (options parsed by `crate::options`).
+
+use crate::baselines::box_filter::BoxFilter;
+use crate::baselines::oidn::Oidn;
+use crate::error::Error;
+use crate::gif::filtered_indirect::{FilterOptions, FilteredIndirect};
+use crate::ilfr::method::{Ilfr, IlfrDof, IlfrRecursive};
+use crate::method::{Effect, Method};
+use crate::options::{OptionKind, OptionSpec, Options};
+use crate::tlfr::method::{TLFR, TLFR_BANDWIDTH, TLFR_NEAREST};
+
+/// One method as data.
+pub struct MethodSpec {
+    /// The `--methods` name.
+    pub name: &'static str,
+    /// The effects it reconstructs.
+    pub effects: &'static [Effect],
+    /// The options it takes as `NAME:key=value`.
+    pub options: &'static [OptionSpec],
+    /// One line for `--list-methods` and reports.
+    pub description: &'static str,
+    /// The method with `options` applied (already checked against `options`' ranges).
+    build: fn(&Options) -> Result<Box<dyn Method>, Error>,
+}
+
+/// A method resolved from a spec: its canonical name (with the options it was given, in
+/// declared order: `gif:radius=8:subsample=2`), its description and the method itself.
+pub struct Registered {
+    pub name: String,
+    pub spec: &'static MethodSpec,
+    pub method: Box<dyn Method>,
+}
+
+impl Registered {
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Whether it reconstructs `effect`.
+    pub fn supports(&self, effect: Effect) -> bool {
+        self.spec.effects.contains(&effect)
+    }
+}
+
+impl std::ops::Deref for Registered {
+    type Target = dyn Method;
+
+    fn deref(&self) -> &(dyn Method + 'static) {
+        self.method.as_ref()
+    }
+}
+
+const ALL_EFFECTS: &[Effect] = &Effect::ALL;
+const INDIRECT: &[Effect] = &[Effect::Indirect, Effect::Glossy];
+const INDIRECT_AND_AO: &[Effect] = &[Effect::Indirect, Effect::Glossy, Effect::Ao];
+const DEFOCUS_AND_MOTION: &[Effect] = &[Effect::Dof, Effect::Motion, Effect::DofMotion];
+const DEFOCUS_MOTION_AND_SHADOWS: &[Effect] = &[Effect::Dof, Effect::Motion, Effect::DofMotion, Effect::SoftShadow];
+
+const RADIUS: OptionSpec = OptionSpec {
+    key: "radius",
+    kind: OptionKind::Count { min: 1, max: 1024 },
+    default: "24",
+    help: "window radius in pixels at an 800-pixel image (scaled with the image)",
+};
+const EPS_NORMAL: OptionSpec = OptionSpec {
+    key: "eps_normal",
+    kind: OptionKind::Positive,
+    default: "0.01",
+    help: "regularisation ε of the normal channels",
+};
+const EPS_DEPTH: OptionSpec = OptionSpec {
+    key: "eps_depth",
+    kind: OptionKind::Positive,
+    default: "0.02",
+    help: "regularisation ε of the depth channel",
+};
+const SUBSAMPLE: OptionSpec = OptionSpec {
+    key: "subsample",
+    kind: OptionKind::Count { min: 1, max: 64 },
+    default: "1",
+    help: "fast guided filter's subsampling factor (1: the exact filter)",
+};
+const ITERATIONS: OptionSpec = OptionSpec {
+    key: "iterations",
+    kind: OptionKind::Count { min: 1, max: crate::baselines::atrous::MAX_ITERATIONS },
+    default: "5",
+    help: "À-Trous iterations (dilations 1, 2, 4, …)",
+};
+const LOOKUP: OptionSpec = OptionSpec {
+    key: "lookup",
+    kind: OptionKind::Choice(&["geometry", "own-pixel"]),
+    default: "geometry",
+    help: "how additional eye rays take filtered light: the geometry-aware lookup or their own pixel's",
+};
+const QUALITY: OptionSpec = OptionSpec {
+    key: "quality",
+    kind: OptionKind::Choice(&crate::baselines::oidn::QUALITIES),
+    default: "high",
+    help: "OIDN's filter quality",
+};
+const BANDWIDTH: OptionSpec = OptionSpec {
+    key: "bandwidth",
+    kind: OptionKind::Positive,
+    default: "0.5",
+    help: "scale of the lens-distance Gaussian matched to each sample's BRDF bandwidth",
+};
+const PASSES: OptionSpec = OptionSpec {
+    key: "passes",
+    kind: OptionKind::Count { min: 1, max: 8 },
+    default: "1",
+    help: "passes of recursive filtering at the secondary hits before the final gather",
+};
+
+/// Every method, in the order reports list them.
+pub const METHODS: &[MethodSpec] = &[
+    MethodSpec {
+        name: "box",
+        effects: ALL_EFFECTS,
+        options: &[],
+        description: "per-pixel average of the input samples: path tracing at the input spp, read back",
+        build: |_| Ok(Box::new(BoxFilter)),
+    },
+    MethodSpec {
+        name: "oidn",
+        effects: ALL_EFFECTS,
+        options: &[QUALITY],
+        description: "Intel Open Image Denoise 2.5 (CPU, via pyoidn, HDR) on the box-filtered path-traced frame with \
+                      albedo and normal",
+        build: |options| {
+            let default = Oidn::default();
+            Ok(Box::new(Oidn { quality: options.choice("quality").map_or(default.quality, str::to_string) }))
+        },
+    },
+    MethodSpec {
+        name: "gif",
+        effects: INDIRECT,
+        options: &[RADIUS, EPS_NORMAL, EPS_DEPTH, SUBSAMPLE, LOOKUP],
+        description: "guided image filter with the normal + depth guide (Bauszat et al. 2011)",
+        build: |options| filter(FilteredIndirect::gif(), options),
+    },
+    MethodSpec {
+        name: "gif-normal",
+        effects: INDIRECT,
+        options: &[RADIUS, EPS_NORMAL, SUBSAMPLE, LOOKUP],
+        description: "guided image filter with the 3-channel normal guide (Bauszat et al. 2011, Figure 5b)",
+        build: |options| filter(FilteredIndirect::gif_normal(), options),
+    },
+    MethodSpec {
+        name: "gif-grey",
+        effects: INDIRECT,
+        options: &[RADIUS, EPS_NORMAL, SUBSAMPLE, LOOKUP],
+        description: "guided image filter with the 1-channel grey-normal guide (Bauszat et al. 2011, Figure 5a)",
+        build: |options| filter(FilteredIndirect::gif_grey(), options),
+    },
+    MethodSpec {
+        name: "bilateral",
+        effects: INDIRECT,
+        options: &[RADIUS, LOOKUP],
+        description: "cross-bilateral filter on normal and depth, the guided filter's quality baseline (Bauszat et \
+                      al. 2011, Table 2)",
+        build: |options| filter(FilteredIndirect::bilateral(), options),
+    },
+    MethodSpec {
+        name: "atrous",
+        effects: INDIRECT,
+        options: &[ITERATIONS, LOOKUP],
+        description: "edge-avoiding À-Trous wavelet filter on normal and position (Dammertz et al. 2010)",
+        build: |options| filter(FilteredIndirect::atrous(), options),
+    },
+    MethodSpec {
+        name: "atrous-sn",
+        effects: INDIRECT,
+        options: &[ITERATIONS, LOOKUP],
+        description: "À-Trous with an extra range term on the secondary-hit normal (Lehtinen et al. 2012's baseline)",
+        build: |options| filter(FilteredIndirect::atrous_secondary_normal(), options),
+    },
+    MethodSpec {
+        name: "tlfr",
+        effects: DEFOCUS_MOTION_AND_SHADOWS,
+        options: &[],
+        description: "temporal light field reconstruction (Lehtinen et al. 2011)",
+        build: |_| Ok(Box::new(TLFR)),
+    },
+    MethodSpec {
+        name: "tlfr-nn",
+        effects: DEFOCUS_AND_MOTION,
+        options: &[],
+        description: "temporal light field reconstruction, nearest reprojected sample of the covering surface instead \
+                      of the filter",
+        build: |_| Ok(Box::new(TLFR_NEAREST)),
+    },
+    MethodSpec {
+        name: "tlfr-bw",
+        effects: DEFOCUS_AND_MOTION,
+        options: &[BANDWIDTH],
+        description: "temporal light field reconstruction with the bandwidth extension (Figure 14) for glossy surfaces",
+        build: |options| Ok(Box::new(TLFR_BANDWIDTH.with_bandwidth_scale(options.real("bandwidth")))),
+    },
+    MethodSpec {
+        name: "ilfr",
+        effects: INDIRECT_AND_AO,
+        options: &[],
+        description: "indirect light field reconstruction (Lehtinen et al. 2012)",
+        build: |_| Ok(Box::new(Ilfr)),
+    },
+    MethodSpec {
+        name: "ilfr-recursive",
+        effects: INDIRECT,
+        options: &[PASSES],
+        description: "indirect light field reconstruction with recursive filtering at the secondary hits (Lehtinen \
+                      et al. 2012 §4)",
+        build: |options| Ok(Box::new(IlfrRecursive { passes: options.count("passes").unwrap_or(1) })),
+    },
+    MethodSpec {
+        name: "ilfr-dof",
+        effects: DEFOCUS_AND_MOTION,
+        options: &[],
+        description: "indirect light field reconstruction's machinery on camera rays: defocus and motion blur \
+                      (Lehtinen et al. 2012 §3.4)",
+        build: |_| Ok(Box::new(IlfrDof)),
+    },
+];
+
+/// A filter of the filtered path-tracing pipeline with `options` applied.
+fn filter(variant: FilteredIndirect, options: &Options) -> Result<Box<dyn Method>, Error> {
+    let name = variant.name.clone();
+    let filter = variant
+        .with_options(&FilterOptions::from_options(options))
+        .map_err(|message| Error::Option { spec: format!("{name}:{}", options.canonical()), message })?;
+    Ok(Box::new(filter))
+}
+
+/// The method called `name` (no options), as data.
+pub fn spec(name: &str) -> Option<&'static MethodSpec> {
+    METHODS.iter().find(|m| m.name == name)
+}
+
+impl MethodSpec {
+    /// Parses `text` (`key=value` pairs separated by `:`) against this method's options.
+    pub fn parse_options(&'static self, text: &str) -> Result<Options, Error> {
+        let known_elsewhere = |key: &str| METHODS.iter().any(|m| m.options.iter().any(|o| o.key == key));
+        Options::parse(self.name, text, self.options, known_elsewhere)
+    }
+
+    /// This method with `options` applied.
+    pub fn build(&'static self, options: &Options) -> Result<Registered, Error> {
+        let name =
+            if options.is_empty() { self.name.to_string() } else { format!("{}:{}", self.name, options.canonical()) };
+        Ok(Registered { name, spec: self, method: (self.build)(options)? })
+    }
+}
+
+/// The method `spec` names: `NAME` or `NAME:key=value:...`. `Ok(None)` when no method has that
+/// name; `Err` for options that do not parse or apply.
+pub fn find(spec_text: &str) -> Result<Option<Registered>, Error> {
+    let (name, options) = spec_text.split_once(':').unwrap_or((spec_text, ""));
+    let Some(spec) = spec(name) else { return Ok(None) };
+    let options = spec.parse_options(options)?;
+    spec.build(&options).map(Some)
+}
+
+/// Every method with its default options.
+pub fn all() -> Vec<Registered> {
+    METHODS.iter().map(|spec| spec.build(&Options::default()).expect("defaults build")).collect()
+}
+
+/// `lfr compare --list-methods`: every method with its effects, options (range, default, help)
+/// and description, one block per method.
+pub fn listing() -> String {
+    let mut text = String::new();
+    for spec in METHODS {
+        let effects: Vec<&str> = spec.effects.iter().map(|e| e.name()).collect();
+        text.push_str(&format!("{}\n    {}\n    effects: {}\n", spec.name, spec.description, effects.join(", ")));
+        if spec.options.is_empty() {
+            text.push_str("    options: none\n");
+        } else {
+            text.push_str(&format!("    options ({}:key=value:...):\n", spec.name));
+        }
+        for option in spec.options {
+            let (key, range, default, help) = (option.key, option.range(), option.default, option.help);
+            text.push_str(&format!("      {key} = {range}, default {default}: {help}\n"));
+        }
+    }
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_unique_and_every_default_builds() {
+        let mut names: Vec<_> = METHODS.iter().map(|m| m.name).collect();
+        names.sort();
+        names.dedup();
+        assert_eq!(names.len(), METHODS.len());
+        for method in all() {
+            assert_eq!(method.name(), method.spec.name, "no options, plain name");
+            assert!(!method.spec.effects.is_empty() && !method.spec.description.is_empty());
+        }
+    }
+
+    #[test]
+    fn the_declared_defaults_are_the_methods_defaults() {
+        // Spelling every default out must give the method the harness runs without options:
+        // the data of the listing is what the code does.
+        for spec in METHODS {
+            let text: Vec<String> = spec.options.iter().map(|o| format!("{}={}", o.key, o.default)).collect();
+            let explicit = spec.parse_options(&text.join(":")).unwrap_or_else(|e| panic!("{}: {e}", spec.name));
+            let explicit = spec.build(&explicit).unwrap();
+            let plain = spec.build(&Options::default()).unwrap();
+            assert_eq!(format!("{:?}", explicit.method), format!("{:?}", plain.method), "{}", spec.name);
+        }
+    }
+
+    #[test]
+    fn specs_parse_apply_and_name_the_variant() {
+        let gif = find("gif:eps_depth=0.002:radius=8:eps_normal=0.001").unwrap().unwrap();
+        assert_eq!(gif.name(), "gif:radius=8:eps_normal=0.001:eps_depth=0.002", "canonical order");
+        assert_eq!(find("gif:subsample=2").unwrap().unwrap().name(), "gif:subsample=2");
+        assert_eq!(find("bilateral:lookup=own-pixel").unwrap().unwrap().name(), "bilateral:lookup=own-pixel");
+        assert_eq!(find("tlfr-bw:bandwidth=2").unwrap().unwrap().name(), "tlfr-bw:bandwidth=2");
+        assert_eq!(find("ilfr-recursive:passes=2").unwrap().unwrap().name(), "ilfr-recursive:passes=2");
+        assert!(find("median:radius=3").unwrap().is_none());
+        assert!(find("median").unwrap().is_none());
+        for (spec, needle) in [
+            ("gif:radius", "key=value"),
+            ("gif:radius=-1", "radius=-1"),
+            ("gif:radius=0", "at least 1"),
+            ("gif:subsample=0", "at least 1"),
+            ("gif:subsample=1.5", "subsample=1.5"),
+            ("atrous:subsample=2", "does not apply"),
+            ("bilateral:subsample=2", "does not apply"),
+            ("gif:eps_normal=0", "positive"),
+            ("gif:eps_normal=inf", "positive"),
+            ("gif:sigma=2", "unknown option"),
+            ("gif:iterations=3", "does not apply"),
+            ("gif-normal:eps_depth=0.01", "does not apply"),
+            ("bilateral:eps_normal=0.1", "does not apply"),
+            ("atrous:radius=4", "does not apply"),
+            ("atrous:iterations=99", "iteration"),
+            ("gif:lookup=bilinear", "own-pixel"),
+            ("tlfr:radius=3", "does not apply to tlfr"),
+            ("box:x=1", "box takes no options"),
+            ("tlfr-bw:bandwidth=0", "positive"),
+            ("ilfr-recursive:passes=0", "at least 1"),
+        ] {
+            let error = find(spec).err().unwrap_or_else(|| panic!("{spec} must fail")).to_string();
+            assert!(error.contains(needle) && error.contains(spec.split(':').next().unwrap()), "{spec}: {error}");
+        }
+    }
+
+    #[test]
+    fn the_listing_names_every_method_option_and_default() {
+        let listing = listing();
+        for spec in METHODS {
+            assert!(listing.contains(&format!("{}\n    {}", spec.name, spec.description)), "{}", spec.name);
+            for option in spec.options {
+                let line = format!("      {} = {}, default {}: ", option.key, option.range(), option.default);
+                assert!(listing.contains(&line), "{line}");
+            }
+        }
+    }
+}
