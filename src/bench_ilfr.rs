@@ -15,7 +15,8 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use rayon::prelude::*;
-use recon::ilfr::gather::{reconstruction_rays, GatherTarget};
+use recon::ilfr::gather::reconstruction_rays;
+use recon::ilfr::method::GatherTarget;
 use recon::ilfr::method::{reconstruct_samples, IlfrSettings};
 use recon::ilfr::samples::read_indirect;
 use sampleio::SampleFile;

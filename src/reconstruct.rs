@@ -5,7 +5,8 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use recon::tlfr::method::{reconstruct_file, TlfrSettings};
+use recon::tlfr::method::reconstruct_file;
+use recon::tlfr::settings::TlfrSettings;
 use tracer::output::{write_exr, write_png, Layer};
 
 use crate::compare::images::rgb_channels;

@@ -303,7 +303,7 @@ fn soft_shadow_errors(scene: &Scene) -> (recon::method::Output, f64, f64) {
         DumpSettings { width: size, height: size, spp, seed: 5, max_bounces: 1, threads: 0, progress: false };
     lens_time::dump_for_soft_shadows(scene, &accel, &settings, &camera_path).unwrap();
     tracer::samples::light::dump(scene, &accel, &settings, &light_path).unwrap();
-    let tlfr_settings = recon::tlfr::method::TlfrSettings { locations: 32, ..Default::default() };
+    let tlfr_settings = recon::tlfr::settings::TlfrSettings { locations: 32, ..Default::default() };
     let output = recon::tlfr::shadows::reconstruct_soft_shadow(&camera_path, &light_path, &tlfr_settings).unwrap();
     let (box_image, _) =
         recon::baselines::box_filter::average(&SampleFile::open(&camera_path).unwrap(), recon::Effect::SoftShadow, 0.0)
@@ -364,7 +364,7 @@ fn soft_shadow_inputs_that_do_not_belong_together_are_clear_errors() {
     let shading = dir.path().join("shading.lfrs");
     lens_time::dump_for_soft_shadows(&scene, &accel, &settings(2), &shading).unwrap();
     let run = |camera: &std::path::Path, light: &std::path::Path| {
-        let tlfr = recon::tlfr::method::TlfrSettings { locations: 4, ..Default::default() };
+        let tlfr = recon::tlfr::settings::TlfrSettings { locations: 4, ..Default::default() };
         recon::tlfr::shadows::reconstruct_soft_shadow(camera, light, &tlfr).unwrap_err().to_string()
     };
     let error = run(&plain, &light);

@@ -304,6 +304,13 @@ mod tests {
     }
 
     #[test]
+    fn ilfr_declares_its_effects() {
+        let (ilfr, recursive) = (spec("ilfr").unwrap(), spec("ilfr-recursive").unwrap());
+        assert!([Effect::Indirect, Effect::Ao, Effect::Glossy].iter().all(|e| ilfr.effects.contains(e)));
+        assert!(!recursive.effects.contains(&Effect::Ao) && !ilfr.effects.contains(&Effect::Dof));
+    }
+
+    #[test]
     fn the_declared_defaults_are_the_methods_defaults() {
         // Spelling every default out must give the method the harness runs without options:
         // the data of the listing is what the code does.

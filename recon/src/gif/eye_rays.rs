@@ -22,17 +22,17 @@
 //! - When every candidate is equally far (max = 0 in Eq. 4 or 5), that similarity is 1 for all.
 //!   Ties in S (e.g. two candidates, one closer in normal, the other in depth: both S = 0) go to
 //!   the candidate whose pixel centre is nearest the eye ray's film position.
-//! - The map holds *incident* light (`filtered_indirect::demodulate`), so the eye ray's own
+//! - The map holds *incident* light (`modulation::demodulate`), so the eye ray's own
 //!   albedo multiplies it: texture detail between guide rays is kept. The guide ray itself is
-//!   remodulated as `filtered_indirect::remodulated` does (its channels without albedo keep
+//!   remodulated as `modulation::remodulated` does (its channels without albedo keep
 //!   their unfiltered value).
 //! - Non-finite eye-ray values are treated as a miss (normal, depth) or as 0 (albedo, direct)
 //!   and counted in `Composite::sanitised_values`.
 
 use rayon::prelude::*;
 
-use crate::gif::filtered_indirect::remodulated;
 use crate::gif::guide::{EyeRay, EyeRays, GuideBuffers};
+use crate::gif::modulation::remodulated;
 use crate::image::Image;
 
 /// The reconstructed image, split as the tracer splits it.

@@ -21,7 +21,7 @@
 //! convex combinations and never do.
 //!
 //! Demodulation: the filter smooths the light arriving at the surface, not the texture that
-//! reflects it. Where a channel's albedo is below `MIN_ALBEDO` the incident light cannot be
+//! reflects it. Where a channel's albedo is below `modulation::MIN_ALBEDO` the incident light cannot be
 //! recovered: the map gets the pixel's grey incident light from its other channels (a sensible
 //! neighbour for the filter), and the pixel's own output keeps its unfiltered reflected value
 //! (tiny anyway). An earlier version kept the reflected value in the map and passed the
@@ -34,6 +34,7 @@ use crate::baselines::atrous::{atrous, AtrousParams};
 use crate::baselines::bilateral::{cross_bilateral, BilateralParams};
 use crate::gif::eye_rays::{composite, Composite, GuideLight, Lookup};
 use crate::gif::guided_filter::{guided_filter, GuideKind, GuidedFilterParams};
+use crate::gif::modulation::{demodulate, remodulate};
 use crate::image::Image;
 use crate::method::{GuideInput, Input, Inputs, Method, MethodError, Output};
 use crate::options::Options;
@@ -49,9 +50,6 @@ pub fn scaled_radius(radius_at_800: u32, width: u32, height: u32) -> u32 {
     let scale = width.max(height) as f32 / PAPER_IMAGE_SIZE;
     ((radius_at_800 as f32 * scale).round() as u32).max(1)
 }
-
-/// Albedo below which a channel is not demodulated.
-pub const MIN_ALBEDO: f32 = 1e-3;
 
 /// Which filter the pipeline runs.
 #[derive(Clone, Debug)]
@@ -137,64 +135,6 @@ impl FilteredIndirect {
             FilteredIndirect::atrous_secondary_normal(),
         ]
     }
-}
-
-/// Incident light: reflected light divided by the albedo, per channel. A channel whose albedo
-/// is below `MIN_ALBEDO` cannot be demodulated; it gets the grey incident light of the
-/// pixel's other channels (their reflected sum over their albedo sum), so that its value in
-/// the map is a plausible neighbour for the filter rather than a reflected value near 0 (or,
-/// had it been divided, a huge one). Where no channel can be demodulated (black surfaces) the
-/// reflected value stays.
-pub fn demodulate(reflected: &Image, albedo: &Image) -> Image {
-    let pixels = reflected
-        .pixels
-        .iter()
-        .zip(&albedo.pixels)
-        .map(|(r, a)| {
-            let (mut reflected_sum, mut albedo_sum) = (0.0, 0.0);
-            for c in (0..3).filter(|&c| a[c] >= MIN_ALBEDO) {
-                reflected_sum += r[c];
-                albedo_sum += a[c];
-            }
-            [0, 1, 2].map(|c| {
-                if a[c] >= MIN_ALBEDO {
-                    r[c] / a[c]
-                } else if albedo_sum > 0.0 {
-                    reflected_sum / albedo_sum
-                } else {
-                    r[c]
-                }
-            })
-        })
-        .collect();
-    Image::from_pixels(reflected.width, reflected.height, pixels)
-}
-
-/// Reflected light at the guide hits from the filtered incident light: `incident × albedo` in
-/// the channels `demodulate` divided; elsewhere the unfiltered `reflected` value itself (tiny:
-/// the albedo is below `MIN_ALBEDO`; non-finite values become 0).
-pub fn remodulate(incident: &Image, albedo: &Image, reflected: &Image) -> Image {
-    let pixels = incident
-        .pixels
-        .iter()
-        .zip(&albedo.pixels)
-        .zip(&reflected.pixels)
-        .map(|((l, a), r)| remodulated(*l, *a, *r))
-        .collect();
-    Image::from_pixels(incident.width, incident.height, pixels)
-}
-
-/// `remodulate` for one pixel.
-pub fn remodulated(incident: [f32; 3], albedo: [f32; 3], reflected: [f32; 3]) -> [f32; 3] {
-    [0, 1, 2].map(|c| {
-        if albedo[c] >= MIN_ALBEDO {
-            incident[c] * albedo[c]
-        } else if reflected[c].is_finite() {
-            reflected[c]
-        } else {
-            0.0
-        }
-    })
 }
 
 impl FilteredIndirect {
@@ -463,23 +403,6 @@ mod tests {
         assert_eq!(scaled_radius(24, 1600, 1200), 48);
         assert_eq!(scaled_radius(24, 256, 256), 8);
         assert_eq!(scaled_radius(24, 1, 1), 1);
-    }
-
-    #[test]
-    fn demodulation_round_trips_and_skips_black_albedo() {
-        let reflected = Image::from_pixels(2, 1, vec![[0.5, 0.2, 0.0], [1.0, 1.0, 1.0]]);
-        let albedo = Image::from_pixels(2, 1, vec![[0.5, 0.0, 0.25], [1.0, 0.5, 0.1]]);
-        let incident = demodulate(&reflected, &albedo);
-        // Green cannot be demodulated: it gets red and blue's grey incident light (0.5 / 0.75).
-        assert_eq!(incident.pixels[1], [1.0, 2.0, 10.0]);
-        assert_eq!(incident.pixels[0][0], 1.0);
-        assert!((incident.pixels[0][1] - 0.5 / 0.75).abs() < 1e-6 && incident.pixels[0][2] == 0.0);
-        let black = demodulate(&Image::from_pixels(1, 1, vec![[0.01; 3]]), &Image::from_pixels(1, 1, vec![[0.0; 3]]));
-        assert_eq!(black.pixels[0], [0.01; 3], "a black surface keeps its reflected value");
-        let back = remodulate(&incident, &albedo, &reflected);
-        for (a, b) in back.pixels.iter().flatten().zip(reflected.pixels.iter().flatten()) {
-            assert!((a - b).abs() < 1e-6);
-        }
     }
 
     /// On a flat, evenly lit wall every filter must remove most of the noise of the incident

@@ -38,18 +38,6 @@ use super::reconstruct::{ReconstructStats, Reconstructor, Scratch, SkyFallbacks,
 use super::samples::{IndirectSamples, SampleClass};
 use crate::image::Image;
 
-/// What the gather computes.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum GatherTarget {
-    /// Indirect light reflected towards the camera (the harness's `indirect` layer).
-    Indirect,
-    /// Ambient visibility within `ao_radius` (the harness's `ao` image).
-    Visibility { ao_radius: f32 },
-    /// Radiance along camera rays through the pixel and the lens (§3.4; the input rays are
-    /// camera rays, [`super::lens`]).
-    Lens(super::lens::LensCamera),
-}
-
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GatherSettings {
     /// Reconstruction rays per pixel (spread over its primary hits, at least one each).
@@ -97,21 +85,16 @@ pub fn rays_per_hit(rays_per_pixel: u32, spp: u32) -> u32 {
     rays_per_pixel.div_ceil(spp.max(1)).max(1)
 }
 
-/// Gathers the image of `target` from `samples` with the splats of `reconstructor`. Errors name
-/// the file and the field: a glossy file (`weight`, gap G1), an `indirect` file without
-/// `albedo`, an AO target on a file without `distance` and the reverse.
+/// Gathers from `samples` with the splats of `reconstructor` the indirect light towards the
+/// camera, or with `ao_radius` the ambient visibility within it. Errors name the file and the
+/// field: a glossy file (`weight`, gap G1), an `indirect` file without `albedo`, an AO target on
+/// a file without `distance` and the reverse.
 pub fn gather(
     samples: &IndirectSamples,
     reconstructor: &Reconstructor,
-    target: GatherTarget,
+    ao_radius: Option<f32>,
     settings: &GatherSettings,
 ) -> Result<(Image, GatherStats), String> {
-    // From here on: `None` gathers indirect light, `Some(radius)` ambient visibility.
-    let ao_radius = match target {
-        GatherTarget::Lens(camera) => return super::lens::gather_lens(samples, reconstructor, &camera, settings),
-        GatherTarget::Indirect => None,
-        GatherTarget::Visibility { ao_radius } => Some(ao_radius),
-    };
     let path = &samples.path;
     let albedo = match ao_radius {
         None => {

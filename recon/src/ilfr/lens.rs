@@ -311,7 +311,7 @@ pub fn gather_lens(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ilfr::gather::GatherTarget;
+    use crate::ilfr::method::GatherTarget;
     use crate::ilfr::method::{reconstruct_samples, IlfrSettings};
     use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleWriter};
 

@@ -242,8 +242,8 @@ mod tests {
     use crate::ilfr::directions::normalize;
     use crate::ilfr::disc::Disc;
     use crate::ilfr::filter::SplatShading;
-    use crate::ilfr::gather::GatherTarget;
     use crate::ilfr::method::tests::{box_exit, box_samples, settings};
+    use crate::ilfr::method::GatherTarget;
     use crate::ilfr::method::{reconstruct_samples, IlfrSettings};
     use crate::ilfr::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams};
     use crate::ilfr::splats::{size_splats, GatheredPoints, SplatParams};

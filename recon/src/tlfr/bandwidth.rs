@@ -23,7 +23,7 @@
 //! the sample's depth. κ = 0 (diffuse, misses) gives g = 1: the extension changes nothing there.
 //! The weighting itself blurs the highlight by σ_view, and a narrower Gaussian leaves fewer
 //! samples: `scale` trades one for the other (measured in the test below and in `docs/tlfr.md`;
-//! default 0.5, `method::DEFAULT_BANDWIDTH_SCALE`).
+//! default 0.5, `settings::DEFAULT_BANDWIDTH_SCALE`).
 //!
 //! Stability: the exponents are taken relative to the largest among the samples the tent
 //! reaches, so that for a mirror (κ up to f16's 65504) the weights do not all underflow: the

@@ -17,11 +17,9 @@ use super::query::{max_reach, reconstruct, Scene};
 use super::reprojection::{near_limit, LensTimeSample};
 use super::same_surface::window_half_width;
 use super::samples::{read_lens_time, refocus};
+use super::settings::{TlfrSettings, DEFAULT_BANDWIDTH_SCALE, RADIUS_TRIALS};
 use crate::baselines::box_filter::average;
 use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
-
-/// Random reprojections for measuring R.
-pub const RADIUS_TRIALS: u32 = 32;
 
 /// A TLFR method of `lfr compare`: the same reconstruction, finishing each location with
 /// `value`, optionally with the bandwidth extension; `tlfr` also takes soft shadows.
@@ -90,29 +88,6 @@ impl Method for TlfrMethod {
             )));
         }
         Ok(output)
-    }
-}
-
-/// σ_view of the bandwidth extension in units of the reflected lobe's deviation 8/κ
-/// (`bandwidth`); measured in its test and in `docs/tlfr.md`.
-pub const DEFAULT_BANDWIDTH_SCALE: f32 = 0.5;
-
-/// How `reconstruct_file` runs.
-#[derive(Clone, Debug)]
-pub struct TlfrSettings {
-    /// Reconstruction locations per pixel (N of Eq. 1).
-    pub locations: u32,
-    /// Refocus after the fact: (focus distance, lens radius), scene units.
-    pub refocus: Option<(f32, f32)>,
-    /// Seed of the locations.
-    pub seed: u32,
-    /// The bandwidth extension (Figure 14) with σ_view = `scale` · 8/κ, or off.
-    pub bandwidth_scale: Option<f32>,
-}
-
-impl Default for TlfrSettings {
-    fn default() -> Self {
-        TlfrSettings { locations: 128, refocus: None, seed: 0, bandwidth_scale: None }
     }
 }
 

@@ -49,5 +49,6 @@ pub mod query;
 pub mod reprojection;
 pub mod same_surface;
 pub mod samples;
+pub mod settings;
 pub mod shadows;
 pub mod test_scenes;

@@ -349,16 +349,16 @@ pub fn light_coordinates(seed: u32, x: u32, y: u32, j: u32) -> (f32, f32) {
 pub fn reconstruct_soft_shadow(
     camera_path: &std::path::Path,
     light_path: &std::path::Path,
-    settings: &super::method::TlfrSettings,
+    settings: &super::settings::TlfrSettings,
 ) -> Result<crate::method::Output, crate::method::MethodError> {
     use super::bounds::ScreenArea;
     use super::dispersion::measure_radius;
     use super::hierarchy::{reorder, Hierarchy};
-    use super::method::RADIUS_TRIALS;
     use super::query::max_reach;
     use super::reprojection::near_limit;
     use super::same_surface::window_half_width;
     use super::samples::read_lens_time;
+    use super::settings::RADIUS_TRIALS;
     use crate::method::{Effect, MethodError, Output};
     use std::time::Instant;
 
