@@ -87,7 +87,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let mut results = Vec::new();
     for scene_path in scenes {
-        let scene = crate::load_scene(scene_path.as_deref())?;
+        let scene = crate::common::load_scene(scene_path.as_deref())?;
         let accel = Accel::build(&scene)?;
         let mut settings = RenderSettings::from_scene(&scene);
         settings.width = args.width;
@@ -170,7 +170,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         results.push(result);
     }
     if let Some(path) = &args.json {
-        crate::write_json(path, &results)?;
+        crate::common::write_json(path, &results)?;
     }
     Ok(())
 }

@@ -13,27 +13,22 @@ use recon::baselines::bilateral::{cross_bilateral, BilateralParams};
 use recon::gif::guided_filter::{guided_filter, GuideKind, GuidedFilterParams};
 use recon::gif::modulation::demodulate;
 use serde::Serialize;
-use tracer::samples::DumpSettings;
 use tracer::Accel;
+
+use crate::common::{load_scene, TraceArgs};
 
 #[derive(clap::Args)]
 pub struct BenchFiltersArgs {
-    /// Scene whose guide buffers are filtered; the embedded Cornell box when omitted.
-    #[arg(long)]
-    scene: Option<PathBuf>,
-    #[arg(long, default_value_t = 1024)]
-    width: u32,
-    #[arg(long, default_value_t = 768)]
-    height: u32,
+    /// The scene whose guide buffers are filtered, at 1024×768 unless --width and --height say
+    /// otherwise, seed 1 unless --seed does.
+    #[command(flatten)]
+    trace: TraceArgs,
     /// Timed repetitions of the fast filters; the best is reported (the bilateral runs once).
     #[arg(long, default_value_t = 5)]
     repeats: u32,
     /// Skip the cross-bilateral filter (seconds per run at large radii).
     #[arg(long)]
     no_bilateral: bool,
-    /// Worker threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    threads: usize,
     /// Also write the results as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -59,24 +54,24 @@ fn best_of(repeats: u32, mut run: impl FnMut() -> Result<()>) -> Result<f64> {
 }
 
 pub fn run(args: &BenchFiltersArgs) -> Result<()> {
-    let scene = crate::load_scene(args.scene.as_deref())?;
+    let trace = &args.trace;
+    let scene = load_scene(trace.scene.as_deref())?;
     let accel = Accel::build(&scene)?;
-    let settings = DumpSettings {
-        width: args.width,
-        height: args.height,
-        spp: 1,
-        seed: 1,
-        max_bounces: scene.max_bounces,
-        threads: args.threads,
-        progress: false,
+    let defaults = TraceArgs {
+        width: Some(trace.width.unwrap_or(1024)),
+        height: Some(trace.height.unwrap_or(768)),
+        seed: Some(trace.seed.unwrap_or(1)),
+        quiet: true,
+        ..trace.clone()
     };
+    let settings = defaults.settings(&scene, 1)?;
     let buffers = tracer::samples::guide::guide_buffers(&scene, &accel, &settings)?;
-    let (width, height) = (args.width, args.height);
-    let input = crate::compare::effect::guide_input(&buffers);
+    let (width, height) = (settings.width, settings.height);
+    let input = crate::convert::guide_input(&buffers);
     let guide = &input.guide;
     let noisy = demodulate(&input.indirect, &input.albedo);
     let megapixels = width as f64 * height as f64 / 1e6;
-    let pool = tracer::render::thread_pool(args.threads)?;
+    let pool = tracer::render::thread_pool(trace.threads)?;
     let threads = pool.current_num_threads();
     println!(
         "filters on the guide buffers of {} at {width}x{height} ({megapixels:.2} MP), {threads} threads, best of {}:",
@@ -142,7 +137,7 @@ pub fn run(args: &BenchFiltersArgs) -> Result<()> {
     }
     println!("ratio: time / guided filter with the 4-channel guide at radius 8, same run");
     if let Some(path) = &args.json {
-        crate::write_json(path, &timings)?;
+        crate::common::write_json(path, &timings)?;
     }
     Ok(())
 }

@@ -23,8 +23,8 @@ use sampleio::SampleFile;
 use serde::Serialize;
 use tracer::render::thread_pool;
 use tracer::samples::secondary::{dump, SecondaryKind};
-use tracer::samples::DumpSettings;
 use tracer::Accel;
+use tracer::RenderSettings;
 
 #[derive(clap::Args)]
 pub struct BenchIlfrArgs {
@@ -96,11 +96,11 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
     let dir = tempfile::tempdir().context("a temporary directory for the samples")?;
     let mut rows = Vec::new();
     for scene_path in scenes {
-        let scene = crate::load_scene(scene_path.as_deref())?;
+        let scene = crate::common::load_scene(scene_path.as_deref())?;
         let accel = Accel::build(&scene)?;
         let mut first_total = None;
         for &spp in &args.spp {
-            let settings = DumpSettings {
+            let settings = RenderSettings {
                 width: args.width,
                 height: args.height,
                 spp,
@@ -205,7 +205,7 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
         }
     }
     if let Some(path) = &args.json {
-        crate::write_json(path, &rows)?;
+        crate::common::write_json(path, &rows)?;
     }
     Ok(())
 }

@@ -14,9 +14,8 @@ use recon::Image;
 use tracer::output::{write_exr, write_png, Layer};
 use tracer::Accel;
 
-use crate::compare::effect::guide_input;
-use crate::compare::images::rgb_channels;
-use crate::TraceArgs;
+use crate::common::{load_scene, TraceArgs};
+use crate::convert::{guide_input, rgb_channels};
 
 #[derive(clap::Args)]
 pub struct FilterArgs {
@@ -78,14 +77,14 @@ pub fn run(args: &FilterArgs) -> Result<()> {
     }
     let method = chosen_filter(args)?;
     let trace = &args.trace;
-    let scene = crate::load_scene(trace.scene.as_deref())?;
-    let settings = trace.dump_settings(&scene, args.spp)?;
+    let scene = load_scene(trace.scene.as_deref())?;
+    let settings = trace.settings(&scene, args.spp)?;
     let accel = Accel::build(&scene)?;
     let trace_start = Instant::now();
     let buffers = tracer::samples::guide::guide_buffers(&scene, &accel, &settings)?;
     let trace_s = trace_start.elapsed().as_secs_f64();
     let input = guide_input(&buffers);
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(trace.threads).build().context("thread pool")?;
+    let pool = crate::common::worker_pool(trace.threads)?;
     let filter_start = Instant::now();
     let (composite, sanitised) = pool.install(|| method.reconstruct(&input)).map_err(anyhow::Error::msg)?;
     let filter_s = filter_start.elapsed().as_secs_f64();

@@ -9,7 +9,9 @@ use recon::tlfr::method::reconstruct_file;
 use recon::tlfr::settings::TlfrSettings;
 use tracer::output::{write_exr, write_png, Layer};
 
-use crate::compare::images::rgb_channels;
+use tracer::limits::MAX_RECON_RAYS;
+
+use crate::convert::rgb_channels;
 
 #[derive(clap::Args)]
 pub struct ReconstructArgs {
@@ -44,8 +46,8 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     if args.out.extension().and_then(|e| e.to_str()).map(|e| e.eq_ignore_ascii_case("exr")) != Some(true) {
         bail!("--out {}: the output must be an .exr file", args.out.display());
     }
-    if args.locations == 0 || args.locations > 1 << 16 {
-        bail!("--locations must be in 1..=65536, got {}", args.locations);
+    if args.locations == 0 || args.locations > MAX_RECON_RAYS {
+        bail!("--locations must be in 1..={MAX_RECON_RAYS}, got {}", args.locations);
     }
     let refocus = match (args.focus_distance, args.aperture) {
         (Some(distance), Some(aperture)) => Some((distance, aperture)),
@@ -59,7 +61,7 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     }
     let settings =
         TlfrSettings { locations: args.locations, refocus, seed: args.seed, bandwidth_scale: args.bandwidth };
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(args.threads).build().context("thread pool")?;
+    let pool = crate::common::worker_pool(args.threads)?;
     let output = pool
         .install(|| reconstruct_file(&args.samples, &settings))
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.samples.display()))?;

@@ -139,6 +139,10 @@ fn impossible_parameters_are_clear_errors() {
     let ok = write(dir.path(), "ok.toml", "[render]\nenvironment = [1, 1, 1]\n");
     expect_render_error(&ok, &["--spp", "0"], &["spp"]);
     expect_render_error(&ok, &["--width", "0"], &["width"]);
+    // One place for the limits (tracer::limits): render holds to the dump's spp and thread caps.
+    expect_render_error(&ok, &["--spp", "1048577"], &["--spp", "1048576"]);
+    expect_render_error(&ok, &["--width", "32769"], &["--width", "32768"]);
+    expect_render_error(&ok, &["--threads", "100000"], &["--threads", "1024"]);
     let zero_res = write(dir.path(), "zero.toml", "[render]\nheight = 0\n");
     expect_render_error(&zero_res, &[], &["zero.toml", "resolution"]);
     let fov = write(dir.path(), "fov.toml", "[camera]\nposition = [0, 0, 1]\nlook_at = [0, 0, 0]\nfov = 180\n");
@@ -375,4 +379,26 @@ fn bench_ilfr_replays_the_gathers_rays_through_embree() {
     }
     let result = lfr(&["bench-ilfr", "--spp", "0"]);
     assert!(!result.status.success() && stderr(&result).contains("--spp"));
+}
+
+#[test]
+fn compare_lists_every_method_with_its_options() {
+    let result = lfr(&["compare", "--list-methods"]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    let listing = String::from_utf8_lossy(&result.stdout);
+    for name in ["box", "oidn", "gif", "gif-normal", "gif-grey", "bilateral", "atrous", "atrous-sn", "tlfr", "tlfr-nn"]
+    {
+        assert!(listing.lines().any(|line| line == name), "{name} missing:\n{listing}");
+    }
+    for line in [
+        "radius = 1..=1024, default 24",
+        "quality = high|balanced|fast|default, default high",
+        "effects: indirect, glossy",
+    ] {
+        assert!(listing.contains(line), "{line} missing:\n{listing}");
+    }
+    let result = lfr(&["compare", "--effect", "indirect", "--out", "x", "--methods", "gif:radius=0"]);
+    assert!(!result.status.success() && stderr(&result).contains("`gif:radius=0`"), "{}", stderr(&result));
+    let result = lfr(&["compare", "--out", "x"]);
+    assert!(!result.status.success() && stderr(&result).contains("--effect"), "{}", stderr(&result));
 }

@@ -8,8 +8,8 @@ use std::process::{Command, Output};
 
 use common::{exr_channel, project_root, scene_from_toml};
 use glam::{Vec2, Vec3};
-use tracer::samples::DumpSettings;
 use tracer::Accel;
+use tracer::RenderSettings;
 
 fn lfr(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_lfr")).args(args).current_dir(project_root()).output().expect("lfr runs")
@@ -169,7 +169,7 @@ fn eye_rays_lie_in_their_pixels_and_see_the_geometry() {
     );
     let accel = Accel::build(&scene).unwrap();
     let (width, height, spp) = (10, 8, 4);
-    let settings = DumpSettings { width, height, spp, seed: 3, max_bounces: 8, threads: 0, progress: false };
+    let settings = RenderSettings { width, height, spp, seed: 3, max_bounces: 8, threads: 0, progress: false };
     let guide = tracer::samples::guide::guide_buffers(&scene, &accel, &settings).unwrap();
     assert_eq!(guide.eye_rays_per_pixel, spp - 1);
     assert_eq!(guide.eye_rays.len(), (width * height * (spp - 1)) as usize);
@@ -197,6 +197,6 @@ fn eye_rays_lie_in_their_pixels_and_see_the_geometry() {
     let with_secondary = guide.secondary_normal.iter().filter(|n| **n != Vec3::ZERO).count();
     assert!(with_secondary > 10);
     assert!(guide.secondary_normal.iter().all(|n| *n == Vec3::ZERO || (n.length() - 1.0).abs() < 1e-3));
-    let one = tracer::samples::guide::guide_buffers(&scene, &accel, &DumpSettings { spp: 1, ..settings }).unwrap();
+    let one = tracer::samples::guide::guide_buffers(&scene, &accel, &RenderSettings { spp: 1, ..settings }).unwrap();
     assert!(one.eye_rays.is_empty() && one.eye_rays_per_pixel == 0, "1 spp: the guide ray only");
 }

@@ -10,8 +10,9 @@ use glam::Vec3;
 use recon::ilfr::lens::read_primary_rays;
 use recon::ilfr::samples::SampleClass;
 use sampleio::SampleFile;
-use tracer::samples::{lens_time, DumpSettings};
+use tracer::samples::lens_time;
 use tracer::Accel;
+use tracer::RenderSettings;
 
 /// z = 4 + 0.5 x + 0.3 y, seen through an open lens focused at 3, translating by `motion`
 /// (world space) over the shutter when it is not zero.
@@ -23,7 +24,8 @@ fn tilted_plane(motion: [f32; 3]) -> tracer::Scene {
 fn dump_24x16(scene: &tracer::Scene) -> (tempfile::TempDir, SampleFile) {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("lens.lfrs");
-    let settings = DumpSettings { width: 24, height: 16, spp: 4, seed: 3, max_bounces: 0, threads: 0, progress: false };
+    let settings =
+        RenderSettings { width: 24, height: 16, spp: 4, seed: 3, max_bounces: 0, threads: 0, progress: false };
     lens_time::dump(scene, &Accel::build(scene).unwrap(), &settings, &path).unwrap();
     (dir, SampleFile::open(&path).unwrap())
 }

@@ -6,7 +6,8 @@ mod common;
 
 use common::{emissive_polygon, SQUARE_AT_DEPTH_4};
 use sampleio::SampleFile;
-use tracer::samples::{lens_time, DumpSettings};
+use tracer::samples::lens_time;
+use tracer::RenderSettings;
 use tracer::{Accel, Scene};
 
 fn dump(scene: &Scene, width: u32, height: u32, spp: u32, threads: usize) -> (tempfile::TempDir, std::path::PathBuf) {
@@ -14,7 +15,7 @@ fn dump(scene: &Scene, width: u32, height: u32, spp: u32, threads: usize) -> (te
     let path = dir.path().join("samples.lfrs");
     let accel = Accel::build(scene).unwrap();
     let settings =
-        DumpSettings { width, height, spp, seed: 3, max_bounces: scene.max_bounces, threads, progress: false };
+        RenderSettings { width, height, spp, seed: 3, max_bounces: scene.max_bounces, threads, progress: false };
     lens_time::dump(scene, &accel, &settings, &path).unwrap();
     (dir, path)
 }

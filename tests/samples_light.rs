@@ -8,7 +8,7 @@ use common::{project_root, scene_from_toml};
 use glam::{Vec2, Vec3};
 use sampleio::SampleFile;
 use tracer::samples::light::{dump, PlanarLight};
-use tracer::samples::DumpSettings;
+use tracer::RenderSettings;
 use tracer::{Accel, Scene};
 
 fn dump_light(scene: &Scene, size: (u32, u32), spp: u32) -> (tempfile::TempDir, SampleFile) {
@@ -16,7 +16,7 @@ fn dump_light(scene: &Scene, size: (u32, u32), spp: u32) -> (tempfile::TempDir, 
     let path = dir.path().join("light.lfrs");
     let accel = Accel::build(scene).unwrap();
     let settings =
-        DumpSettings { width: size.0, height: size.1, spp, seed: 4, max_bounces: 4, threads: 0, progress: false };
+        RenderSettings { width: size.0, height: size.1, spp, seed: 4, max_bounces: 4, threads: 0, progress: false };
     dump(scene, &accel, &settings, &path).unwrap();
     (dir, SampleFile::open(&path).unwrap())
 }
@@ -173,7 +173,7 @@ fn dump_soft_shadow_lens_time(scene: &Scene, size: (u32, u32), spp: u32) -> (tem
     let path = dir.path().join("lens-time.lfrs");
     let accel = Accel::build(scene).unwrap();
     let settings =
-        DumpSettings { width: size.0, height: size.1, spp, seed: 9, max_bounces: 1, threads: 0, progress: false };
+        RenderSettings { width: size.0, height: size.1, spp, seed: 9, max_bounces: 1, threads: 0, progress: false };
     tracer::samples::lens_time::dump_for_soft_shadows(scene, &accel, &settings, &path).unwrap();
     (dir, SampleFile::open(&path).unwrap())
 }
@@ -200,7 +200,7 @@ fn soft_shadow_lens_time_samples_split_off_exactly_the_planar_light() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("plain.lfrs");
         let settings =
-            DumpSettings { width: 16, height: 16, spp: 4, seed: 9, max_bounces: 1, threads: 0, progress: false };
+            RenderSettings { width: 16, height: 16, spp: 4, seed: 9, max_bounces: 1, threads: 0, progress: false };
         tracer::samples::lens_time::dump(&scene, &Accel::build(&scene).unwrap(), &settings, &path).unwrap();
         SampleFile::open(&path).unwrap().column("radiance").unwrap()
     };

@@ -9,7 +9,7 @@ use common::{exr_channel, project_root, render, scene_from_toml, shared_scenes};
 use glam::Vec3;
 use sampleio::SampleFile;
 use tracer::samples::secondary::{decode_octahedral, dump, SecondaryKind};
-use tracer::samples::DumpSettings;
+use tracer::RenderSettings;
 use tracer::{Accel, Scene};
 
 fn dump_file(
@@ -22,7 +22,7 @@ fn dump_file(
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("samples.lfrs");
     let accel = Accel::build(scene).unwrap();
-    let settings = DumpSettings {
+    let settings = RenderSettings {
         width: size.0,
         height: size.1,
         spp,
@@ -331,7 +331,7 @@ fn guide_buffers_in_the_furnace_add_up_to_the_environment() {
     );
     let accel = Accel::build(&scene).unwrap();
     let settings =
-        DumpSettings { width: 12, height: 12, spp: 256, seed: 2, max_bounces: 1000, threads: 0, progress: false };
+        RenderSettings { width: 12, height: 12, spp: 256, seed: 2, max_bounces: 1000, threads: 0, progress: false };
     let guide = tracer::samples::guide::guide_buffers(&scene, &accel, &settings).unwrap();
     let environment = Vec3::new(0.5, 1.0, 2.0);
     let mut hits = 0;

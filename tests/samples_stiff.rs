@@ -7,15 +7,16 @@ mod common;
 use common::scene_from_toml;
 use sampleio::SampleFile;
 use tracer::samples::secondary::SecondaryKind;
-use tracer::samples::{guide, lens_time, light, secondary, DumpSettings};
+use tracer::samples::{guide, lens_time, light, secondary};
+use tracer::RenderSettings;
 use tracer::{Accel, Scene};
 
-fn settings(width: u32, height: u32, spp: u32) -> DumpSettings {
-    DumpSettings { width, height, spp, seed: 1, max_bounces: 8, threads: 0, progress: false }
+fn settings(width: u32, height: u32, spp: u32) -> RenderSettings {
+    RenderSettings { width, height, spp, seed: 1, max_bounces: 8, threads: 0, progress: false }
 }
 
 /// Dumps every sample-file kind the scene supports and returns the opened files.
-fn dump_all(scene: &Scene, settings: &DumpSettings) -> Vec<(String, SampleFile, tempfile::TempDir)> {
+fn dump_all(scene: &Scene, settings: &RenderSettings) -> Vec<(String, SampleFile, tempfile::TempDir)> {
     let accel = Accel::build(scene).unwrap();
     let mut files = Vec::new();
     for kind in ["lens-time", "light", "indirect", "ao"] {

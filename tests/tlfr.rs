@@ -10,7 +10,8 @@ use recon::tlfr::dispersion::measure_radius;
 use recon::tlfr::reprojection::{near_limit, reproject, LensTime};
 use recon::tlfr::samples::read_lens_time;
 use sampleio::SampleFile;
-use tracer::samples::{lens_time, DumpSettings};
+use tracer::samples::lens_time;
+use tracer::RenderSettings;
 use tracer::{Accel, Scene};
 
 /// An emissive square 0.5 wide at depth 4, seen through an open lens focused at 2, moving by
@@ -23,7 +24,7 @@ fn dump(scene: &Scene, width: u32, height: u32, spp: u32) -> (tempfile::TempDir,
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("samples.lfrs");
     let accel = Accel::build(scene).unwrap();
-    let settings = DumpSettings { width, height, spp, seed: 5, max_bounces: 0, threads: 0, progress: false };
+    let settings = RenderSettings { width, height, spp, seed: 5, max_bounces: 0, threads: 0, progress: false };
     lens_time::dump(scene, &accel, &settings, &path).unwrap();
     (dir, path)
 }
@@ -300,7 +301,7 @@ fn soft_shadow_errors(scene: &Scene) -> (recon::method::Output, f64, f64) {
     let (camera_path, light_path) = (dir.path().join("lens-time.lfrs"), dir.path().join("light.lfrs"));
     let accel = Accel::build(scene).unwrap();
     let settings =
-        DumpSettings { width: size, height: size, spp, seed: 5, max_bounces: 1, threads: 0, progress: false };
+        RenderSettings { width: size, height: size, spp, seed: 5, max_bounces: 1, threads: 0, progress: false };
     lens_time::dump_for_soft_shadows(scene, &accel, &settings, &camera_path).unwrap();
     tracer::samples::light::dump(scene, &accel, &settings, &light_path).unwrap();
     let tlfr_settings = recon::tlfr::settings::TlfrSettings { locations: 32, ..Default::default() };
@@ -355,7 +356,7 @@ fn soft_shadow_inputs_that_do_not_belong_together_are_clear_errors() {
     let dir = tempfile::tempdir().unwrap();
     let accel = Accel::build(&scene).unwrap();
     let settings =
-        |spp| DumpSettings { width: 8, height: 8, spp, seed: 1, max_bounces: 0, threads: 0, progress: false };
+        |spp| RenderSettings { width: 8, height: 8, spp, seed: 1, max_bounces: 0, threads: 0, progress: false };
     let plain = dir.path().join("plain.lfrs");
     lens_time::dump(&scene, &accel, &settings(2), &plain).unwrap();
     // The square is the scene's only emitter and planar: it serves as the light.

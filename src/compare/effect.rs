@@ -19,8 +19,9 @@ use glam::Vec3;
 use recon::method::{FrameInput, GuideInput};
 use recon::{Effect, Image};
 use tracer::samples::secondary::{ambient_occlusion_frame, scene_is_glossy, SecondaryKind};
-use tracer::samples::DumpSettings;
 use tracer::{Accel, RenderSettings, Scene};
+
+use crate::convert::{guide_input, image_from_vec3};
 
 /// Switches off what `effect` does not measure and checks the scene has what it does.
 /// Returns the path length to trace with.
@@ -103,43 +104,6 @@ pub struct Traced {
     pub seconds: f64,
 }
 
-fn image_from_vec3(width: u32, height: u32, values: &[Vec3]) -> Image {
-    Image::from_pixels(width, height, values.iter().map(|v| v.to_array()).collect())
-}
-
-/// The tracer's guide buffers as the reconstructions' `GuideInput`.
-pub fn guide_input(buffers: &tracer::samples::guide::GuideBuffers) -> GuideInput {
-    let (width, height) = (buffers.width, buffers.height);
-    let arrays = |values: &[Vec3]| values.iter().map(|v| v.to_array()).collect::<Vec<_>>();
-    GuideInput {
-        guide: recon::gif::guide::GuideBuffers {
-            width,
-            height,
-            normal: arrays(&buffers.normal),
-            depth: buffers.depth.clone(),
-            position: arrays(&buffers.position),
-            secondary_normal: Some(arrays(&buffers.secondary_normal)),
-        },
-        albedo: image_from_vec3(width, height, &buffers.albedo),
-        indirect: image_from_vec3(width, height, &buffers.indirect),
-        direct: image_from_vec3(width, height, &buffers.direct),
-        eye_rays: recon::gif::guide::EyeRays {
-            per_pixel: buffers.eye_rays_per_pixel,
-            rays: buffers
-                .eye_rays
-                .iter()
-                .map(|ray| recon::gif::guide::EyeRay {
-                    film: ray.film.to_array(),
-                    normal: ray.normal.to_array(),
-                    depth: ray.depth,
-                    albedo: ray.albedo.to_array(),
-                    direct: ray.direct.to_array(),
-                })
-                .collect(),
-        },
-    }
-}
-
 impl Tracing<'_> {
     /// Path traces the effect's image at `spp` with `seed` (box pixel filter).
     pub fn trace(&self, spp: u32, seed: u32, progress: bool) -> Result<Traced> {
@@ -176,8 +140,8 @@ impl Tracing<'_> {
         Ok(Traced { frame, seconds: start.elapsed().as_secs_f64() })
     }
 
-    fn dump_settings(&self, spp: u32, seed: u32) -> DumpSettings {
-        DumpSettings {
+    fn dump_settings(&self, spp: u32, seed: u32) -> RenderSettings {
+        RenderSettings {
             width: self.width,
             height: self.height,
             spp,

@@ -8,15 +8,12 @@ use recon::metrics::{error_map, ToneMap};
 use recon::Image;
 use tracer::output::{write_atomically, write_exr, Layer};
 
+use crate::convert::rgb_channels;
+
 use super::plot;
 
 /// Error maps show the per-pixel RMS difference of tone-mapped values on [0, ERROR_MAP_MAX].
 pub const ERROR_MAP_MAX: f32 = 0.25;
-
-/// The image's R, G and B channels, for an EXR layer.
-pub fn rgb_channels(image: &Image) -> Vec<(&'static str, Vec<f32>)> {
-    ["R", "G", "B"].iter().enumerate().map(|(c, name)| (*name, image.pixels.iter().map(|p| p[c]).collect())).collect()
-}
 
 /// Writes `image` as `stem.exr` (layer `layer`) and `stem.png` in `dir`.
 pub fn write_image(dir: &Path, stem: &str, layer: &str, image: &Image, tone: &ToneMap) -> Result<()> {

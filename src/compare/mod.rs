@@ -25,6 +25,10 @@ use anyhow::{bail, Context, Result};
 use recon::method::{FrameInput, Input, Inputs, MethodError};
 use recon::metrics::{evaluate, psnr_db, ToneMap, PSNR_CEILING_DB};
 use recon::registry::{self, Registered};
+
+use tracer::limits::{MAX_COMPARE_SIDE, MAX_COMPARE_SPP, MAX_RECON_RAYS, MAX_SPP, MAX_THREADS};
+
+use crate::common::TraceArgs;
 use recon::{Effect, Image};
 use tracer::output::write_atomically;
 use tracer::Accel;
@@ -40,9 +44,11 @@ fn parse_effect(name: &str) -> Result<Effect, String> {
 
 #[derive(clap::Args)]
 pub struct CompareArgs {
-    /// Scene file; the embedded Cornell box when omitted.
-    #[arg(long)]
-    pub scene: Option<PathBuf>,
+    /// The scene, size, seed (default 1 here: the inputs and the ladder use it, the reference two
+    /// seeds derived from it), path length (soft-shadow always uses 1, direct light only),
+    /// threads and progress.
+    #[command(flatten)]
+    pub trace: TraceArgs,
     /// indirect, glossy, ao, dof, motion, dof-motion or soft-shadow.
     #[arg(long, value_parser = parse_effect, required_unless_present = "list_methods")]
     pub effect: Option<Effect>,
@@ -57,13 +63,6 @@ pub struct CompareArgs {
     /// (`lfr compare --list-methods` lists them).
     #[arg(long, value_delimiter = ',', default_value = "box,oidn")]
     pub methods: Vec<String>,
-    #[arg(long)]
-    pub width: Option<u32>,
-    #[arg(long)]
-    pub height: Option<u32>,
-    /// Seed of the inputs and the ladder; the reference uses two seeds derived from it.
-    #[arg(long, default_value_t = 1)]
-    pub seed: u32,
     /// Input samples per pixel of the methods, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "1,2,4,8,16")]
     pub spp: Vec<u32>,
@@ -76,9 +75,6 @@ pub struct CompareArgs {
     /// The path-tracing ladder runs 1, 2, 4, ... up to this many spp.
     #[arg(long, default_value_t = 256)]
     pub pt_max_spp: u32,
-    /// Path length (default: the scene's; soft-shadow always uses 1, direct light only).
-    #[arg(long)]
-    pub max_bounces: Option<u32>,
     /// Ambient-occlusion radius in scene units (default: a tenth of the scene's diagonal).
     #[arg(long)]
     pub ao_radius: Option<f32>,
@@ -101,12 +97,6 @@ pub struct CompareArgs {
     /// Keep the methods' input sample files in OUT/inputs.
     #[arg(long)]
     pub keep_samples: bool,
-    /// Worker threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    pub threads: usize,
-    /// No progress bars.
-    #[arg(long)]
-    pub quiet: bool,
 }
 
 /// The methods named on the command line, in order, without repeats.
@@ -294,18 +284,19 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     let (Some(effect), Some(dir)) = (args.effect, args.out.as_deref()) else {
         bail!("--effect and --out are required (or --list-methods)");
     };
-    if args.spp.is_empty() || args.spp.iter().any(|&s| s == 0 || s > 1 << 16) {
-        bail!("--spp: every input sample count must be in 1..=65536, got {:?}", args.spp);
+    let seed = args.trace.seed.unwrap_or(1);
+    if args.spp.is_empty() || args.spp.iter().any(|&s| s == 0 || s > MAX_COMPARE_SPP) {
+        bail!("--spp: every input sample count must be in 1..={MAX_COMPARE_SPP}, got {:?}", args.spp);
     }
-    if args.reference_spp < 2 || args.reference_spp > 1 << 20 {
-        bail!("--reference-spp must be in 2..=1048576, got {}", args.reference_spp);
+    if args.reference_spp < 2 || args.reference_spp > MAX_SPP {
+        bail!("--reference-spp must be in 2..={MAX_SPP}, got {}", args.reference_spp);
     }
-    if args.pt_max_spp == 0 || args.pt_max_spp > 1 << 16 {
-        bail!("--pt-max-spp must be in 1..=65536, got {}", args.pt_max_spp);
+    if args.pt_max_spp == 0 || args.pt_max_spp > MAX_COMPARE_SPP {
+        bail!("--pt-max-spp must be in 1..={MAX_COMPARE_SPP}, got {}", args.pt_max_spp);
     }
     if let Some(rays) = &args.recon_rays {
-        if rays.is_empty() || rays.contains(&0) {
-            bail!("--recon-rays: every count must be at least 1, got {rays:?}");
+        if rays.is_empty() || rays.iter().any(|&r| r == 0 || r > MAX_RECON_RAYS) {
+            bail!("--recon-rays: every count must be in 1..={MAX_RECON_RAYS}, got {rays:?}");
         }
     }
     let tone_given = match args.exposure {
@@ -314,11 +305,11 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     };
     let methods = resolve_methods(&args.methods, effect)?;
 
-    let scene_text: Vec<u8> = match &args.scene {
+    let scene_text: Vec<u8> = match &args.trace.scene {
         Some(path) => std::fs::read(path).with_context(|| format!("reading the scene {}", path.display()))?,
-        None => crate::DEFAULT_SCENE.as_bytes().to_vec(),
+        None => crate::common::DEFAULT_SCENE.as_bytes().to_vec(),
     };
-    let mut scene = crate::load_scene(args.scene.as_deref())?;
+    let mut scene = crate::common::load_scene(args.trace.scene.as_deref())?;
     if let Some(radius) = args.aperture_radius {
         if !(radius.is_finite() && radius >= 0.0) {
             bail!("--aperture-radius must be finite and at least 0, got {radius}");
@@ -331,10 +322,13 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         }
         scene.camera.focus_distance = distance;
     }
-    let max_bounces = prepare_scene(effect, &mut scene, args.max_bounces)?;
-    let (width, height) = (args.width.unwrap_or(scene.width), args.height.unwrap_or(scene.height));
-    if width == 0 || height == 0 || width > 1 << 14 || height > 1 << 14 {
-        bail!("--width and --height must be in 1..=16384, got {width}x{height}");
+    let max_bounces = prepare_scene(effect, &mut scene, args.trace.max_bounces)?;
+    let (width, height) = (args.trace.width.unwrap_or(scene.width), args.trace.height.unwrap_or(scene.height));
+    if width == 0 || height == 0 || width > MAX_COMPARE_SIDE || height > MAX_COMPARE_SIDE {
+        bail!("--width and --height must be in 1..={MAX_COMPARE_SIDE}, got {width}x{height}");
+    }
+    if args.trace.threads > MAX_THREADS {
+        bail!("--threads must be at most {MAX_THREADS} (0 = all cores), got {}", args.trace.threads);
     }
     let ao_radius = match args.ao_radius {
         Some(r) if !(r.is_finite() && r > 0.0) => bail!("--ao-radius must be positive and finite, got {r}"),
@@ -342,9 +336,17 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         None => default_ao_radius(&scene),
     };
     let accel = Accel::build(&scene)?;
-    let tracing =
-        Tracing { scene: &scene, accel: &accel, effect, width, height, max_bounces, ao_radius, threads: args.threads };
-    let progress = !args.quiet;
+    let tracing = Tracing {
+        scene: &scene,
+        accel: &accel,
+        effect,
+        width,
+        height,
+        max_bounces,
+        ao_radius,
+        threads: args.trace.threads,
+    };
+    let progress = !args.trace.quiet;
     std::fs::create_dir_all(dir.join("images")).with_context(|| format!("creating {}", dir.display()))?;
 
     // The reference.
@@ -357,7 +359,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         cache.display()
     );
     let reference =
-        reference::reference(&tracing, &scene_text, args.reference_spp, args.seed, &cache, !args.no_cache, progress)?;
+        reference::reference(&tracing, &scene_text, args.reference_spp, seed, &cache, !args.no_cache, progress)?;
     eprintln!(
         "  reference: {} spp, {:.1} s{}",
         reference.spp,
@@ -388,7 +390,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     let needs_frame = methods.iter().any(|m| m.input() == Input::Frame);
     for spp in ladder(args.pt_max_spp, if needs_frame { &args.spp } else { &[] }) {
         memory::reset_peak();
-        let traced = tracing.trace(spp, args.seed, false)?;
+        let traced = tracing.trace(spp, seed, false)?;
         let peak = memory::peak_rss_mb();
         let image = traced.frame.color.clone();
         measured.push(context.measure("pt", spp, 0, (traced.seconds, 0.0, 0.0), peak, image, Vec::new())?);
@@ -417,7 +419,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                     if let std::collections::btree_map::Entry::Vacant(entry) = samples.entry(spp) {
                         std::fs::create_dir_all(&inputs_dir)
                             .with_context(|| format!("creating {}", inputs_dir.display()))?;
-                        entry.insert(tracing.dump(spp, args.seed, &inputs_dir)?);
+                        entry.insert(tracing.dump(spp, seed, &inputs_dir)?);
                     }
                     let (dumped, seconds) = &samples[&spp];
                     (Some(dumped.clone()), None, None, *seconds)
@@ -428,7 +430,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                 }
                 Input::Guide => {
                     if let std::collections::btree_map::Entry::Vacant(entry) = guides.entry(spp) {
-                        entry.insert(tracing.guide(spp, args.seed)?);
+                        entry.insert(tracing.guide(spp, seed)?);
                     }
                     let (guide, seconds) = &guides[&spp];
                     (None, None, Some(guide), *seconds)
@@ -448,7 +450,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                 frame,
                 guide,
                 ao_radius,
-                threads: args.threads,
+                threads: args.trace.threads,
             };
             for &recon_rays in &rays {
                 memory::reset_peak();
@@ -515,8 +517,8 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         effect: effect.name().to_string(),
         width,
         height,
-        seed: args.seed,
-        threads: if args.threads == 0 { rayon::current_num_threads() } else { args.threads },
+        seed,
+        threads: if args.trace.threads == 0 { rayon::current_num_threads() } else { args.trace.threads },
         max_bounces,
         ao_radius: (effect == Effect::Ao).then_some(ao_radius),
         tone_map: ToneMapInfo { exposure: tone.exposure, gamma: tone.gamma, exposure_source },

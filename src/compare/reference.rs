@@ -13,7 +13,7 @@ use sha2::{Digest, Sha256};
 use tracer::output::{read_exr, write_atomically, write_exr, Layer};
 
 use super::effect::Tracing;
-use super::images::rgb_channels;
+use crate::convert::rgb_channels;
 
 /// Bumped whenever the tracer's estimators change what a reference contains.
 const ESTIMATOR_VERSION: &str = "lfr-reference/2";

@@ -193,6 +193,48 @@ impl Camera {
 
 pub use shading::concentric_disk;
 
+/// The camera coordinates of one sample.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CameraSample {
+    /// Film position in pixels (origin top-left).
+    pub film: Vec2,
+    /// Position on the unit lens disk (zero for a pinhole).
+    pub lens: Vec2,
+    /// Time in [0, 1] over the shutter (zero without motion).
+    pub time: f32,
+}
+
+/// ∂z/∂x and ∂z/∂y at the hit: depths where the rays through film ± half a pixel (same lens
+/// point) meet the hit's tangent plane. Clamped to |∂z| ≤ z per pixel so grazing surfaces stay
+/// finite.
+pub fn depth_gradient(
+    camera: &Camera,
+    sample: &CameraSample,
+    hit: Vec3,
+    normal: Vec3,
+    width: u32,
+    height: u32,
+) -> Vec2 {
+    let depth = camera.depth(hit);
+    let depth_at = |film: Vec2| -> Option<f32> {
+        let (origin, direction) = camera.generate_ray(film, sample.lens, width, height);
+        let denominator = normal.dot(direction);
+        if denominator.abs() < 1e-8 {
+            return None;
+        }
+        let t = normal.dot(hit - origin) / denominator;
+        (t > 0.0 && t.is_finite()).then(|| camera.depth(origin + direction * t))
+    };
+    let limit = depth.abs();
+    let derivative = |offset: Vec2| -> f32 {
+        match (depth_at(sample.film + offset * 0.5), depth_at(sample.film - offset * 0.5)) {
+            (Some(a), Some(b)) => (a - b).clamp(-limit, limit),
+            _ => 0.0,
+        }
+    };
+    Vec2::new(derivative(Vec2::X), derivative(Vec2::Y))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -261,5 +303,36 @@ mod tests {
         let b = cam.project(focused, Vec2::new(0.9, 0.2), w, h).unwrap();
         assert!((a - b).length() < 1e-3);
         assert!((c1 / 4.0 + c2).abs() < 1e-4);
+    }
+
+    #[test]
+    fn depth_gradient_of_a_fronto_parallel_plane_is_zero_and_of_a_tilted_plane_matches_finite_differences() {
+        let camera = Camera::look_at(Vec3::ZERO, Vec3::Z, Vec3::Y, 60.0, FovAxis::Y);
+        let sample = CameraSample { film: Vec2::new(20.0, 12.0), lens: Vec2::ZERO, time: 0.0 };
+        let (o, d) = camera.generate_ray(sample.film, sample.lens, 40, 30);
+        let flat_hit = o + d * (5.0 / d.z);
+        let g = depth_gradient(&camera, &sample, flat_hit, -Vec3::Z, 40, 30);
+        assert!(g.length() < 1e-5, "{g}");
+
+        // Plane through (0, 0, 5) tilted about the y axis: z = 5 + 0.5 X.
+        let normal = Vec3::new(-0.5, 0.0, 1.0).normalize();
+        let depth_of = |film: Vec2| {
+            let (o, d) = camera.generate_ray(film, Vec2::ZERO, 40, 30);
+            let t = normal.dot(Vec3::new(0.0, 0.0, 5.0) - o) / normal.dot(d);
+            (o + d * t).z
+        };
+        let hit = {
+            let (o, d) = camera.generate_ray(sample.film, Vec2::ZERO, 40, 30);
+            o + d * (normal.dot(Vec3::new(0.0, 0.0, 5.0) - o) / normal.dot(d))
+        };
+        let g = depth_gradient(&camera, &sample, hit, -normal, 40, 30);
+        let expected_x = depth_of(sample.film + Vec2::new(0.01, 0.0)) - depth_of(sample.film - Vec2::new(0.01, 0.0));
+        assert!(
+            (g.x - expected_x / 0.02).abs() < 1e-2 * expected_x.abs() / 0.02 + 1e-4,
+            "{} vs {}",
+            g.x,
+            expected_x / 0.02
+        );
+        assert!(g.y.abs() < 1e-4);
     }
 }

@@ -11,7 +11,7 @@ use glam::{Vec2, Vec3};
 
 use crate::accel::{Accel, Hit};
 use crate::bsdf::{Bsdf, Frame};
-use crate::camera::concentric_disk;
+use crate::camera::{concentric_disk, CameraSample};
 use crate::lights::{triangle_at, triangle_emission, LightSampler};
 use crate::sampler::Sampler;
 use crate::scene::Scene;
@@ -78,17 +78,6 @@ impl FirstHit {
             bsdf: surface.bsdf,
         }
     }
-}
-
-/// The camera coordinates of one sample.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct CameraSample {
-    /// Film position in pixels (origin top-left).
-    pub film: Vec2,
-    /// Position on the unit lens disk (zero for a pinhole).
-    pub lens: Vec2,
-    /// Time in [0, 1] over the shutter (zero without motion).
-    pub time: f32,
 }
 
 /// Kind of a traced ray, for the benchmark's replay.

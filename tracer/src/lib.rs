@@ -13,6 +13,7 @@ pub mod camera;
 pub mod error;
 pub mod integrator;
 pub mod lights;
+pub mod limits;
 pub mod output;
 pub mod render;
 pub mod sampler;

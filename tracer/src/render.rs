@@ -16,11 +16,14 @@ use crate::integrator::{
     preload_vertices, Integrator, NoRecording, PathSample, PathState, RayRecorder, RecordedRay, ShadowTest,
 };
 use crate::lights::LightSampler;
+use crate::limits::{MAX_IMAGE_SIDE, MAX_SPP, MAX_THREADS};
 use crate::sampler::Sampler;
 use crate::scene::Scene;
 
 const TILE: u32 = 16;
 
+/// How to trace an image or a sample dump: size, samples per pixel, seed, path length,
+/// threads and progress; the scene gives what the command line does not.
 #[derive(Clone, Debug)]
 pub struct RenderSettings {
     pub width: u32,
@@ -47,15 +50,22 @@ impl RenderSettings {
         }
     }
 
+    /// Checks the sizes against `crate::limits`; the error names the option.
     pub fn validate(&self) -> Result<(), RenderError> {
-        if self.width == 0 || self.height == 0 {
-            return Err(RenderError::Settings("--width and --height must be at least 1".into()));
+        let (width, height) = (self.width, self.height);
+        if !(1..=MAX_IMAGE_SIDE).contains(&width) || !(1..=MAX_IMAGE_SIDE).contains(&height) {
+            return Err(RenderError::Settings(format!(
+                "--width and --height must be in 1..={MAX_IMAGE_SIDE}, got {width}x{height}"
+            )));
         }
-        if self.width > 1 << 15 || self.height > 1 << 15 {
-            return Err(RenderError::Settings("--width and --height must be at most 32768".into()));
+        if !(1..=MAX_SPP).contains(&self.spp) {
+            return Err(RenderError::Settings(format!("--spp must be in 1..={MAX_SPP}, got {}", self.spp)));
         }
-        if self.spp == 0 {
-            return Err(RenderError::Settings("--spp must be at least 1".into()));
+        if self.threads > MAX_THREADS {
+            return Err(RenderError::Settings(format!(
+                "--threads must be at most {MAX_THREADS} (0 = all cores), got {}",
+                self.threads
+            )));
         }
         Ok(())
     }
@@ -221,6 +231,11 @@ fn tiles(settings: &RenderSettings) -> Vec<(u32, u32)> {
 
 /// A rayon pool whose workers run with FTZ/DAZ set.
 pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool, RenderError> {
+    if threads > MAX_THREADS {
+        return Err(RenderError::Settings(format!(
+            "--threads must be at most {MAX_THREADS} (0 = all cores), got {threads}"
+        )));
+    }
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .start_handler(|_| embree3::enable_ftz_and_daz())

@@ -32,13 +32,14 @@ use std::time::Instant;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use super::{DumpReport, DumpSettings};
+use super::DumpReport;
 use crate::accel::Accel;
 use crate::bsdf::Frame;
 use crate::error::RenderError;
 use crate::integrator::{Integrator, NoRecording, PathStart, SurfacePoint};
 use crate::lights::LightSampler;
 use crate::output::{write_exr, Layer};
+use crate::render::RenderSettings;
 use crate::sampler::Sampler;
 use crate::scene::Scene;
 use shading::sampling::hash_combine;
@@ -124,7 +125,7 @@ fn continuation(
 fn eye_ray(
     integrator: &Integrator,
     direct_only: &Integrator,
-    settings: &DumpSettings,
+    settings: &RenderSettings,
     x: u32,
     y: u32,
     index: u32,
@@ -164,7 +165,7 @@ fn eye_ray(
 fn guide_pixel(
     integrator: &Integrator,
     direct_only: &Integrator,
-    settings: &DumpSettings,
+    settings: &RenderSettings,
     x: u32,
     y: u32,
 ) -> GuidePixel {
@@ -244,7 +245,7 @@ fn guide_pixel(
 }
 
 /// Computes the guide buffers.
-pub fn guide_buffers(scene: &Scene, accel: &Accel, settings: &DumpSettings) -> Result<GuideBuffers, RenderError> {
+pub fn guide_buffers(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result<GuideBuffers, RenderError> {
     settings.validate()?;
     let lights = LightSampler::new(scene);
     let integrator = super::integrator(scene, accel, &lights, settings);
@@ -274,7 +275,7 @@ pub fn guide_buffers(scene: &Scene, accel: &Accel, settings: &DumpSettings) -> R
 }
 
 /// Writes the guide buffers of `scene` as a multi-layer EXR.
-pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) -> Result<DumpReport, RenderError> {
+pub fn dump(scene: &Scene, accel: &Accel, settings: &RenderSettings, path: &Path) -> Result<DumpReport, RenderError> {
     let start = Instant::now();
     let buffers = guide_buffers(scene, accel, settings)?;
     let split = |name: &'static str, data: &[Vec3], labels: [&'static str; 3]| Layer {

@@ -28,15 +28,15 @@
 
 use std::path::Path;
 
-use glam::{Vec2, Vec3};
 use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleKind};
 
-use super::{camera_header, write_samples, DumpReport, DumpSettings};
+use super::{camera_header, write_samples, DumpReport};
 use crate::accel::Accel;
-use crate::camera::Camera;
+use crate::camera::depth_gradient;
 use crate::error::RenderError;
-use crate::integrator::{CameraSample, NoRecording};
+use crate::integrator::NoRecording;
 use crate::lights::LightSampler;
+use crate::render::RenderSettings;
 use crate::sampler::Sampler;
 use crate::scene::Scene;
 
@@ -71,7 +71,7 @@ impl LensTimeLayout {
             + 8 * self.shading as usize
     }
 
-    pub fn header(&self, scene: &Scene, settings: &DumpSettings) -> HeaderSpec {
+    pub fn header(&self, scene: &Scene, settings: &RenderSettings) -> HeaderSpec {
         let f32_field = |name: &str, n: u32, unit: &str, meaning: &str| {
             FieldSpec::new(name, FieldType::F32, n).unit(unit).meaning(meaning)
         };
@@ -143,39 +143,8 @@ impl LensTimeLayout {
     }
 }
 
-/// ∂z/∂x and ∂z/∂y at the hit: depths where the rays through film ± half a pixel (same lens
-/// point) meet the hit's tangent plane. Clamped to |∂z| ≤ z per pixel so grazing surfaces stay
-/// finite.
-pub fn depth_gradient(
-    camera: &Camera,
-    sample: &CameraSample,
-    hit: Vec3,
-    normal: Vec3,
-    width: u32,
-    height: u32,
-) -> Vec2 {
-    let depth = camera.depth(hit);
-    let depth_at = |film: Vec2| -> Option<f32> {
-        let (origin, direction) = camera.generate_ray(film, sample.lens, width, height);
-        let denominator = normal.dot(direction);
-        if denominator.abs() < 1e-8 {
-            return None;
-        }
-        let t = normal.dot(hit - origin) / denominator;
-        (t > 0.0 && t.is_finite()).then(|| camera.depth(origin + direction * t))
-    };
-    let limit = depth.abs();
-    let derivative = |offset: Vec2| -> f32 {
-        match (depth_at(sample.film + offset * 0.5), depth_at(sample.film - offset * 0.5)) {
-            (Some(a), Some(b)) => (a - b).clamp(-limit, limit),
-            _ => 0.0,
-        }
-    };
-    Vec2::new(derivative(Vec2::X), derivative(Vec2::Y))
-}
-
 /// Writes `lens-time` samples of `scene` to `path`.
-pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) -> Result<DumpReport, RenderError> {
+pub fn dump(scene: &Scene, accel: &Accel, settings: &RenderSettings, path: &Path) -> Result<DumpReport, RenderError> {
     dump_with(scene, accel, settings, LensTimeLayout::for_scene(scene), None, path)
 }
 
@@ -184,7 +153,7 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) 
 pub fn dump_for_soft_shadows(
     scene: &Scene,
     accel: &Accel,
-    settings: &DumpSettings,
+    settings: &RenderSettings,
     path: &Path,
 ) -> Result<DumpReport, RenderError> {
     let light = super::light::PlanarLight::find(scene)?;
@@ -195,7 +164,7 @@ pub fn dump_for_soft_shadows(
 fn dump_with(
     scene: &Scene,
     accel: &Accel,
-    settings: &DumpSettings,
+    settings: &RenderSettings,
     layout: LensTimeLayout,
     split_emitter: Option<u32>,
     path: &Path,
@@ -269,37 +238,8 @@ fn dump_with(
 mod tests {
     use super::*;
     use crate::camera::FovAxis;
-
-    #[test]
-    fn depth_gradient_of_a_fronto_parallel_plane_is_zero_and_of_a_tilted_plane_matches_finite_differences() {
-        let camera = Camera::look_at(Vec3::ZERO, Vec3::Z, Vec3::Y, 60.0, FovAxis::Y);
-        let sample = CameraSample { film: Vec2::new(20.0, 12.0), lens: Vec2::ZERO, time: 0.0 };
-        let (o, d) = camera.generate_ray(sample.film, sample.lens, 40, 30);
-        let flat_hit = o + d * (5.0 / d.z);
-        let g = depth_gradient(&camera, &sample, flat_hit, -Vec3::Z, 40, 30);
-        assert!(g.length() < 1e-5, "{g}");
-
-        // Plane through (0, 0, 5) tilted about the y axis: z = 5 + 0.5 X.
-        let normal = Vec3::new(-0.5, 0.0, 1.0).normalize();
-        let depth_of = |film: Vec2| {
-            let (o, d) = camera.generate_ray(film, Vec2::ZERO, 40, 30);
-            let t = normal.dot(Vec3::new(0.0, 0.0, 5.0) - o) / normal.dot(d);
-            (o + d * t).z
-        };
-        let hit = {
-            let (o, d) = camera.generate_ray(sample.film, Vec2::ZERO, 40, 30);
-            o + d * (normal.dot(Vec3::new(0.0, 0.0, 5.0) - o) / normal.dot(d))
-        };
-        let g = depth_gradient(&camera, &sample, hit, -normal, 40, 30);
-        let expected_x = depth_of(sample.film + Vec2::new(0.01, 0.0)) - depth_of(sample.film - Vec2::new(0.01, 0.0));
-        assert!(
-            (g.x - expected_x / 0.02).abs() < 1e-2 * expected_x.abs() / 0.02 + 1e-4,
-            "{} vs {}",
-            g.x,
-            expected_x / 0.02
-        );
-        assert!(g.y.abs() < 1e-4);
-    }
+    use crate::camera::{Camera, CameraSample};
+    use glam::{Vec2, Vec3};
 
     #[test]
     fn grazing_surfaces_give_a_finite_clamped_gradient() {

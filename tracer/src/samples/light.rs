@@ -29,13 +29,12 @@ use std::path::Path;
 use glam::{Mat3, Vec2, Vec3};
 use sampleio::{FieldSpec, FieldType, HeaderSpec, LightGeometry, SampleKind};
 
-use super::lens_time::depth_gradient;
-use super::{camera_header, write_samples, DumpReport, DumpSettings};
+use super::{camera_header, write_samples, DumpReport};
 use crate::accel::Accel;
-use crate::camera::Camera;
+use crate::camera::{depth_gradient, Camera, CameraSample};
 use crate::error::RenderError;
-use crate::integrator::CameraSample;
 use crate::lights::{triangle_at, LightSampler};
+use crate::render::RenderSettings;
 use crate::sampler::Sampler;
 use crate::scene::Scene;
 
@@ -174,7 +173,7 @@ pub fn view_light_density(
 }
 
 /// Writes `light` samples of `scene` to `path`.
-pub fn dump(scene: &Scene, accel: &Accel, settings: &DumpSettings, path: &Path) -> Result<DumpReport, RenderError> {
+pub fn dump(scene: &Scene, accel: &Accel, settings: &RenderSettings, path: &Path) -> Result<DumpReport, RenderError> {
     settings.validate()?;
     let light = PlanarLight::find(scene)?;
     let emission = scene.materials[scene.meshes[light.mesh as usize].material as usize].emission;

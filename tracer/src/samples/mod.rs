@@ -21,39 +21,15 @@ use crate::camera::{Camera, FovAxis};
 use crate::error::RenderError;
 use crate::integrator::Integrator;
 use crate::lights::LightSampler;
+use crate::render::RenderSettings;
 use crate::scene::Scene;
-
-/// Settings shared by every dump.
-#[derive(Clone, Debug)]
-pub struct DumpSettings {
-    pub width: u32,
-    pub height: u32,
-    pub spp: u32,
-    pub seed: u32,
-    pub max_bounces: u32,
-    /// Worker threads; 0 = all cores.
-    pub threads: usize,
-    pub progress: bool,
-}
-
-impl DumpSettings {
-    pub fn validate(&self) -> Result<(), RenderError> {
-        if self.width == 0 || self.height == 0 || self.width > 65536 || self.height > 65536 {
-            return Err(RenderError::Settings("--width and --height must be in 1..=65536".into()));
-        }
-        if self.spp == 0 || self.spp > 1 << 20 {
-            return Err(RenderError::Settings("--spp must be in 1..=1048576".into()));
-        }
-        Ok(())
-    }
-}
 
 /// The path integrator the dumps share, at the dump's resolution and path length.
 pub fn integrator<'a>(
     scene: &'a Scene,
     accel: &'a Accel,
     lights: &'a LightSampler,
-    settings: &DumpSettings,
+    settings: &RenderSettings,
 ) -> Integrator<'a> {
     Integrator::new(scene, accel, lights, settings.max_bounces, settings.width, settings.height)
 }
@@ -119,7 +95,7 @@ pub fn camera_header(camera: &Camera, width: u32, height: u32) -> sampleio::Came
 pub fn write_samples<F>(
     path: &Path,
     spec: HeaderSpec,
-    settings: &DumpSettings,
+    settings: &RenderSettings,
     values_per_sample: usize,
     sample_pixel: F,
 ) -> Result<DumpReport, RenderError>

@@ -51,12 +51,13 @@ use std::path::Path;
 use glam::{Vec2, Vec3};
 use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleKind};
 
-use super::{camera_header, write_samples, DumpReport, DumpSettings};
+use super::{camera_header, write_samples, DumpReport};
 use crate::accel::Accel;
 use crate::bsdf::{luminance, sample_cosine_hemisphere, Bsdf, Frame};
 use crate::error::RenderError;
 use crate::integrator::{FirstHit, Integrator, NoRecording, PathStart, TracedRay};
 use crate::lights::LightSampler;
+use crate::render::RenderSettings;
 use crate::sampler::Sampler;
 use crate::scene::Scene;
 
@@ -285,7 +286,7 @@ fn push_bsdf(values: &mut Vec<f32>, bsdf: &Bsdf) {
 pub fn dump(
     scene: &Scene,
     accel: &Accel,
-    settings: &DumpSettings,
+    settings: &RenderSettings,
     kind: SecondaryKind,
     path: &Path,
 ) -> Result<DumpReport, RenderError> {
@@ -348,7 +349,7 @@ pub fn ao_visible(distance: f32, origin_normal_present: bool, radius: f32) -> bo
 pub fn ambient_occlusion_frame(
     scene: &Scene,
     accel: &Accel,
-    settings: &DumpSettings,
+    settings: &RenderSettings,
     radius: f32,
 ) -> Result<AmbientOcclusionFrame, RenderError> {
     settings.validate()?;

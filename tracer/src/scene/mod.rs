@@ -237,7 +237,7 @@ impl Scene {
         if self.width == 0 || self.height == 0 {
             return Err(SceneError::new(&source, "resolution", "width and height must be at least 1"));
         }
-        if self.width > 1 << 15 || self.height > 1 << 15 {
+        if self.width > crate::limits::MAX_IMAGE_SIDE || self.height > crate::limits::MAX_IMAGE_SIDE {
             return Err(SceneError::new(&source, "resolution", "width and height must be at most 32768"));
         }
         if !self.environment.is_finite() || self.environment.min_element() < 0.0 {

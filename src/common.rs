@@ -1,0 +1,97 @@
+//! What the subcommands share: the embedded default scene and how a scene is loaded, the
+//! scene-and-tracing options every tracing subcommand flattens into its own, and JSON output.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use tracer::limits::MAX_THREADS;
+use tracer::{RenderSettings, Scene};
+
+/// The embedded default scene (scenes/cornell.toml).
+pub const DEFAULT_SCENE: &str = include_str!("../scenes/cornell.toml");
+pub const DEFAULT_SCENE_NAME: &str = "<embedded>/cornell.toml";
+
+/// The scene and how to trace it: what `render`, `dump`, `filter`, `compare` and
+/// `bench-filters` take.
+#[derive(clap::Args, Clone, Debug)]
+pub struct TraceArgs {
+    /// Scene file (.toml, .gltf, .glb, .obj); the embedded Cornell box when omitted.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+    /// Image width (default: the scene's).
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height (default: the scene's).
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Seed of every random number, the reconstructions' too (default 0; `compare` 1).
+    #[arg(long)]
+    pub seed: Option<u32>,
+    /// Maximum number of bounces (default: the scene's).
+    #[arg(long)]
+    pub max_bounces: Option<u32>,
+    /// Worker threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// No progress bars.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// A plain rayon pool of `threads` workers (0 = all cores) for the reconstructions, capped at
+/// `tracer::limits::MAX_THREADS` (the tracer's own pools also set FTZ/DAZ:
+/// `tracer::render::thread_pool`).
+pub fn worker_pool(threads: usize) -> Result<rayon::ThreadPool> {
+    if threads > MAX_THREADS {
+        anyhow::bail!("--threads must be at most {MAX_THREADS} (0 = all cores), got {threads}");
+    }
+    rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("starting the worker threads")
+}
+
+impl TraceArgs {
+    /// The seed, 0 unless given.
+    pub fn seed(&self) -> u32 {
+        self.seed.unwrap_or(0)
+    }
+
+    /// Settings for `scene` at `spp` from these options (the scene's size and path length where
+    /// not given), validated against `tracer::limits`.
+    pub fn settings(&self, scene: &Scene, spp: u32) -> Result<RenderSettings> {
+        let settings = RenderSettings {
+            width: self.width.unwrap_or(scene.width),
+            height: self.height.unwrap_or(scene.height),
+            spp,
+            seed: self.seed(),
+            max_bounces: self.max_bounces.unwrap_or(scene.max_bounces),
+            threads: self.threads,
+            progress: !self.quiet,
+        };
+        settings.validate()?;
+        Ok(settings)
+    }
+}
+
+/// Writes `value` as pretty JSON to `path` through a temporary file (no half-written output);
+/// the error names the file. The benchmarks' `--json`.
+pub fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
+    let json = serde_json::to_vec_pretty(value)?;
+    tracer::output::write_atomically(path, |tmp| std::fs::write(tmp, &json).map_err(|e| e.to_string()))
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
+/// Loads a scene file, or the embedded default when `path` is `None`.
+pub fn load_scene(path: Option<&Path>) -> Result<Scene> {
+    let scene = match path {
+        Some(p) => Scene::load(p)?,
+        None => {
+            let mut scene = tracer::scene::description::parse(DEFAULT_SCENE, Path::new(DEFAULT_SCENE_NAME))?;
+            scene.validate()?;
+            scene
+        }
+    };
+    for warning in &scene.warnings {
+        eprintln!("warning: {}: {warning}", scene.source.display());
+    }
+    Ok(scene)
+}

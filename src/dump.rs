@@ -1,0 +1,81 @@
+//! `lfr dump`: writes samples for the reconstructions and external tools
+//! (docs/sample-format.md), or guide buffers as an EXR.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use tracer::samples::secondary::SecondaryKind;
+use tracer::Accel;
+
+use crate::common::{load_scene, TraceArgs};
+
+/// Sample kinds `lfr dump` writes.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum DumpKind {
+    /// Camera samples over pixel, lens and time for the temporal light field (TLFR).
+    LensTime,
+    /// Rays from a planar area light towards the visible points, for TLFR soft shadows.
+    Light,
+    /// Secondary rays with their radiance for the indirect light field (ILFR).
+    Indirect,
+    /// Cosine-weighted secondary rays with their hit distance (ILFR ambient occlusion).
+    Ao,
+    /// Per-pixel guide buffers for the guided image filter, as a multi-layer EXR.
+    Guide,
+}
+
+#[derive(clap::Args)]
+pub struct DumpArgs {
+    #[command(flatten)]
+    trace: TraceArgs,
+    #[arg(long, value_enum)]
+    kind: DumpKind,
+    /// Samples per pixel.
+    #[arg(long)]
+    spp: u32,
+    /// Output sample file (conventionally .lfrs; .exr for guide buffers).
+    #[arg(long)]
+    out: PathBuf,
+    /// With --kind lens-time: also write `albedo`, `normal` and `radiance_without_light` for
+    /// the soft-shadow reconstruction (needs a planar area light).
+    #[arg(long)]
+    soft_shadow: bool,
+}
+
+pub fn run(args: &DumpArgs) -> Result<()> {
+    let trace = &args.trace;
+    let scene = load_scene(trace.scene.as_deref())?;
+    let settings = trace.settings(&scene, args.spp)?;
+    let accel = Accel::build(&scene)?;
+    let report = match args.kind {
+        DumpKind::LensTime if args.soft_shadow => {
+            tracer::samples::lens_time::dump_for_soft_shadows(&scene, &accel, &settings, &args.out)?
+        }
+        DumpKind::LensTime => tracer::samples::lens_time::dump(&scene, &accel, &settings, &args.out)?,
+        _ if args.soft_shadow => anyhow::bail!("--soft-shadow only applies to --kind lens-time"),
+        DumpKind::Light => tracer::samples::light::dump(&scene, &accel, &settings, &args.out)?,
+        DumpKind::Indirect => {
+            tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::Indirect, &args.out)?
+        }
+        DumpKind::Guide => {
+            if args.out.extension().and_then(|e| e.to_str()).map(|e| e.eq_ignore_ascii_case("exr")) != Some(true) {
+                anyhow::bail!("--out {}: guide buffers are written as an .exr file", args.out.display());
+            }
+            tracer::samples::guide::dump(&scene, &accel, &settings, &args.out)?
+        }
+        DumpKind::Ao => {
+            tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::AmbientOcclusion, &args.out)?
+        }
+    };
+    println!(
+        "wrote {} samples of {} to {} in {:.3} s: {} bytes per record, {:.1} bytes per sample with header and checksums; fields: {}",
+        report.samples,
+        scene.source.display(),
+        args.out.display(),
+        report.seconds,
+        report.record_size,
+        report.bytes_per_sample(),
+        report.fields.join(", "),
+    );
+    Ok(())
+}
