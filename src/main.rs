@@ -1,6 +1,8 @@
 //! `lfr`: the one user-facing command. It orchestrates the tracer (and, as they arrive, the
 //! sample dumps and reconstructions) and times them.
 
+#![forbid(unsafe_code)]
+
 mod bench;
 mod bench_filters;
 mod bench_ilfr;

@@ -1,6 +1,7 @@
 //! The `lfr` command end to end: every scene file renders, and bad input gives a clear error
 //! naming the file and field, a non-zero exit, no panic and no output file.
 
+#[path = "../tracer/tests/common/mod.rs"]
 mod common;
 
 use std::path::{Path, PathBuf};

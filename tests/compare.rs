@@ -4,6 +4,7 @@
 //! reproduces every number, an all-black reference scores as documented, and bad input fails
 //! cleanly.
 
+#[path = "../tracer/tests/common/mod.rs"]
 mod common;
 
 use std::path::Path;

@@ -2,6 +2,7 @@
 //! reprojection (Eq. 2–4) against the tracer's projection of the moving geometry, and the
 //! radius R measured on the tracer's sampling pattern.
 
+#[path = "../tracer/tests/common/mod.rs"]
 mod common;
 
 use common::{emissive_polygon, scene_from_toml, SQUARE_AT_DEPTH_4};

@@ -4,6 +4,7 @@
 //! Data flow: `scene::Scene::load` → `accel::Accel::build` → `render::render` → `output`.
 
 // `!(x > 0.0)` is used on purpose throughout: unlike `x <= 0.0` it also rejects NaN.
+#![forbid(unsafe_code)]
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod accel;

@@ -53,7 +53,7 @@ fn octahedral(column: &[f32], i: usize) -> Vec3 {
 /// match the stored 16,384-spp reference of the same scene.
 #[test]
 fn indirect_samples_reproduce_the_reference_image() {
-    let scene = scene_from_toml(include_str!("../scenes/cornell.toml"));
+    let scene = scene_from_toml(include_str!("../../scenes/cornell.toml"));
     let (_dir, file) = dump_file(&scene, SecondaryKind::Indirect, (32, 32), 64, 77);
     assert_eq!(
         names(&file),
@@ -87,7 +87,7 @@ fn indirect_samples_reproduce_the_reference_image() {
             sum_sq[c] += (estimate[c] as f64).powi(2);
         }
     }
-    let reference = project_root().join("tests/data/cornell-32-reference.exr");
+    let reference = project_root().join("tracer/tests/data/cornell-32-reference.exr");
     for (c, channel) in ["R", "G", "B"].iter().enumerate() {
         let mean = sum[c] / n as f64;
         let standard_error = ((sum_sq[c] / n as f64 - mean * mean) / n as f64).sqrt();
@@ -210,7 +210,7 @@ fn assert_origin_bsdf_reproduces_the_weight(scene: &Scene, file: &SampleFile) {
 
 #[test]
 fn secondary_geometry_is_consistent() {
-    let scene = scene_from_toml(include_str!("../scenes/cornell.toml"));
+    let scene = scene_from_toml(include_str!("../../scenes/cornell.toml"));
     let (_dir, file) = dump_file(&scene, SecondaryKind::Indirect, (16, 16), 8, 5);
     let (direction, origin, hit) =
         (file.column("direction").unwrap(), file.column("origin").unwrap(), file.column("hit").unwrap());

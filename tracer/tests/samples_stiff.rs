@@ -88,7 +88,7 @@ const SPIKE: &str = r#"
 
 #[test]
 fn one_pixel_one_sample_for_every_kind() {
-    let scene = scene_from_toml(include_str!("../scenes/cornell.toml"));
+    let scene = scene_from_toml(include_str!("../../scenes/cornell.toml"));
     let files = dump_all(&scene, &settings(1, 1, 1));
     assert_eq!(files.len(), 4);
     for (kind, file, _dir) in &files {

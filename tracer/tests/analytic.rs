@@ -163,7 +163,7 @@ fn motion_blur_coverage_is_the_time_fraction() {
 /// Same seed, same image, bit for bit, whatever the thread count.
 #[test]
 fn renders_are_bit_identical_across_thread_counts() {
-    let scene = scene_from_toml(include_str!("../scenes/cornell.toml"));
+    let scene = scene_from_toml(include_str!("../../scenes/cornell.toml"));
     let one = render_with_threads(&scene, 40, 24, 4, 7, 1);
     let two = render_with_threads(&scene, 40, 24, 4, 7, 2);
     let three = render_with_threads(&scene, 40, 24, 4, 7, 3);
@@ -178,7 +178,7 @@ fn renders_are_bit_identical_across_thread_counts() {
 
 #[test]
 fn direct_plus_indirect_is_the_beauty_and_layers_are_finite() {
-    let scene = scene_from_toml(include_str!("../scenes/cornell.toml"));
+    let scene = scene_from_toml(include_str!("../../scenes/cornell.toml"));
     let frame = render(&scene, 16, 16, 8, 5);
     for i in 0..frame.pixel_count() {
         let sum = frame.direct[i] + frame.indirect[i];
@@ -195,7 +195,7 @@ fn direct_plus_indirect_is_the_beauty_and_layers_are_finite() {
 
 #[test]
 fn stiff_cases_one_pixel_one_sample_empty_scene_and_spikes_stay_finite() {
-    let cornell = scene_from_toml(include_str!("../scenes/cornell.toml"));
+    let cornell = scene_from_toml(include_str!("../../scenes/cornell.toml"));
     let frame = render(&cornell, 1, 1, 1, 0);
     assert!(frame.beauty[0].is_finite());
     assert_eq!(frame.variance[0], Vec3::ZERO, "one sample has no variance estimate");

@@ -2,8 +2,8 @@
 //! compared per pixel with a stored high-sample reference by a z-test that uses both images'
 //! variances, never by exact equality.
 //!
-//! The reference `tests/data/cornell-32-reference.exr` was made with
-//! `lfr render --width 32 --height 32 --spp 16384 --seed 987654 --out tests/data/cornell-32-reference.exr`
+//! The reference `tracer/tests/data/cornell-32-reference.exr` was made with
+//! `lfr render --width 32 --height 32 --spp 16384 --seed 987654 --out tracer/tests/data/cornell-32-reference.exr`
 //! (the embedded Cornell box). Regenerate it when the scene or the light transport changes on
 //! purpose, and say why in the commit.
 
@@ -13,8 +13,8 @@ use common::{exr_channel, project_root, render, scene_from_toml};
 
 /// Per-pixel z-test pass fraction and the z-score of the image means, per channel.
 fn z_statistics(scale: f32) -> (f64, [f64; 3]) {
-    let reference = project_root().join("tests/data/cornell-32-reference.exr");
-    let scene = scene_from_toml(include_str!("../scenes/cornell.toml"));
+    let reference = project_root().join("tracer/tests/data/cornell-32-reference.exr");
+    let scene = scene_from_toml(include_str!("../../scenes/cornell.toml"));
     let frame = render(&scene, 32, 32, 1024, 4242);
     let channels = ["R", "G", "B"];
     let reference_values: Vec<Vec<f32>> = channels.iter().map(|c| exr_channel(&reference, c)).collect();

@@ -96,7 +96,7 @@ fn assert_wavefront_matches_path_at_a_time(scene: &Scene, width: u32, height: u3
 #[test]
 fn wavefront_render_equals_one_path_at_a_time_on_the_cornell_box() {
     // A width that is not a multiple of the 16-pixel tile, so partial tiles are covered too.
-    let scene = scene_from_toml(include_str!("../scenes/cornell.toml"));
+    let scene = scene_from_toml(include_str!("../../scenes/cornell.toml"));
     assert_wavefront_matches_path_at_a_time(&scene, 21, 18, 3, 5);
 }
 

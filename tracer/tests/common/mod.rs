@@ -1,4 +1,5 @@
-//! Helpers shared by the integration tests.
+//! Helpers shared by the integration tests: the tracer's own (`tracer/tests`) and, through
+//! `#[path]`, the command's (`tests/` at the workspace root), so there is one copy.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
@@ -60,8 +61,10 @@ pub fn emissive_polygon(aperture: f32, focus: f32, emission: f32, points: &[[f32
 pub const SQUARE_AT_DEPTH_4: [[f32; 3]; 4] =
     [[-0.25, -0.25, 4.0], [0.25, -0.25, 4.0], [0.25, 0.25, 4.0], [-0.25, 0.25, 4.0]];
 
+/// The workspace root (where `scenes/` is), whichever crate's test includes this file.
 pub fn project_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+    let manifest = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    manifest.ancestors().find(|dir| dir.join("scenes/cornell.toml").is_file()).unwrap_or(&manifest).to_path_buf()
 }
 
 /// The third-party scene folder: $LFR_SCENES or ../shared/scenes. Panics (fails the test) when
