@@ -121,6 +121,9 @@ pub struct Inputs<'a> {
     pub guide: Option<&'a GuideInput>,
     /// Ambient-occlusion radius in scene units (`Effect::Ao`).
     pub ao_radius: f32,
+    /// Seed of the method's own random numbers (reconstruction locations and rays): the seed
+    /// the inputs were traced with, so that one seed fixes every bit of a comparison.
+    pub seed: u32,
     /// Worker threads; 0 = all cores.
     pub threads: usize,
 }

@@ -450,6 +450,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                 frame,
                 guide,
                 ao_radius,
+                seed,
                 threads: args.trace.threads,
             };
             for &recon_rays in &rays {

@@ -240,6 +240,7 @@ mod tests {
             frame: Some(frame),
             guide: None,
             ao_radius: 1.0,
+            seed: 0,
             threads: 0,
         }
     }

@@ -46,7 +46,7 @@ impl Method for Ilfr {
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        run_ilfr("ilfr", inputs, IlfrSettings { recon_rays, ..IlfrSettings::default() })
+        run_ilfr("ilfr", inputs, IlfrSettings { recon_rays, seed: inputs.seed, ..IlfrSettings::default() })
     }
 }
 
@@ -66,7 +66,8 @@ impl Method for IlfrRecursive {
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        let settings = IlfrSettings { recon_rays, recursive_passes: self.passes, ..IlfrSettings::default() };
+        let settings =
+            IlfrSettings { recon_rays, seed: inputs.seed, recursive_passes: self.passes, ..IlfrSettings::default() };
         run_ilfr("ilfr-recursive", inputs, settings)
     }
 }
@@ -91,7 +92,7 @@ impl Method for IlfrDof {
             return Err(MethodError::Unsupported(format!("{name} does not reconstruct {}", inputs.effect.name())));
         }
         let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed(format!("{name} needs a sample file")))?;
-        let settings = IlfrSettings { recon_rays, ..IlfrSettings::default() };
+        let settings = IlfrSettings { recon_rays, seed: inputs.seed, ..IlfrSettings::default() };
         let start = Instant::now();
         let file = SampleFile::open(path)?;
         let (samples, camera, ray_stats) = read_primary_rays(&file).map_err(MethodError::Unsupported)?;

@@ -188,13 +188,20 @@ impl SplitMix {
     }
 }
 
-/// The seed of `measure_radius`'s reprojections.
+/// The seed of `measure_radius`'s reprojections, combined with the run's seed (seed 0 keeps it).
 const REPROJECTION_SEED: u64 = 0x5eed_0fd1_5e75_0000;
 
 /// R measured from a file's samples (`samples` row-major by pixel, `spp` per pixel, image
 /// `width` × `height`): the largest dispersion over the identity and `trials` random
-/// reprojections (see the module notes). `None` when there is no sample.
-pub fn measure_radius(samples: &[LensTimeSample], width: u32, height: u32, spp: u32, trials: u32) -> Option<f32> {
+/// reprojections drawn from `seed` (see the module notes). `None` when there is no sample.
+pub fn measure_radius(
+    samples: &[LensTimeSample],
+    width: u32,
+    height: u32,
+    spp: u32,
+    trials: u32,
+    seed: u32,
+) -> Option<f32> {
     if samples.is_empty() || spp == 0 || width == 0 || height == 0 {
         return None;
     }
@@ -217,7 +224,7 @@ pub fn measure_radius(samples: &[LensTimeSample], width: u32, height: u32, spp: 
     let margin = (3.0 + 4.0 / (spp as f32).sqrt()).min(size);
     let step = 0.1 / (spp as f32).sqrt();
     let region = [lo[0], lo[1], lo[0] + size, lo[1] + size];
-    let mut rng = SplitMix(REPROJECTION_SEED);
+    let mut rng = SplitMix(REPROJECTION_SEED ^ u64::from(seed));
     // The trials' random reprojections, drawn in order; the trials then run in parallel and
     // their maximum does not depend on the order they finish in.
     let reprojections: Vec<(f32, [f32; 2], Option<[f32; 3]>)> = (0..=trials)
@@ -339,7 +346,7 @@ mod tests {
         let mut previous = f32::INFINITY;
         for spp in [1u32, 4, 16, 64] {
             let (w, h) = (72, 64);
-            let r = measure_radius(&jittered(w, h, spp, 3 + spp as u64), w, h, spp, 16).unwrap();
+            let r = measure_radius(&jittered(w, h, spp, 3 + spp as u64), w, h, spp, 16, 0).unwrap();
             let scaled = r * (spp as f32).sqrt();
             assert!((1.2..=3.0).contains(&scaled), "spp {spp}: R = {r}, R·sqrt(spp) = {scaled}");
             assert!(r < previous, "R must fall as spp grows");
@@ -353,13 +360,13 @@ mod tests {
         // reprojected value (the paper's observation for Sobol' patterns).
         let (w, h, spp) = (48, 48, 16);
         let samples = jittered(w, h, spp, 5);
-        let identity = measure_radius(&samples, w, h, spp, 0).unwrap();
-        let reprojected = measure_radius(&samples, w, h, spp, 16).unwrap();
+        let identity = measure_radius(&samples, w, h, spp, 0, 0).unwrap();
+        let reprojected = measure_radius(&samples, w, h, spp, 16, 0).unwrap();
         assert!(reprojected > 1.2 * identity, "{identity} vs {reprojected}");
         // Tiny images and one pixel still give a finite radius.
         let one = jittered(1, 1, 4, 9);
-        let r = measure_radius(&one, 1, 1, 4, 8).unwrap();
+        let r = measure_radius(&one, 1, 1, 4, 8, 0).unwrap();
         assert!(r.is_finite() && r > 0.0);
-        assert_eq!(measure_radius(&[], 1, 1, 4, 8), None);
+        assert_eq!(measure_radius(&[], 1, 1, 4, 8, 0), None);
     }
 }

@@ -290,7 +290,7 @@ mod tests {
         let (samples, colours) = sample_scene(&lens, &rects, spp, [0.5; 3], 3);
         let model = lens.model();
         let z_near = near_limit(samples.iter().map(|s| s.z));
-        let radius = measure_radius(&samples, width, height, spp, 8).unwrap();
+        let radius = measure_radius(&samples, width, height, spp, 8, 0).unwrap();
         let start = std::time::Instant::now();
         let (tree, samples, colours) = indexed(&samples, &colours, &model, z_near, (width, height), radius);
         let build_s = start.elapsed().as_secs_f64();

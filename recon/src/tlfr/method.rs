@@ -64,8 +64,12 @@ impl Method for TlfrMethod {
             .samples
             .as_deref()
             .ok_or_else(|| MethodError::Failed(format!("{} needs a sample file", self.name)))?;
-        let settings =
-            TlfrSettings { locations: recon_rays, bandwidth_scale: self.bandwidth_scale, ..TlfrSettings::default() };
+        let settings = TlfrSettings {
+            locations: recon_rays,
+            seed: inputs.seed,
+            bandwidth_scale: self.bandwidth_scale,
+            ..TlfrSettings::default()
+        };
         let output = if inputs.effect == Effect::SoftShadow {
             let light_path = inputs.light_samples.as_ref().ok_or_else(|| {
                 MethodError::Failed(format!(
@@ -122,7 +126,7 @@ pub fn reconstruct_file_with(
     }
     let has_lens = loaded.has_lens || settings.refocus.is_some_and(|(_, a)| a > 0.0);
     let z_near = near_limit(loaded.samples.iter().map(|s| s.z));
-    let radius = measure_radius(&loaded.samples, width, height, loaded.spp, RADIUS_TRIALS)
+    let radius = measure_radius(&loaded.samples, width, height, loaded.spp, RADIUS_TRIALS, settings.seed)
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(1.0);
     let built = Instant::now();

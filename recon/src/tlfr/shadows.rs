@@ -378,7 +378,7 @@ pub fn reconstruct_soft_shadow(
 
     let (width, height) = (camera.width, camera.height);
     let radius_start = Instant::now();
-    let radius = measure_radius(&camera.samples, width, height, camera.spp, RADIUS_TRIALS)
+    let radius = measure_radius(&camera.samples, width, height, camera.spp, RADIUS_TRIALS, settings.seed)
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(1.0);
     let radius_s = radius_start.elapsed().as_secs_f64();
