@@ -7,7 +7,7 @@ mod common;
 use std::path::Path;
 use std::process::{Command, Output};
 
-use common::{exr_channel, project_root, scene_from_toml};
+use common::{exr_channel, furnace, project_root, SceneToml};
 use glam::{Vec2, Vec3};
 use tracer::Accel;
 use tracer::RenderSettings;
@@ -19,32 +19,6 @@ fn lfr(args: &[&str]) -> Output {
 fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
-
-/// A white (albedo 1) concave scene in a uniform environment: every hit looks like the
-/// environment, whatever splits it into direct and indirect light.
-const FURNACE: &str = r#"
-[render]
-max_bounces = 1000
-environment = [0.5, 1.0, 2.0]
-[camera]
-position = [0, 0, 6]
-look_at = [0, 0, 0]
-fov = 50
-[[material]]
-name = "white"
-base_color = [1, 1, 1]
-specular = 0
-[[mesh]]
-shape = "sphere"
-center = [-0.8, 0, 0]
-radius = 1
-material = "white"
-[[mesh]]
-shape = "box"
-min = [0.5, -1, -1]
-max = [2.0, 1, 1]
-material = "white"
-"#;
 
 fn run_filter(dir: &Path, scene: &Path, name: &str, extra: &[&str]) -> std::path::PathBuf {
     let out = dir.join(name);
@@ -70,7 +44,7 @@ fn run_filter(dir: &Path, scene: &Path, name: &str, extra: &[&str]) -> std::path
 fn the_composite_of_a_white_furnace_is_the_environment() {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("furnace.toml");
-    std::fs::write(&scene, FURNACE).unwrap();
+    std::fs::write(&scene, furnace().text()).unwrap();
     let environment = [0.5f32, 1.0, 2.0];
     let runs: [(&str, &[&str]); 4] =
         [("gif", &[]), ("gif", &["--subsample", "2"]), ("bilateral", &[]), ("atrous-sn", &[])];
@@ -142,32 +116,12 @@ fn bad_filter_options_are_clear_errors_without_output() {
 /// the secondary-hit normal is a unit vector wherever a path reached a second surface.
 #[test]
 fn eye_rays_lie_in_their_pixels_and_see_the_geometry() {
-    let scene = scene_from_toml(
-        r#"
-        [render]
-        max_bounces = 8
-        environment = [0.5, 1.0, 2.0]
-        [camera]
-        position = [0, 0, 4]
-        look_at = [0, 0, 0]
-        fov = 40
-        [[material]]
-        name = "white"
-        base_color = [0.8, 0.8, 0.8]
-        specular = 0
-        [[mesh]]
-        shape = "sphere"
-        center = [0, 0, 0]
-        radius = 1
-        subdivisions = 5
-        material = "white"
-        [[mesh]]
-        shape = "box"
-        min = [-3, -1.6, -3]
-        max = [3, -1.5, 3]
-        material = "white"
-        "#,
-    );
+    let scene = SceneToml::new(8, Some([0.5, 1.0, 2.0]))
+        .camera([0.0, 0.0, 4.0], [0.0; 3], 40.0, "")
+        .diffuse("white", [0.8; 3])
+        .sphere("white", [0.0; 3], 1.0, "subdivisions = 5\n")
+        .raw("[[mesh]]\nshape = \"box\"\nmin = [-3, -1.6, -3]\nmax = [3, -1.5, 3]\nmaterial = \"white\"")
+        .scene();
     let accel = Accel::build(&scene).unwrap();
     let (width, height, spp) = (10, 8, 4);
     let settings = RenderSettings { width, height, spp, seed: 3, max_bounces: 8, threads: 0, progress: false };

@@ -5,7 +5,7 @@
 #[path = "../tracer/tests/common/mod.rs"]
 mod common;
 
-use common::{emissive_polygon, scene_from_toml, SQUARE_AT_DEPTH_4};
+use common::{emissive_polygon, SceneToml, FLOOR, LAMP, SQUARE_AT_DEPTH_4};
 use glam::{Vec2, Vec3};
 use recon::tlfr::dispersion::measure_radius;
 use recon::tlfr::reprojection::{near_limit, reproject, LensTime};
@@ -260,38 +260,14 @@ fn a_huge_aperture_spreads_the_square_as_the_thin_lens_does() {
 /// The lamp-and-blocker scene of the soft-shadow tests; the lamp moves by `lamp_motion` over the
 /// shutter.
 fn lamp_and_blocker(lamp_motion: [f32; 3]) -> Scene {
-    scene_from_toml(&format!(
-        r#"
-        [render]
-        max_bounces = 1
-        [camera]
-        position = [0.3, 1.6, 1.2]
-        look_at = [0, 0, 0]
-        fov = 60
-        [[material]]
-        name = "lamp"
-        base_color = [0, 0, 0]
-        specular = 0
-        emission = [4, 4, 4]
-        [[material]]
-        name = "grey"
-        base_color = [0.5, 0.5, 0.5]
-        specular = 0
-        [[mesh]]
-        shape = "polygon"
-        material = "lamp"
-        points = [[-0.5, 2, -0.5], [0.5, 2, -0.5], [0.5, 2, 0.5], [-0.5, 2, 0.5]]
-        motion = {lamp_motion:?}
-        [[mesh]]
-        shape = "polygon"
-        material = "grey"
-        points = [[-0.2, 0.8, -0.2], [0.2, 0.8, -0.2], [0.2, 0.8, 0.2], [-0.2, 0.8, 0.2]]
-        [[mesh]]
-        shape = "polygon"
-        material = "grey"
-        points = [[-5, 0, -5], [-5, 0, 5], [5, 0, 5], [5, 0, -5]]
-        "#
-    ))
+    SceneToml::new(1, None)
+        .camera([0.3, 1.6, 1.2], [0.0; 3], 60.0, "")
+        .emitter("lamp", [4.0; 3], "")
+        .diffuse("grey", [0.5; 3])
+        .polygon("lamp", &LAMP, &format!("motion = {lamp_motion:?}\n"))
+        .polygon("grey", &[[-0.2, 0.8, -0.2], [0.2, 0.8, -0.2], [0.2, 0.8, 0.2], [-0.2, 0.8, 0.2]], "")
+        .polygon("grey", &FLOOR, "")
+        .scene()
 }
 
 /// Reconstructs the soft shadows of `scene` from 4 spp at 32² and returns the image with the

@@ -5,38 +5,14 @@ mod common;
 
 use std::f32::consts::PI;
 
-use common::{mean, render, render_with_threads, scene_from_toml};
+use common::{furnace, mean, render, render_with_threads, scene_from_toml, SceneToml};
 use glam::Vec3;
 
 /// A white (albedo 1) Lambertian object inside a uniform environment of radiance E looks like E
 /// from everywhere, however many bounces it takes (concave objects included).
 #[test]
 fn white_furnace_radiance_equals_the_environment() {
-    let scene = scene_from_toml(
-        r#"
-        [render]
-        max_bounces = 1000
-        environment = [0.5, 1.0, 2.0]
-        [camera]
-        position = [0, 0, 6]
-        look_at = [0, 0, 0]
-        fov = 50
-        [[material]]
-        name = "white"
-        base_color = [1, 1, 1]
-        specular = 0
-        [[mesh]]
-        shape = "sphere"
-        center = [-0.8, 0, 0]
-        radius = 1
-        material = "white"
-        [[mesh]]   # an open box: concave, so light bounces many times inside
-        shape = "box"
-        min = [0.5, -1, -1]
-        max = [2.0, 1, 1]
-        material = "white"
-        "#,
-    );
+    let scene = furnace().scene();
     let frame = render(&scene, 32, 32, 64, 1);
     let m = mean(&frame.beauty);
     let expected = Vec3::new(0.5, 1.0, 2.0);
@@ -134,26 +110,16 @@ fn lambertian_plane_under_a_square_area_light_matches_the_form_factor() {
 /// (its width) / (distance travelled) of the time.
 #[test]
 fn motion_blur_coverage_is_the_time_fraction() {
-    let scene = scene_from_toml(
-        r#"
-        [render]
-        max_bounces = 0
-        [camera]
-        position = [0, 0, 10]
-        look_at = [0, 0, 0]
-        fov = 2
-        [[material]]
-        name = "lamp"
-        base_color = [0, 0, 0]
-        specular = 0
-        emission = [1, 1, 1]
-        [[mesh]]   # 0.5 wide, moves 2.0 to the right: a point on its path is covered 25% of the time
-        shape = "polygon"
-        material = "lamp"
-        points = [[-1.25, -1, 0], [-0.75, -1, 0], [-0.75, 1, 0], [-1.25, 1, 0]]
-        motion = [2.0, 0, 0]
-        "#,
-    );
+    let scene = SceneToml::new(0, None)
+        .camera([0.0, 0.0, 10.0], [0.0; 3], 2.0, "")
+        .emitter("lamp", [1.0; 3], "")
+        // 0.5 wide, moves 2.0 to the right: a point on its path is covered 25% of the time.
+        .polygon(
+            "lamp",
+            &[[-1.25, -1.0, 0.0], [-0.75, -1.0, 0.0], [-0.75, 1.0, 0.0], [-1.25, 1.0, 0.0]],
+            "motion = [2.0, 0, 0]\n",
+        )
+        .scene();
     assert!(scene.has_motion());
     let frame = render(&scene, 4, 4, 512, 4);
     let got = mean(&frame.beauty).x;

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{project_root, scene_from_toml};
+use common::{project_root, scene_from_toml, SceneToml, FLOOR, LAMP};
 use glam::{Vec2, Vec3};
 use sampleio::SampleFile;
 use tracer::samples::light::{dump, PlanarLight};
@@ -137,35 +137,14 @@ fn lamp_over_floor(point_light: bool) -> Scene {
     } else {
         ""
     };
-    scene_from_toml(&format!(
-        r#"
-        [render]
-        max_bounces = 1
-        [camera]
-        position = [0, 1.5, 0.01]
-        look_at = [0, 0, 0]
-        up = [0, 0, 1]
-        fov = 50
-        [[material]]
-        name = "lamp"
-        base_color = [0, 0, 0]
-        specular = 0
-        emission = [4, 4, 4]
-        [[material]]
-        name = "floor"
-        base_color = [0.5, 0.5, 0.5]
-        specular = 0
-        [[mesh]]
-        shape = "polygon"
-        material = "lamp"
-        points = [[-0.5, 2, -0.5], [0.5, 2, -0.5], [0.5, 2, 0.5], [-0.5, 2, 0.5]]
-        [[mesh]]
-        shape = "polygon"
-        material = "floor"
-        points = [[-5, 0, -5], [-5, 0, 5], [5, 0, 5], [5, 0, -5]]
-        {point}
-        "#
-    ))
+    SceneToml::new(1, None)
+        .camera([0.0, 1.5, 0.01], [0.0; 3], 50.0, "up = [0, 0, 1]\n")
+        .emitter("lamp", [4.0; 3], "")
+        .diffuse("floor", [0.5; 3])
+        .polygon("lamp", &LAMP, "")
+        .polygon("floor", &FLOOR, "")
+        .raw(point)
+        .scene()
 }
 
 fn dump_soft_shadow_lens_time(scene: &Scene, size: (u32, u32), spp: u32) -> (tempfile::TempDir, SampleFile) {

@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{exr_channel, project_root, render, scene_from_toml, shared_scenes};
+use common::{exr_channel, project_root, render, scene_from_toml, shared_scenes, SceneToml};
 use glam::Vec3;
 use sampleio::SampleFile;
 use tracer::samples::secondary::{decode_octahedral, dump, SecondaryKind};
@@ -308,27 +308,11 @@ fn lens_motion_and_gloss_add_their_fields_within_120_bytes() {
 /// guide hit is E: direct (environment seen straight) plus indirect (via the sphere) add up to E.
 #[test]
 fn guide_buffers_in_the_furnace_add_up_to_the_environment() {
-    let scene = scene_from_toml(
-        r#"
-        [render]
-        max_bounces = 1000
-        environment = [0.5, 1.0, 2.0]
-        [camera]
-        position = [0, 0, 4]
-        look_at = [0, 0, 0]
-        fov = 20
-        [[material]]
-        name = "white"
-        base_color = [1, 1, 1]
-        specular = 0
-        [[mesh]]
-        shape = "sphere"
-        center = [0, 0, 0]
-        radius = 1
-        subdivisions = 5
-        material = "white"
-        "#,
-    );
+    let scene = SceneToml::new(1000, Some([0.5, 1.0, 2.0]))
+        .camera([0.0, 0.0, 4.0], [0.0; 3], 20.0, "")
+        .diffuse("white", [1.0; 3])
+        .sphere("white", [0.0; 3], 1.0, "subdivisions = 5\n")
+        .scene();
     let accel = Accel::build(&scene).unwrap();
     let settings =
         RenderSettings { width: 12, height: 12, spp: 256, seed: 2, max_bounces: 1000, threads: 0, progress: false };

@@ -16,6 +16,87 @@ pub fn scene_from_toml(text: &str) -> Scene {
     scene
 }
 
+/// An inline scene description built from the pieces the tests repeat, so that each test
+/// states only what its scene is: `[render]`, the camera, diffuse and emitting materials,
+/// polygons and spheres; anything else as raw TOML.
+#[derive(Clone, Debug)]
+pub struct SceneToml {
+    text: String,
+}
+
+impl SceneToml {
+    /// `[render]` with the path length and, if given, a uniform environment.
+    pub fn new(max_bounces: u32, environment: Option<[f32; 3]>) -> SceneToml {
+        let mut text = format!("[render]\nmax_bounces = {max_bounces}\n");
+        if let Some(rgb) = environment {
+            text += &format!("environment = {rgb:?}\n");
+        }
+        SceneToml { text }
+    }
+
+    /// A pinhole camera at `position` looking at `look_at` with a `fov`-degree field of view;
+    /// `extra` lines (`up = ...`, `aperture_radius = ...`) are added to its table.
+    pub fn camera(mut self, position: [f32; 3], look_at: [f32; 3], fov: f32, extra: &str) -> SceneToml {
+        self.text += &format!("[camera]\nposition = {position:?}\nlook_at = {look_at:?}\nfov = {fov:?}\n{extra}");
+        self
+    }
+
+    /// A Lambertian material (`specular = 0`) of albedo `base_color`.
+    pub fn diffuse(mut self, name: &str, base_color: [f32; 3]) -> SceneToml {
+        self.text += &format!("[[material]]\nname = {name:?}\nbase_color = {base_color:?}\nspecular = 0\n");
+        self
+    }
+
+    /// A black emitter of radiance `emission`; `extra` lines are added to its table.
+    pub fn emitter(mut self, name: &str, emission: [f32; 3], extra: &str) -> SceneToml {
+        self.text += &format!(
+            "[[material]]\nname = {name:?}\nbase_color = [0, 0, 0]\nspecular = 0\nemission = {emission:?}\n{extra}"
+        );
+        self
+    }
+
+    /// A polygon of `material` through `points`; `extra` lines (`motion = ...`) are added.
+    pub fn polygon(mut self, material: &str, points: &[[f32; 3]], extra: &str) -> SceneToml {
+        self.text += &format!("[[mesh]]\nshape = \"polygon\"\nmaterial = {material:?}\npoints = {points:?}\n{extra}");
+        self
+    }
+
+    /// A sphere of `material`; `extra` lines (`subdivisions = ...`) are added.
+    pub fn sphere(mut self, material: &str, center: [f32; 3], radius: f32, extra: &str) -> SceneToml {
+        self.text += &format!(
+            "[[mesh]]\nshape = \"sphere\"\nmaterial = {material:?}\ncenter = {center:?}\nradius = {radius:?}\n{extra}"
+        );
+        self
+    }
+
+    /// Any other TOML, appended as it is.
+    pub fn raw(mut self, toml: &str) -> SceneToml {
+        self.text += toml;
+        self.text += "\n";
+        self
+    }
+
+    pub fn text(&self) -> &str {
+        &self.text
+    }
+
+    /// The scene, parsed and validated.
+    pub fn scene(&self) -> Scene {
+        scene_from_toml(&self.text)
+    }
+}
+
+/// The white furnace: a white (albedo 1) Lambertian sphere beside an open (concave) box in a
+/// uniform environment (0.5, 1, 2), seen from (0, 0, 6); every hit looks like the environment,
+/// however many bounces it takes.
+pub fn furnace() -> SceneToml {
+    SceneToml::new(1000, Some([0.5, 1.0, 2.0]))
+        .camera([0.0, 0.0, 6.0], [0.0; 3], 50.0, "")
+        .diffuse("white", [1.0; 3])
+        .sphere("white", [-0.8, 0.0, 0.0], 1.0, "")
+        .raw("[[mesh]]\nshape = \"box\"\nmin = [0.5, -1, -1]\nmax = [2.0, 1, 1]\nmaterial = \"white\"")
+}
+
 /// A camera at the origin looking along +z (40° field of view, lens radius `aperture`, focus at
 /// `focus`) at one two-sided emissive polygon of radiance `emission` moving by `motion` over the
 /// shutter, in a black void; paths end at their first hit. The text, for tests that write it to
@@ -27,35 +108,29 @@ pub fn emissive_polygon_toml(
     points: &[[f32; 3]],
     motion: [f32; 3],
 ) -> String {
-    format!(
-        r#"
-        [render]
-        max_bounces = 0
-        [camera]
-        position = [0, 0, 0]
-        look_at = [0, 0, 1]
-        fov = 40
-        aperture_radius = {aperture:?}
-        focus_distance = {focus:?}
-        [[material]]
-        name = "lamp"
-        base_color = [0, 0, 0]
-        specular = 0
-        emission = [{emission:?}, {emission:?}, {emission:?}]
-        two_sided_emission = true
-        [[mesh]]
-        shape = "polygon"
-        material = "lamp"
-        points = {points:?}
-        motion = {motion:?}
-        "#
-    )
+    SceneToml::new(0, None)
+        .camera(
+            [0.0; 3],
+            [0.0, 0.0, 1.0],
+            40.0,
+            &format!("aperture_radius = {aperture:?}\nfocus_distance = {focus:?}\n"),
+        )
+        .emitter("lamp", [emission; 3], "two_sided_emission = true\n")
+        .polygon("lamp", points, &format!("motion = {motion:?}\n"))
+        .text()
+        .to_string()
 }
 
 /// [`emissive_polygon_toml`] parsed.
 pub fn emissive_polygon(aperture: f32, focus: f32, emission: f32, points: &[[f32; 3]], motion: [f32; 3]) -> Scene {
     scene_from_toml(&emissive_polygon_toml(aperture, focus, emission, points, motion))
 }
+
+/// The 1 × 1 lamp 2 above the floor of the soft-shadow and light-sample tests.
+pub const LAMP: [[f32; 3]; 4] = [[-0.5, 2.0, -0.5], [0.5, 2.0, -0.5], [0.5, 2.0, 0.5], [-0.5, 2.0, 0.5]];
+
+/// The 10 × 10 floor at height 0 of the soft-shadow and light-sample tests.
+pub const FLOOR: [[f32; 3]; 4] = [[-5.0, 0.0, -5.0], [-5.0, 0.0, 5.0], [5.0, 0.0, 5.0], [5.0, 0.0, -5.0]];
 
 /// The square 0.5 wide at depth 4 of the lens-time tests.
 pub const SQUARE_AT_DEPTH_4: [[f32; 3]; 4] =
