@@ -38,6 +38,20 @@ pub struct TraceArgs {
     pub quiet: bool,
 }
 
+/// Refuses, before any work, output paths that must not be replaced: each of `outputs` must be
+/// new or a regular file, and none of them one of `inputs` (`sampleio::check_output_target`).
+pub fn check_outputs(outputs: &[&Path], inputs: &[&Path]) -> Result<()> {
+    for output in outputs {
+        sampleio::check_output_target(output, inputs)?;
+    }
+    Ok(())
+}
+
+/// The inputs a command reads from its scene option: the scene file, when one is given.
+pub fn scene_inputs(scene: Option<&Path>) -> Vec<&Path> {
+    scene.into_iter().collect()
+}
+
 /// A plain rayon pool of `threads` workers (0 = all cores) for the reconstructions, capped at
 /// `tracer::limits::MAX_THREADS` (the tracer's own pools also set FTZ/DAZ:
 /// `tracer::render::thread_pool`).

@@ -7,7 +7,7 @@ use anyhow::Result;
 use tracer::samples::secondary::SecondaryKind;
 use tracer::Accel;
 
-use crate::common::{load_scene, TraceArgs};
+use crate::common::{check_outputs, load_scene, scene_inputs, TraceArgs};
 
 /// Sample kinds `lfr dump` writes.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -44,6 +44,14 @@ pub struct DumpArgs {
 
 pub fn run(args: &DumpArgs) -> Result<()> {
     let trace = &args.trace;
+    let wants_exr = matches!(args.kind, DumpKind::Guide);
+    let extension = args.out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    match (wants_exr, extension.as_deref()) {
+        (true, Some("exr")) | (false, Some("lfrs")) => {}
+        (true, _) => anyhow::bail!("--out {}: guide buffers are written as an .exr file", args.out.display()),
+        (false, _) => anyhow::bail!("--out {}: samples are written as an .lfrs file", args.out.display()),
+    }
+    check_outputs(&[&args.out], &scene_inputs(trace.scene.as_deref()))?;
     let scene = load_scene(trace.scene.as_deref())?;
     let settings = trace.settings(&scene, args.spp)?;
     let accel = Accel::build(&scene)?;
@@ -57,12 +65,7 @@ pub fn run(args: &DumpArgs) -> Result<()> {
         DumpKind::Indirect => {
             tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::Indirect, &args.out)?
         }
-        DumpKind::Guide => {
-            if args.out.extension().and_then(|e| e.to_str()).map(|e| e.eq_ignore_ascii_case("exr")) != Some(true) {
-                anyhow::bail!("--out {}: guide buffers are written as an .exr file", args.out.display());
-            }
-            tracer::samples::guide::dump(&scene, &accel, &settings, &args.out)?
-        }
+        DumpKind::Guide => tracer::samples::guide::dump(&scene, &accel, &settings, &args.out)?,
         DumpKind::Ao => {
             tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::AmbientOcclusion, &args.out)?
         }

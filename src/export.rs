@@ -125,6 +125,7 @@ fn write_float_records<const N: usize>(
 }
 
 pub fn run(args: &ExportArgs) -> Result<()> {
+    crate::common::check_outputs(&[&args.out, &header_path(&args.out)], &[&args.samples])?;
     let file = SampleFile::open(&args.samples)?;
     match args.format {
         ExportFormat::Tlfr13 => write_tlfr_1_3(&file, &args.out)?,

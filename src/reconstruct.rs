@@ -46,6 +46,7 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     if args.out.extension().and_then(|e| e.to_str()).map(|e| e.eq_ignore_ascii_case("exr")) != Some(true) {
         bail!("--out {}: the output must be an .exr file", args.out.display());
     }
+    crate::common::check_outputs(&[&args.out, &args.out.with_extension("png")], &[&args.samples])?;
     if args.locations == 0 || args.locations > MAX_RECON_RAYS {
         bail!("--locations must be in 1..={MAX_RECON_RAYS}, got {}", args.locations);
     }

@@ -6,7 +6,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use tracer::Accel;
 
-use crate::common::{load_scene, TraceArgs};
+use crate::common::{check_outputs, load_scene, scene_inputs, TraceArgs};
 
 #[derive(clap::Args)]
 pub struct RenderArgs {
@@ -24,8 +24,10 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     if args.out.extension().and_then(|e| e.to_str()).map(|e| e.eq_ignore_ascii_case("exr")) != Some(true) {
         anyhow::bail!("--out {}: the output must be an .exr file", args.out.display());
     }
-    let load_start = Instant::now();
     let trace = &args.trace;
+    let preview = args.out.with_extension("png");
+    check_outputs(&[&args.out, &preview], &scene_inputs(trace.scene.as_deref()))?;
+    let load_start = Instant::now();
     let scene = load_scene(trace.scene.as_deref())?;
     let settings = trace.settings(&scene, args.spp.unwrap_or(scene.spp))?;
     let accel = Accel::build(&scene)?;

@@ -403,3 +403,61 @@ fn compare_lists_every_method_with_its_options() {
     let result = lfr(&["compare", "--out", "x"]);
     assert!(!result.status.success() && stderr(&result).contains("--effect"), "{}", stderr(&result));
 }
+
+/// Issue 22, class 1 and 4: an output path that names a device node, a symbolic link or the
+/// command's own input is refused before any work, and left as it was.
+#[test]
+fn outputs_never_replace_devices_links_or_inputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name);
+    let render_to = |out: &Path| {
+        lfr(&["render", "--width", "8", "--height", "8", "--spp", "1", "--quiet", "--out", out.to_str().unwrap()])
+    };
+    // A symbolic link to a regular file: refused, the link and its target untouched.
+    std::fs::write(path("target.exr"), b"keep").unwrap();
+    std::os::unix::fs::symlink(path("target.exr"), path("link.exr")).unwrap();
+    let result = render_to(&path("link.exr"));
+    assert!(!result.status.success() && stderr(&result).contains("symbolic link"), "{}", stderr(&result));
+    assert!(std::fs::symlink_metadata(path("link.exr")).unwrap().file_type().is_symlink());
+    assert_eq!(std::fs::read(path("target.exr")).unwrap(), b"keep");
+    // A character device (the null device's numbers, made here, never under /dev): needs root.
+    let made =
+        std::process::Command::new("mknod").args(["-m", "666"]).arg(path("null.exr")).args(["c", "1", "3"]).status();
+    if made.is_ok_and(|s| s.success()) {
+        let result = render_to(&path("null.exr"));
+        assert!(!result.status.success() && stderr(&result).contains("character device"), "{}", stderr(&result));
+        use std::os::unix::fs::FileTypeExt;
+        assert!(std::fs::symlink_metadata(path("null.exr")).unwrap().file_type().is_char_device());
+    } else {
+        eprintln!("note: mknod needs root; the character-device case was not run");
+    }
+    // A directory named like an output.
+    std::fs::create_dir(path("dir.exr")).unwrap();
+    let result = render_to(&path("dir.exr"));
+    assert!(!result.status.success() && stderr(&result).contains("a directory"), "{}", stderr(&result));
+    // The input as the output: `export x.lfrs x.lfrs` must not destroy x.lfrs.
+    let samples = path("x.lfrs");
+    let dumped = lfr(&[
+        "dump",
+        "--kind",
+        "lens-time",
+        "--width",
+        "4",
+        "--height",
+        "4",
+        "--spp",
+        "1",
+        "--quiet",
+        "--out",
+        samples.to_str().unwrap(),
+    ]);
+    assert!(dumped.status.success(), "{}", stderr(&dumped));
+    let before = std::fs::read(&samples).unwrap();
+    let result = lfr(&["export", "--format", "tlfr-1.3", samples.to_str().unwrap(), samples.to_str().unwrap()]);
+    assert!(!result.status.success() && stderr(&result).contains("the input"), "{}", stderr(&result));
+    assert_eq!(std::fs::read(&samples).unwrap(), before, "the input is intact");
+    // Samples go to .lfrs files, not into an image's name.
+    let result = lfr(&["dump", "--kind", "ao", "--spp", "1", "--quiet", "--out", path("x.exr").to_str().unwrap()]);
+    assert!(!result.status.success() && stderr(&result).contains(".lfrs"), "{}", stderr(&result));
+    assert!(!path("x.exr").exists());
+}

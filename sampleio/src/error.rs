@@ -91,6 +91,11 @@ pub enum SampleError {
     #[error("{}: too few samples: the header declares {expected}, {pushed} were written", path.display())]
     TooFewSamples { path: PathBuf, expected: u64, pushed: u64 },
 
+    /// An output path that must not be replaced: a directory, device, FIFO, socket or symbolic
+    /// link, or one of the command's own inputs.
+    #[error("{}: refusing to write the output here: {reason}", path.display())]
+    RefusedOutput { path: PathBuf, reason: String },
+
     /// An earlier call on this writer failed; the writer produces no file.
     #[error("{}: an earlier error aborted this writer; no file is written", path.display())]
     Aborted { path: PathBuf },
@@ -113,6 +118,7 @@ impl SampleError {
             | SampleError::WrongLength { path, .. }
             | SampleError::TooManySamples { path, .. }
             | SampleError::TooFewSamples { path, .. }
+            | SampleError::RefusedOutput { path, .. }
             | SampleError::Aborted { path } => path,
         }
     }

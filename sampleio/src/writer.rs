@@ -48,6 +48,7 @@ impl SampleWriter {
     /// Validates the header, computes the field layout and starts writing to
     /// `<path>.<pid>.tmp` beside `path`.
     pub fn create(path: &Path, header: HeaderSpec) -> Result<SampleWriter> {
+        crate::check_output_target(path, &[])?;
         let header = header.to_header().map_err(|e| e.at(path))?;
         let header_bytes = header.to_padded_json();
         if header_bytes.len() as u64 > MAX_HEADER_LEN {

@@ -55,15 +55,26 @@ fn temporary_path(path: &Path) -> PathBuf {
     path.with_file_name(name)
 }
 
+/// The reason of a refused output, without the path `output_error` adds again.
+fn refusal(error: &sampleio::SampleError) -> String {
+    match error {
+        sampleio::SampleError::RefusedOutput { reason, .. } => format!("refusing to write the output here: {reason}"),
+        other => other.to_string(),
+    }
+}
+
 fn output_error(path: &Path, message: impl std::fmt::Display) -> RenderError {
     RenderError::Output { path: path.to_path_buf(), message: message.to_string() }
 }
 
-/// Writes `contents` through `write` to a temporary file and renames it onto `path`.
+/// Writes `contents` through `write` to a temporary file and renames it onto `path`; refuses a
+/// `path` that is not a regular file (`sampleio::check_output_target`: a device node or a
+/// symbolic link would be replaced).
 pub fn write_atomically(
     path: &Path,
     write: impl FnOnce(&Path) -> std::result::Result<(), String>,
 ) -> std::result::Result<(), RenderError> {
+    sampleio::check_output_target(path, &[]).map_err(|e| output_error(path, refusal(&e)))?;
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).map_err(|e| output_error(parent, format!("cannot create directory: {e}")))?;
     }
