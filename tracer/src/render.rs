@@ -91,6 +91,9 @@ pub struct Frame {
     pub variance: Vec<Vec3>,
     /// Samples whose radiance was NaN or infinite and was dropped.
     pub invalid_samples: u64,
+    /// Variance values beyond f32's range (radiance above about 1.8e19), stored as `f32::MAX`
+    /// instead of becoming infinite.
+    pub clamped_variances: u64,
     pub rays: u64,
     pub seconds: f64,
 }
@@ -315,6 +318,7 @@ fn assemble(settings: &RenderSettings, results: Vec<TileResult>, seconds: f64) -
         depth: vec![0.0; n],
         variance: vec![Vec3::ZERO; n],
         invalid_samples: 0,
+        clamped_variances: 0,
         rays: 0,
         seconds,
     };
@@ -334,7 +338,11 @@ fn assemble(settings: &RenderSettings, results: Vec<TileResult>, seconds: f64) -
                     mean[c] = m as f32;
                     if valid > 1.0 {
                         let sample_variance = ((acc.sum_sq[c] - valid * m * m) / (valid - 1.0)).max(0.0);
-                        variance[c] = (sample_variance / valid) as f32;
+                        let of_the_mean = sample_variance / valid;
+                        if of_the_mean > f32::MAX as f64 {
+                            frame.clamped_variances += 1;
+                        }
+                        variance[c] = of_the_mean.min(f32::MAX as f64) as f32;
                     }
                 }
                 frame.beauty[p] = Vec3::from(mean);

@@ -209,6 +209,18 @@ fn stiff_cases_one_pixel_one_sample_empty_scene_and_spikes_stay_finite() {
     let frame = render(&spiky, 16, 16, 4, 0);
     assert!(frame.beauty.iter().all(|v| v.is_finite()));
     assert_eq!(frame.invalid_samples, 0);
+
+    // Radiance of 1e30 half the time: its variance (~1e59) is beyond f32 and is stored as
+    // f32::MAX and counted, never as infinity (issue 22, class 9).
+    let blinding = SceneToml::new(0, None)
+        .camera([0.0, 0.0, 4.0], [0.0; 3], 40.0, "")
+        .emitter("sun", [1e30; 3], "")
+        .polygon("sun", &[[-9.0, -9.0, 0.0], [0.13, -9.0, 0.0], [0.13, 9.0, 0.0], [-9.0, 9.0, 0.0]], "")
+        .scene();
+    let frame = render(&blinding, 8, 8, 16, 0);
+    assert!(frame.beauty.iter().chain(&frame.variance).all(|v| v.is_finite()));
+    assert!(frame.clamped_variances > 0, "the edge pixels straddle the emitter's border");
+    assert!(frame.variance.iter().any(|v| v.x == f32::MAX));
 }
 
 #[test]
