@@ -27,7 +27,8 @@ pub enum Error {
     #[error("{}: {error}", path.display())]
     InFile { path: PathBuf, error: Box<Error> },
 
-    /// A setting outside what the method accepts; the message names the setting.
+    /// A setting outside what the method accepts, or a value handed to a function outside what
+    /// it accepts (discs, rays, guide planes, a camera block); the message names it.
     #[error("{message}")]
     Parameter { name: &'static str, message: String },
 
@@ -36,7 +37,7 @@ pub enum Error {
     Option { spec: String, message: String },
 
     /// The inputs of a method run lack what the method reads (`input`: "samples", "light
-    /// samples", "guide buffers", "frame").
+    /// samples", "guide buffers", "guide secondary_normal", "frame").
     #[error("{message}")]
     MissingInput { input: &'static str, message: String },
 
