@@ -113,7 +113,7 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
             let report = dump(&scene, &accel, &settings, SecondaryKind::Indirect, &path)?;
             let start = Instant::now();
             let file = SampleFile::open(&path)?;
-            let samples = read_indirect(&file).map_err(|e| anyhow!(e))?;
+            let samples = read_indirect(&file).map_err(|e| anyhow!("{e}"))?;
             drop(file);
             let read_s = start.elapsed().as_secs_f64();
             let ilfr = IlfrSettings { recon_rays: args.recon_rays, seed: args.seed, ..IlfrSettings::default() };

@@ -7,6 +7,7 @@
 
 use std::path::PathBuf;
 
+use crate::error::Error;
 use crate::image::Image;
 
 /// The effect a comparison measures: it fixes the image layer and the sample kind.
@@ -143,15 +144,16 @@ pub struct Output {
     pub notes: Vec<String>,
 }
 
-/// Why a method could not run.
+/// Why a method could not run. The harness skips a method that is `Unavailable` and fails on
+/// the others.
 #[derive(Debug)]
 pub enum MethodError {
-    /// The method does not handle this effect.
+    /// The method does not handle this effect (or this kind of input file).
     Unsupported(String),
     /// A dependency (e.g. a Python package) is missing; the harness skips the method.
-    Unavailable(String),
+    Unavailable(Error),
     /// The input was bad or the method failed.
-    Failed(String),
+    Failed(Error),
 }
 
 impl std::fmt::Display for MethodError {
@@ -166,9 +168,15 @@ impl std::fmt::Display for MethodError {
 
 impl std::error::Error for MethodError {}
 
+impl From<Error> for MethodError {
+    fn from(error: Error) -> Self {
+        MethodError::Failed(error)
+    }
+}
+
 impl From<sampleio::SampleError> for MethodError {
     fn from(error: sampleio::SampleError) -> Self {
-        MethodError::Failed(error.to_string())
+        MethodError::Failed(Error::Samples(error))
     }
 }
 
@@ -183,7 +191,7 @@ pub trait Method: Send + Sync + std::fmt::Debug {
         vec![0]
     }
     /// `Err(reason)` when a dependency is missing; checked once before any run.
-    fn available(&self) -> Result<(), String> {
+    fn available(&self) -> Result<(), Error> {
         Ok(())
     }
     /// Reconstructs the effect's image from `inputs`.

@@ -38,20 +38,23 @@ impl OptionSpec {
         }
     }
 
-    fn parse_value(&self, value: &str) -> Result<OptionValue, String> {
+    /// Parses `value`; an error says what values the option takes (it is reported for `spec`, the
+    /// `NAME:key=value` pair as given).
+    fn parse_value(&self, spec: &str, value: &str) -> Result<OptionValue, Error> {
         let key = self.key;
+        let bad = |message: String| Error::Option { spec: spec.to_string(), message };
         match self.kind {
             OptionKind::Count { min, max } => match value.parse::<u32>() {
                 Ok(n) if (min..=max).contains(&n) => Ok(OptionValue::Count(n)),
-                _ => Err(format!("{key} must be a whole number at least {min} and at most {max}")),
+                _ => Err(bad(format!("{key} must be a whole number at least {min} and at most {max}"))),
             },
             OptionKind::Positive => match value.parse::<f32>() {
                 Ok(x) if x.is_finite() && x > 0.0 => Ok(OptionValue::Real(x)),
-                _ => Err(format!("{key} must be positive and finite")),
+                _ => Err(bad(format!("{key} must be positive and finite"))),
             },
             OptionKind::Choice(words) => match words.iter().find(|w| **w == value) {
                 Some(word) => Ok(OptionValue::Choice(word)),
-                None => Err(format!("{key} must be one of {}", words.join(", "))),
+                None => Err(bad(format!("{key} must be one of {}", words.join(", ")))),
             },
         }
     }
@@ -94,7 +97,8 @@ impl Options {
     ) -> Result<Options, Error> {
         let mut values: Vec<(&'static OptionSpec, OptionValue)> = Vec::new();
         for pair in text.split(':').filter(|p| !p.is_empty()) {
-            let bad = |message: String| Error::Option { spec: format!("{method}:{pair}"), message };
+            let spec_text = format!("{method}:{pair}");
+            let bad = |message: String| Error::Option { spec: spec_text.clone(), message };
             let (key, value) = pair.split_once('=').ok_or_else(|| bad(format!("`{pair}` is not key=value")))?;
             let Some(spec) = specs.iter().find(|s| s.key == key) else {
                 let takes = if specs.is_empty() {
@@ -111,7 +115,7 @@ impl Options {
             if values.iter().any(|(s, _)| s.key == key) {
                 return Err(bad(format!("{key} is given twice")));
             }
-            values.push((spec, spec.parse_value(value).map_err(bad)?));
+            values.push((spec, spec.parse_value(&spec_text, value)?));
         }
         let order = |key: &str| specs.iter().position(|s| s.key == key);
         values.sort_by_key(|(spec, _)| order(spec.key));
@@ -172,8 +176,8 @@ mod tests {
         },
     ];
 
-    fn parse(text: &str) -> Result<Options, String> {
-        Options::parse("m", text, SPECS, |key| key == "iterations").map_err(|e| e.to_string())
+    fn parse(text: &str) -> Result<Options, Error> {
+        Options::parse("m", text, SPECS, |key| key == "iterations")
     }
 
     #[test]
@@ -205,7 +209,7 @@ mod tests {
             ("sigma=2", &["unknown option `sigma`"]),
             ("radius=2:radius=3", &["given twice"]),
         ] {
-            let error = parse(text).err().unwrap_or_else(|| panic!("{text} must fail"));
+            let error = parse(text).err().unwrap_or_else(|| panic!("{text} must fail")).to_string();
             for needle in needles {
                 assert!(error.contains(needle), "{text}: {error}");
             }

@@ -14,6 +14,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::sync::{Mutex, OnceLock};
 
+use crate::error::Error;
 use crate::image::Image;
 
 /// The environment variable naming the Python interpreter.
@@ -42,48 +43,71 @@ pub fn install_hint(module: &str) -> String {
     format!("pip install {package}")
 }
 
-/// Import results per (interpreter, module).
-type AvailabilityCache = HashMap<(String, String), Result<(), String>>;
+/// Per (interpreter, module): why the import fails, `None` when it succeeds.
+type AvailabilityCache = HashMap<(String, String), Option<String>>;
 
 /// `Ok` when the interpreter (`interpreter()`) can import `module`; otherwise what is missing
 /// and how to install it. Cached per interpreter and module for the life of the process.
-pub fn module_available(module: &str) -> Result<(), String> {
+pub fn module_available(module: &str) -> Result<(), Error> {
     static CACHE: OnceLock<Mutex<AvailabilityCache>> = OnceLock::new();
+    check_module_name(module)?;
     let python = interpreter();
     let key = (python.clone(), module.to_string());
     // The lock is held across the check so that concurrent callers run it once.
     let mut cache = CACHE.get_or_init(|| Mutex::new(HashMap::new())).lock().unwrap_or_else(|e| e.into_inner());
-    cache.entry(key).or_insert_with(|| module_available_with(&python, module)).clone()
+    match cache.entry(key).or_insert_with(|| import_failure(&python, module)) {
+        None => Ok(()),
+        Some(message) => Err(Error::python(python, message.clone())),
+    }
 }
 
 /// `Ok` when `python` can import `module`; uncached, and independent of `$LFR_PYTHON`.
-pub fn module_available_with(python: &str, module: &str) -> Result<(), String> {
+pub fn module_available_with(python: &str, module: &str) -> Result<(), Error> {
+    check_module_name(module)?;
+    match import_failure(python, module) {
+        None => Ok(()),
+        Some(message) => Err(Error::python(python, message)),
+    }
+}
+
+/// `Ok` when `module` is a dotted Python module name (so that it is safe to hand to `python`).
+fn check_module_name(module: &str) -> Result<(), Error> {
     let valid = !module.is_empty()
         && module.split('.').all(|part| {
             !part.is_empty()
                 && !part.starts_with(|c: char| c.is_ascii_digit())
                 && part.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
         });
-    if !valid {
-        return Err(format!("`{module}` is not a Python module name"));
+    if valid {
+        Ok(())
+    } else {
+        Err(Error::parameter("module", format!("`{module}` is not a Python module name")))
     }
-    let output = Command::new(python)
+}
+
+/// Why `python` cannot import `module` (a valid module name): the interpreter does not run, or
+/// the import fails, with how to install the module; `None` when the import succeeds.
+fn import_failure(python: &str, module: &str) -> Option<String> {
+    let output = match Command::new(python)
         .args(["-c", "import importlib, sys; importlib.import_module(sys.argv[1])", module])
         .stdin(Stdio::null())
         .output()
-        .map_err(|e| {
-            format!(
+    {
+        Ok(output) => output,
+        Err(e) => {
+            return Some(format!(
                 "cannot run the Python interpreter `{python}` to import `{module}`: {e} \
                  (set {PYTHON_ENV} to a Python 3 interpreter)"
-            )
-        })?;
+            ))
+        }
+    };
     if output.status.success() {
-        return Ok(());
+        return None;
     }
     let stderr = String::from_utf8_lossy(&output.stderr);
     let reason = stderr.lines().rev().find(|l| !l.trim().is_empty()).unwrap_or("").trim();
     let reason = if reason.is_empty() { format!("import exited with {}", output.status) } else { reason.to_string() };
-    Err(format!(
+    Some(format!(
         "Python module `{module}` cannot be imported by `{python}` ({reason}); install it with `{}` \
          or set {PYTHON_ENV} to an interpreter that has it",
         install_hint(module)
@@ -93,7 +117,7 @@ pub fn module_available_with(python: &str, module: &str) -> Result<(), String> {
 /// Writes `script` into `dir`, runs it with `interpreter()` and `args` (JSON) as `argv[1]`, and
 /// returns the JSON object on the last non-empty line of its stdout. A non-zero exit, or a
 /// last line that is not a JSON object, is an error carrying the script's (trimmed) stderr.
-pub fn run_script(script: &str, args: &serde_json::Value, dir: &Path) -> Result<serde_json::Value, String> {
+pub fn run_script(script: &str, args: &serde_json::Value, dir: &Path) -> Result<serde_json::Value, Error> {
     run_script_with(&interpreter(), script, args, dir)
 }
 
@@ -103,9 +127,9 @@ pub fn run_script_with(
     script: &str,
     args: &serde_json::Value,
     dir: &Path,
-) -> Result<serde_json::Value, String> {
+) -> Result<serde_json::Value, Error> {
     let path = dir.join(SCRIPT_FILE);
-    fs::write(&path, script).map_err(|e| format!("cannot write Python script {}: {e}", path.display()))?;
+    fs::write(&path, script).map_err(|source| Error::Io { path: path.clone(), op: "write Python script", source })?;
     let output = Command::new(python)
         .arg(&path)
         .arg(args.to_string())
@@ -114,9 +138,13 @@ pub fn run_script_with(
         .stdin(Stdio::null())
         .output()
         .map_err(|e| {
-            format!(
-                "cannot run the Python interpreter `{python}` on {}: {e} (set {PYTHON_ENV} to a Python 3 interpreter)",
-                path.display()
+            Error::python(
+                python,
+                format!(
+                    "cannot run the Python interpreter `{python}` on {}: {e} (set {PYTHON_ENV} to a Python 3 \
+                     interpreter)",
+                    path.display()
+                ),
             )
         })?;
     let stdout = String::from_utf8_lossy(&output.stdout);
@@ -124,16 +152,20 @@ pub fn run_script_with(
     if !output.status.success() {
         // Some native libraries report on stdout before exiting; show it when stderr is silent.
         let detail = if stderr.trim().is_empty() { tail(stdout.trim()) } else { tail(stderr.trim()) };
-        return Err(format!("Python script {} ({python}) failed with {}: {detail}", path.display(), output.status));
+        let message = format!("Python script {} ({python}) failed with {}: {detail}", path.display(), output.status);
+        return Err(Error::python(python, message));
     }
     let last = stdout.lines().rev().map(str::trim).find(|l| !l.is_empty()).unwrap_or("");
     match serde_json::from_str::<serde_json::Value>(last) {
         Ok(value) if value.is_object() => Ok(value),
-        _ => Err(format!(
-            "Python script {} ({python}) did not print a JSON object on its last line of output; \
-             last line: {last:?}; stderr: {}",
-            path.display(),
-            tail(stderr.trim())
+        _ => Err(Error::python(
+            python,
+            format!(
+                "Python script {} ({python}) did not print a JSON object on its last line of output; \
+                 last line: {last:?}; stderr: {}",
+                path.display(),
+                tail(stderr.trim())
+            ),
         )),
     }
 }
@@ -147,27 +179,30 @@ fn tail(text: &str) -> &str {
 }
 
 /// Writes `image` as raw little-endian `f32` RGB, row-major from the top-left.
-pub fn write_image_f32(path: &Path, image: &Image) -> Result<(), String> {
+pub fn write_image_f32(path: &Path, image: &Image) -> Result<(), Error> {
     let mut bytes = Vec::with_capacity(image.pixels.len() * 12);
     for pixel in &image.pixels {
         for channel in pixel {
             bytes.extend_from_slice(&channel.to_le_bytes());
         }
     }
-    fs::write(path, bytes).map_err(|e| format!("cannot write image {}: {e}", path.display()))
+    fs::write(path, bytes).map_err(|source| Error::Io { path: path.to_path_buf(), op: "write image", source })
 }
 
 /// Reads a raw little-endian `f32` RGB image of `width` x `height`; the file must hold exactly
 /// `width * height * 12` bytes.
-pub fn read_image_f32(path: &Path, width: u32, height: u32) -> Result<Image, String> {
-    let bytes = fs::read(path).map_err(|e| format!("cannot read image {}: {e}", path.display()))?;
+pub fn read_image_f32(path: &Path, width: u32, height: u32) -> Result<Image, Error> {
+    let bytes = fs::read(path).map_err(|source| Error::Io { path: path.to_path_buf(), op: "read image", source })?;
     let count = width as usize * height as usize;
     let expected = count * 12;
     if bytes.len() != expected {
-        return Err(format!(
-            "image {} has {} bytes, expected {expected} ({width}x{height} RGB f32)",
-            path.display(),
-            bytes.len()
+        return Err(Error::size_mismatch(
+            "image file",
+            format!(
+                "image {} has {} bytes, expected {expected} ({width}x{height} RGB f32)",
+                path.display(),
+                bytes.len()
+            ),
         ));
     }
     let pixels = bytes
@@ -185,7 +220,7 @@ mod tests {
     use super::*;
 
     /// `Some(reason)` when no working interpreter is available, in which case tests skip.
-    fn no_python() -> Option<String> {
+    fn no_python() -> Option<Error> {
         module_available("json").err()
     }
 
@@ -197,7 +232,7 @@ mod tests {
         }
         let dir = tempfile::tempdir().unwrap();
         let script = "import sys\nsys.stderr.write('boom\\n')\nsys.exit(1)\n";
-        let error = run_script(script, &serde_json::json!({}), dir.path()).unwrap_err();
+        let error = run_script(script, &serde_json::json!({}), dir.path()).unwrap_err().to_string();
         assert!(error.contains("boom"), "{error}");
         assert!(error.contains(SCRIPT_FILE), "{error}");
     }
@@ -216,7 +251,7 @@ mod tests {
         assert_eq!(value["sum"], 42);
         assert_eq!(value["name"], "é \"quoted\"");
 
-        let error = run_script("print('not json')\n", &args, dir.path()).unwrap_err();
+        let error = run_script("print('not json')\n", &args, dir.path()).unwrap_err().to_string();
         assert!(error.contains("JSON object"), "{error}");
     }
 
@@ -240,22 +275,22 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("short.f32");
         fs::write(&path, [0u8; 20]).unwrap();
-        let error = read_image_f32(&path, 2, 2).unwrap_err();
+        let error = read_image_f32(&path, 2, 2).unwrap_err().to_string();
         assert!(error.contains(&path.display().to_string()), "{error}");
         assert!(error.contains("48"), "{error}");
         let missing = dir.path().join("missing.f32");
-        let error = read_image_f32(&missing, 2, 2).unwrap_err();
+        let error = read_image_f32(&missing, 2, 2).unwrap_err().to_string();
         assert!(error.contains("missing.f32"), "{error}");
     }
 
     #[test]
     fn missing_interpreter_is_named() {
         let python = "/nonexistent/lfr-test-python3";
-        let error = module_available_with(python, "pyoidn").unwrap_err();
+        let error = module_available_with(python, "pyoidn").unwrap_err().to_string();
         assert!(error.contains(python), "{error}");
         assert!(error.contains(PYTHON_ENV), "{error}");
         let dir = tempfile::tempdir().unwrap();
-        let error = run_script_with(python, "print('{}')", &serde_json::json!({}), dir.path()).unwrap_err();
+        let error = run_script_with(python, "print('{}')", &serde_json::json!({}), dir.path()).unwrap_err().to_string();
         assert!(error.contains(python), "{error}");
     }
 
@@ -266,7 +301,7 @@ mod tests {
             return;
         }
         let module = "lfr_no_such_module_for_tests";
-        let error = module_available_with(&interpreter(), module).unwrap_err();
+        let error = module_available_with(&interpreter(), module).unwrap_err().to_string();
         assert!(error.contains(module), "{error}");
         assert!(error.contains("pip install lfr-no-such-module-for-tests"), "{error}");
         assert!(module_available_with(&interpreter(), "os; import sys").is_err());

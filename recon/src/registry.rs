@@ -227,9 +227,10 @@ pub const METHODS: &[MethodSpec] = &[
 /// A filter of the filtered path-tracing pipeline with `options` applied.
 fn filter(variant: FilteredIndirect, options: &Options) -> Result<Box<dyn Method>, Error> {
     let name = variant.name.clone();
-    let filter = variant
-        .with_options(&FilterOptions::from_options(options))
-        .map_err(|message| Error::Option { spec: format!("{name}:{}", options.canonical()), message })?;
+    let filter = variant.with_options(&FilterOptions::from_options(options)).map_err(|error| Error::Option {
+        spec: format!("{name}:{}", options.canonical()),
+        message: error.to_string(),
+    })?;
     Ok(Box::new(filter))
 }
 

@@ -407,7 +407,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     'methods: for method in &methods {
         if let Err(reason) = method.available() {
             eprintln!("skipping {}: {reason}", method.name());
-            skipped.push(Skipped { method: method.name().to_string(), reason });
+            skipped.push(Skipped { method: method.name().to_string(), reason: reason.to_string() });
             continue;
         }
         let default_rays = method.default_recon_rays();
@@ -459,7 +459,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                     Ok(output) => output,
                     Err(MethodError::Unavailable(reason)) => {
                         eprintln!("skipping {}: {reason}", method.name());
-                        skipped.push(Skipped { method: method.name().to_string(), reason });
+                        skipped.push(Skipped { method: method.name().to_string(), reason: reason.to_string() });
                         continue 'methods;
                     }
                     Err(error) => bail!("{} at {spp} spp: {error}", method.name()),

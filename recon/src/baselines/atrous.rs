@@ -64,6 +64,7 @@ use crate::baselines::bilateral::{
     check_inputs, check_sigma, exp_neg, finite, is_surface, normalised_sq, range_scale, sanitised_colours, Accumulator,
     FilterReport, MAX_EXPONENT, TILE,
 };
+use crate::error::Error;
 use crate::gif::guide::GuideBuffers;
 use crate::image::Image;
 
@@ -106,9 +107,10 @@ impl Default for AtrousParams {
 
 impl AtrousParams {
     /// Errors unless the iteration count is in 1..=8 and every σ is positive and finite.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), Error> {
         if !(1..=MAX_ITERATIONS).contains(&self.iterations) {
-            return Err(format!("iterations must be in 1..={MAX_ITERATIONS}, got {}", self.iterations));
+            let message = format!("iterations must be in 1..={MAX_ITERATIONS}, got {}", self.iterations);
+            return Err(Error::parameter("iterations", message));
         }
         if let Some(sigma) = self.sigma_color {
             check_sigma("sigma_color", sigma)?;
@@ -141,11 +143,14 @@ struct Factors {
 }
 
 /// The edge-avoiding À-Trous filter of `noisy` guided by `guide`.
-pub fn atrous(noisy: &Image, guide: &GuideBuffers, params: &AtrousParams) -> Result<(Image, FilterReport), String> {
+pub fn atrous(noisy: &Image, guide: &GuideBuffers, params: &AtrousParams) -> Result<(Image, FilterReport), Error> {
     check_inputs(noisy, guide)?;
     params.validate()?;
     if params.use_secondary_normal && guide.secondary_normal.is_none() {
-        return Err("use_secondary_normal needs the guide's secondary_normal buffer, which is absent".into());
+        return Err(Error::missing_input(
+            "guide secondary_normal",
+            "use_secondary_normal needs the guide's secondary_normal buffer, which is absent",
+        ));
     }
     let (width, height) = (noisy.width as usize, noisy.height as usize);
     let (colour, mut sanitised) = sanitised_colours(noisy);
@@ -824,13 +829,16 @@ mod tests {
     fn mismatched_inputs_and_bad_parameters_are_errors() {
         let noisy = noise_image(4, 3, 1);
         let params = AtrousParams::default();
-        assert!(atrous(&noisy, &flat_guide(3, 4), &params).unwrap_err().contains("4x3"));
+        assert!(atrous(&noisy, &flat_guide(3, 4), &params).unwrap_err().to_string().contains("4x3"));
         let mut inconsistent = flat_guide(4, 3);
         inconsistent.position.pop();
-        assert!(atrous(&noisy, &inconsistent, &params).unwrap_err().contains("inconsistent"));
+        assert!(atrous(&noisy, &inconsistent, &params).unwrap_err().to_string().contains("inconsistent"));
         let guide = flat_guide(4, 3);
         for iterations in [0, MAX_ITERATIONS + 1] {
-            assert!(atrous(&noisy, &guide, &AtrousParams { iterations, ..params }).unwrap_err().contains("iterations"));
+            assert!(atrous(&noisy, &guide, &AtrousParams { iterations, ..params })
+                .unwrap_err()
+                .to_string()
+                .contains("iterations"));
         }
         for bad in [0.0, -1.0, f32::NAN, f32::INFINITY] {
             for params in [
@@ -839,11 +847,11 @@ mod tests {
                 AtrousParams { sigma_position: Some(bad), ..params },
                 AtrousParams { sigma_secondary_normal: bad, ..params },
             ] {
-                assert!(atrous(&noisy, &guide, &params).unwrap_err().contains("positive and finite"));
+                assert!(atrous(&noisy, &guide, &params).unwrap_err().to_string().contains("positive and finite"));
             }
         }
         let with = AtrousParams { use_secondary_normal: true, ..params };
-        assert!(atrous(&noisy, &guide, &with).unwrap_err().contains("secondary_normal"));
+        assert!(atrous(&noisy, &guide, &with).unwrap_err().to_string().contains("secondary_normal"));
     }
 
     /// `cargo test --release -p recon --lib timing_atrous -- --ignored --nocapture`

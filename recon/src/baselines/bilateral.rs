@@ -52,6 +52,7 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::error::Error;
 use crate::gif::guide::GuideBuffers;
 use crate::image::Image;
 
@@ -84,7 +85,7 @@ impl BilateralParams {
     }
 
     /// Errors unless every σ is positive and finite.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), Error> {
         check_sigma("sigma_spatial", self.sigma_spatial)?;
         check_sigma("sigma_normal", self.sigma_normal)?;
         check_sigma("sigma_depth", self.sigma_depth)
@@ -125,7 +126,7 @@ pub fn cross_bilateral(
     noisy: &Image,
     guide: &GuideBuffers,
     params: &BilateralParams,
-) -> Result<(Image, FilterReport), String> {
+) -> Result<(Image, FilterReport), Error> {
     check_inputs(noisy, guide)?;
     params.validate()?;
     let (width, height) = (noisy.width as usize, noisy.height as usize);
@@ -354,27 +355,32 @@ pub(crate) fn exp_neg(x: f32) -> f32 {
 }
 
 /// Errors unless `value` is a positive finite σ.
-pub(crate) fn check_sigma(name: &str, value: f32) -> Result<(), String> {
+pub(crate) fn check_sigma(name: &'static str, value: f32) -> Result<(), Error> {
     if value.is_finite() && value > 0.0 {
         Ok(())
     } else {
-        Err(format!("{name} must be positive and finite, got {value}"))
+        Err(Error::parameter(name, format!("{name} must be positive and finite, got {value}")))
     }
 }
 
 /// Errors unless `noisy` and `guide` are self-consistent and of one size.
-pub(crate) fn check_inputs(noisy: &Image, guide: &GuideBuffers) -> Result<(), String> {
+pub(crate) fn check_inputs(noisy: &Image, guide: &GuideBuffers) -> Result<(), Error> {
     if noisy.pixels.len() != noisy.pixel_count() {
-        return Err(format!("noisy image is {}x{} but holds {} pixels", noisy.width, noisy.height, noisy.pixels.len()));
+        let message =
+            format!("noisy image is {}x{} but holds {} pixels", noisy.width, noisy.height, noisy.pixels.len());
+        return Err(Error::size_mismatch("noisy image", message));
     }
     if !guide.is_consistent() {
-        return Err(format!("guide buffers are inconsistent: each must hold {}x{} entries", guide.width, guide.height));
+        let message =
+            format!("guide buffers are inconsistent: each must hold {}x{} entries", guide.width, guide.height);
+        return Err(Error::size_mismatch("guide buffers", message));
     }
     if (noisy.width, noisy.height) != (guide.width, guide.height) {
-        return Err(format!(
+        let message = format!(
             "noisy image is {}x{} but the guide buffers are {}x{}",
             noisy.width, noisy.height, guide.width, guide.height
-        ));
+        );
+        return Err(Error::size_mismatch("noisy image and guide buffers", message));
     }
     Ok(())
 }
@@ -724,10 +730,10 @@ mod tests {
     fn mismatched_inputs_and_bad_parameters_are_errors() {
         let noisy = noise_image(4, 3, 1);
         let params = BilateralParams::default();
-        assert!(cross_bilateral(&noisy, &flat_guide(3, 4), &params).unwrap_err().contains("4x3"));
+        assert!(cross_bilateral(&noisy, &flat_guide(3, 4), &params).unwrap_err().to_string().contains("4x3"));
         let mut inconsistent = flat_guide(4, 3);
         inconsistent.depth.pop();
-        assert!(cross_bilateral(&noisy, &inconsistent, &params).unwrap_err().contains("inconsistent"));
+        assert!(cross_bilateral(&noisy, &inconsistent, &params).unwrap_err().to_string().contains("inconsistent"));
         let mut short = noisy.clone();
         short.pixels.pop();
         assert!(cross_bilateral(&short, &flat_guide(4, 3), &params).is_err());
@@ -738,7 +744,10 @@ mod tests {
                 BilateralParams { sigma_normal: bad, ..params },
                 BilateralParams { sigma_depth: bad, ..params },
             ] {
-                assert!(cross_bilateral(&noisy, &guide, &params).unwrap_err().contains("positive and finite"));
+                assert!(cross_bilateral(&noisy, &guide, &params)
+                    .unwrap_err()
+                    .to_string()
+                    .contains("positive and finite"));
             }
         }
     }

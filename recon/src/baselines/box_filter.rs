@@ -18,6 +18,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use sampleio::{Field, SampleFile, SampleKind};
 
+use crate::error::Error;
 use crate::image::Image;
 use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
 
@@ -30,7 +31,7 @@ impl Method for BoxFilter {
     }
 
     fn run(&self, inputs: &Inputs, _recon_rays: u32) -> Result<Output, MethodError> {
-        let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed("box needs a sample file".into()))?;
+        let path = inputs.samples.as_ref().ok_or_else(|| Error::missing_input("samples", "box needs a sample file"))?;
         let start = Instant::now();
         let file = SampleFile::open(path)?;
         let preprocess_s = start.elapsed().as_secs_f64();
@@ -41,14 +42,15 @@ impl Method for BoxFilter {
             notes.push(format!("{skipped} samples with non-finite values were skipped"));
         }
         if (image.width, image.height) != (inputs.width, inputs.height) {
-            return Err(MethodError::Failed(format!(
+            let message = format!(
                 "{}: samples are {}x{}, the comparison is {}x{}",
                 path.display(),
                 image.width,
                 image.height,
                 inputs.width,
                 inputs.height
-            )));
+            );
+            return Err(Error::size_mismatch("samples", message).into());
         }
         Ok(Output { image, preprocess_s, recon_s: start.elapsed().as_secs_f64(), external_peak_rss_mb: None, notes })
     }
@@ -59,21 +61,17 @@ pub fn average(file: &SampleFile, effect: Effect, ao_radius: f32) -> Result<(Ima
     let header = file.header();
     let expected = effect.sample_kind();
     if header.kind != expected {
-        return Err(MethodError::Failed(format!(
-            "{}: effect {} needs `{}` samples, the file holds `{}`",
-            file.path().display(),
+        let message = format!(
+            "effect {} needs `{}` samples, the file holds `{}`",
             effect.name(),
             expected.name(),
             header.kind.name()
-        )));
+        );
+        return Err(Error::sample_content(file.path(), message).into());
     }
-    let required = |name: &str| -> Result<&Field, MethodError> {
+    let required = |name: &str| -> Result<&Field, Error> {
         file.field(name).ok_or_else(|| {
-            MethodError::Failed(format!(
-                "{}: `{}` samples lack the field `{name}`",
-                file.path().display(),
-                expected.name()
-            ))
+            Error::sample_content(file.path(), format!("`{}` samples lack the field `{name}`", expected.name()))
         })
     };
     let estimator = match expected {
@@ -86,7 +84,9 @@ pub fn average(file: &SampleFile, effect: Effect, ao_radius: f32) -> Result<(Ima
         }
         SampleKind::Ao => {
             if !(ao_radius.is_finite() && ao_radius > 0.0) {
-                return Err(MethodError::Failed(format!("the AO radius must be positive, got {ao_radius}")));
+                return Err(
+                    Error::parameter("ao_radius", format!("the AO radius must be positive, got {ao_radius}")).into()
+                );
             }
             Estimator::Visibility {
                 distance: required("distance")?,

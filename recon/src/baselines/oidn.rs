@@ -20,11 +20,15 @@
 
 use std::time::Instant;
 
+use crate::error::Error;
 use crate::image::Image;
 use crate::method::{Input, Inputs, Method, MethodError, Output};
 use crate::python;
 
 const SCRIPT: &str = include_str!("oidn_denoise.py");
+
+/// The tool named in errors.
+const TOOL: &str = "oidn";
 
 /// The qualities `pyoidn.denoise` accepts.
 pub const QUALITIES: [&str; 4] = ["high", "balanced", "fast", "default"];
@@ -87,11 +91,11 @@ pub fn sanitize(color: &Image, albedo: &Image, normal: &Image) -> (Image, Image,
     (color, albedo, normal, counts)
 }
 
-fn number(value: &serde_json::Value, key: &str) -> Result<f64, MethodError> {
+fn number(value: &serde_json::Value, key: &str) -> Result<f64, Error> {
     value
         .get(key)
         .and_then(serde_json::Value::as_f64)
-        .ok_or_else(|| MethodError::Failed(format!("oidn: the denoise script's result has no number `{key}`: {value}")))
+        .ok_or_else(|| Error::external(TOOL, format!("the denoise script's result has no number `{key}`: {value}")))
 }
 
 impl Method for Oidn {
@@ -99,27 +103,28 @@ impl Method for Oidn {
         Input::Frame
     }
 
-    fn available(&self) -> Result<(), String> {
+    fn available(&self) -> Result<(), Error> {
         python::module_available("numpy")?;
         python::module_available("pyoidn")
     }
 
     fn run(&self, inputs: &Inputs, _recon_rays: u32) -> Result<Output, MethodError> {
         let frame =
-            inputs.frame.ok_or_else(|| MethodError::Failed("oidn: no path-traced frame in the inputs".to_string()))?;
+            inputs.frame.ok_or_else(|| Error::missing_input("frame", "oidn: no path-traced frame in the inputs"))?;
         let (width, height) = (frame.color.width, frame.color.height);
         if width == 0 || height == 0 {
-            return Err(MethodError::Failed(format!("oidn: empty frame ({width}x{height})")));
+            return Err(Error::external(TOOL, format!("empty frame ({width}x{height})")).into());
         }
         for (name, image) in [("albedo", &frame.albedo), ("normal", &frame.normal)] {
-            frame.color.check_same_size(image).map_err(|e| MethodError::Failed(format!("oidn: {name}: {e}")))?;
+            frame
+                .color
+                .check_same_size(image)
+                .map_err(|e| Error::size_mismatch(name, format!("{TOOL}: {name}: {e}")))?;
         }
         if !QUALITIES.contains(&self.quality.as_str()) {
-            return Err(MethodError::Failed(format!(
-                "oidn: unknown quality `{}` (expected one of {})",
-                self.quality,
-                QUALITIES.join(", ")
-            )));
+            let message =
+                format!("{TOOL}: unknown quality `{}` (expected one of {})", self.quality, QUALITIES.join(", "));
+            return Err(Error::parameter("quality", message).into());
         }
         self.available().map_err(MethodError::Unavailable)?;
 
@@ -128,10 +133,11 @@ impl Method for Oidn {
         let dir = tempfile::Builder::new()
             .prefix("lfr-oidn-")
             .tempdir()
-            .map_err(|e| MethodError::Failed(format!("oidn: cannot create a temporary directory: {e}")))?;
+            .map_err(|e| Error::external(TOOL, format!("cannot create a temporary directory: {e}")))?;
+        let bridge = |error: Error| Error::external(TOOL, error.to_string());
         let path = |name: &str| dir.path().join(format!("{name}.f32"));
         for (name, image) in [("color", &color), ("albedo", &albedo), ("normal", &normal)] {
-            python::write_image_f32(&path(name), image).map_err(|e| MethodError::Failed(format!("oidn: {e}")))?;
+            python::write_image_f32(&path(name), image).map_err(bridge)?;
         }
         let args = serde_json::json!({
             "width": width,
@@ -142,10 +148,8 @@ impl Method for Oidn {
             "output": path("output"),
             "quality": self.quality,
         });
-        let result =
-            python::run_script(SCRIPT, &args, dir.path()).map_err(|e| MethodError::Failed(format!("oidn: {e}")))?;
-        let image = python::read_image_f32(&path("output"), width, height)
-            .map_err(|e| MethodError::Failed(format!("oidn: {e}")))?;
+        let result = python::run_script(SCRIPT, &args, dir.path()).map_err(bridge)?;
+        let image = python::read_image_f32(&path("output"), width, height).map_err(bridge)?;
         let wall_s = started.elapsed().as_secs_f64();
 
         let recon_s = number(&result, "seconds")?;
@@ -183,7 +187,7 @@ mod tests {
     const SIZE: u32 = 64;
 
     /// `Some(reason)` when pyoidn (or numpy, or Python) is missing.
-    fn skip_reason() -> Option<String> {
+    fn skip_reason() -> Option<Error> {
         Oidn::default().available().err()
     }
 
@@ -313,7 +317,10 @@ mod tests {
         assert!(matches!(Oidn::default().run(&without, 0), Err(MethodError::Failed(_))));
         let oidn = Oidn { quality: "ultra".to_string() };
         match oidn.run(&inputs(&frame), 0) {
-            Err(MethodError::Failed(message)) => assert!(message.contains("ultra"), "{message}"),
+            Err(MethodError::Failed(error)) => {
+                let message = error.to_string();
+                assert!(message.contains("ultra"), "{message}")
+            }
             other => panic!("expected a failure, got {other:?}"),
         }
     }
@@ -323,7 +330,7 @@ mod tests {
         // Uses the explicit-interpreter check: `LFR_PYTHON` is process-global and tests run in
         // parallel, and `module_available` caches per interpreter.
         let python = "/nonexistent/lfr-oidn-test-python";
-        let error = python::module_available_with(python, "pyoidn").unwrap_err();
+        let error = python::module_available_with(python, "pyoidn").unwrap_err().to_string();
         assert!(error.contains(python), "{error}");
     }
 

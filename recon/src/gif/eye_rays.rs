@@ -31,6 +31,7 @@
 
 use rayon::prelude::*;
 
+use crate::error::Error;
 use crate::gif::guide::{EyeRay, EyeRays, GuideBuffers};
 use crate::gif::modulation::remodulated;
 use crate::image::Image;
@@ -151,12 +152,15 @@ pub fn composite(
     incident: &Image,
     eye_rays: &EyeRays,
     lookup: Lookup,
-) -> Result<Composite, String> {
+) -> Result<Composite, Error> {
     let GuideLight { guide, albedo: guide_albedo, direct: guide_direct, reflected: guide_reflected } = guide_light;
     let (width, height) = (guide.width, guide.height);
     let count = guide.pixel_count();
     if !guide.is_consistent() {
-        return Err(format!("the guide buffers do not all have {width}x{height} entries"));
+        return Err(Error::size_mismatch(
+            "guide buffers",
+            format!("the guide buffers do not all have {width}x{height} entries"),
+        ));
     }
     for (name, image) in [
         ("albedo", guide_albedo),
@@ -165,16 +169,18 @@ pub fn composite(
         ("filtered incident", incident),
     ] {
         if (image.width, image.height) != (width, height) || image.pixels.len() != count {
-            return Err(format!("the {name} image is {}x{}, the guide {width}x{height}", image.width, image.height));
+            let message = format!("the {name} image is {}x{}, the guide {width}x{height}", image.width, image.height);
+            return Err(Error::size_mismatch(name, message));
         }
     }
     let per_pixel = eye_rays.per_pixel as usize;
     if eye_rays.rays.len() != count * per_pixel {
-        return Err(format!(
+        let message = format!(
             "{} eye rays for {count} pixels at {per_pixel} per pixel (expected {})",
             eye_rays.rays.len(),
             count * per_pixel
-        ));
+        );
+        return Err(Error::size_mismatch("eye rays", message));
     }
     let weight = 1.0 / (per_pixel + 1) as f32;
     let pixels: Vec<([f32; 3], [f32; 3], usize, usize)> = (0..count)
@@ -408,7 +414,7 @@ mod tests {
         let light = GuideLight { albedo: &right, ..light };
         assert!(composite(light, &small, &none, Lookup::GeometryAware).is_err());
         let short = EyeRays { per_pixel: 2, rays: vec![EyeRay::default(); 7] };
-        let error = composite(light, &right, &short, Lookup::GeometryAware).unwrap_err();
+        let error = composite(light, &right, &short, Lookup::GeometryAware).unwrap_err().to_string();
         assert!(error.contains("7 eye rays"), "{error}");
     }
 }

@@ -32,6 +32,7 @@ use std::time::Instant;
 
 use crate::baselines::atrous::{atrous, AtrousParams};
 use crate::baselines::bilateral::{cross_bilateral, BilateralParams};
+use crate::error::Error;
 use crate::gif::eye_rays::{composite, Composite, GuideLight, Lookup};
 use crate::gif::guided_filter::{guided_filter, GuideKind, GuidedFilterParams};
 use crate::gif::modulation::{demodulate, remodulate};
@@ -140,14 +141,14 @@ impl FilteredIndirect {
 impl FilteredIndirect {
     /// Filters the guide input's indirect light at the guide hits (reflected light, one value
     /// per pixel centre); returns the image and the sanitised count.
-    pub fn filter_indirect(&self, input: &GuideInput) -> Result<(Image, usize), String> {
+    pub fn filter_indirect(&self, input: &GuideInput) -> Result<(Image, usize), Error> {
         let (incident, sanitised) = self.filter_incident(input)?;
         Ok((remodulate(&incident, &input.albedo, &input.indirect), sanitised))
     }
 
     /// The whole pipeline: filters the incident light at the guide hits, then composites the
     /// guide ray and the additional eye rays of every pixel (`eye_rays::composite`).
-    pub fn reconstruct(&self, input: &GuideInput) -> Result<(Composite, usize), String> {
+    pub fn reconstruct(&self, input: &GuideInput) -> Result<(Composite, usize), Error> {
         let (incident, sanitised) = self.filter_incident(input)?;
         let light = GuideLight {
             guide: &input.guide,
@@ -160,7 +161,7 @@ impl FilteredIndirect {
     }
 
     /// The filtered incident light at the guide hits (see `demodulate`).
-    pub fn filter_incident(&self, input: &GuideInput) -> Result<(Image, usize), String> {
+    pub fn filter_incident(&self, input: &GuideInput) -> Result<(Image, usize), Error> {
         let incident = demodulate(&input.indirect, &input.albedo);
         let (filtered, sanitised) = match &self.filter {
             Filter::Guided(params) => {
@@ -232,19 +233,20 @@ impl FilteredIndirect {
 
     /// This variant with `options` applied and checked (options that do not apply to it are
     /// errors: `lfr filter` passes its flags here).
-    pub fn with_options(mut self, options: &FilterOptions) -> Result<FilteredIndirect, String> {
+    pub fn with_options(mut self, options: &FilterOptions) -> Result<FilteredIndirect, Error> {
         let name = self.name.clone();
-        let misplaced = |option: &str| Err(format!("{option} does not apply to {name}"));
+        let misplaced =
+            |option: &'static str| Err(Error::parameter(option, format!("{option} does not apply to {name}")));
         if options.radius == Some(0) {
-            return Err("radius must be at least 1".into());
+            return Err(Error::parameter("radius", "radius must be at least 1"));
         }
         if options.subsample == Some(0) {
-            return Err("subsample must be at least 1".into());
+            return Err(Error::parameter("subsample", "subsample must be at least 1"));
         }
         for (option, value) in [("eps_normal", options.epsilon_normal), ("eps_depth", options.epsilon_depth)] {
             if let Some(value) = value {
                 if !(value.is_finite() && value > 0.0) {
-                    return Err(format!("{option} must be positive and finite, got {value}"));
+                    return Err(Error::parameter(option, format!("{option} must be positive and finite, got {value}")));
                 }
             }
         }
@@ -295,16 +297,19 @@ impl Method for FilteredIndirect {
     }
 
     fn run(&self, inputs: &Inputs, _recon_rays: u32) -> Result<Output, MethodError> {
-        let input = inputs.guide.ok_or_else(|| MethodError::Failed(format!("{} needs guide buffers", self.name)))?;
+        let input = inputs
+            .guide
+            .ok_or_else(|| Error::missing_input("guide buffers", format!("{} needs guide buffers", self.name)))?;
         let size = (input.indirect.width, input.indirect.height);
         if size != (inputs.width, inputs.height) || input.albedo.check_same_size(&input.indirect).is_err() {
-            return Err(MethodError::Failed(format!(
+            let message = format!(
                 "{}: guide buffers are {}x{}, the comparison is {}x{}",
                 self.name, size.0, size.1, inputs.width, inputs.height
-            )));
+            );
+            return Err(Error::size_mismatch("guide buffers", message).into());
         }
         let start = Instant::now();
-        let (composite, sanitised) = self.reconstruct(input).map_err(MethodError::Failed)?;
+        let (composite, sanitised) = self.reconstruct(input)?;
         let mut notes = vec![format!(
             "{} eye rays per pixel: the guide ray through its centre and {} more with the geometry-aware lookup",
             input.eye_rays.per_pixel + 1,
@@ -392,7 +397,11 @@ mod tests {
             (FilteredIndirect::gif(), set(|o| o.epsilon_normal = Some(f32::INFINITY)), "positive"),
         ] {
             let name = variant.name.clone();
-            let error = variant.with_options(&options).err().unwrap_or_else(|| panic!("{name} {options:?} must fail"));
+            let error = variant
+                .with_options(&options)
+                .err()
+                .unwrap_or_else(|| panic!("{name} {options:?} must fail"))
+                .to_string();
             assert!(error.contains(needle), "{name} {options:?}: {error}");
         }
     }

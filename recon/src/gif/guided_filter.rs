@@ -108,6 +108,7 @@
 
 use rayon::prelude::*;
 
+use crate::error::Error;
 use crate::gif::guide::GuideBuffers;
 use crate::image::Image;
 
@@ -206,14 +207,18 @@ fn is_escaped(normal: [f32; 3]) -> bool {
 /// clamped to [0, 1]. Escaped pixels (zero or non-finite normal) get normal 0.5 and depth 1;
 /// a non-finite depth on a hit counts as far (1). Errors on inconsistent buffers or a depth
 /// extent that is not finite and positive.
-pub fn guide_channels(guide: &GuideBuffers, params: &GuidedFilterParams) -> Result<Vec<Vec<f32>>, String> {
+pub fn guide_channels(guide: &GuideBuffers, params: &GuidedFilterParams) -> Result<Vec<Vec<f32>>, Error> {
     if !guide.is_consistent() {
-        return Err(format!("guide buffers are inconsistent with their size {}x{}", guide.width, guide.height));
+        let message = format!("guide buffers are inconsistent with their size {}x{}", guide.width, guide.height);
+        return Err(Error::size_mismatch("guide buffers", message));
     }
     let scale = |n: f32| ((n + 1.0) * 0.5).clamp(0.0, 1.0);
     let extent = match (params.guide, params.depth_extent) {
         (GuideKind::NormalDepth, Some(extent)) if !(extent.is_finite() && extent > 0.0) => {
-            return Err(format!("the depth extent must be finite and positive, got {extent}"));
+            return Err(Error::parameter(
+                "depth_extent",
+                format!("the depth extent must be finite and positive, got {extent}"),
+            ));
         }
         (GuideKind::NormalDepth, Some(extent)) => extent,
         (GuideKind::NormalDepth, None) => {
@@ -269,12 +274,11 @@ pub fn guided_filter(
     noisy: &Image,
     guide: &GuideBuffers,
     params: &GuidedFilterParams,
-) -> Result<(Image, FilterReport), String> {
+) -> Result<(Image, FilterReport), Error> {
     if (noisy.width, noisy.height) != (guide.width, guide.height) {
-        return Err(format!(
-            "the noisy image is {}x{}, the guide {}x{}",
-            noisy.width, noisy.height, guide.width, guide.height
-        ));
+        let message =
+            format!("the noisy image is {}x{}, the guide {}x{}", noisy.width, noisy.height, guide.width, guide.height);
+        return Err(Error::size_mismatch("noisy image and guide buffers", message));
     }
     let planes = guide_channels(guide, params)?;
     guided_filter_planes_subsampled(noisy, &planes, &params.epsilons(), params.radius, params.subsample)
@@ -287,7 +291,7 @@ pub fn guided_filter_planes(
     planes: &[Vec<f32>],
     epsilons: &[f32],
     radius: u32,
-) -> Result<(Image, FilterReport), String> {
+) -> Result<(Image, FilterReport), Error> {
     guided_filter_planes_subsampled(noisy, planes, epsilons, radius, 1)
 }
 
@@ -299,39 +303,39 @@ pub fn guided_filter_planes_subsampled(
     epsilons: &[f32],
     radius: u32,
     subsample: u32,
-) -> Result<(Image, FilterReport), String> {
+) -> Result<(Image, FilterReport), Error> {
     if subsample == 0 {
-        return Err("the subsampling factor must be at least 1, got 0".into());
+        return Err(Error::parameter("subsample", "the subsampling factor must be at least 1, got 0"));
     }
     let (width, height) = (noisy.width as usize, noisy.height as usize);
     let count = width * height;
     if noisy.pixels.len() != count {
-        return Err(format!(
-            "the noisy image has {} pixels, its size {width}x{height} needs {count}",
-            noisy.pixels.len()
-        ));
+        let message =
+            format!("the noisy image has {} pixels, its size {width}x{height} needs {count}", noisy.pixels.len());
+        return Err(Error::size_mismatch("noisy image", message));
     }
     let d = planes.len();
     if !(1..=MAX_GUIDE_CHANNELS).contains(&d) {
-        return Err(format!("the guide needs 1 to {MAX_GUIDE_CHANNELS} channels, got {d}"));
+        return Err(Error::parameter("planes", format!("the guide needs 1 to {MAX_GUIDE_CHANNELS} channels, got {d}")));
     }
     if epsilons.len() != d {
-        return Err(format!("{d} guide channels need {d} epsilons, got {}", epsilons.len()));
+        let message = format!("{d} guide channels need {d} epsilons, got {}", epsilons.len());
+        return Err(Error::size_mismatch("guide channels and epsilons", message));
     }
     if let Some((j, e)) = epsilons.iter().enumerate().find(|(_, e)| !(e.is_finite() && **e > 0.0)) {
-        return Err(format!("epsilon {j} must be finite and positive, got {e}"));
+        return Err(Error::parameter("epsilons", format!("epsilon {j} must be finite and positive, got {e}")));
     }
     for (j, plane) in planes.iter().enumerate() {
         if plane.len() != count {
-            return Err(format!(
-                "guide channel {j} has {} values, the {width}x{height} image needs {count}",
-                plane.len()
-            ));
+            let message =
+                format!("guide channel {j} has {} values, the {width}x{height} image needs {count}", plane.len());
+            return Err(Error::size_mismatch("guide channel", message));
         }
         // A branch-free pass first (it vectorises); the position only on failure.
         if !plane.par_chunks(1 << 16).all(|chunk| chunk.iter().fold(true, |ok, v| ok & v.is_finite())) {
             let i = plane.iter().position(|v| !v.is_finite()).unwrap_or_default();
-            return Err(format!("guide channel {j} has the non-finite value {} at pixel {i}", plane[i]));
+            let message = format!("guide channel {j} has the non-finite value {} at pixel {i}", plane[i]);
+            return Err(Error::parameter("planes", message));
         }
     }
 

@@ -21,6 +21,7 @@
 //! returns (tested bit for bit).
 
 use super::disc::{intersect, Disc, DiscHit, Ray};
+use crate::error::Error;
 
 /// Discs per leaf at most.
 pub const MAX_LEAF: usize = 8;
@@ -98,18 +99,25 @@ fn half_area(lo: [f32; 3], hi: [f32; 3]) -> f32 {
 impl DiscBvh {
     /// Builds the hierarchy. Every centre and radius must be finite, radii ≥ 0, normals unit
     /// (make them with [`Disc::new`]); otherwise an error names the disc.
-    pub fn build(discs: &[Disc]) -> Result<DiscBvh, String> {
+    pub fn build(discs: &[Disc]) -> Result<DiscBvh, Error> {
         let mut largest = 0.0f32;
+        let bad = |message: String| Error::parameter("discs", message);
         for (i, disc) in discs.iter().enumerate() {
             if !disc.centre.iter().all(|c| c.is_finite()) {
-                return Err(format!("splat hierarchy: the centre of disc {i} is not finite: {:?}", disc.centre));
+                return Err(bad(format!("splat hierarchy: the centre of disc {i} is not finite: {:?}", disc.centre)));
             }
             if !(disc.radius.is_finite() && disc.radius >= 0.0) {
-                return Err(format!("splat hierarchy: the radius of disc {i} is {}, not finite and ≥ 0", disc.radius));
+                return Err(bad(format!(
+                    "splat hierarchy: the radius of disc {i} is {}, not finite and ≥ 0",
+                    disc.radius
+                )));
             }
             let l = super::disc::length(disc.normal);
             if !(l.is_finite() && (l - 1.0).abs() <= 1e-3) {
-                return Err(format!("splat hierarchy: the normal of disc {i} is not a unit vector: {:?}", disc.normal));
+                return Err(bad(format!(
+                    "splat hierarchy: the normal of disc {i} is not a unit vector: {:?}",
+                    disc.normal
+                )));
             }
             largest = largest.max(disc.radius);
             for c in disc.centre {
@@ -188,12 +196,14 @@ impl DiscBvh {
     }
 
     /// Replaces every radius (by input index; finite, ≥ 0) and refits the boxes bottom-up.
-    pub fn set_radii(&mut self, radius_by_id: &[f32]) -> Result<(), String> {
+    pub fn set_radii(&mut self, radius_by_id: &[f32]) -> Result<(), Error> {
         if radius_by_id.len() != self.discs.len() {
-            return Err(format!("splat hierarchy: {} radii for {} discs", radius_by_id.len(), self.discs.len()));
+            let message = format!("splat hierarchy: {} radii for {} discs", radius_by_id.len(), self.discs.len());
+            return Err(Error::size_mismatch("radii and discs", message));
         }
         if let Some(i) = radius_by_id.iter().position(|r| !(r.is_finite() && *r >= 0.0)) {
-            return Err(format!("splat hierarchy: radius {i} is {}, not finite and ≥ 0", radius_by_id[i]));
+            let message = format!("splat hierarchy: radius {i} is {}, not finite and ≥ 0", radius_by_id[i]);
+            return Err(Error::parameter("radius_by_id", message));
         }
         for (slot, disc) in self.discs.iter_mut().enumerate() {
             disc.radius = radius_by_id[self.ids[slot] as usize];
@@ -570,10 +580,10 @@ mod tests {
         // Bad input names the disc.
         let mut bad = random_discs(10, 1);
         bad[4].centre[2] = f32::NAN;
-        assert!(DiscBvh::build(&bad).unwrap_err().contains("disc 4"));
+        assert!(DiscBvh::build(&bad).unwrap_err().to_string().contains("disc 4"));
         bad = random_discs(10, 1);
         bad[2].radius = -1.0;
-        assert!(DiscBvh::build(&bad).unwrap_err().contains("disc 2"));
+        assert!(DiscBvh::build(&bad).unwrap_err().to_string().contains("disc 2"));
         assert!(length(bad[0].normal) > 0.99);
     }
 

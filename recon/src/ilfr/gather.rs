@@ -36,6 +36,7 @@ use super::directions::cosine_rays;
 use super::disc::Ray;
 use super::reconstruct::{ReconstructStats, Reconstructor, Scratch, SkyFallbacks, SkySample};
 use super::samples::{IndirectSamples, SampleClass};
+use crate::error::Error;
 use crate::image::Image;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -94,38 +95,38 @@ pub fn gather(
     reconstructor: &Reconstructor,
     ao_radius: Option<f32>,
     settings: &GatherSettings,
-) -> Result<(Image, GatherStats), String> {
-    let path = &samples.path;
+) -> Result<(Image, GatherStats), Error> {
+    let content = |message: &str| Error::sample_content(&samples.path, message);
     let albedo = match ao_radius {
         None => {
             if samples.weight.is_some() && samples.primary_shading.is_none() {
-                return Err(format!(
-                    "{path}: the file has the field `weight` (a glossy scene) but not `origin_base_color` and the other \
-                     fields of o's BSDF that the final gather at glossy primary hits samples: dump the samples again"
+                return Err(content(
+                    "the file has the field `weight` (a glossy scene) but not `origin_base_color` and the other \
+                     fields of o's BSDF that the final gather at glossy primary hits samples: dump the samples again",
                 ));
             }
             if samples.radiance.is_none() {
-                return Err(format!("{path}: indirect light needs the field `radiance`"));
+                return Err(content("indirect light needs the field `radiance`"));
             }
-            Some(samples.albedo.as_ref().ok_or_else(|| format!("{path}: indirect light needs the field `albedo`"))?)
+            Some(samples.albedo.as_ref().ok_or_else(|| content("indirect light needs the field `albedo`"))?)
         }
         Some(ao_radius) => {
             if !(ao_radius.is_finite() && ao_radius > 0.0) {
-                return Err(format!("the AO radius must be positive, got {ao_radius}"));
+                return Err(Error::parameter("ao_radius", format!("the AO radius must be positive, got {ao_radius}")));
             }
             None
         }
     };
     if !(settings.offset.is_finite() && settings.offset >= 0.0) {
-        return Err(format!("the reconstruction ray offset must be finite and ≥ 0, got {}", settings.offset));
+        let message = format!("the reconstruction ray offset must be finite and ≥ 0, got {}", settings.offset);
+        return Err(Error::parameter("offset", message));
     }
     let (width, height, spp) = (samples.width, samples.height, samples.spp.max(1));
     let expected = width as usize * height as usize * spp as usize;
     if samples.len() != expected {
-        return Err(format!(
-            "{path}: {} samples for {width}x{height} pixels at {spp} spp ({expected} expected)",
-            samples.len()
-        ));
+        let message =
+            format!("{} samples for {width}x{height} pixels at {spp} spp ({expected} expected)", samples.len());
+        return Err(Error::sample_content(&samples.path, message));
     }
     let per_hit = rays_per_hit(settings.rays_per_pixel, spp);
     let rows: Vec<(Vec<[f32; 3]>, GatherStats)> = (0..height)

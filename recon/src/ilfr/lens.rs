@@ -45,6 +45,7 @@ use shading::sampling::{hash_u32, laine_karras_permutation, sobol_2d_scrambled};
 use super::gather::{assemble_rows, sky_samples, GatherSettings, GatherStats};
 use super::reconstruct::{Reconstructor, Scratch};
 use super::samples::{IndirectSamples, SampleClass};
+use crate::error::Error;
 use crate::image::Image;
 
 /// The thin-lens camera of a `lens-time` header, in camera space.
@@ -61,11 +62,12 @@ pub struct LensCamera {
 }
 
 impl LensCamera {
-    pub fn from_header(camera: &sampleio::Camera) -> Result<LensCamera, String> {
+    pub fn from_header(camera: &sampleio::Camera) -> Result<LensCamera, Error> {
         let model = crate::tlfr::lens::LensModel::from_camera(camera)?;
         let (aperture, focus) = (camera.aperture_radius as f32, camera.focus_distance as f32);
         if !(aperture.is_finite() && aperture >= 0.0 && focus.is_finite() && focus > 0.0) {
-            return Err(format!("camera: aperture {aperture} and focus distance {focus} are not a thin lens"));
+            let message = format!("camera: aperture {aperture} and focus distance {focus} are not a thin lens");
+            return Err(Error::parameter("camera", message));
         }
         Ok(LensCamera { fx: model.fx, fy: model.fy, cx: model.cx, cy: model.cy, aperture, focus })
     }
@@ -126,25 +128,26 @@ pub struct PrimaryRayStats {
 /// A `lens-time` file as input rays in camera space: sample i is camera ray i, from its lens
 /// point (`primary_hit`) to its hit (`secondary_hit`, where it was at the sample's time), with
 /// the time and the hit's motion when the file has them. Errors name the file, field and sample.
-pub fn read_primary_rays(file: &SampleFile) -> Result<(IndirectSamples, LensCamera, PrimaryRayStats), String> {
+pub fn read_primary_rays(file: &SampleFile) -> Result<(IndirectSamples, LensCamera, PrimaryRayStats), Error> {
     let path = file.path().display().to_string();
+    let content = |message: String| Error::sample_content(file.path(), message);
     let header = file.header();
     if header.kind != SampleKind::LensTime {
-        return Err(format!(
-            "{path}: the lens mode reads `lens-time` samples, the file holds `{}`",
+        return Err(content(format!(
+            "the lens mode reads `lens-time` samples, the file holds `{}`",
             header.kind.name()
-        ));
+        )));
     }
-    let camera = header.camera.as_ref().ok_or_else(|| format!("{path}: the header has no `camera` block"))?;
-    let camera = LensCamera::from_header(camera).map_err(|e| format!("{path}: {e}"))?;
-    let column = |name: &str, components: u32, required: bool| -> Result<Option<Vec<f32>>, String> {
+    let camera = header.camera.as_ref().ok_or_else(|| content("the header has no `camera` block".to_string()))?;
+    let camera = LensCamera::from_header(camera).map_err(|e| content(e.to_string()))?;
+    let column = |name: &str, components: u32, required: bool| -> Result<Option<Vec<f32>>, Error> {
         match file.field(name) {
-            None if required => Err(format!("{path}: `lens-time` samples lack the field `{name}`")),
+            None if required => Err(content(format!("`lens-time` samples lack the field `{name}`"))),
             None => Ok(None),
             Some(f) if f.components != components => {
-                Err(format!("{path}: field `{name}` has {} components, {components} expected", f.components))
+                Err(content(format!("field `{name}` has {} components, {components} expected", f.components)))
             }
-            Some(_) => file.column(name).map(Some).map_err(|e| e.to_string()),
+            Some(_) => Ok(Some(file.column(name)?)),
         }
     };
     let (x, y, z) = (column("x", 1, true)?, column("y", 1, true)?, column("z", 1, true)?);
@@ -158,13 +161,13 @@ pub fn read_primary_rays(file: &SampleFile) -> Result<(IndirectSamples, LensCame
     );
     let (u, v) = (column("u", 1, false)?, column("v", 1, false)?);
     if u.is_some() != v.is_some() {
-        return Err(format!("{path}: the file has only one of the lens fields `u`, `v`"));
+        return Err(content("the file has only one of the lens fields `u`, `v`".to_string()));
     }
     let (time, motion) = (column("t", 1, false)?, column("motion", 3, false)?);
     if motion.is_some() && time.is_none() {
-        return Err(format!("{path}: the file has `motion` but no time field `t`"));
+        return Err(content("the file has `motion` but no time field `t`".to_string()));
     }
-    let bad = |name: &str, i: usize, what: String| format!("{path}: field `{name}` of sample {i} is {what}");
+    let bad = |name: &str, i: usize, what: String| content(format!("field `{name}` of sample {i} is {what}"));
     let n = file.len();
     let mut samples =
         IndirectSamples::empty(path.clone(), SampleKind::LensTime, (header.width, header.height, header.spp), n);
@@ -243,11 +246,12 @@ pub fn gather_lens(
     reconstructor: &Reconstructor,
     camera: &LensCamera,
     settings: &GatherSettings,
-) -> Result<(Image, GatherStats), String> {
-    let radiance = samples.radiance.as_ref().ok_or_else(|| format!("{}: no `radiance`", samples.path))?;
+) -> Result<(Image, GatherStats), Error> {
+    let radiance = samples.radiance.as_ref().ok_or_else(|| Error::sample_content(&samples.path, "no `radiance`"))?;
     let (width, height, spp) = (samples.width, samples.height, samples.spp.max(1) as usize);
     if samples.len() != width as usize * height as usize * spp {
-        return Err(format!("{}: {} samples for {width}x{height} pixels at {spp} spp", samples.path, samples.len()));
+        let message = format!("{} samples for {width}x{height} pixels at {spp} spp", samples.len());
+        return Err(Error::sample_content(&samples.path, message));
     }
     let n = settings.rays_per_pixel.max(1);
     let moving = samples.time.is_some();
@@ -577,7 +581,7 @@ mod tests {
             ((1.0, 0.5, f32::NAN), "`motion`"),
         ] {
             let path = one_pixel_file(dir.path(), &[record]);
-            let error = read_primary_rays(&SampleFile::open(&path).unwrap()).unwrap_err();
+            let error = read_primary_rays(&SampleFile::open(&path).unwrap()).unwrap_err().to_string();
             assert!(error.contains("one.lfrs") && error.contains(field), "{record:?}: {error}");
         }
     }
@@ -586,7 +590,7 @@ mod tests {
     fn motion_without_time_is_refused_by_name() {
         let dir = tempfile::tempdir().unwrap();
         let file = SampleFile::open(write_samples(dir.path(), 1, Some(Vec3::X), false)).unwrap();
-        let error = read_primary_rays(&file).unwrap_err();
+        let error = read_primary_rays(&file).unwrap_err().to_string();
         assert!(error.contains("lens.lfrs") && error.contains("`t`"), "{error}");
     }
 }

@@ -29,6 +29,7 @@ use super::samples::{read_indirect, IndirectSamples};
 use super::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams, ShrinkStats};
 use super::splats::{size_splats, GatheredPoints, SplatParams, SplatStats};
 use super::surfaces::SurfaceParams;
+use crate::error::Error;
 use crate::image::Image;
 use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
 
@@ -91,11 +92,15 @@ impl Method for IlfrDof {
         if !matches!(inputs.effect, Effect::Dof | Effect::Motion | Effect::DofMotion) {
             return Err(MethodError::Unsupported(format!("{name} does not reconstruct {}", inputs.effect.name())));
         }
-        let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed(format!("{name} needs a sample file")))?;
+        let path = inputs
+            .samples
+            .as_ref()
+            .ok_or_else(|| Error::missing_input("samples", format!("{name} needs a sample file")))?;
         let settings = IlfrSettings { recon_rays, seed: inputs.seed, ..IlfrSettings::default() };
         let start = Instant::now();
         let file = SampleFile::open(path)?;
-        let (samples, camera, ray_stats) = read_primary_rays(&file).map_err(MethodError::Unsupported)?;
+        let (samples, camera, ray_stats) =
+            read_primary_rays(&file).map_err(|error| MethodError::Unsupported(error.to_string()))?;
         drop(file);
         let read_s = start.elapsed().as_secs_f64();
         let mut result = reconstruct_samples(&samples, GatherTarget::Lens(camera), &settings)?;
@@ -120,7 +125,10 @@ impl Method for IlfrDof {
 }
 
 fn run_ilfr(name: &str, inputs: &Inputs, settings: IlfrSettings) -> Result<Output, MethodError> {
-    let path = inputs.samples.as_ref().ok_or_else(|| MethodError::Failed(format!("{name} needs a sample file")))?;
+    let path = inputs
+        .samples
+        .as_ref()
+        .ok_or_else(|| Error::missing_input("samples", format!("{name} needs a sample file")))?;
     let target = match inputs.effect {
         Effect::Indirect | Effect::Glossy => GatherTarget::Indirect,
         Effect::Ao if settings.recursive_passes == 0 => GatherTarget::Visibility { ao_radius: inputs.ao_radius },
@@ -128,18 +136,19 @@ fn run_ilfr(name: &str, inputs: &Inputs, settings: IlfrSettings) -> Result<Outpu
     };
     let start = Instant::now();
     let file = SampleFile::open(path)?;
-    let samples = read_indirect(&file).map_err(MethodError::Failed)?;
+    let samples = read_indirect(&file)?;
     drop(file);
     let read_s = start.elapsed().as_secs_f64();
     if (samples.width, samples.height) != (inputs.width, inputs.height) {
-        return Err(MethodError::Failed(format!(
+        let message = format!(
             "{}: samples are {}x{}, the comparison is {}x{}",
             path.display(),
             samples.width,
             samples.height,
             inputs.width,
             inputs.height
-        )));
+        );
+        return Err(Error::size_mismatch("samples", message).into());
     }
     let mut result = reconstruct_samples(&samples, target, &settings)?;
     result.timings.read_s = read_s;
@@ -312,7 +321,7 @@ pub fn reconstruct_samples(
             samples.path
         )));
     }
-    let failed = |e: String| MethodError::Failed(format!("{}: {e}", samples.path));
+    let failed = |error: Error| MethodError::Failed(error.in_file(&samples.path));
 
     let start = Instant::now();
     let storage = GatheredPoints::from_samples(samples);
@@ -349,8 +358,9 @@ pub fn reconstruct_samples(
         if target != GatherTarget::Indirect {
             return Err(MethodError::Unsupported("recursive filtering applies to indirect light only".into()));
         }
-        let mut current =
-            samples.radiance.clone().ok_or_else(|| failed("recursive filtering needs the field `radiance`".into()))?;
+        let mut current = samples.radiance.clone().ok_or_else(|| {
+            MethodError::Failed(Error::sample_content(&samples.path, "recursive filtering needs the field `radiance`"))
+        })?;
         let recursive_settings = RecursiveSettings {
             rays_per_hit: settings.recursive_rays,
             seed: settings.seed,
@@ -362,8 +372,7 @@ pub fn reconstruct_samples(
             let shading =
                 SplatShading { radiance: &radiance, direction: &storage.direction, kappa: storage.kappa.as_deref() };
             let reconstructor = Reconstructor { bvh: &bvh, shading, surfaces: settings.surfaces };
-            let (next, stats) =
-                recursive_pass(samples, &current, &reconstructor, &recursive_settings).map_err(MethodError::Failed)?;
+            let (next, stats) = recursive_pass(samples, &current, &reconstructor, &recursive_settings)?;
             current = next;
             recursive.push(stats);
         }

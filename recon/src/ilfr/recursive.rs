@@ -48,6 +48,7 @@ use super::filter::GLOSSY_KAPPA;
 use super::gather::sky_samples;
 use super::reconstruct::{ReconstructStats, Reconstructor, Scratch, SkyFallbacks};
 use super::samples::{IndirectSamples, PrimaryShading, SampleClass};
+use crate::error::Error;
 
 /// How a recursive pass runs.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -108,25 +109,28 @@ pub fn recursive_pass(
     current: &[[f32; 3]],
     reconstructor: &Reconstructor,
     settings: &RecursiveSettings,
-) -> Result<(Vec<[f32; 3]>, RecursiveStats), String> {
-    let path = &samples.path;
-    let field = |name: &str| format!("{path}: recursive filtering needs the field `{name}` (docs/sample-format.md)");
+) -> Result<(Vec<[f32; 3]>, RecursiveStats), Error> {
+    let content = |message: String| Error::sample_content(&samples.path, message);
+    let field = |name: &str| content(format!("recursive filtering needs the field `{name}` (docs/sample-format.md)"));
     let secondary_albedo = samples.secondary_albedo.as_ref().ok_or_else(|| field("secondary_albedo"))?;
     if samples.weight.is_some() && samples.secondary_bsdf.is_none() {
-        return Err(format!(
-            "{path}: a glossy file (it has `weight`) without `hit_base_color` and the other fields of h's BSDF: \
-             recursive filtering at glossy secondary hits needs them; dump the samples again"
+        return Err(content(
+            "a glossy file (it has `weight`) without `hit_base_color` and the other fields of h's BSDF: recursive \
+             filtering at glossy secondary hits needs them; dump the samples again"
+                .to_string(),
         ));
     }
     let secondary_direct = samples.secondary_direct.as_ref().ok_or_else(|| field("secondary_direct"))?;
     if current.len() != samples.len() {
-        return Err(format!("{path}: {} radiances for {} samples", current.len(), samples.len()));
+        let message = format!("{}: {} radiances for {} samples", samples.path, current.len(), samples.len());
+        return Err(Error::size_mismatch("radiances and samples", message));
     }
     if settings.rays_per_hit == 0 {
-        return Err("recursive filtering needs at least one ray per secondary hit".into());
+        return Err(Error::parameter("rays_per_hit", "recursive filtering needs at least one ray per secondary hit"));
     }
     if !(settings.offset.is_finite() && settings.offset >= 0.0) {
-        return Err(format!("the reconstruction ray offset must be finite and ≥ 0, got {}", settings.offset));
+        let message = format!("the reconstruction ray offset must be finite and ≥ 0, got {}", settings.offset);
+        return Err(Error::parameter("offset", message));
     }
     let (width, spp) = (samples.width.max(1) as usize, samples.spp.max(1) as usize);
     let chunks: Vec<(Vec<[f32; 3]>, RecursiveStats)> = (0..samples.len().div_ceil(CHUNK))
@@ -252,7 +256,7 @@ mod tests {
 
     /// Sizes, indexes and shrinks the splats of `samples` (as `reconstruct_samples` does) and
     /// runs one recursive pass from the file's radiances.
-    fn one_pass(samples: &IndirectSamples, rays_per_hit: u32) -> Result<(Vec<[f32; 3]>, RecursiveStats), String> {
+    fn one_pass(samples: &IndirectSamples, rays_per_hit: u32) -> Result<(Vec<[f32; 3]>, RecursiveStats), Error> {
         let storage = GatheredPoints::from_samples(samples);
         let points = storage.points();
         let sized = size_splats(&points, &SplatParams::default())?;
@@ -459,7 +463,7 @@ mod tests {
         let mut samples =
             with_secondary(box_samples(2, 1, SampleKind::Indirect, None, |_| [1.0; 3]), [0.5; 3], [0.0; 3]);
         samples.secondary_direct = None;
-        let error = one_pass(&samples, 4).unwrap_err();
+        let error = one_pass(&samples, 4).unwrap_err().to_string();
         assert!(error.contains("synthetic.lfrs") && error.contains("`secondary_direct`"), "{error}");
         let settings = IlfrSettings { recon_rays: 4, recursive_passes: 1, ..IlfrSettings::default() };
         let error = reconstruct_samples(&samples, GatherTarget::Indirect, &settings).unwrap_err();

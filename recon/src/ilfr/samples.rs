@@ -11,6 +11,8 @@
 
 use sampleio::{SampleFile, SampleKind};
 
+use crate::error::Error;
+
 /// What one record holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(u8)]
@@ -176,22 +178,23 @@ impl IndirectSamples {
 pub use crate::octahedral::decode as decode_octahedral;
 
 /// Reads an `indirect` or `ao` file; errors name the file and the missing or bad field.
-pub fn read_indirect(file: &SampleFile) -> Result<IndirectSamples, String> {
+pub fn read_indirect(file: &SampleFile) -> Result<IndirectSamples, Error> {
     let path = file.path().display().to_string();
+    let content = |message: String| Error::sample_content(file.path(), message);
     let header = file.header();
     let kind = header.kind;
     if kind != SampleKind::Indirect && kind != SampleKind::Ao {
-        return Err(format!("{path}: ILFR reads `indirect` or `ao` samples, the file holds `{}`", kind.name()));
+        return Err(content(format!("ILFR reads `indirect` or `ao` samples, the file holds `{}`", kind.name())));
     }
-    let column = |name: &str, components: usize| -> Result<Option<Vec<f32>>, String> {
+    let column = |name: &str, components: usize| -> Result<Option<Vec<f32>>, Error> {
         let Some(field) = file.field(name) else { return Ok(None) };
         if field.components as usize != components {
-            return Err(format!("{path}: field `{name}` has {} components, {components} expected", field.components));
+            return Err(content(format!("field `{name}` has {} components, {components} expected", field.components)));
         }
-        file.column(name).map(Some).map_err(|e| e.to_string())
+        Ok(Some(file.column(name)?))
     };
-    let required = |name: &str, components: usize| -> Result<Vec<f32>, String> {
-        column(name, components)?.ok_or_else(|| format!("{path}: `{}` samples lack the field `{name}`", kind.name()))
+    let required = |name: &str, components: usize| -> Result<Vec<f32>, Error> {
+        column(name, components)?.ok_or_else(|| content(format!("`{}` samples lack the field `{name}`", kind.name())))
     };
     let n = file.len();
     let film_x = required("x", 1)?;
@@ -212,14 +215,14 @@ pub fn read_indirect(file: &SampleFile) -> Result<IndirectSamples, String> {
 
     let bad = |name: &str, i: usize, what: &str| {
         let pixel = i / header.spp as usize;
-        format!(
-            "{path}: field `{name}` of sample {i} (pixel {}, {}) is {what}",
+        content(format!(
+            "field `{name}` of sample {i} (pixel {}, {}) is {what}",
             pixel % header.width as usize,
             pixel / header.width as usize
-        )
+        ))
     };
     let vec3 = |values: &[f32], i: usize| [values[3 * i], values[3 * i + 1], values[3 * i + 2]];
-    let finite3 = |name: &str, values: &[f32], i: usize| -> Result<[f32; 3], String> {
+    let finite3 = |name: &str, values: &[f32], i: usize| -> Result<[f32; 3], Error> {
         let v = vec3(values, i);
         if v.iter().all(|c| c.is_finite()) {
             Ok(v)
@@ -275,7 +278,7 @@ pub fn read_indirect(file: &SampleFile) -> Result<IndirectSamples, String> {
             .map(|values| {
                 (0..n)
                     .map(|i| if needed(i) { finite3(name, &values, i) } else { Ok(vec3(&values, i)) })
-                    .collect::<Result<Vec<_>, String>>()
+                    .collect::<Result<Vec<_>, Error>>()
             })
             .transpose()
     };
@@ -302,7 +305,7 @@ pub fn read_indirect(file: &SampleFile) -> Result<IndirectSamples, String> {
 }
 
 /// Reads an optional column with its expected components (`None` when the file lacks it).
-type ColumnReader<'a> = dyn Fn(&str, usize) -> Result<Option<Vec<f32>>, String> + 'a;
+type ColumnReader<'a> = dyn Fn(&str, usize) -> Result<Option<Vec<f32>>, Error> + 'a;
 
 /// The five BSDF fields `{prefix}_base_color`, `_metallic`, `_roughness`, `_specular`, `_f0`
 /// (all or none: `None` when the file has none), parsed for every sample where `used(i)`; a
@@ -311,9 +314,9 @@ fn read_bsdfs(
     prefix: &str,
     samples: &IndirectSamples,
     column: &ColumnReader,
-    bad: &dyn Fn(&str, usize, &str) -> String,
+    bad: &dyn Fn(&str, usize, &str) -> Error,
     used: &dyn Fn(usize) -> bool,
-) -> Result<Option<Vec<shading::Bsdf>>, String> {
+) -> Result<Option<Vec<shading::Bsdf>>, Error> {
     let names = ["base_color", "metallic", "roughness", "specular", "f0"].map(|n| format!("{prefix}_{n}"));
     let mut columns = Vec::with_capacity(5);
     for (k, name) in names.iter().enumerate() {
@@ -323,10 +326,8 @@ fn read_bsdfs(
         return Ok(None);
     }
     if let Some(k) = columns.iter().position(Option::is_none) {
-        return Err(format!(
-            "{}: the file has some of the fields of {prefix}'s BSDF but lacks `{}`",
-            samples.path, names[k]
-        ));
+        let message = format!("the file has some of the fields of {prefix}'s BSDF but lacks `{}`", names[k]);
+        return Err(Error::sample_content(&samples.path, message));
     }
     let columns: Vec<Vec<f32>> = columns.into_iter().map(Option::unwrap_or_default).collect();
     let [base, metallic, roughness, specular, f0] = &columns[..] else { unreachable!("five columns") };
@@ -367,23 +368,22 @@ fn read_primary_shading(
     file: &SampleFile,
     samples: &IndirectSamples,
     column: &ColumnReader,
-    bad: &dyn Fn(&str, usize, &str) -> String,
-) -> Result<Option<Vec<PrimaryShading>>, String> {
-    let path = &samples.path;
+    bad: &dyn Fn(&str, usize, &str) -> Error,
+) -> Result<Option<Vec<PrimaryShading>>, Error> {
+    let content = |message: &str| Error::sample_content(&samples.path, message);
     let has_primary = |i: usize| samples.class[i] != SampleClass::CameraMiss;
     let bsdfs = read_bsdfs("origin", samples, column, bad, &has_primary)?;
     let geometric = column("origin_geometric_normal", 2)?;
     let (bsdfs, geometric) = match (bsdfs, geometric) {
         (None, None) => return Ok(None),
         (Some(b), Some(g)) => (b, g),
-        (Some(_), None) => return Err(format!("{path}: the file has o's BSDF but lacks `origin_geometric_normal`")),
-        (None, Some(_)) => {
-            return Err(format!("{path}: the file has `origin_geometric_normal` but lacks `origin_base_color`"))
-        }
+        (Some(_), None) => return Err(content("the file has o's BSDF but lacks `origin_geometric_normal`")),
+        (None, Some(_)) => return Err(content("the file has `origin_geometric_normal` but lacks `origin_base_color`")),
     };
-    let camera = file.header().camera.as_ref().ok_or_else(|| {
-        format!("{path}: o's BSDF needs the header's `camera` (where the view direction at o comes from)")
-    })?;
+    let camera =
+        file.header().camera.as_ref().ok_or_else(|| {
+            content("o's BSDF needs the header's `camera` (where the view direction at o comes from)")
+        })?;
     let (u, v) = (column("u", 1)?, column("v", 1)?);
     let to_f32 = |a: [f64; 3]| a.map(|c| c as f32);
     let (position, right, up) = (to_f32(camera.position), to_f32(camera.right), to_f32(camera.up));
@@ -612,14 +612,14 @@ mod tests {
     fn partial_or_out_of_range_primary_bsdfs_are_named() {
         let dir = tempfile::tempdir().unwrap();
         let (spec, rows) = with_primary_bsdf(0.75, Some("origin_f0"));
-        let error = read_indirect(&SampleFile::open(write(dir.path(), spec, &rows)).unwrap()).unwrap_err();
+        let error = read_indirect(&SampleFile::open(write(dir.path(), spec, &rows)).unwrap()).unwrap_err().to_string();
         assert!(error.contains("samples.lfrs") && error.contains("`origin_f0`"), "{error}");
         let (spec, rows) = with_primary_bsdf(1.5, None);
-        let error = read_indirect(&SampleFile::open(write(dir.path(), spec, &rows)).unwrap()).unwrap_err();
+        let error = read_indirect(&SampleFile::open(write(dir.path(), spec, &rows)).unwrap()).unwrap_err().to_string();
         assert!(error.contains("`origin_metallic` of sample 1") && error.contains("not in [0, 1]"), "{error}");
         let (mut spec, rows) = with_primary_bsdf(0.5, None);
         spec.camera = None;
-        let error = read_indirect(&SampleFile::open(write(dir.path(), spec, &rows)).unwrap()).unwrap_err();
+        let error = read_indirect(&SampleFile::open(write(dir.path(), spec, &rows)).unwrap()).unwrap_err().to_string();
         assert!(error.contains("`camera`"), "{error}");
     }
 
@@ -665,7 +665,7 @@ mod tests {
         // A hit whose distance is NaN is rejected, naming the field.
         let rows = [rows[0].clone(), [&[0.5, 0.5][..], &up, &[f32::NAN], &[0.0; 3], &[0.0; 3], &up, &down].concat()];
         let path = write(dir.path(), spec, &rows);
-        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err();
+        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err().to_string();
         assert!(error.contains("`distance`") && error.contains("sample 1"), "{error}");
     }
 
@@ -676,7 +676,7 @@ mod tests {
         records[3].hit = [0.0, f32::NAN, 2.0];
         let rows: Vec<_> = records.iter().map(|r| row(r, true)).collect();
         let path = write(dir.path(), indirect_spec(true), &rows);
-        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err();
+        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err().to_string();
         assert!(error.contains("samples.lfrs") && error.contains("`hit`") && error.contains("sample 3"), "{error}");
         assert!(error.contains("pixel 1, 0"), "{error}");
 
@@ -684,7 +684,7 @@ mod tests {
         records[3].radiance = [f32::INFINITY, 0.0, 0.0];
         let rows: Vec<_> = records.iter().map(|r| row(r, true)).collect();
         let path = write(dir.path(), indirect_spec(true), &rows);
-        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err();
+        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err().to_string();
         assert!(error.contains("`radiance`"), "{error}");
 
         // A camera miss may carry anything in the fields it does not use.
@@ -696,12 +696,12 @@ mod tests {
 
         let spec = HeaderSpec::new(SampleKind::Indirect, 1, 1, 1).field(FieldSpec::new("x", FieldType::F32, 1));
         let path = write(dir.path(), spec, &[vec![0.5]]);
-        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err();
+        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err().to_string();
         assert!(error.contains("`y`") && error.contains("samples.lfrs"), "{error}");
 
         let spec = HeaderSpec::new(SampleKind::LensTime, 1, 1, 1).field(FieldSpec::new("x", FieldType::F32, 1));
         let path = write(dir.path(), spec, &[vec![0.5]]);
-        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err();
+        let error = read_indirect(&SampleFile::open(&path).unwrap()).unwrap_err().to_string();
         assert!(error.contains("lens-time"), "{error}");
     }
 }

@@ -28,6 +28,7 @@ use rayon::prelude::*;
 use super::bvh::{DiscBvh, SplatHit};
 use super::disc::{dot, length, Ray};
 use super::samples::{IndirectSamples, SampleClass};
+use crate::error::Error;
 
 /// One traced secondary ray.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -151,21 +152,25 @@ pub fn scene_diagonal(bvh: &DiscBvh, rays: &[InputRay]) -> f32 {
 /// Shrinks every splat that blocks an input ray (see the module documentation) and refits the
 /// hierarchy. Rays must have finite origins, unit directions, lengths > 0 (or +inf) and own
 /// splats within the hierarchy; otherwise an error names the ray.
-pub fn shrink_splats(bvh: &mut DiscBvh, rays: &[InputRay], params: &ShrinkParams) -> Result<ShrinkStats, String> {
+pub fn shrink_splats(bvh: &mut DiscBvh, rays: &[InputRay], params: &ShrinkParams) -> Result<ShrinkStats, Error> {
+    let bad = |message: String| Error::parameter("rays", message);
     for (j, ray) in rays.iter().enumerate() {
         if !ray.origin.iter().all(|c| c.is_finite()) {
-            return Err(format!("shrinking: the origin of input ray {j} is not finite: {:?}", ray.origin));
+            return Err(bad(format!("shrinking: the origin of input ray {j} is not finite: {:?}", ray.origin)));
         }
         let l = dot(ray.direction, ray.direction);
         if !(l.is_finite() && (l - 1.0).abs() <= 1e-3) {
-            return Err(format!("shrinking: the direction of input ray {j} is not a unit vector: {:?}", ray.direction));
+            return Err(bad(format!(
+                "shrinking: the direction of input ray {j} is not a unit vector: {:?}",
+                ray.direction
+            )));
         }
         let length_ok = ray.length >= 0.0; // false for NaN
         if !length_ok {
-            return Err(format!("shrinking: the length of input ray {j} is {}", ray.length));
+            return Err(bad(format!("shrinking: the length of input ray {j} is {}", ray.length)));
         }
         if ray.own_splat.is_some_and(|s| s as usize >= bvh.len()) {
-            return Err(format!("shrinking: input ray {j} names splat {:?} of {}", ray.own_splat, bvh.len()));
+            return Err(bad(format!("shrinking: input ray {j} names splat {:?} of {}", ray.own_splat, bvh.len())));
         }
     }
     let epsilon_floor = params.scene_epsilon * scene_diagonal(bvh, rays);
@@ -278,7 +283,10 @@ mod tests {
         assert_eq!((stats.dead_splats, stats.short_rays), (1, 1));
         // Bad rays are named.
         let bad = InputRay { direction: [0.0; 3], ..ray };
-        assert!(shrink_splats(&mut bvh, &[ray, bad], &ShrinkParams::default()).unwrap_err().contains("input ray 1"));
+        assert!(shrink_splats(&mut bvh, &[ray, bad], &ShrinkParams::default())
+            .unwrap_err()
+            .to_string()
+            .contains("input ray 1"));
         let bad = InputRay { own_splat: Some(2), ..ray };
         assert!(shrink_splats(&mut bvh, &[bad], &ShrinkParams::default()).is_err());
     }

@@ -23,6 +23,7 @@ use std::collections::BinaryHeap;
 use rayon::prelude::*;
 
 use super::neighbours::{sub, Entry, KdTree};
+use crate::error::Error;
 
 /// The parameters of splat sizing; `Default` is the paper's (k = 12, α = 3, τ = 0.5) with the
 /// authors' relaxation (×0.75 down to 0.01, after 1000 candidates).
@@ -56,27 +57,34 @@ impl Default for SplatParams {
 }
 
 impl SplatParams {
-    fn validate(&self) -> Result<(), String> {
+    fn validate(&self) -> Result<(), Error> {
         if self.k == 0 {
-            return Err("splat sizing: k must be at least 1".into());
+            return Err(Error::parameter("k", "splat sizing: k must be at least 1"));
         }
         if !(self.alpha.is_finite() && self.alpha >= 1.0) {
-            return Err(format!("splat sizing: α must be finite and at least 1, got {}", self.alpha));
-        }
-        if !(self.lobe_threshold > 0.0 && self.lobe_threshold <= 1.0) {
-            return Err(format!("splat sizing: the lobe threshold must be in (0, 1], got {}", self.lobe_threshold));
-        }
-        if !(self.relax_factor > 0.0 && self.relax_factor < 1.0) {
-            return Err(format!("splat sizing: the relaxation factor must be in (0, 1), got {}", self.relax_factor));
-        }
-        if !(self.min_lobe_threshold > 0.0 && self.min_lobe_threshold <= self.lobe_threshold) {
-            return Err(format!(
-                "splat sizing: the smallest lobe threshold must be in (0, {}], got {}",
-                self.lobe_threshold, self.min_lobe_threshold
+            return Err(Error::parameter(
+                "alpha",
+                format!("splat sizing: α must be finite and at least 1, got {}", self.alpha),
             ));
         }
+        if !(self.lobe_threshold > 0.0 && self.lobe_threshold <= 1.0) {
+            let message = format!("splat sizing: the lobe threshold must be in (0, 1], got {}", self.lobe_threshold);
+            return Err(Error::parameter("lobe_threshold", message));
+        }
+        if !(self.relax_factor > 0.0 && self.relax_factor < 1.0) {
+            let message = format!("splat sizing: the relaxation factor must be in (0, 1), got {}", self.relax_factor);
+            return Err(Error::parameter("relax_factor", message));
+        }
+        if !(self.min_lobe_threshold > 0.0 && self.min_lobe_threshold <= self.lobe_threshold) {
+            let message = format!(
+                "splat sizing: the smallest lobe threshold must be in (0, {}], got {}",
+                self.lobe_threshold, self.min_lobe_threshold
+            );
+            return Err(Error::parameter("min_lobe_threshold", message));
+        }
         if self.max_candidates < self.k {
-            return Err(format!("splat sizing: max_candidates ({}) below k ({})", self.max_candidates, self.k));
+            let message = format!("splat sizing: max_candidates ({}) below k ({})", self.max_candidates, self.k);
+            return Err(Error::parameter("max_candidates", message));
         }
         Ok(())
     }
@@ -115,24 +123,30 @@ impl<'a> SplatPoints<'a> {
         self.kappa.map_or(0.0, |k| k[i])
     }
 
-    fn validate(&self) -> Result<(), String> {
+    fn validate(&self) -> Result<(), Error> {
         let n = self.len();
         if self.normal.len() != n || self.direction.len() != n || self.kappa.is_some_and(|k| k.len() != n) {
-            return Err("splat sizing: position, normal, direction and κ differ in length".into());
+            return Err(Error::size_mismatch(
+                "splat points",
+                "splat sizing: position, normal, direction and κ differ in length",
+            ));
         }
         for i in 0..n {
             if !self.position[i].iter().all(|c| c.is_finite()) {
-                return Err(format!("splat sizing: the position of hit {i} is not finite: {:?}", self.position[i]));
+                let message = format!("splat sizing: the position of hit {i} is not finite: {:?}", self.position[i]);
+                return Err(Error::parameter("points", message));
             }
             for (name, v) in [("normal", self.normal[i]), ("direction", self.direction[i])] {
                 let length_squared = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
                 if !(length_squared.is_finite() && (length_squared - 1.0).abs() <= 1e-3) {
-                    return Err(format!("splat sizing: the {name} of hit {i} is not a unit vector: {v:?}"));
+                    let message = format!("splat sizing: the {name} of hit {i} is not a unit vector: {v:?}");
+                    return Err(Error::parameter("points", message));
                 }
             }
             let kappa = self.kappa(i);
             if !(kappa.is_finite() && kappa >= 0.0) {
-                return Err(format!("splat sizing: κ of hit {i} is {kappa}, not finite and ≥ 0"));
+                let message = format!("splat sizing: κ of hit {i} is {kappa}, not finite and ≥ 0");
+                return Err(Error::parameter("points", message));
             }
         }
         Ok(())
@@ -219,7 +233,7 @@ pub struct Splats {
 }
 
 /// Sizes every splat (paper Section 2.2) in parallel; see the module documentation.
-pub fn size_splats(points: &SplatPoints, params: &SplatParams) -> Result<Splats, String> {
+pub fn size_splats(points: &SplatPoints, params: &SplatParams) -> Result<Splats, Error> {
     params.validate()?;
     points.validate()?;
     let setup = Setup::new(points, params);
@@ -244,7 +258,7 @@ pub fn size_splats(points: &SplatPoints, params: &SplatParams) -> Result<Splats,
 }
 
 /// The same definition by sorting all others for every hit: O(n² log n), for tests.
-pub fn size_splats_brute_force(points: &SplatPoints, params: &SplatParams) -> Result<Splats, String> {
+pub fn size_splats_brute_force(points: &SplatPoints, params: &SplatParams) -> Result<Splats, Error> {
     params.validate()?;
     points.validate()?;
     let setup = Setup::new(points, params);
@@ -715,15 +729,18 @@ mod tests {
     fn bad_input_is_rejected_with_the_field() {
         let mut cloud = square_lattice(2, 1.0);
         cloud.position[3][1] = f32::NAN;
-        let error = size_splats(&cloud.points(), &SplatParams::default()).unwrap_err();
+        let error = size_splats(&cloud.points(), &SplatParams::default()).unwrap_err().to_string();
         assert!(error.contains("position of hit 3"), "{error}");
         let mut cloud = square_lattice(2, 1.0);
         cloud.normal[1] = [0.0, 0.0, 0.0];
-        assert!(size_splats(&cloud.points(), &SplatParams::default()).unwrap_err().contains("normal of hit 1"));
+        assert!(size_splats(&cloud.points(), &SplatParams::default())
+            .unwrap_err()
+            .to_string()
+            .contains("normal of hit 1"));
         let mut cloud = square_lattice(2, 1.0);
         cloud.kappa = Some(vec![1.0; cloud.position.len()]);
         cloud.kappa.as_mut().unwrap()[2] = f32::NAN;
-        assert!(size_splats(&cloud.points(), &SplatParams::default()).unwrap_err().contains("κ of hit 2"));
+        assert!(size_splats(&cloud.points(), &SplatParams::default()).unwrap_err().to_string().contains("κ of hit 2"));
         let cloud = square_lattice(2, 1.0);
         for params in [
             SplatParams { k: 0, ..Default::default() },

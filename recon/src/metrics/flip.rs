@@ -9,8 +9,12 @@
 //! (`pip install flip-evaluator`), with default parameters and linear-sRGB HDR input. When the
 //! package is missing the metric is simply not reported.
 
+use crate::error::Error;
 use crate::image::Image;
 use crate::python;
+
+/// The tool named in errors.
+const TOOL: &str = "HDR-FLIP";
 
 const SCRIPT: &str = include_str!("flip_metric.py");
 
@@ -23,29 +27,32 @@ pub fn available() -> bool {
 /// computed in one Python process; `Ok(None)` when `flip_evaluator` is not installed. Non-finite
 /// test values are replaced by 0 and negative ones clamped to 0 (HDR-FLIP expects nonnegative
 /// linear input). An all-black reference is an error: FLIP derives its exposure range from it.
-pub fn hdr_flip_many(reference: &Image, tests: &[&Image]) -> Result<Option<Vec<f64>>, String> {
+pub fn hdr_flip_many(reference: &Image, tests: &[&Image]) -> Result<Option<Vec<f64>>, Error> {
     if !available() {
         return Ok(None);
     }
     for (index, test) in tests.iter().enumerate() {
-        reference.check_same_size(test).map_err(|e| format!("HDR-FLIP: test image {index}: {e}"))?;
+        reference
+            .check_same_size(test)
+            .map_err(|e| Error::size_mismatch("HDR-FLIP test image", format!("{TOOL}: test image {index}: {e}")))?;
     }
     if tests.is_empty() {
         return Ok(Some(Vec::new()));
     }
     if reference.width == 0 || reference.height == 0 {
-        return Err(format!("HDR-FLIP: empty reference image ({}x{})", reference.width, reference.height));
+        return Err(Error::external(TOOL, format!("empty reference image ({}x{})", reference.width, reference.height)));
     }
     let dir = tempfile::Builder::new()
         .prefix("lfr-flip-")
         .tempdir()
-        .map_err(|e| format!("HDR-FLIP: cannot create a temporary directory: {e}"))?;
+        .map_err(|e| Error::external(TOOL, format!("cannot create a temporary directory: {e}")))?;
+    let bridge = |error: Error| Error::external(TOOL, error.to_string());
     let reference_path = dir.path().join("reference.f32");
-    python::write_image_f32(&reference_path, reference).map_err(|e| format!("HDR-FLIP: {e}"))?;
+    python::write_image_f32(&reference_path, reference).map_err(bridge)?;
     let mut test_paths = Vec::with_capacity(tests.len());
     for (index, test) in tests.iter().enumerate() {
         let path = dir.path().join(format!("test{index}.f32"));
-        python::write_image_f32(&path, test).map_err(|e| format!("HDR-FLIP: {e}"))?;
+        python::write_image_f32(&path, test).map_err(bridge)?;
         test_paths.push(path);
     }
     let args = serde_json::json!({
@@ -54,17 +61,19 @@ pub fn hdr_flip_many(reference: &Image, tests: &[&Image]) -> Result<Option<Vec<f
         "reference": reference_path,
         "tests": test_paths,
     });
-    let result = python::run_script(SCRIPT, &args, dir.path()).map_err(|e| format!("HDR-FLIP: {e}"))?;
-    let errors = result
-        .get("mean_errors")
-        .and_then(serde_json::Value::as_array)
-        .ok_or_else(|| format!("HDR-FLIP: the metric script's result has no `mean_errors` list: {result}"))?;
+    let result = python::run_script(SCRIPT, &args, dir.path()).map_err(bridge)?;
+    let errors = result.get("mean_errors").and_then(serde_json::Value::as_array).ok_or_else(|| {
+        Error::external(TOOL, format!("the metric script's result has no `mean_errors` list: {result}"))
+    })?;
     if errors.len() != tests.len() {
-        return Err(format!("HDR-FLIP: expected {} mean errors, got {}: {result}", tests.len(), errors.len()));
+        return Err(Error::external(
+            TOOL,
+            format!("expected {} mean errors, got {}: {result}", tests.len(), errors.len()),
+        ));
     }
     errors
         .iter()
-        .map(|e| e.as_f64().ok_or_else(|| format!("HDR-FLIP: mean error {e} is not a number")))
+        .map(|e| e.as_f64().ok_or_else(|| Error::external(TOOL, format!("mean error {e} is not a number"))))
         .collect::<Result<Vec<_>, _>>()
         .map(Some)
 }
@@ -92,7 +101,7 @@ mod tests {
         }
         eprintln!(
             "skipped: flip_evaluator not installed ({})",
-            python::module_available("flip_evaluator").err().unwrap_or_default()
+            python::module_available("flip_evaluator").err().map(|e| e.to_string()).unwrap_or_default()
         );
         true
     }
@@ -149,10 +158,10 @@ mod tests {
         }
         let reference = gradient();
         let small = Image::new(4, 4);
-        let error = hdr_flip_many(&reference, &[&reference, &small]).unwrap_err();
+        let error = hdr_flip_many(&reference, &[&reference, &small]).unwrap_err().to_string();
         assert!(error.contains("test image 1"), "{error}");
         let black = Image::new(8, 8);
-        let error = hdr_flip_many(&black, &[&black]).unwrap_err();
+        let error = hdr_flip_many(&black, &[&black]).unwrap_err().to_string();
         assert!(error.contains("all-black"), "{error}");
         assert_eq!(hdr_flip_many(&reference, &[]).unwrap(), Some(Vec::new()));
     }

@@ -10,6 +10,8 @@
 
 use sampleio::Camera;
 
+use crate::error::Error;
+
 /// The per-frame lens and projection constants the reconstruction needs.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LensModel {
@@ -26,11 +28,12 @@ pub struct LensModel {
 impl LensModel {
     /// The model of a sample file's camera block: `coc` and the intrinsics of
     /// `pixel_to_camera` (fx = 1 / M[0][0], fy = 1 / M[1][1], cx = −M[0][2]·fx, cy = −M[1][2]·fy).
-    pub fn from_camera(camera: &Camera) -> Result<LensModel, String> {
+    pub fn from_camera(camera: &Camera) -> Result<LensModel, Error> {
         let m = &camera.pixel_to_camera;
         let (sx, sy) = (m[0][0], m[1][1]);
         if !(sx.is_finite() && sy.is_finite() && sx != 0.0 && sy != 0.0) {
-            return Err(format!("camera.pixel_to_camera has no usable focal length (diagonal {sx}, {sy})"));
+            let message = format!("camera.pixel_to_camera has no usable focal length (diagonal {sx}, {sy})");
+            return Err(Error::parameter("camera", message));
         }
         let (fx, fy) = (1.0 / sx, 1.0 / sy);
         let model = LensModel {
@@ -43,7 +46,7 @@ impl LensModel {
         };
         let values = [model.c1, model.c2, model.fx, model.fy, model.cx, model.cy];
         if values.iter().any(|v| !v.is_finite()) {
-            return Err(format!("camera: non-finite lens constants {values:?}"));
+            return Err(Error::parameter("camera", format!("camera: non-finite lens constants {values:?}")));
         }
         Ok(model)
     }
@@ -71,12 +74,14 @@ impl LensModel {
 
     /// The same camera focused at `focus_distance` with lens radius `aperture_radius` (scene
     /// units): `c1 = −fx·A`, `c2 = fx·A/D`.
-    pub fn refocused(&self, focus_distance: f32, aperture_radius: f32) -> Result<LensModel, String> {
+    pub fn refocused(&self, focus_distance: f32, aperture_radius: f32) -> Result<LensModel, Error> {
         if !(focus_distance.is_finite() && focus_distance > 0.0) {
-            return Err(format!("the focus distance must be positive and finite, got {focus_distance}"));
+            let message = format!("the focus distance must be positive and finite, got {focus_distance}");
+            return Err(Error::parameter("focus_distance", message));
         }
         if !(aperture_radius.is_finite() && aperture_radius >= 0.0) {
-            return Err(format!("the aperture radius must be finite and ≥ 0, got {aperture_radius}"));
+            let message = format!("the aperture radius must be finite and ≥ 0, got {aperture_radius}");
+            return Err(Error::parameter("aperture_radius", message));
         }
         Ok(LensModel { c1: -self.fx * aperture_radius, c2: self.fx * aperture_radius / focus_distance, ..*self })
     }
@@ -163,6 +168,6 @@ pub(crate) mod tests {
     fn a_camera_without_focal_length_is_an_error() {
         let mut bad = camera();
         bad.pixel_to_camera[0][0] = 0.0;
-        assert!(LensModel::from_camera(&bad).unwrap_err().contains("focal length"));
+        assert!(LensModel::from_camera(&bad).unwrap_err().to_string().contains("focal length"));
     }
 }

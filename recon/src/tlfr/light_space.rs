@@ -22,6 +22,7 @@
 use sampleio::SampleFile;
 
 use super::lens::LensModel;
+use crate::error::Error;
 
 type Vec3 = [f32; 3];
 
@@ -65,17 +66,17 @@ pub struct LightSpace {
 impl LightSpace {
     /// Reads the header's `light` block (and `extra.light_motion`); the error names the file
     /// and the field.
-    pub fn from_file(file: &SampleFile) -> Result<LightSpace, String> {
-        let path = file.path().display();
+    pub fn from_file(file: &SampleFile) -> Result<LightSpace, Error> {
+        let content = |message: String| Error::sample_content(file.path(), message);
         let header = file.header();
-        let light = header.light.as_ref().ok_or_else(|| format!("{path}: the header has no `light` block"))?;
-        let vector = |name: &str, value: Option<[f64; 3]>| -> Result<Vec3, String> {
-            let v = value.ok_or_else(|| format!("{path}: the `light` block lacks `{name}`"))?;
+        let light = header.light.as_ref().ok_or_else(|| content("the header has no `light` block".to_string()))?;
+        let vector = |name: &str, value: Option<[f64; 3]>| -> Result<Vec3, Error> {
+            let v = value.ok_or_else(|| content(format!("the `light` block lacks `{name}`")))?;
             let v = [v[0] as f32, v[1] as f32, v[2] as f32];
             if v.iter().all(|c| c.is_finite()) {
                 Ok(v)
             } else {
-                Err(format!("{path}: `light.{name}` is not finite"))
+                Err(content(format!("`light.{name}` is not finite")))
             }
         };
         let corner = vector("corner", light.corner)?;
@@ -83,16 +84,16 @@ impl LightSpace {
         let edge_v = vector("edge_v", light.edge_v)?;
         let normal = vector("normal", light.normal)?;
         let plane_distance =
-            light.plane_distance.ok_or_else(|| format!("{path}: the `light` block lacks `plane_distance`"))? as f32;
+            light.plane_distance.ok_or_else(|| content("the `light` block lacks `plane_distance`".to_string()))? as f32;
         let (width_u, width_v) = (length(edge_u), length(edge_v));
         if !(width_u > 0.0 && width_v > 0.0 && width_u.is_finite() && width_v.is_finite()) {
-            return Err(format!("{path}: `light.edge_u` and `light.edge_v` must have positive length"));
+            return Err(content("`light.edge_u` and `light.edge_v` must have positive length".to_string()));
         }
         if !(plane_distance > 0.0 && plane_distance.is_finite()) {
-            return Err(format!("{path}: `light.plane_distance` must be positive, got {plane_distance}"));
+            return Err(content(format!("`light.plane_distance` must be positive, got {plane_distance}")));
         }
         if (length(normal) - 1.0).abs() > 1e-3 {
-            return Err(format!("{path}: `light.normal` is not a unit vector"));
+            return Err(content("`light.normal` is not a unit vector".to_string()));
         }
         let motion = match header.extra.as_ref().and_then(|extra| extra.get("light_motion")) {
             None => [0.0; 3],
@@ -102,7 +103,7 @@ impl LightSpace {
                     Some(c) if c.len() == 3 && c.iter().all(|v| v.is_finite()) => {
                         [c[0] as f32, c[1] as f32, c[2] as f32]
                     }
-                    _ => return Err(format!("{path}: `extra.light_motion` must be three finite numbers")),
+                    _ => return Err(content("`extra.light_motion` must be three finite numbers".to_string())),
                 }
             }
         };

@@ -19,6 +19,7 @@ use super::same_surface::window_half_width;
 use super::samples::{read_lens_time, refocus};
 use super::settings::{TlfrSettings, DEFAULT_BANDWIDTH_SCALE, RADIUS_TRIALS};
 use crate::baselines::box_filter::average;
+use crate::error::Error;
 use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
 
 /// A TLFR method of `lfr compare`: the same reconstruction, finishing each location with
@@ -63,7 +64,7 @@ impl Method for TlfrMethod {
         let path = inputs
             .samples
             .as_deref()
-            .ok_or_else(|| MethodError::Failed(format!("{} needs a sample file", self.name)))?;
+            .ok_or_else(|| Error::missing_input("samples", format!("{} needs a sample file", self.name)))?;
         let settings = TlfrSettings {
             locations: recon_rays,
             seed: inputs.seed,
@@ -72,24 +73,23 @@ impl Method for TlfrMethod {
         };
         let output = if inputs.effect == Effect::SoftShadow {
             let light_path = inputs.light_samples.as_ref().ok_or_else(|| {
-                MethodError::Failed(format!(
-                    "{} soft shadows need the light samples of the same seed and spp",
-                    self.name
-                ))
+                let message = format!("{} soft shadows need the light samples of the same seed and spp", self.name);
+                Error::missing_input("light samples", message)
             })?;
             super::shadows::reconstruct_soft_shadow(path, light_path, &settings)?
         } else {
             reconstruct_file_with(self.value, path, &settings)?
         };
         if (output.image.width, output.image.height) != (inputs.width, inputs.height) {
-            return Err(MethodError::Failed(format!(
+            let message = format!(
                 "{}: samples are {}x{}, the comparison is {}x{}",
                 path.display(),
                 output.image.width,
                 output.image.height,
                 inputs.width,
                 inputs.height
-            )));
+            );
+            return Err(Error::size_mismatch("samples", message).into());
         }
         Ok(output)
     }
@@ -108,14 +108,14 @@ pub fn reconstruct_file_with(
 ) -> Result<Output, MethodError> {
     let start = Instant::now();
     let file = SampleFile::open(path)?;
-    let mut loaded = read_lens_time(&file).map_err(MethodError::Failed)?;
+    let mut loaded = read_lens_time(&file)?;
     let (width, height) = (loaded.width, loaded.height);
     let (box_image, _) = average(&file, Effect::Dof, 0.0)?;
     drop(file);
     let mut notes = Vec::new();
     let sample_aperture = loaded.lens.aperture_radius();
     if let Some((focus_distance, aperture_radius)) = settings.refocus {
-        refocus(&mut loaded, focus_distance, aperture_radius).map_err(MethodError::Failed)?;
+        refocus(&mut loaded, focus_distance, aperture_radius)?;
         notes.push(format!("refocused to distance {focus_distance} with lens radius {aperture_radius}"));
         if !loaded.has_lens && aperture_radius > 0.0 {
             notes.push(
@@ -136,7 +136,8 @@ pub fn reconstruct_file_with(
     let view_bandwidth = match (settings.bandwidth_scale, &loaded.kappa) {
         (None, _) => None,
         (Some(scale), _) if !(scale.is_finite() && scale > 0.0) => {
-            return Err(MethodError::Failed(format!("the bandwidth scale must be positive and finite, got {scale}")));
+            let message = format!("the bandwidth scale must be positive and finite, got {scale}");
+            return Err(Error::parameter("bandwidth_scale", message).into());
         }
         (Some(_), None) => {
             notes.push(format!(

@@ -14,6 +14,7 @@ use sampleio::{SampleFile, SampleKind};
 
 use super::lens::LensModel;
 use super::reprojection::LensTimeSample;
+use crate::error::Error;
 
 /// A lens-time file in memory.
 #[derive(Clone, Debug)]
@@ -38,19 +39,19 @@ pub struct LensTimeSamples {
 }
 
 /// Reads a `lens-time` file; the error names the file and the missing or wrong part.
-pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, String> {
-    let path = file.path().display();
+pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, Error> {
+    let content = |message: String| Error::sample_content(file.path(), message);
     let header = file.header();
     if header.kind != SampleKind::LensTime {
-        return Err(format!("{path}: TLFR reads `lens-time` samples, the file holds `{}`", header.kind.name()));
+        return Err(content(format!("TLFR reads `lens-time` samples, the file holds `{}`", header.kind.name())));
     }
-    let camera = header.camera.as_ref().ok_or_else(|| format!("{path}: the header has no `camera` block"))?;
-    let lens = LensModel::from_camera(camera).map_err(|e| format!("{path}: {e}"))?;
-    let required = |name: &str| file.field(name).ok_or_else(|| format!("{path}: `lens-time` samples lack `{name}`"));
+    let camera = header.camera.as_ref().ok_or_else(|| content("the header has no `camera` block".to_string()))?;
+    let lens = LensModel::from_camera(camera).map_err(|e| content(e.to_string()))?;
+    let required = |name: &str| file.field(name).ok_or_else(|| content(format!("`lens-time` samples lack `{name}`")));
     let (x, y, z, radiance) = (required("x")?, required("y")?, required("z")?, required("radiance")?);
     let (u, v) = (file.field("u"), file.field("v"));
     if u.is_some() != v.is_some() {
-        return Err(format!("{path}: the file has only one of the lens fields `u`, `v`"));
+        return Err(content("the file has only one of the lens fields `u`, `v`".to_string()));
     }
     let (t, motion) = (file.field("t"), file.field("motion"));
     let bandwidth = file.field("bandwidth");
@@ -106,7 +107,7 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, String> {
 /// coordinate, but is seen through the lens focused at `focus_distance` with radius
 /// `aperture_radius`: moved to the lens centre with the file's C(z), then off it with the new
 /// C'(z) = c1'/z + c2' (`LensModel::refocused`), before anything is built on the samples.
-pub fn refocus(samples: &mut LensTimeSamples, focus_distance: f32, aperture_radius: f32) -> Result<(), String> {
+pub fn refocus(samples: &mut LensTimeSamples, focus_distance: f32, aperture_radius: f32) -> Result<(), Error> {
     let new_lens = samples.lens.refocused(focus_distance, aperture_radius)?;
     for sample in &mut samples.samples {
         let shift = new_lens.coc(sample.z) - samples.lens.coc(sample.z);
@@ -234,10 +235,10 @@ mod tests {
     fn other_kinds_and_missing_fields_are_named() {
         let dir = tempfile::tempdir().unwrap();
         let path = write(dir.path(), SampleKind::Ao, &[("distance", 1)], &[vec![1.0], vec![1.0], vec![1.0], vec![1.0]]);
-        let error = read_lens_time(&SampleFile::open(&path).unwrap()).unwrap_err();
+        let error = read_lens_time(&SampleFile::open(&path).unwrap()).unwrap_err().to_string();
         assert!(error.contains("lens-time") && error.contains("samples.lfrs"), "{error}");
         let path = write(dir.path(), SampleKind::LensTime, &[("x", 1), ("y", 1), ("z", 1)], &vec![vec![0.0; 3]; 4]);
-        let error = read_lens_time(&SampleFile::open(&path).unwrap()).unwrap_err();
+        let error = read_lens_time(&SampleFile::open(&path).unwrap()).unwrap_err().to_string();
         assert!(error.contains("`radiance`"), "{error}");
     }
 }

@@ -32,6 +32,7 @@ use super::light_space::{decode_octahedral, lambertian_direct, LightSpace};
 use super::query::{covering_surface, QueryStats, Scene, Scratch};
 use super::reprojection::{reproject, LensTime, LensTimeSample};
 use super::samples::LensTimeSamples;
+use crate::error::Error;
 
 /// The lit test's depth tolerance relative to the receiver's light-space depth.
 pub const SHADOW_BIAS_RELATIVE: f32 = 1e-3;
@@ -47,13 +48,13 @@ pub struct Shading {
 }
 
 /// Reads `albedo`, `normal` and `radiance_without_light` for the samples `camera` kept.
-pub fn read_shading(file: &SampleFile, camera: &LensTimeSamples) -> Result<Shading, String> {
-    let path = file.path().display();
+pub fn read_shading(file: &SampleFile, camera: &LensTimeSamples) -> Result<Shading, Error> {
+    let content = |message: String| Error::sample_content(file.path(), message);
     let required = |name: &str| {
         file.field(name).ok_or_else(|| {
-            format!(
-                "{path}: soft shadows need the lens-time field `{name}` (dump with `lfr dump --kind lens-time --soft-shadow`)"
-            )
+            content(format!(
+                "soft shadows need the lens-time field `{name}` (dump with `lfr dump --kind lens-time --soft-shadow`)"
+            ))
         })
     };
     let (albedo, normal, without) = (required("albedo")?, required("normal")?, required("radiance_without_light")?);
@@ -67,7 +68,7 @@ pub fn read_shading(file: &SampleFile, camera: &LensTimeSamples) -> Result<Shadi
         let three = |field| [0, 1, 2].map(|c| file.value(i, field, c));
         let (a, w) = (three(albedo), three(without));
         if !a.iter().chain(&w).all(|v| v.is_finite()) {
-            return Err(format!("{path}: sample {i} has a non-finite `albedo` or `radiance_without_light`"));
+            return Err(content(format!("sample {i} has a non-finite `albedo` or `radiance_without_light`")));
         }
         shading.albedo.push(a);
         shading.normal.push(decode_octahedral([file.value(i, normal, 0), file.value(i, normal, 1)]));
@@ -94,22 +95,22 @@ pub struct LightSamples {
 }
 
 /// Reads a `light` file written for the camera file of `camera_records` records.
-pub fn read_light(file: &SampleFile, camera_records: usize) -> Result<LightSamples, String> {
-    let path = file.path().display();
+pub fn read_light(file: &SampleFile, camera_records: usize) -> Result<LightSamples, Error> {
+    let content = |message: String| Error::sample_content(file.path(), message);
     if file.header().kind != sampleio::SampleKind::Light {
-        return Err(format!(
-            "{path}: soft shadows read `light` samples, the file holds `{}`",
+        return Err(content(format!(
+            "soft shadows read `light` samples, the file holds `{}`",
             file.header().kind.name()
-        ));
+        )));
     }
     if file.len() != camera_records {
-        return Err(format!(
-            "{path}: {} light samples for {camera_records} camera samples; both must come from one seed and spp",
+        return Err(content(format!(
+            "{} light samples for {camera_records} camera samples; both must come from one seed and spp",
             file.len()
-        ));
+        )));
     }
     let mut space = LightSpace::from_file(file)?;
-    let required = |name: &str| file.field(name).ok_or_else(|| format!("{path}: `light` samples lack `{name}`"));
+    let required = |name: &str| file.field(name).ok_or_else(|| content(format!("`light` samples lack `{name}`")));
     let (lu, lv, lx, ly) = (required("lu")?, required("lv")?, required("lx")?, required("ly")?);
     let (z, radiance, density) = (required("z")?, required("radiance")?, required("density")?);
     let (t, motion) = (file.field("t"), file.field("motion"));
@@ -359,20 +360,19 @@ pub fn reconstruct_soft_shadow(
     use super::same_surface::window_half_width;
     use super::samples::read_lens_time;
     use super::settings::RADIUS_TRIALS;
-    use crate::method::{Effect, MethodError, Output};
+    use crate::method::{Effect, Output};
     use std::time::Instant;
 
-    let failed = MethodError::Failed;
     let start = Instant::now();
     let camera_file = SampleFile::open(camera_path)?;
-    let camera = read_lens_time(&camera_file).map_err(failed)?;
-    let shading = read_shading(&camera_file, &camera).map_err(failed)?;
+    let camera = read_lens_time(&camera_file)?;
+    let shading = read_shading(&camera_file, &camera)?;
     let pose = CameraPose::from_camera(camera_file.header().camera.as_ref().expect("read_lens_time checked it"));
     let (box_image, _) = crate::baselines::box_filter::average(&camera_file, Effect::SoftShadow, 0.0)?;
     let records = camera_file.len();
     drop(camera_file);
     let light_file = SampleFile::open(light_path)?;
-    let light = read_light(&light_file, records).map_err(failed)?;
+    let light = read_light(&light_file, records)?;
     drop(light_file);
     let read_s = start.elapsed().as_secs_f64();
 
