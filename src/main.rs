@@ -1,5 +1,6 @@
-//! `lfr`: the one user-facing command. It orchestrates the tracer (and, as they arrive, the
-//! sample dumps and reconstructions) and times them.
+//! `lfr`: the one user-facing command. It orchestrates the tracer, the sample dumps and the
+//! reconstructions and times them; this file only dispatches to one module per subcommand
+//! (`common` holds what they share, `convert` the tracer-to-recon conversions).
 
 #![forbid(unsafe_code)]
 

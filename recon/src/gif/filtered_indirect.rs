@@ -11,8 +11,8 @@
 //!
 //! Methods: `gif` (guided image filter, normal + depth guide, `guided_filter.rs`), `gif-normal`
 //! and `gif-grey` (the 3-channel normal and 1-channel grey-normal guides of the paper's
-//! Figure 5), `bilateral` (cross-bilateral on normal and depth, `bilateral.rs`), `atrous`
-//! (edge-avoiding À-Trous, `atrous.rs`) and `atrous-sn` (À-Trous with the extra range term on
+//! Figure 5), `bilateral` (cross-bilateral on normal and depth, `baselines/bilateral.rs`), `atrous`
+//! (edge-avoiding À-Trous, `baselines/atrous.rs`) and `atrous-sn` (À-Trous with the extra range term on
 //! the secondary-hit normal, as the indirect light field paper's comparison used it).
 //!
 //! Non-negativity: the guided filter's output is clamped at 0. Its local linear model can

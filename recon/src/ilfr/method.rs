@@ -4,9 +4,9 @@
 //! split (read, splat sizing, hierarchy, shrinking, recursive filtering, reconstruction) and the
 //! counts of each stage.
 //!
-//! `ilfr-recursive` (effects `indirect`, `glossy`) is the same with one pass of recursive filtering (§4,
-//! [`super::recursive`]) with 16 rays per secondary hit before the final gather; a second method
-//! name rather than an option, since only the filtered path-tracing pipeline parses `NAME:options`.
+//! `ilfr-recursive` (effects `indirect`, `glossy`) is the same with passes of recursive filtering (§4,
+//! [`super::recursive`]) with 16 rays per secondary hit before the final gather: one by default,
+//! `ilfr-recursive:passes=N` for more (`crate::registry`).
 //!
 //! The image is the quantity the harness's reference measures: for `indirect` the light the
 //! primary hit reflects after at least one more bounce (albedo × reconstructed incident
