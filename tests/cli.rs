@@ -461,3 +461,31 @@ fn outputs_never_replace_devices_links_or_inputs() {
     assert!(!result.status.success() && stderr(&result).contains(".lfrs"), "{}", stderr(&result));
     assert!(!path("x.exr").exists());
 }
+
+/// Issue 22, classes 12 and 13: special files as inputs are clear errors at once, never a read
+/// until memory runs out or a wait forever, and each error names what is wrong.
+#[test]
+fn special_files_as_inputs_are_refused_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name);
+    // The scene itself: a device, a FIFO, a directory.
+    std::os::unix::fs::symlink("/dev/zero", path("zero.toml")).unwrap();
+    expect_render_error(&path("zero.toml"), &[], &["zero.toml", "not a regular file"]);
+    if std::process::Command::new("mkfifo").arg(path("fifo.toml")).status().is_ok_and(|s| s.success()) {
+        expect_render_error(&path("fifo.toml"), &[], &["fifo.toml", "not a regular file"]);
+    }
+    std::fs::create_dir(path("dir.toml")).unwrap();
+    expect_render_error(&path("dir.toml"), &[], &["dir.toml", "directory"]);
+    // A mesh that is a directory, a symlink loop, a device.
+    std::fs::create_dir(path("meshdir.obj")).unwrap();
+    let scene = write(dir.path(), "a.toml", "[[mesh]]\nfile = \"meshdir.obj\"\n");
+    expect_render_error(&scene, &[], &["meshdir.obj", "directory"]);
+    std::os::unix::fs::symlink(path("loop.obj"), path("loop.obj")).unwrap();
+    let scene = write(dir.path(), "b.toml", "[[mesh]]\nfile = \"loop.obj\"\n");
+    expect_render_error(&scene, &[], &["loop.obj", "cannot read"]);
+    // A material library that is /dev/zero: named with its field, not read.
+    std::os::unix::fs::symlink("/dev/zero", path("zero.mtl")).unwrap();
+    write(dir.path(), "tri.obj", "mtllib zero.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let scene = write(dir.path(), "c.toml", "[[mesh]]\nfile = \"tri.obj\"\n");
+    expect_render_error(&scene, &[], &["tri.obj", "mtllib", "zero.mtl", "not a regular file"]);
+}

@@ -22,3 +22,11 @@ pub const MAX_COMPARE_SPP: u32 = 1 << 16;
 
 /// Most reconstruction locations (or rays) per pixel.
 pub const MAX_RECON_RAYS: u32 = 1 << 16;
+
+/// Largest scene description (TOML) read, in bytes.
+pub const MAX_SCENE_TEXT_BYTES: u64 = 64 << 20;
+
+/// Largest model file (OBJ, MTL, glTF, GLB or a glTF buffer) or texture read, in bytes: a
+/// bound so that a device such as /dev/zero named as an input is an error, not a read until
+/// memory runs out.
+pub const MAX_MODEL_BYTES: u64 = 8 << 30;

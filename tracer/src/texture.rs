@@ -246,6 +246,7 @@ impl Level<'_> {
 impl Texture {
     /// Loads a PNG or JPEG file. A missing or unreadable file is an error naming it.
     pub fn load(path: &Path, srgb: bool, referenced_from: &Path, field: &str) -> Result<Texture, SceneError> {
+        crate::scene::input::check_input(path, crate::limits::MAX_MODEL_BYTES, referenced_from, field)?;
         let img = image::open(path).map_err(|e| {
             SceneError::new(referenced_from, field, format!("cannot read texture {}: {e}", path.display()))
         })?;

@@ -481,7 +481,8 @@ fn locate(text: &str, offset: usize) -> String {
 }
 
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
-    let text = std::fs::read_to_string(path).map_err(|e| SceneError::new(path, "file", format!("cannot read: {e}")))?;
+    let bytes = super::input::read_input(path, crate::limits::MAX_SCENE_TEXT_BYTES, path, "file")?;
+    let text = String::from_utf8(bytes).map_err(|e| SceneError::new(path, "file", format!("not UTF-8 text: {e}")))?;
     parse(&text, path)
 }
 

@@ -79,7 +79,7 @@ pub fn load(path: &Path, scene: &mut Scene) -> Result<GltfImport, SceneError> {
 /// materials, textures and lights are appended; `scene.materials[0]` serves primitives
 /// without a material.
 pub fn load_with_transform(path: &Path, scene: &mut Scene, transform: Mat4) -> Result<GltfImport, SceneError> {
-    let bytes = std::fs::read(path).map_err(|e| SceneError::new(path, "file", format!("cannot read: {e}")))?;
+    let bytes = super::input::read_input(path, crate::limits::MAX_MODEL_BYTES, path, "file")?;
     let gltf::Gltf { document, blob } = parse(path, &bytes)?;
     check_extensions(path, &document, &mut scene.warnings)?;
     let document = validate(path, document)?;
@@ -228,7 +228,7 @@ fn read_uri(base_dir: &Path, uri: &str) -> Result<Vec<u8>, String> {
         let decoded = percent_decode(uri).ok_or_else(|| format!("URI '{uri}' is not valid percent-encoded UTF-8"))?;
         base_dir.join(decoded)
     };
-    std::fs::read(&file).map_err(|e| format!("cannot read {}: {e}", file.display()))
+    super::input::read_input(&file, crate::limits::MAX_MODEL_BYTES, &file, "uri").map_err(|e| e.message)
 }
 
 /// Decodes `%XX` escapes (RFC 3986); malformed escapes are kept literally.

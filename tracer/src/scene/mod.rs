@@ -7,6 +7,7 @@
 
 pub mod description;
 pub mod gltf;
+pub mod input;
 pub mod obj;
 pub mod shapes;
 

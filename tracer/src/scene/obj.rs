@@ -19,9 +19,11 @@ use std::path::{Path, PathBuf};
 
 use glam::{Mat4, Vec2, Vec3};
 
+use super::input::read_input;
 use super::shapes::compute_normals;
 use super::{AlphaMask, Material, Mesh, Scene};
 use crate::error::SceneError;
+use crate::limits::MAX_MODEL_BYTES;
 use crate::texture::{Texture, TextureRef};
 
 #[derive(Clone, Debug)]
@@ -125,13 +127,26 @@ fn convert_material(
 
 /// Appends the meshes (one per OBJ model and material) and materials of `path` to `scene`.
 pub fn load(path: &Path, scene: &mut Scene, options: &ObjOptions) -> Result<(), SceneError> {
-    if !path.is_file() {
-        return Err(SceneError::new(path, "file", "OBJ file not found"));
-    }
-    let load_options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
-    let (models, materials) =
-        tobj::load_obj(path, &load_options).map_err(|e| SceneError::new(path, "obj", format!("cannot parse: {e}")))?;
+    let bytes = read_input(path, MAX_MODEL_BYTES, path, "file")?;
     let dir = path.parent().unwrap_or(Path::new("."));
+    let load_options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
+    // tobj would open the material library itself; it goes through the same checks as every
+    // input (a regular file, bounded), and the reason it could not be read is kept.
+    let mtl_problem = std::cell::RefCell::new(None::<String>);
+    let (models, materials) = tobj::load_obj_buf(&mut std::io::Cursor::new(&bytes), &load_options, |mtl| {
+        let mtl_path = dir.join(mtl);
+        match read_input(&mtl_path, MAX_MODEL_BYTES, path, "mtllib") {
+            Ok(mtl_bytes) => tobj::load_mtl_buf(&mut std::io::Cursor::new(mtl_bytes)).map_err(|e| {
+                *mtl_problem.borrow_mut() = Some(format!("{}: {e}", mtl_path.display()));
+                e
+            }),
+            Err(e) => {
+                *mtl_problem.borrow_mut() = Some(e.message);
+                Err(tobj::LoadError::OpenFileFailed)
+            }
+        }
+    })
+    .map_err(|e| SceneError::new(path, "obj", format!("cannot parse: {e}")))?;
 
     // Materials from the MTL, unless the whole file is overridden.
     let mut material_index: Vec<u32> = Vec::new();
@@ -139,9 +154,10 @@ pub fn load(path: &Path, scene: &mut Scene, options: &ObjOptions) -> Result<(), 
         let materials = match materials {
             Ok(m) => m,
             Err(e) => {
-                let references_mtl = std::fs::read_to_string(path).map(|s| s.contains("mtllib")).unwrap_or(false);
+                let references_mtl = bytes.windows(6).any(|w| w == b"mtllib");
                 if references_mtl {
-                    return Err(SceneError::new(path, "mtllib", format!("cannot load the material library: {e}")));
+                    let reason = mtl_problem.borrow_mut().take().unwrap_or_else(|| e.to_string());
+                    return Err(SceneError::new(path, "mtllib", format!("cannot load the material library: {reason}")));
                 }
                 Vec::new()
             }

@@ -1,0 +1,72 @@
+//! Reading an input file the way every loader must: only a regular file (a directory, a FIFO
+//! or a device is an error at once, where reading would block forever or never end), no larger
+//! than a documented bound (`crate::limits`), with an error that says which of these it was.
+
+use std::io::Read;
+use std::path::Path;
+
+use crate::error::SceneError;
+
+/// Checks that `path` (followed through symbolic links) is a regular file of at most
+/// `max_bytes`; `referenced_from` and `field` name where the path came from in errors.
+pub fn check_input(path: &Path, max_bytes: u64, referenced_from: &Path, field: &str) -> Result<u64, SceneError> {
+    let error = |message: String| SceneError::new(referenced_from, field, message);
+    let shown = path.display();
+    let metadata = std::fs::metadata(path).map_err(|e| {
+        error(match e.kind() {
+            std::io::ErrorKind::NotFound => format!("{shown}: file not found"),
+            _ => format!("{shown}: cannot read: {e}"),
+        })
+    })?;
+    if metadata.is_dir() {
+        return Err(error(format!("{shown} is a directory, not a file")));
+    }
+    if !metadata.is_file() {
+        return Err(error(format!("{shown} is not a regular file (a device, FIFO or socket)")));
+    }
+    if metadata.len() > max_bytes {
+        return Err(error(format!("{shown} has {} bytes, more than the {max_bytes} lfr reads", metadata.len())));
+    }
+    Ok(metadata.len())
+}
+
+/// The bytes of `path` after [`check_input`]; reads at most `max_bytes` even if the file grows.
+pub fn read_input(path: &Path, max_bytes: u64, referenced_from: &Path, field: &str) -> Result<Vec<u8>, SceneError> {
+    let len = check_input(path, max_bytes, referenced_from, field)?;
+    let error =
+        |e: std::io::Error| SceneError::new(referenced_from, field, format!("{}: cannot read: {e}", path.display()));
+    let file = std::fs::File::open(path).map_err(error)?;
+    let mut bytes = Vec::with_capacity(len as usize);
+    file.take(max_bytes).read_to_end(&mut bytes).map_err(error)?;
+    Ok(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_regular_files_within_the_bound_are_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let scene = dir.path().join("scene.toml");
+        let file = dir.path().join("mesh.obj");
+        std::fs::write(&file, b"v 0 0 0\n").unwrap();
+        assert_eq!(read_input(&file, 100, &scene, "mesh.file").unwrap(), b"v 0 0 0\n");
+        let message = |path: &Path, max: u64| read_input(path, max, &scene, "mesh.file").unwrap_err().to_string();
+        for (path, max, needle) in [
+            (file.as_path(), 3, "more than the 3"),
+            (dir.path(), 100, "is a directory"),
+            (Path::new("/dev/zero"), 100, "not a regular file"),
+            (&dir.path().join("gone.obj"), 100, "file not found"),
+        ] {
+            let text = message(path, max);
+            assert!(text.contains(needle) && text.contains("scene.toml") && text.contains("mesh.file"), "{text}");
+        }
+        #[cfg(unix)]
+        {
+            let looped = dir.path().join("loop.obj");
+            std::os::unix::fs::symlink(&looped, &looped).unwrap();
+            assert!(message(&looped, 100).contains("cannot read"), "{}", message(&looped, 100));
+        }
+    }
+}
