@@ -136,9 +136,8 @@ pub fn load(path: &Path, scene: &mut Scene, options: &ObjOptions) -> Result<(), 
     let (models, materials) = tobj::load_obj_buf(&mut std::io::Cursor::new(&bytes), &load_options, |mtl| {
         let mtl_path = dir.join(mtl);
         match read_input(&mtl_path, MAX_MODEL_BYTES, path, "mtllib") {
-            Ok(mtl_bytes) => tobj::load_mtl_buf(&mut std::io::Cursor::new(mtl_bytes)).map_err(|e| {
+            Ok(mtl_bytes) => tobj::load_mtl_buf(&mut std::io::Cursor::new(mtl_bytes)).inspect_err(|e| {
                 *mtl_problem.borrow_mut() = Some(format!("{}: {e}", mtl_path.display()));
-                e
             }),
             Err(e) => {
                 *mtl_problem.borrow_mut() = Some(e.message);
