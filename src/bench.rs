@@ -79,6 +79,9 @@ fn median(values: &[f64]) -> f64 {
 }
 
 pub fn run(args: &BenchArgs) -> Result<()> {
+    if args.repeats == 0 {
+        anyhow::bail!("--repeats must be at least 1");
+    }
     let scenes: Vec<Option<PathBuf>> = if args.scenes.is_empty() {
         vec![None, Some(PathBuf::from("scenes/sponza.toml"))]
     } else {

@@ -144,6 +144,18 @@ fn impossible_parameters_are_clear_errors() {
     expect_render_error(&ok, &["--spp", "1048577"], &["--spp", "1048576"]);
     expect_render_error(&ok, &["--width", "32769"], &["--width", "32768"]);
     expect_render_error(&ok, &["--threads", "100000"], &["--threads", "1024"]);
+    // Transforms that cannot be meant: a rotation about no axis, a projective matrix.
+    let no_axis =
+        write(dir.path(), "axis.toml", "[[mesh]]\nshape = \"sphere\"\ntransform = { rotate = [0, 0, 0, 30] }\n");
+    expect_render_error(&no_axis, &[], &["axis.toml", "mesh[0].transform.rotate", "axis"]);
+    let projective = write(
+        dir.path(),
+        "projective.toml",
+        "[[mesh]]\nshape = \"sphere\"\ntransform = { matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0.5, 1]] }\n",
+    );
+    expect_render_error(&projective, &[], &["projective.toml", "mesh[0].transform.matrix", "last row"]);
+    let result = lfr(&["bench", "--repeats", "0"]);
+    assert!(!result.status.success() && stderr(&result).contains("--repeats"), "{}", stderr(&result));
     let zero_res = write(dir.path(), "zero.toml", "[render]\nheight = 0\n");
     expect_render_error(&zero_res, &[], &["zero.toml", "resolution"]);
     let fov = write(dir.path(), "fov.toml", "[camera]\nposition = [0, 0, 1]\nlook_at = [0, 0, 0]\nfov = 180\n");

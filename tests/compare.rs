@@ -235,6 +235,9 @@ fn bad_input_fails_cleanly_without_results() {
         (&["--effect", "dof", "--aperture-radius", "inf"], &["--aperture-radius"]),
         (&["--effect", "dof", "--aperture-radius", "0.1", "--focus-distance", "0"], &["--focus-distance"]),
         (&["--effect", "indirect", "--scene", "does/not/exist.toml"], &["does/not/exist.toml"]),
+        (&["--effect", "indirect", "--reference-spp", "3"], &["--reference-spp", "even"]),
+        (&["--effect", "indirect", "--threads", "100000"], &["--threads", "1024"]),
+        (&["--effect", "indirect", "--methods", "gif:radius=0"], &["`gif:radius=0`", "at least 1"]),
     ];
     for (extra, needles) in cases {
         let mut args = vec!["compare", "--out", out_arg, "--quiet", "--width", "8", "--height", "8"];

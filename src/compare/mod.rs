@@ -288,8 +288,8 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     if args.spp.is_empty() || args.spp.iter().any(|&s| s == 0 || s > MAX_COMPARE_SPP) {
         bail!("--spp: every input sample count must be in 1..={MAX_COMPARE_SPP}, got {:?}", args.spp);
     }
-    if args.reference_spp < 2 || args.reference_spp > MAX_SPP {
-        bail!("--reference-spp must be in 2..={MAX_SPP}, got {}", args.reference_spp);
+    if args.reference_spp < 2 || args.reference_spp > MAX_SPP || args.reference_spp % 2 != 0 {
+        bail!("--reference-spp must be even (two halves) and in 2..={MAX_SPP}, got {}", args.reference_spp);
     }
     if args.pt_max_spp == 0 || args.pt_max_spp > MAX_COMPARE_SPP {
         bail!("--pt-max-spp must be in 1..={MAX_COMPARE_SPP}, got {}", args.pt_max_spp);

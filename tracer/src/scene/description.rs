@@ -156,9 +156,15 @@ enum ScaleDesc {
 }
 
 impl TransformDesc {
-    fn matrix(&self) -> Mat4 {
+    /// The transform, or the name of the key that makes it impossible (`Err((key, why))`): a
+    /// rotation about a zero or non-finite axis, a matrix whose last row is not [0, 0, 0, 1]
+    /// (projective transforms are not supported).
+    fn matrix(&self) -> Result<Mat4, (&'static str, String)> {
         if let Some(m) = self.matrix {
-            return Mat4::from_cols_array_2d(&m).transpose();
+            if m[3] != [0.0, 0.0, 0.0, 1.0] {
+                return Err(("matrix", format!("the last row must be [0, 0, 0, 1], got {:?}", m[3])));
+            }
+            return Ok(Mat4::from_cols_array_2d(&m).transpose());
         }
         let scale = match self.scale {
             None => Vec3::ONE,
@@ -167,9 +173,18 @@ impl TransformDesc {
         };
         let rotation = match self.rotate {
             None => Quat::IDENTITY,
-            Some([x, y, z, deg]) => Quat::from_axis_angle(Vec3::new(x, y, z).normalize_or_zero(), deg.to_radians()),
+            Some([x, y, z, deg]) => {
+                let axis = Vec3::new(x, y, z).normalize_or_zero();
+                if axis == Vec3::ZERO || !deg.is_finite() {
+                    return Err((
+                        "rotate",
+                        format!("needs a non-zero, finite axis and angle, got {:?}", [x, y, z, deg]),
+                    ));
+                }
+                Quat::from_axis_angle(axis, deg.to_radians())
+            }
         };
-        Mat4::from_scale_rotation_translation(scale, rotation, Vec3::from(self.translate.unwrap_or([0.0; 3])))
+        Ok(Mat4::from_scale_rotation_translation(scale, rotation, Vec3::from(self.translate.unwrap_or([0.0; 3]))))
     }
 }
 
@@ -305,7 +320,10 @@ pub fn parse(text: &str, path: &Path) -> Result<Scene, SceneError> {
     };
 
     for (i, m) in desc.meshes.iter().enumerate() {
-        let transform = m.transform.matrix();
+        let transform = m
+            .transform
+            .matrix()
+            .map_err(|(key, why)| SceneError::new(path, format!("mesh[{i}].transform.{key}"), why))?;
         if !transform.is_finite() || transform.determinant() == 0.0 {
             return Err(SceneError::new(path, format!("mesh[{i}].transform"), "must be finite and invertible"));
         }
