@@ -362,3 +362,34 @@ fn a_missing_denoiser_is_skipped_with_a_notice() {
     assert_eq!(results["skipped"][0]["method"], "oidn");
     assert!(!runs(&results, "box").is_empty());
 }
+
+/// Issue 22, class 3: a cached reference is used only when its record matches the comparison
+/// and its image matches the record's checksum; a poisoned one is traced again, with a warning.
+#[test]
+fn a_poisoned_reference_cache_is_traced_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let first = tiny_compare(&dir.path().join("a"), &cache, &["--methods", "box"]);
+    assert_eq!(first["reference"]["from_cache"], false);
+    let key = first["reference"]["cache_key"].as_str().unwrap().to_string();
+    let (json, exr) = (cache.join(format!("{key}.json")), cache.join(format!("{key}.exr")));
+    // An edited record: a negative time and another spp.
+    let record = std::fs::read_to_string(&json).unwrap();
+    std::fs::write(&json, record.replace("\"spp\": 512", "\"spp\": 999999")).unwrap();
+    let edited = tiny_compare(&dir.path().join("b"), &cache, &["--methods", "box"]);
+    assert_eq!(edited["reference"]["from_cache"], false, "an edited record is not trusted");
+    assert_eq!(edited["reference"]["spp"], 512);
+    // The record was written anew: the next run uses the cache again.
+    let again = tiny_compare(&dir.path().join("c"), &cache, &["--methods", "box"]);
+    assert_eq!(again["reference"]["from_cache"], true);
+    // A damaged image (one byte changed) fails its checksum.
+    let mut bytes = std::fs::read(&exr).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0x55;
+    std::fs::write(&exr, bytes).unwrap();
+    let damaged = tiny_compare(&dir.path().join("d"), &cache, &["--methods", "box"]);
+    assert_eq!(damaged["reference"]["from_cache"], false, "a damaged image is not trusted");
+    for (x, y) in first["runs"].as_array().unwrap().iter().zip(damaged["runs"].as_array().unwrap()) {
+        assert_eq!(x["psnr_db"], y["psnr_db"], "the same reference once traced again");
+    }
+}

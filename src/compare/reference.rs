@@ -36,6 +36,12 @@ struct CacheRecord {
     spp: u32,
     seconds: f64,
     seeds: [u32; 2],
+    /// SHA-256 of the EXR beside it: a cached image edited or damaged since is not used.
+    exr_sha256: String,
+}
+
+fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// The two reference seeds for comparison seed `seed`: hashed, and never `seed` itself.
@@ -138,20 +144,45 @@ fn mean(a: &Image, b: &Image) -> Image {
     Image::from_pixels(a.width, a.height, pixels)
 }
 
-/// Reads the cached reference for `key`, if present and readable.
-fn read_cached(dir: &Path, key: &str, width: u32, height: u32) -> Option<Reference> {
-    let record: CacheRecord = serde_json::from_slice(&std::fs::read(dir.join(format!("{key}.json"))).ok()?).ok()?;
-    if record.key != key {
-        return None;
-    }
+/// Reads the cached reference for `key`: `Ok(None)` when there is none, `Err(why)` when there is
+/// one that cannot be trusted (its record disagrees with what was asked, the image does not
+/// match its checksum, or holds a non-finite or negative value), which is then traced again.
+fn read_cached(
+    dir: &Path,
+    key: &str,
+    tracing: &Tracing,
+    spp: u32,
+    seeds: [u32; 2],
+) -> Result<Option<Reference>, String> {
+    let json = dir.join(format!("{key}.json"));
     let path = dir.join(format!("{key}.exr"));
-    let (w, h, channels) = read_exr(&path).ok()?;
-    if (w, h) != (width, height) {
-        return None;
+    let Ok(record_bytes) = std::fs::read(&json) else { return Ok(None) };
+    let record: CacheRecord =
+        serde_json::from_slice(&record_bytes).map_err(|e| format!("{}: unreadable record: {e}", json.display()))?;
+    let untrusted = |what: String| Err(format!("{}: {what}", json.display()));
+    if record.key != key || record.seeds != seeds || record.spp != spp {
+        return untrusted(format!(
+            "the record says key {}, {} spp, seeds {:?}; this comparison needs {key}, {spp} spp, seeds {seeds:?}",
+            record.key, record.spp, record.seeds
+        ));
     }
-    let half_a = layer_image(&path, w, h, &channels, "half_a").ok()?;
-    let half_b = layer_image(&path, w, h, &channels, "half_b").ok()?;
-    Some(Reference {
+    if !(record.seconds.is_finite() && record.seconds > 0.0) {
+        return untrusted(format!("the recorded time {} s is not a positive number", record.seconds));
+    }
+    let exr_bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    if sha256_hex(&exr_bytes) != record.exr_sha256 {
+        return Err(format!("{}: the image does not match the checksum in its record", path.display()));
+    }
+    let (w, h, channels) = read_exr(&path).map_err(|e| e.to_string())?;
+    if (w, h) != (tracing.width, tracing.height) {
+        return Err(format!("{}: {w}x{h}, not {}x{}", path.display(), tracing.width, tracing.height));
+    }
+    let half_a = layer_image(&path, w, h, &channels, "half_a").map_err(|e| e.to_string())?;
+    let half_b = layer_image(&path, w, h, &channels, "half_b").map_err(|e| e.to_string())?;
+    if half_a.pixels.iter().chain(&half_b.pixels).flatten().any(|v| !(v.is_finite() && *v >= 0.0)) {
+        return Err(format!("{}: holds a non-finite or negative value", path.display()));
+    }
+    Ok(Some(Reference {
         image: mean(&half_a, &half_b),
         half_a,
         half_b,
@@ -160,7 +191,7 @@ fn read_cached(dir: &Path, key: &str, width: u32, height: u32) -> Option<Referen
         seeds: record.seeds,
         key: key.to_string(),
         from_cache: true,
-    })
+    }))
 }
 
 /// The reference for `tracing` at `spp` (even, ≥ 2): from the cache when `use_cache`, else
@@ -176,12 +207,14 @@ pub fn reference(
 ) -> Result<Reference> {
     let seeds = reference_seeds(seed);
     let key = cache_key(scene_text, tracing, spp, seeds);
+    let half = (spp / 2).max(1);
     if use_cache {
-        if let Some(reference) = read_cached(dir, &key, tracing.width, tracing.height) {
-            return Ok(reference);
+        match read_cached(dir, &key, tracing, half * 2, seeds) {
+            Ok(Some(reference)) => return Ok(reference),
+            Ok(None) => {}
+            Err(why) => eprintln!("warning: the cached reference is not used, it is traced again: {why}"),
         }
     }
-    let half = (spp / 2).max(1);
     let a = tracing.trace(half, seeds[0], progress)?;
     let b = tracing.trace(half, seeds[1], progress)?;
     let seconds = a.seconds + b.seconds;
@@ -198,7 +231,8 @@ pub fn reference(
         ],
     )
     .with_context(|| format!("writing the reference {}", exr.display()))?;
-    let record = CacheRecord { key: key.clone(), spp: half * 2, seconds, seeds };
+    let exr_bytes = std::fs::read(&exr).with_context(|| format!("reading back {}", exr.display()))?;
+    let record = CacheRecord { key: key.clone(), spp: half * 2, seconds, seeds, exr_sha256: sha256_hex(&exr_bytes) };
     let json = dir.join(format!("{key}.json"));
     write_atomically(&json, |tmp| {
         std::fs::write(tmp, serde_json::to_vec_pretty(&record).map_err(|e| e.to_string())?).map_err(|e| e.to_string())
