@@ -24,7 +24,8 @@ pub struct TraceArgs {
     /// Image height (default: the scene's).
     #[arg(long)]
     pub height: Option<u32>,
-    /// Seed of every random number, the reconstructions' too (default 0; `compare` 1).
+    /// Seed of every random number, the reconstructions' too (default 0; `compare` and
+    /// `bench-filters` 1).
     #[arg(long)]
     pub seed: Option<u32>,
     /// Maximum number of bounces (default: the scene's).
