@@ -156,3 +156,22 @@ fn a_lens_a_millionth_from_a_wall_gives_finite_depths_and_gradients() {
         assert!((0.0..1e-5).contains(&z), "z = {z}");
     }
 }
+
+/// Issue 22, class 9: f16 fields are clamped to 65504 as docs/sample-format.md promises, never
+/// stored as infinity: an (energy-gaining) base colour of 1e6 gives albedo 65504 in the file.
+#[test]
+fn f16_fields_are_clamped_not_infinite() {
+    let scene = common::SceneToml::new(2, Some([1.0; 3]))
+        .camera([0.0, 1.0, 4.0], [0.0; 3], 40.0, "")
+        .diffuse("blinding", [1e6; 3])
+        .polygon("blinding", &common::FLOOR, "")
+        .scene();
+    for (kind, file, _dir) in dump_all(&scene, &settings(4, 4, 2)) {
+        assert_finite(&kind, &file);
+        if kind == "indirect" {
+            let albedo = file.column("albedo").unwrap();
+            assert!(albedo.contains(&65504.0), "the albedo of 1e6 is stored as 65504");
+            assert!(albedo.iter().all(|&a| a <= 65504.0));
+        }
+    }
+}

@@ -209,7 +209,7 @@ fn dump_with(
                         values.push(super::secondary::bandwidth(&hit.bsdf));
                     }
                     if layout.shading {
-                        values.extend_from_slice(&hit.albedo.to_array());
+                        values.extend_from_slice(&super::secondary::clamp_f16(hit.albedo).to_array());
                         values.extend_from_slice(&super::secondary::encode_octahedral(hit.normal));
                         values.extend_from_slice(&(path.radiance() - path.split_emitter_light).to_array());
                     }

@@ -514,7 +514,7 @@ fn trace_secondary(
     }
     if layout.indirect() {
         let direct = emitted_at_origin + direct_at_origin + weight * secondary.emitted;
-        values.extend_from_slice(&surface.bsdf.albedo().to_array());
+        values.extend_from_slice(&clamp_f16(surface.bsdf.albedo()).to_array());
         if layout.weight {
             values.extend_from_slice(&clamp_f16(weight).to_array());
         }
@@ -523,7 +523,7 @@ fn trace_secondary(
             values.extend_from_slice(&encode_octahedral(surface.geometric_normal));
         }
         values.extend_from_slice(&finite_or_zero(direct).to_array());
-        values.extend_from_slice(&secondary_hit.map_or(Vec3::ZERO, |h| h.bsdf.albedo()).to_array());
+        values.extend_from_slice(&clamp_f16(secondary_hit.map_or(Vec3::ZERO, |h| h.bsdf.albedo())).to_array());
         values.extend_from_slice(&clamp_f16(secondary.direct).to_array());
         if layout.origin_bsdf {
             match &secondary_hit {
@@ -535,8 +535,9 @@ fn trace_secondary(
     values
 }
 
-/// Non-finite → 0, then clamped to the finite f16 range.
-fn clamp_f16(v: Vec3) -> Vec3 {
+/// Non-finite → 0, then clamped to the finite f16 range: every f16 field the dumps write goes
+/// through it (docs/sample-format.md promises it).
+pub(super) fn clamp_f16(v: Vec3) -> Vec3 {
     finite_or_zero(v).clamp(Vec3::splat(-F16_MAX), Vec3::splat(F16_MAX))
 }
 
