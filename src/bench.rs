@@ -18,17 +18,16 @@ use rayon::prelude::*;
 use serde::Serialize;
 use tracer::integrator::{RayKind, RecordedRay};
 use tracer::render::{record_rays, thread_pool};
-use tracer::{Accel, RenderSettings};
+use tracer::Accel;
+
+use crate::common::{RunArgs, SceneListArgs};
 
 #[derive(clap::Args)]
 pub struct BenchArgs {
-    /// Scene files; the embedded Cornell box and scenes/sponza.toml when omitted.
-    #[arg(long, value_delimiter = ',')]
-    scenes: Vec<PathBuf>,
-    #[arg(long, default_value_t = 256)]
-    width: u32,
-    #[arg(long, default_value_t = 256)]
-    height: u32,
+    /// The scenes, at 256×256 unless --width and --height say otherwise, on all cores unless
+    /// --threads says otherwise (the scaling is measured from one thread to that many).
+    #[command(flatten)]
+    scenes: SceneListArgs,
     #[arg(long, default_value_t = 16)]
     spp: u32,
     /// Timed repetitions, each a tracer render followed by the raw replay; the best of each is
@@ -82,21 +81,14 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     if args.repeats == 0 {
         anyhow::bail!("--repeats must be at least 1");
     }
-    let scenes: Vec<Option<PathBuf>> = if args.scenes.is_empty() {
-        vec![None, Some(PathBuf::from("scenes/sponza.toml"))]
-    } else {
-        args.scenes.iter().cloned().map(Some).collect()
-    };
-    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let size = args.scenes.size.or(256, 256);
+    let threads = args.scenes.run.thread_count()?;
+    let run = RunArgs { threads, ..args.scenes.run.clone() };
     let mut results = Vec::new();
-    for scene_path in scenes {
+    for scene_path in args.scenes.scene_paths() {
         let scene = crate::common::load_scene(scene_path.as_deref())?;
         let accel = Accel::build(&scene)?;
-        let mut settings = RenderSettings::from_scene(&scene);
-        settings.width = args.width;
-        settings.height = args.height;
-        settings.spp = args.spp;
-        settings.threads = threads;
+        let settings = size.settings(&scene, args.spp, &run, run.seed_or(0), false)?;
         // The rays first, so that the timed tracer and raw runs can alternate: a slow phase of
         // a shared machine then hits both, and the median of the per-pair ratios shows it.
         let recorded = record_rays(&scene, &accel, &settings)?;
@@ -135,8 +127,8 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         let result = SceneResult {
             scene: scene.source.display().to_string(),
             triangles: accel.triangle_count,
-            width: args.width,
-            height: args.height,
+            width: settings.width,
+            height: settings.height,
             spp: args.spp,
             threads,
             rays,

@@ -15,7 +15,7 @@ use recon::gif::modulation::demodulate;
 use serde::Serialize;
 use tracer::Accel;
 
-use crate::common::{load_scene, TraceArgs};
+use crate::common::{load_scene, RunArgs, TraceArgs};
 
 #[derive(clap::Args)]
 pub struct BenchFiltersArgs {
@@ -58,9 +58,8 @@ pub fn run(args: &BenchFiltersArgs) -> Result<()> {
     let scene = load_scene(trace.scene.as_deref())?;
     let accel = Accel::build(&scene)?;
     let defaults = TraceArgs {
-        width: Some(trace.width.unwrap_or(1024)),
-        height: Some(trace.height.unwrap_or(768)),
-        seed: Some(trace.seed.unwrap_or(1)),
+        size: trace.size.or(1024, 768),
+        run: RunArgs { seed: Some(trace.run.seed_or(1)), ..trace.run.clone() },
         quiet: true,
         ..trace.clone()
     };
@@ -71,7 +70,7 @@ pub fn run(args: &BenchFiltersArgs) -> Result<()> {
     let guide = &input.guide;
     let noisy = demodulate(&input.indirect, &input.albedo);
     let megapixels = width as f64 * height as f64 / 1e6;
-    let pool = tracer::render::thread_pool(trace.threads)?;
+    let pool = tracer::render::thread_pool(trace.run.threads)?;
     let threads = pool.current_num_threads();
     println!(
         "filters on the guide buffers of {} at {width}x{height} ({megapixels:.2} MP), {threads} threads, best of {}:",

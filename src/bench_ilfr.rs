@@ -13,6 +13,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
+use crate::common::{RunArgs, SceneListArgs};
 use anyhow::{anyhow, bail, Context, Result};
 use rayon::prelude::*;
 use recon::ilfr::gather::reconstruction_rays;
@@ -24,17 +25,13 @@ use serde::Serialize;
 use tracer::render::thread_pool;
 use tracer::samples::secondary::{dump, SecondaryKind};
 use tracer::Accel;
-use tracer::RenderSettings;
 
 #[derive(clap::Args)]
 pub struct BenchIlfrArgs {
-    /// Scene files; the embedded Cornell box and scenes/sponza.toml when omitted.
-    #[arg(long, value_delimiter = ',')]
-    scenes: Vec<PathBuf>,
-    #[arg(long, default_value_t = 128)]
-    width: u32,
-    #[arg(long, default_value_t = 128)]
-    height: u32,
+    /// The scenes, at 128×128 unless --width and --height say otherwise, seed 1 unless --seed
+    /// says otherwise.
+    #[command(flatten)]
+    scenes: SceneListArgs,
     /// Input samples per pixel, comma-separated: the scaling study.
     #[arg(long, value_delimiter = ',', default_value = "1,8")]
     spp: Vec<u32>,
@@ -44,8 +41,6 @@ pub struct BenchIlfrArgs {
     /// Timed repetitions of the Embree replay; the best is reported.
     #[arg(long, default_value_t = 3)]
     repeats: u32,
-    #[arg(long, default_value_t = 1)]
-    seed: u32,
     /// Also write the results as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -83,32 +78,22 @@ struct Row {
 }
 
 pub fn run(args: &BenchIlfrArgs) -> Result<()> {
-    if args.spp.is_empty() || args.spp.contains(&0) || args.width == 0 || args.height == 0 || args.recon_rays == 0 {
-        bail!("--spp, --width, --height and --recon-rays must be positive");
+    if args.spp.is_empty() || args.spp.contains(&0) || args.recon_rays == 0 {
+        bail!("--spp and --recon-rays must be positive");
     }
-    let scenes: Vec<Option<PathBuf>> = if args.scenes.is_empty() {
-        vec![None, Some(PathBuf::from("scenes/sponza.toml"))]
-    } else {
-        args.scenes.iter().cloned().map(Some).collect()
-    };
-    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let size = args.scenes.size.or(128, 128);
+    let threads = args.scenes.run.thread_count()?;
+    let run = RunArgs { threads, ..args.scenes.run.clone() };
+    let seed = run.seed_or(1);
     let pool = thread_pool(threads)?;
     let dir = tempfile::tempdir().context("a temporary directory for the samples")?;
     let mut rows = Vec::new();
-    for scene_path in scenes {
+    for scene_path in args.scenes.scene_paths() {
         let scene = crate::common::load_scene(scene_path.as_deref())?;
         let accel = Accel::build(&scene)?;
         let mut first_total = None;
         for &spp in &args.spp {
-            let settings = RenderSettings {
-                width: args.width,
-                height: args.height,
-                spp,
-                seed: args.seed,
-                max_bounces: scene.max_bounces,
-                threads,
-                progress: false,
-            };
+            let settings = size.settings(&scene, spp, &run, seed, false)?;
             let path = dir.path().join("bench.lfrs");
             let report = dump(&scene, &accel, &settings, SecondaryKind::Indirect, &path)?;
             let start = Instant::now();
@@ -116,7 +101,7 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
             let samples = read_indirect(&file).map_err(|e| anyhow!("{e}"))?;
             drop(file);
             let read_s = start.elapsed().as_secs_f64();
-            let ilfr = IlfrSettings { recon_rays: args.recon_rays, seed: args.seed, ..IlfrSettings::default() };
+            let ilfr = IlfrSettings { recon_rays: args.recon_rays, seed, ..IlfrSettings::default() };
             let result = pool
                 .install(|| reconstruct_samples(&samples, GatherTarget::Indirect, &ilfr))
                 .map_err(|e| anyhow!("{e}"))?;
@@ -147,8 +132,8 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
             let row = Row {
                 scene: scene.source.display().to_string(),
                 triangles: accel.triangle_count,
-                width: args.width,
-                height: args.height,
+                width: settings.width,
+                height: settings.height,
                 spp,
                 threads,
                 samples: report.samples,

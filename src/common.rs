@@ -11,6 +11,45 @@ use tracer::{RenderSettings, Scene};
 pub const DEFAULT_SCENE: &str = include_str!("../scenes/cornell.toml");
 pub const DEFAULT_SCENE_NAME: &str = "<embedded>/cornell.toml";
 
+/// What every command that computes shares: the seed of its random numbers and its worker
+/// threads. Flattened into `TraceArgs`, the benchmarks' `SceneListArgs` and `reconstruct`.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct RunArgs {
+    /// Seed of every random number, the reconstructions' too (default 0; `compare`,
+    /// `bench-filters` and `bench-ilfr` 1).
+    #[arg(long)]
+    pub seed: Option<u32>,
+    /// Worker threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+}
+
+impl RunArgs {
+    /// The seed, `default` unless given.
+    pub fn seed_or(&self, default: u32) -> u32 {
+        self.seed.unwrap_or(default)
+    }
+
+    /// The number of worker threads this asks for, 0 resolved to all cores, validated against
+    /// `tracer::limits::MAX_THREADS`.
+    pub fn thread_count(&self) -> Result<usize> {
+        if self.threads > MAX_THREADS {
+            anyhow::bail!("--threads must be at most {MAX_THREADS} (0 = all cores), got {}", self.threads);
+        }
+        Ok(match self.threads {
+            0 => std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+            n => n,
+        })
+    }
+
+    /// A plain rayon pool of these threads for the reconstructions (the tracer's own pools
+    /// also set FTZ/DAZ: `tracer::render::thread_pool`).
+    pub fn worker_pool(&self) -> Result<rayon::ThreadPool> {
+        let threads = self.thread_count()?;
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("starting the worker threads")
+    }
+}
+
 /// The scene and how to trace it: what `render`, `dump`, `filter`, `compare` and
 /// `bench-filters` take.
 #[derive(clap::Args, Clone, Debug)]
@@ -18,25 +57,86 @@ pub struct TraceArgs {
     /// Scene file (.toml, .gltf, .glb, .obj); the embedded Cornell box when omitted.
     #[arg(long)]
     pub scene: Option<PathBuf>,
-    /// Image width (default: the scene's).
-    #[arg(long)]
-    pub width: Option<u32>,
-    /// Image height (default: the scene's).
-    #[arg(long)]
-    pub height: Option<u32>,
-    /// Seed of every random number, the reconstructions' too (default 0; `compare` and
-    /// `bench-filters` 1).
-    #[arg(long)]
-    pub seed: Option<u32>,
-    /// Maximum number of bounces (default: the scene's).
-    #[arg(long)]
-    pub max_bounces: Option<u32>,
-    /// Worker threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    pub threads: usize,
+    #[command(flatten)]
+    pub size: SizeArgs,
+    #[command(flatten)]
+    pub run: RunArgs,
     /// No progress bars.
     #[arg(long)]
     pub quiet: bool,
+}
+
+/// The image size and path length, each the scene's unless given (or a command's own default:
+/// the benchmarks). Shared by `TraceArgs` and `SceneListArgs`.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct SizeArgs {
+    /// Image width (default: the scene's; `bench` 256, `bench-ilfr` 128, `bench-filters` 1024).
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height (default: the scene's; `bench` 256, `bench-ilfr` 128, `bench-filters` 768).
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Maximum number of bounces (default: the scene's).
+    #[arg(long)]
+    pub max_bounces: Option<u32>,
+}
+
+impl SizeArgs {
+    /// These sizes with `width` and `height` where none was given.
+    pub fn or(&self, width: u32, height: u32) -> SizeArgs {
+        SizeArgs {
+            width: Some(self.width.unwrap_or(width)),
+            height: Some(self.height.unwrap_or(height)),
+            ..self.clone()
+        }
+    }
+
+    /// Settings for `scene` at `spp` (the scene's size and path length where not given),
+    /// validated against `tracer::limits`.
+    pub fn settings(
+        &self,
+        scene: &Scene,
+        spp: u32,
+        run: &RunArgs,
+        seed: u32,
+        progress: bool,
+    ) -> Result<RenderSettings> {
+        let settings = RenderSettings {
+            width: self.width.unwrap_or(scene.width),
+            height: self.height.unwrap_or(scene.height),
+            spp,
+            seed,
+            max_bounces: self.max_bounces.unwrap_or(scene.max_bounces),
+            threads: run.threads,
+            progress,
+        };
+        settings.validate()?;
+        Ok(settings)
+    }
+}
+
+/// The benchmarks' scenes: several at one size (`bench`, `bench-ilfr`).
+#[derive(clap::Args, Clone, Debug)]
+pub struct SceneListArgs {
+    /// Scene files, comma-separated; the embedded Cornell box and scenes/sponza.toml when
+    /// omitted.
+    #[arg(long, value_delimiter = ',')]
+    pub scenes: Vec<PathBuf>,
+    #[command(flatten)]
+    pub size: SizeArgs,
+    #[command(flatten)]
+    pub run: RunArgs,
+}
+
+impl SceneListArgs {
+    /// The scenes to run, `None` standing for the embedded default.
+    pub fn scene_paths(&self) -> Vec<Option<PathBuf>> {
+        if self.scenes.is_empty() {
+            vec![None, Some(PathBuf::from("scenes/sponza.toml"))]
+        } else {
+            self.scenes.iter().cloned().map(Some).collect()
+        }
+    }
 }
 
 /// Refuses, before any work, output paths that must not be replaced: each of `outputs` must be
@@ -53,36 +153,16 @@ pub fn scene_inputs(scene: Option<&Path>) -> Vec<&Path> {
     scene.into_iter().collect()
 }
 
-/// A plain rayon pool of `threads` workers (0 = all cores) for the reconstructions, capped at
-/// `tracer::limits::MAX_THREADS` (the tracer's own pools also set FTZ/DAZ:
-/// `tracer::render::thread_pool`).
-pub fn worker_pool(threads: usize) -> Result<rayon::ThreadPool> {
-    if threads > MAX_THREADS {
-        anyhow::bail!("--threads must be at most {MAX_THREADS} (0 = all cores), got {threads}");
-    }
-    rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("starting the worker threads")
-}
-
 impl TraceArgs {
     /// The seed, 0 unless given.
     pub fn seed(&self) -> u32 {
-        self.seed.unwrap_or(0)
+        self.run.seed_or(0)
     }
 
     /// Settings for `scene` at `spp` from these options (the scene's size and path length where
     /// not given), validated against `tracer::limits`.
     pub fn settings(&self, scene: &Scene, spp: u32) -> Result<RenderSettings> {
-        let settings = RenderSettings {
-            width: self.width.unwrap_or(scene.width),
-            height: self.height.unwrap_or(scene.height),
-            spp,
-            seed: self.seed(),
-            max_bounces: self.max_bounces.unwrap_or(scene.max_bounces),
-            threads: self.threads,
-            progress: !self.quiet,
-        };
-        settings.validate()?;
-        Ok(settings)
+        self.size.settings(scene, spp, &self.run, self.seed(), !self.quiet)
     }
 }
 

@@ -85,7 +85,7 @@ pub fn run(args: &FilterArgs) -> Result<()> {
     let buffers = tracer::samples::guide::guide_buffers(&scene, &accel, &settings)?;
     let trace_s = trace_start.elapsed().as_secs_f64();
     let input = guide_input(&buffers);
-    let pool = crate::common::worker_pool(trace.threads)?;
+    let pool = trace.run.worker_pool()?;
     let filter_start = Instant::now();
     let (composite, sanitised) = pool.install(|| method.reconstruct(&input)).map_err(anyhow::Error::msg)?;
     let filter_s = filter_start.elapsed().as_secs_f64();

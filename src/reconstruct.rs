@@ -11,6 +11,7 @@ use tracer::output::{write_exr, write_png, Layer};
 
 use tracer::limits::MAX_RECON_RAYS;
 
+use crate::common::RunArgs;
 use crate::convert::rgb_channels;
 
 #[derive(clap::Args)]
@@ -32,11 +33,8 @@ pub struct ReconstructArgs {
     /// the reflected lobe's deviation; without a value 0.5, docs/tlfr.md). Off unless given.
     #[arg(long, value_name = "SCALE", num_args = 0..=1, default_missing_value = "0.5")]
     bandwidth: Option<f32>,
-    #[arg(long, default_value_t = 0)]
-    seed: u32,
-    /// Worker threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    threads: usize,
+    #[command(flatten)]
+    run: RunArgs,
     /// Output EXR; the PNG preview goes beside it.
     #[arg(long)]
     out: PathBuf,
@@ -61,8 +59,8 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
         }
     }
     let settings =
-        TlfrSettings { locations: args.locations, refocus, seed: args.seed, bandwidth_scale: args.bandwidth };
-    let pool = crate::common::worker_pool(args.threads)?;
+        TlfrSettings { locations: args.locations, refocus, seed: args.run.seed_or(0), bandwidth_scale: args.bandwidth };
+    let pool = args.run.worker_pool()?;
     let output = pool
         .install(|| reconstruct_file(&args.samples, &settings))
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.samples.display()))?;

@@ -394,6 +394,50 @@ fn bench_ilfr_replays_the_gathers_rays_through_embree() {
     assert!(!result.status.success() && stderr(&result).contains("--spp"));
 }
 
+/// The shared options (`common::RunArgs`, `SizeArgs`) are one definition flattened into every
+/// command that computes: each lists them and holds them to the same limits, before any work.
+#[test]
+fn every_computing_command_takes_the_shared_options_with_the_same_limits() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let (exr, lfrs, compare) = (out("never.exr"), out("never.lfrs"), out("never"));
+    let commands: [Vec<&str>; 8] = [
+        vec!["render", "--out", &exr],
+        vec!["dump", "--kind", "indirect", "--spp", "1", "--out", &lfrs],
+        vec!["filter", "--out", &exr],
+        vec!["compare", "--effect", "indirect", "--out", &compare],
+        vec!["bench"],
+        vec!["bench-ilfr"],
+        vec!["bench-filters"],
+        vec!["reconstruct", "--samples", &lfrs, "--out", &exr],
+    ];
+    for command in &commands {
+        let help = lfr(&[command[0], "--help"]);
+        let text = String::from_utf8_lossy(&help.stdout).to_string();
+        for option in ["--seed", "--threads"] {
+            assert!(text.contains(option), "{} --help lacks {option}:\n{text}", command[0]);
+        }
+        if command[0] != "reconstruct" {
+            for option in ["--width", "--height", "--max-bounces"] {
+                assert!(text.contains(option), "{} --help lacks {option}:\n{text}", command[0]);
+            }
+        }
+        let mut args = command.clone();
+        args.extend_from_slice(&["--threads", "100000"]);
+        let result = lfr(&args);
+        assert!(
+            !result.status.success() && stderr(&result).contains("--threads must be at most 1024"),
+            "{args:?}: {}",
+            stderr(&result)
+        );
+    }
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "a refused command wrote a file");
+    for command in ["bench", "bench-ilfr"] {
+        let result = lfr(&[command, "--width", "0"]);
+        assert!(!result.status.success() && stderr(&result).contains("width"), "{command}: {}", stderr(&result));
+    }
+}
+
 #[test]
 fn compare_lists_every_method_with_its_options() {
     let result = lfr(&["compare", "--list-methods"]);

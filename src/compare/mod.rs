@@ -26,7 +26,7 @@ use recon::method::{FrameInput, Input, Inputs, MethodError};
 use recon::metrics::{evaluate, psnr_db, ToneMap, PSNR_CEILING_DB};
 use recon::registry::{self, Registered};
 
-use tracer::limits::{MAX_COMPARE_SIDE, MAX_COMPARE_SPP, MAX_RECON_RAYS, MAX_SPP, MAX_THREADS};
+use tracer::limits::{MAX_COMPARE_SIDE, MAX_COMPARE_SPP, MAX_RECON_RAYS, MAX_SPP};
 
 use crate::common::TraceArgs;
 use recon::{Effect, Image};
@@ -284,7 +284,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     let (Some(effect), Some(dir)) = (args.effect, args.out.as_deref()) else {
         bail!("--effect and --out are required (or --list-methods)");
     };
-    let seed = args.trace.seed.unwrap_or(1);
+    let seed = args.trace.run.seed_or(1);
     if args.spp.is_empty() || args.spp.iter().any(|&s| s == 0 || s > MAX_COMPARE_SPP) {
         bail!("--spp: every input sample count must be in 1..={MAX_COMPARE_SPP}, got {:?}", args.spp);
     }
@@ -322,14 +322,13 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         }
         scene.camera.focus_distance = distance;
     }
-    let max_bounces = prepare_scene(effect, &mut scene, args.trace.max_bounces)?;
-    let (width, height) = (args.trace.width.unwrap_or(scene.width), args.trace.height.unwrap_or(scene.height));
+    let max_bounces = prepare_scene(effect, &mut scene, args.trace.size.max_bounces)?;
+    let (width, height) =
+        (args.trace.size.width.unwrap_or(scene.width), args.trace.size.height.unwrap_or(scene.height));
     if width == 0 || height == 0 || width > MAX_COMPARE_SIDE || height > MAX_COMPARE_SIDE {
         bail!("--width and --height must be in 1..={MAX_COMPARE_SIDE}, got {width}x{height}");
     }
-    if args.trace.threads > MAX_THREADS {
-        bail!("--threads must be at most {MAX_THREADS} (0 = all cores), got {}", args.trace.threads);
-    }
+    args.trace.run.thread_count()?;
     let ao_radius = match args.ao_radius {
         Some(r) if !(r.is_finite() && r > 0.0) => bail!("--ao-radius must be positive and finite, got {r}"),
         Some(r) => r,
@@ -344,7 +343,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         height,
         max_bounces,
         ao_radius,
-        threads: args.trace.threads,
+        threads: args.trace.run.threads,
     };
     let progress = !args.trace.quiet;
     std::fs::create_dir_all(dir.join("images")).with_context(|| format!("creating {}", dir.display()))?;
@@ -451,7 +450,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                 guide,
                 ao_radius,
                 seed,
-                threads: args.trace.threads,
+                threads: args.trace.run.threads,
             };
             for &recon_rays in &rays {
                 memory::reset_peak();
@@ -519,7 +518,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         width,
         height,
         seed,
-        threads: if args.trace.threads == 0 { rayon::current_num_threads() } else { args.trace.threads },
+        threads: if args.trace.run.threads == 0 { rayon::current_num_threads() } else { args.trace.run.threads },
         max_bounces,
         ao_radius: (effect == Effect::Ao).then_some(ao_radius),
         tone_map: ToneMapInfo { exposure: tone.exposure, gamma: tone.gamma, exposure_source },
