@@ -5,7 +5,10 @@ mod common;
 
 use std::f32::consts::PI;
 
-use common::{furnace, mean, render, render_with_threads, scene_from_toml, SceneToml};
+use common::{camera_a_millionth_from_a_wall, furnace, mean, render, render_with_threads, scene_from_toml, SceneToml};
+
+/// A 20×20 floor at y = 0, facing up.
+const BIG_FLOOR: [[f32; 3]; 4] = [[-10.0, 0.0, -10.0], [-10.0, 0.0, 10.0], [10.0, 0.0, 10.0], [10.0, 0.0, -10.0]];
 use glam::Vec3;
 
 /// A white (albedo 1) Lambertian object inside a uniform environment of radiance E looks like E
@@ -25,29 +28,12 @@ fn white_furnace_radiance_equals_the_environment() {
 /// L(p) = ρ/π · I · h / d³ with d the distance from p to the light.
 #[test]
 fn lambertian_plane_under_a_point_light_matches_the_inverse_square_law() {
-    let scene = scene_from_toml(
-        r#"
-        [render]
-        max_bounces = 4
-        [camera]
-        position = [0, 5, 0]
-        look_at = [0, 0, 0]
-        up = [0, 0, 1]
-        fov = 60
-        [[material]]
-        name = "grey"
-        base_color = [0.5, 0.5, 0.5]
-        specular = 0
-        [[mesh]]
-        shape = "polygon"
-        material = "grey"
-        points = [[-10, 0, -10], [-10, 0, 10], [10, 0, 10], [10, 0, -10]]
-        [[light]]
-        type = "point"
-        position = [0.5, 2, 0]
-        intensity = [10, 20, 40]
-        "#,
-    );
+    let scene = SceneToml::new(4, None)
+        .camera([0.0, 5.0, 0.0], [0.0; 3], 60.0, "up = [0, 0, 1]\n")
+        .diffuse("grey", [0.5; 3])
+        .polygon("grey", &BIG_FLOOR, "")
+        .raw("[[light]]\ntype = \"point\"\nposition = [0.5, 2, 0]\nintensity = [10, 20, 40]")
+        .scene();
     let frame = render(&scene, 24, 24, 16, 2);
     let light = Vec3::new(0.5, 2.0, 0.0);
     let intensity = Vec3::new(10.0, 20.0, 40.0);
@@ -68,34 +54,14 @@ fn lambertian_plane_under_a_point_light_matches_the_inverse_square_law() {
 /// F = 1/(2π) [A/√(1+A²) atan(B/√(1+A²)) + B/√(1+B²) atan(A/√(1+B²))], A = B = a/h.
 #[test]
 fn lambertian_plane_under_a_square_area_light_matches_the_form_factor() {
-    let scene = scene_from_toml(
-        r#"
-        [render]
-        max_bounces = 1
-        [camera]
-        position = [0, 0.5, 0]
-        look_at = [0, 0, 0]
-        up = [0, 0, 1]
-        fov = 0.5
-        [[material]]
-        name = "grey"
-        base_color = [0.6, 0.6, 0.6]
-        specular = 0
-        [[material]]
-        name = "lamp"
-        base_color = [0, 0, 0]
-        specular = 0
-        emission = [3, 3, 3]
-        [[mesh]]
-        shape = "polygon"
-        material = "grey"
-        points = [[-10, 0, -10], [-10, 0, 10], [10, 0, 10], [10, 0, -10]]
-        [[mesh]]   # emitter facing down
-        shape = "polygon"
-        material = "lamp"
-        points = [[-0.5, 1, -0.5], [0.5, 1, -0.5], [0.5, 1, 0.5], [-0.5, 1, 0.5]]
-        "#,
-    );
+    // The emitter faces down (its points turn clockwise seen from below).
+    let scene = SceneToml::new(1, None)
+        .camera([0.0, 0.5, 0.0], [0.0; 3], 0.5, "up = [0, 0, 1]\n")
+        .diffuse("grey", [0.6; 3])
+        .emitter("lamp", [3.0; 3], "")
+        .polygon("grey", &BIG_FLOOR, "")
+        .polygon("lamp", &[[-0.5, 1.0, -0.5], [0.5, 1.0, -0.5], [0.5, 1.0, 0.5], [-0.5, 1.0, 0.5]], "")
+        .scene();
     let frame = render(&scene, 4, 4, 1024, 3);
     let a: f32 = 0.5 / 1.0;
     let s = (1.0 + a * a).sqrt();
@@ -167,7 +133,7 @@ fn stiff_cases_one_pixel_one_sample_empty_scene_and_spikes_stay_finite() {
     assert_eq!(frame.variance[0], Vec3::ZERO, "one sample has no variance estimate");
 
     // No geometry at all: the environment, everywhere.
-    let empty = scene_from_toml("[render]\nenvironment = [0.25, 0.5, 1.0]\n");
+    let empty = SceneToml::lit_by_environment([0.25, 0.5, 1.0]).scene();
     let frame = render(&empty, 3, 2, 2, 0);
     assert!(frame.beauty.iter().all(|&v| v == Vec3::new(0.25, 0.5, 1.0)));
     assert!(frame.depth.iter().all(|&d| d == 0.0));
@@ -225,20 +191,7 @@ fn stiff_cases_one_pixel_one_sample_empty_scene_and_spikes_stay_finite() {
 
 #[test]
 fn camera_at_near_zero_distance_from_a_surface_stays_finite() {
-    // The lens sits 1e-6 in front of a wall.
-    let scene = scene_from_toml(
-        r#"
-        [render]
-        environment = [1, 1, 1]
-        [camera]
-        position = [0, 0, 0.000001]
-        look_at = [0, 0, -1]
-        fov = 90
-        [[mesh]]
-        shape = "polygon"
-        points = [[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]
-        "#,
-    );
+    let scene = camera_a_millionth_from_a_wall("");
     let frame = render(&scene, 8, 8, 4, 0);
     assert!(frame.beauty.iter().all(|v| v.is_finite()));
     assert!(frame.depth.iter().all(|&d| d.is_finite() && d >= 0.0));

@@ -125,7 +125,7 @@ fn a_scene_without_a_planar_light_is_a_clear_error() {
     );
     let message = PlanarLight::find(&scene).unwrap_err().to_string();
     assert!(message.contains("not planar"), "{message}");
-    let empty = scene_from_toml("[render]\nenvironment = [1, 1, 1]\n");
+    let empty = SceneToml::lit_by_environment([1.0, 1.0, 1.0]).scene();
     assert!(PlanarLight::find(&empty).unwrap_err().to_string().contains("emissive mesh"));
 }
 

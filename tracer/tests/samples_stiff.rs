@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::scene_from_toml;
+use common::{scene_from_toml, SceneToml};
 use sampleio::SampleFile;
 use tracer::samples::secondary::SecondaryKind;
 use tracer::samples::{guide, lens_time, light, secondary};
@@ -103,7 +103,7 @@ fn one_pixel_one_sample_for_every_kind() {
 
 #[test]
 fn an_empty_scene_gives_inert_samples_not_errors() {
-    let scene = scene_from_toml("[render]\nenvironment = [0.5, 0.5, 0.5]\n");
+    let scene = SceneToml::lit_by_environment([0.5, 0.5, 0.5]).scene();
     let files = dump_all(&scene, &settings(3, 2, 2));
     assert_eq!(files.len(), 3, "lens-time, indirect and ao; light samples need an emitter");
     for (kind, file, _dir) in &files {
@@ -134,21 +134,7 @@ fn radiance_spikes_mirrors_and_huge_motion_stay_finite() {
 
 #[test]
 fn a_lens_a_millionth_from_a_wall_gives_finite_depths_and_gradients() {
-    let scene = scene_from_toml(
-        r#"
-        [render]
-        environment = [1, 1, 1]
-        [camera]
-        position = [0, 0, 0.000001]
-        look_at = [0, 0, -1]
-        fov = 90
-        aperture_radius = 0.0000005
-        focus_distance = 1
-        [[mesh]]
-        shape = "polygon"
-        points = [[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]
-        "#,
-    );
+    let scene = common::camera_a_millionth_from_a_wall("aperture_radius = 0.0000005\nfocus_distance = 1\n");
     let files = dump_all(&scene, &settings(6, 6, 2));
     let (_, lens_time, _dir) = files.iter().find(|(k, _, _)| k == "lens-time").unwrap();
     assert_finite("lens-time", lens_time);

@@ -34,6 +34,11 @@ impl SceneToml {
         SceneToml { text }
     }
 
+    /// `[render]` with a uniform environment and the scene format's default path length.
+    pub fn lit_by_environment(environment: [f32; 3]) -> SceneToml {
+        SceneToml { text: format!("[render]\nenvironment = {environment:?}\n") }
+    }
+
     /// A pinhole camera at `position` looking at `look_at` with a `fov`-degree field of view;
     /// `extra` lines (`up = ...`, `aperture_radius = ...`) are added to its table.
     pub fn camera(mut self, position: [f32; 3], look_at: [f32; 3], fov: f32, extra: &str) -> SceneToml {
@@ -84,6 +89,16 @@ impl SceneToml {
     pub fn scene(&self) -> Scene {
         scene_from_toml(&self.text)
     }
+}
+
+/// A camera a millionth in front of a 2×2 wall at z = 0 (default material), looking at it, in a
+/// white environment; `lens` adds camera lines (`aperture_radius = ...`). The stiff case of a
+/// depth near zero.
+pub fn camera_a_millionth_from_a_wall(lens: &str) -> Scene {
+    SceneToml::lit_by_environment([1.0; 3])
+        .camera([0.0, 0.0, 1e-6], [0.0, 0.0, -1.0], 90.0, lens)
+        .raw("[[mesh]]\nshape = \"polygon\"\npoints = [[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]")
+        .scene()
 }
 
 /// The white furnace: a white (albedo 1) Lambertian sphere beside an open (concave) box in a
