@@ -75,6 +75,8 @@ struct Row {
     reconstruction_ray_in_traced_paths: f64,
     /// ILFR total time over the first spp's on the same scene.
     time_over_first_spp: f64,
+    /// The reconstruction's statistics (`recon::ilfr::method::Reconstructed::stats`).
+    stats: recon::method::Stats,
 }
 
 pub fn run(args: &BenchIlfrArgs) -> Result<()> {
@@ -155,11 +157,13 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
                 embree_over_reconstruction: (n_rays / embree_s) / recon_per_s,
                 reconstruction_ray_in_traced_paths: paths_per_s / recon_per_s,
                 time_over_first_spp: ilfr_total_s / first,
+                stats: result.stats(),
             };
             println!(
                 "{} ({} triangles) {}x{} at {} spp, {} threads\n  trace   {:8.3} s  {} samples, {:.0} paths/s, {} B/sample\n  \
                  ilfr    {:8.3} s  read {:.3}, sizing {:.3}, hierarchy {:.3}, shrinking {:.3}, gather {:.3} ({} splats); {:.2}x the first spp's\n  \
-                 gather  {} rays, {:.0} rays/s\n  embree  {:8.3} s  the same rays, closest hit: {:.0} rays/s = {:.2}x the gather's\n  \
+                 gather  {} rays, {:.0} rays/s; per ray {:.1} nodes, {:.1} discs tested, {:.1} collected, {:.1} in the surface; \
+                 {:.2}% merged\n  embree  {:8.3} s  the same rays, closest hit: {:.0} rays/s = {:.2}x the gather's\n  \
                  one reconstruction ray costs {:.3} traced path samples",
                 row.scene,
                 row.triangles,
@@ -181,6 +185,11 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
                 row.time_over_first_spp,
                 row.reconstruction_rays,
                 row.reconstruction_rays_per_s,
+                row.stats["nodes_per_ray"],
+                row.stats["discs_tested_per_ray"],
+                row.stats["collected_per_ray"],
+                row.stats["surface_members_per_ray"],
+                100.0 * row.stats["merged_fraction"],
                 row.embree_s,
                 row.embree_rays_per_s,
                 row.embree_over_reconstruction,

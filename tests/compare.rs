@@ -393,3 +393,34 @@ fn a_poisoned_reference_cache_is_traced_again() {
         assert_eq!(x["psnr_db"], y["psnr_db"], "the same reference once traced again");
     }
 }
+
+/// ILFR runs carry their statistics as named numbers (issue 23, item 5), consistent with the
+/// run: the gather shoots `recon_rays` rays per pixel whose primary hit it gathers (in the
+/// Cornell box all but the lamp's pixels, a few percent); each splat is one input sample that
+/// hit; fractions are fractions. Other methods have an empty `stats` object.
+#[test]
+fn ilfr_runs_report_their_statistics_as_named_numbers() {
+    let dir = tempfile::tempdir().unwrap();
+    let results = tiny_compare(
+        &dir.path().join("out"),
+        &dir.path().join("cache"),
+        &["--methods", "box,ilfr", "--recon-rays", "8"],
+    );
+    check_schema(&results);
+    for run in runs(&results, "ilfr") {
+        let stats = &run["stats"];
+        let spp = number(&run["input_spp"]);
+        let rays = number(&stats["rays"]);
+        assert!(rays % (8.0 / spp) == 0.0 && (0.9 * 8192.0..=8192.0).contains(&rays), "{stats}");
+        let splats = number(&stats["splats"]);
+        assert!(splats > 0.0 && splats <= 32.0 * 32.0 * spp, "{stats}");
+        for fraction in ["merged_fraction", "shrunk_fraction", "no_surface_fraction", "glossy_fraction"] {
+            assert!((0.0..=1.0).contains(&number(&stats[fraction])), "{fraction}: {stats}");
+        }
+        assert!(number(&stats["nodes_per_ray"]) >= 1.0, "{stats}");
+        assert!(number(&stats["gather_s"]) > 0.0 && number(&stats["gather_s"]) <= number(&run["recon_s"]), "{stats}");
+    }
+    for run in runs(&results, "box") {
+        assert_eq!(run["stats"].as_object().map(|o| o.len()), Some(0), "{run}");
+    }
+}

@@ -142,7 +142,13 @@ pub struct Output {
     pub external_peak_rss_mb: Option<f64>,
     /// Anything the report should say about this run.
     pub notes: Vec<String>,
+    /// The run's statistics as named numbers (`results.json`'s `stats`; empty for methods
+    /// without any), beside the notes that say them in words.
+    pub stats: Stats,
 }
+
+/// Named numbers a method reports about a run (counts, fractions, seconds), in name order.
+pub type Stats = std::collections::BTreeMap<String, f64>;
 
 /// Why a method could not run. The harness skips a method that is `Unavailable` and fails on
 /// the others.

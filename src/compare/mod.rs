@@ -142,7 +142,7 @@ impl Scoring<'_> {
         times: (f64, f64, f64),
         peak_rss_mb: Option<f64>,
         image: Image,
-        notes: Vec<String>,
+        (notes, stats): (Vec<String>, recon::method::Stats),
     ) -> Result<Measured> {
         self.reference.check_same_size(&image).with_context(|| {
             format!("{method} at {input_spp} spp returned an image of the wrong size for this comparison")
@@ -198,6 +198,7 @@ impl Scoring<'_> {
                 preview: format!("images/{stem}.png"),
                 error_map: format!("images/{stem}-error.png"),
                 notes,
+                stats,
             },
             image,
         })
@@ -392,7 +393,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         let traced = tracing.trace(spp, seed, false)?;
         let peak = memory::peak_rss_mb();
         let image = traced.frame.color.clone();
-        measured.push(context.measure("pt", spp, 0, (traced.seconds, 0.0, 0.0), peak, image, Vec::new())?);
+        measured.push(context.measure("pt", spp, 0, (traced.seconds, 0.0, 0.0), peak, image, Default::default())?);
         if needs_frame && args.spp.contains(&spp) {
             frames.insert(spp, (traced.frame, traced.seconds));
         }
@@ -475,7 +476,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                     (trace_s, output.preprocess_s, output.recon_s),
                     peak,
                     output.image,
-                    output.notes,
+                    (output.notes, output.stats),
                 )?);
             }
         }
@@ -582,6 +583,7 @@ mod tests {
             preview: String::new(),
             error_map: String::new(),
             notes: Vec::new(),
+            stats: Default::default(),
         }
     }
 
@@ -590,7 +592,7 @@ mod tests {
         let mut image = reference.clone();
         image.set(1, 1, [f32::NAN, 0.0, 0.0]);
         image.set(2, 1, [f32::INFINITY; 3]);
-        scoring.measure("nan-maker", 4, 0, (1.0, 0.5, 0.25), Some(10.0), image, Vec::new())
+        scoring.measure("nan-maker", 4, 0, (1.0, 0.5, 0.25), Some(10.0), image, Default::default())
     }
 
     #[test]
@@ -616,8 +618,10 @@ mod tests {
         let reference = Image::new(4, 4);
         let scoring =
             Scoring { dir: dir.path(), reference: &reference, tone: ToneMap::auto(&reference), layer: "beauty" };
-        let error =
-            scoring.measure("shrinker", 1, 0, (0.0, 0.0, 0.0), None, Image::new(3, 4), Vec::new()).err().unwrap();
+        let error = scoring
+            .measure("shrinker", 1, 0, (0.0, 0.0, 0.0), None, Image::new(3, 4), Default::default())
+            .err()
+            .unwrap();
         let message = format!("{error:#}");
         assert!(message.contains("shrinker") && message.contains("expected 4x4, found 3x4"), "{message}");
         assert_eq!(std::fs::read_dir(dir.path().join("images")).unwrap().count(), 0, "nothing written");

@@ -85,6 +85,8 @@ pub struct Run {
     pub preview: String,
     pub error_map: String,
     pub notes: Vec<String>,
+    /// The method's statistics as named numbers (`recon::method::Stats`; empty for most).
+    pub stats: recon::method::Stats,
 }
 
 #[derive(Clone, Debug, Serialize)]

@@ -20,7 +20,7 @@ use sampleio::{Field, SampleFile, SampleKind};
 
 use crate::error::Error;
 use crate::image::Image;
-use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
+use crate::method::{Effect, Input, Inputs, Method, MethodError, Output, Stats};
 
 #[derive(Debug)]
 pub struct BoxFilter;
@@ -52,7 +52,14 @@ impl Method for BoxFilter {
             );
             return Err(Error::size_mismatch("samples", message).into());
         }
-        Ok(Output { image, preprocess_s, recon_s: start.elapsed().as_secs_f64(), external_peak_rss_mb: None, notes })
+        Ok(Output {
+            image,
+            preprocess_s,
+            recon_s: start.elapsed().as_secs_f64(),
+            external_peak_rss_mb: None,
+            notes,
+            stats: Stats::new(),
+        })
     }
 }
 

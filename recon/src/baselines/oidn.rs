@@ -22,7 +22,7 @@ use std::time::Instant;
 
 use crate::error::Error;
 use crate::image::Image;
-use crate::method::{Input, Inputs, Method, MethodError, Output};
+use crate::method::{Input, Inputs, Method, MethodError, Output, Stats};
 use crate::python;
 
 const SCRIPT: &str = include_str!("oidn_denoise.py");
@@ -175,7 +175,14 @@ impl Method for Oidn {
         if nonfinite > 0 {
             notes.push(format!("oidn: the denoised image has {nonfinite} non-finite pixels"));
         }
-        Ok(Output { image, preprocess_s: 0.0, recon_s, external_peak_rss_mb: Some(peak_rss_mb), notes })
+        Ok(Output {
+            image,
+            preprocess_s: 0.0,
+            recon_s,
+            external_peak_rss_mb: Some(peak_rss_mb),
+            notes,
+            stats: Stats::new(),
+        })
     }
 }
 

@@ -37,7 +37,7 @@ use crate::gif::eye_rays::{composite, Composite, GuideLight, Lookup};
 use crate::gif::guided_filter::{guided_filter, GuideKind, GuidedFilterParams};
 use crate::gif::modulation::{demodulate, remodulate};
 use crate::image::Image;
-use crate::method::{GuideInput, Input, Inputs, Method, MethodError, Output};
+use crate::method::{GuideInput, Input, Inputs, Method, MethodError, Output, Stats};
 use crate::options::Options;
 
 /// The image size the paper's radii (24–32 pixels) refer to: its figures are about 800 pixels
@@ -333,6 +333,7 @@ impl Method for FilteredIndirect {
             recon_s: start.elapsed().as_secs_f64(),
             external_peak_rss_mb: None,
             notes,
+            stats: Stats::new(),
         })
     }
 }

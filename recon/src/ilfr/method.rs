@@ -31,7 +31,7 @@ use super::splats::{size_splats, GatheredPoints, SplatParams, SplatStats};
 use super::surfaces::SurfaceParams;
 use crate::error::Error;
 use crate::image::Image;
-use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
+use crate::method::{Effect, Input, Inputs, Method, MethodError, Output, Stats};
 
 /// `ilfr`: the paper's reconstruction (indirect light, glossy reflections, ambient occlusion).
 #[derive(Debug)]
@@ -106,6 +106,7 @@ impl Method for IlfrDof {
         let mut result = reconstruct_samples(&samples, GatherTarget::Lens(camera), &settings)?;
         result.timings.read_s = read_s;
         let mut notes = result.notes(&samples, &settings);
+        let stats = result.stats();
         let [_, _, escaped, hits] = samples.class_counts();
         // The second note speaks of primary hits; here the input rays are the camera rays.
         notes[1] = format!(
@@ -120,6 +121,7 @@ impl Method for IlfrDof {
             recon_s: result.timings.reconstruct_s,
             external_peak_rss_mb: None,
             notes,
+            stats,
         })
     }
 }
@@ -153,12 +155,14 @@ fn run_ilfr(name: &str, inputs: &Inputs, settings: IlfrSettings) -> Result<Outpu
     let mut result = reconstruct_samples(&samples, target, &settings)?;
     result.timings.read_s = read_s;
     let notes = result.notes(&samples, &settings);
+    let stats = result.stats();
     Ok(Output {
         image: result.image,
         preprocess_s: result.timings.preprocess_s(),
         recon_s: result.timings.recursive_s + result.timings.reconstruct_s,
         external_peak_rss_mb: None,
         notes,
+        stats,
     })
 }
 
@@ -242,6 +246,40 @@ pub struct Reconstructed {
 }
 
 impl Reconstructed {
+    /// The run's statistics as named numbers (`results.json`'s `stats`): `rays` (the final
+    /// gather's), `splats`, `merged_fraction` (rays whose surface absorbed small surfaces in
+    /// front of it, §2.5, over the rays that met a surface), `shrunk_fraction` (splats shrunk,
+    /// §2.3.1, over all splats), per-ray walk counts (`nodes_per_ray`, `discs_tested_per_ray`,
+    /// `collected_per_ray`, `surface_members_per_ray`), `no_surface_fraction`,
+    /// `glossy_fraction`, `blocked_input_fraction` and the stage times in seconds.
+    pub fn stats(&self) -> Stats {
+        let r = &self.gather.reconstruct;
+        let ratio = |n: u64, d: u64| if d == 0 { 0.0 } else { n as f64 / d as f64 };
+        let t = &self.timings;
+        [
+            ("rays", r.rays as f64),
+            ("splats", self.splats as f64),
+            ("merged_fraction", ratio(r.merged_small_surfaces, r.surfaces)),
+            ("shrunk_fraction", ratio(self.shrinking.shrunk_splats as u64, self.splats as u64)),
+            ("dead_splat_fraction", ratio(self.shrinking.dead_splats as u64, self.splats as u64)),
+            ("blocked_input_fraction", ratio(self.shrinking.blocked_rays as u64, self.shrinking.rays as u64)),
+            ("nodes_per_ray", ratio(r.nodes, r.rays)),
+            ("discs_tested_per_ray", ratio(r.discs_tested, r.rays)),
+            ("collected_per_ray", ratio(r.collected, r.rays)),
+            ("surface_members_per_ray", ratio(r.surface_members, r.surfaces)),
+            ("no_surface_fraction", ratio(r.no_surface, r.rays)),
+            ("glossy_fraction", ratio(r.glossy, r.rays)),
+            ("sizing_s", t.sizing_s),
+            ("hierarchy_s", t.hierarchy_s),
+            ("shrinking_s", t.shrinking_s),
+            ("recursive_s", t.recursive_s),
+            ("gather_s", t.reconstruct_s),
+        ]
+        .into_iter()
+        .map(|(name, value)| (name.to_string(), value))
+        .collect()
+    }
+
     fn notes(&self, samples: &IndirectSamples, settings: &IlfrSettings) -> Vec<String> {
         let t = &self.timings;
         let r = &self.gather.reconstruct;

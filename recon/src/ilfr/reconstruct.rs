@@ -36,6 +36,8 @@ pub struct Scratch {
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct ReconstructStats {
     pub rays: u64,
+    /// Rays that met an apparent surface.
+    pub surfaces: u64,
     /// Rays that met no splat (or, for radiance, whose surface gave none).
     pub no_surface: u64,
     /// Rays whose surface was filtered by the glossy nearest neighbour.
@@ -56,6 +58,7 @@ pub struct ReconstructStats {
 impl ReconstructStats {
     pub fn add(&mut self, other: &ReconstructStats) {
         self.rays += other.rays;
+        self.surfaces += other.surfaces;
         self.no_surface += other.no_surface;
         self.glossy += other.glossy;
         self.merged_small_surfaces += other.merged_small_surfaces;
@@ -88,6 +91,7 @@ impl Reconstructor<'_> {
         let surface = first_surface(ray, &scratch.candidates, &self.surfaces);
         match &surface {
             Some(s) => {
+                stats.surfaces += 1;
                 stats.surface_members += s.members.len() as u64;
                 stats.merged_small_surfaces += (s.merged_surfaces > 0) as u64;
             }

@@ -20,7 +20,7 @@ use super::samples::{read_lens_time, refocus};
 use super::settings::{TlfrSettings, DEFAULT_BANDWIDTH_SCALE, RADIUS_TRIALS};
 use crate::baselines::box_filter::average;
 use crate::error::Error;
-use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
+use crate::method::{Effect, Input, Inputs, Method, MethodError, Output, Stats};
 
 /// A TLFR method of `lfr compare`: the same reconstruction, finishing each location with
 /// `value`, optionally with the bandwidth extension; `tlfr` also takes soft shadows.
@@ -218,5 +218,5 @@ pub fn reconstruct_file_with(
             hierarchy.unplaced
         ));
     }
-    Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes })
+    Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes, stats: Stats::new() })
 }

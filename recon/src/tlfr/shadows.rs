@@ -360,7 +360,7 @@ pub fn reconstruct_soft_shadow(
     use super::same_surface::window_half_width;
     use super::samples::read_lens_time;
     use super::settings::RADIUS_TRIALS;
-    use crate::method::{Effect, Output};
+    use crate::method::{Effect, Output, Stats};
     use std::time::Instant;
 
     let start = Instant::now();
@@ -477,5 +477,5 @@ pub fn reconstruct_soft_shadow(
             light_tree.leaf_count()
         ),
     ];
-    Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes })
+    Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes, stats: Stats::new() })
 }
