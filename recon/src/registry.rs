@@ -7,7 +7,8 @@ use crate::baselines::box_filter::BoxFilter;
 use crate::baselines::oidn::Oidn;
 use crate::error::Error;
 use crate::gif::filtered_indirect::{FilterOptions, FilteredIndirect};
-use crate::ilfr::method::{Ilfr, IlfrDof, IlfrRecursive};
+use crate::ilfr::method::{Ilfr, IlfrChoices, IlfrDof, IlfrRecursive};
+use crate::ilfr::surfaces::ConflictTest;
 use crate::method::{Effect, Method};
 use crate::options::{OptionKind, OptionSpec, Options};
 use crate::tlfr::method::{TLFR, TLFR_BANDWIDTH, TLFR_NEAREST};
@@ -94,6 +95,19 @@ const LOOKUP: OptionSpec = OptionSpec {
     kind: OptionKind::Choice(&["geometry", "own-pixel"]),
     default: "geometry",
     help: "how additional eye rays take filtered light: the geometry-aware lookup or their own pixel's",
+};
+const CONFLICT: OptionSpec = OptionSpec {
+    key: "conflict",
+    kind: OptionKind::Choice(&["event-line", "facing", "off-plane"]),
+    default: "off-plane",
+    help: "which splats belong to one apparent surface: the paper's event-line test (Figure 5), the authors' code's \
+           facing/coplanar test, or the event line asked only off the splats' tangent planes",
+};
+const SHRINK: OptionSpec = OptionSpec {
+    key: "shrink",
+    kind: OptionKind::Choice(&["all-rays", "hit-rays"]),
+    default: "all-rays",
+    help: "which input rays shrink the splats they cross (§2.3.1): all, or only those that hit (the authors' code)",
 };
 const QUALITY: OptionSpec = OptionSpec {
     key: "quality",
@@ -202,17 +216,20 @@ pub const METHODS: &[MethodSpec] = &[
     MethodSpec {
         name: "ilfr",
         effects: INDIRECT_AND_AO,
-        options: &[],
+        options: &[CONFLICT, SHRINK],
         description: "indirect light field reconstruction (Lehtinen et al. 2012)",
-        build: |_| Ok(Box::new(Ilfr)),
+        build: |options| Ok(Box::new(Ilfr { choices: ilfr_choices(options) })),
     },
     MethodSpec {
         name: "ilfr-recursive",
         effects: INDIRECT,
-        options: &[PASSES],
+        options: &[PASSES, CONFLICT, SHRINK],
         description: "indirect light field reconstruction with recursive filtering at the secondary hits (Lehtinen \
                       et al. 2012 §4)",
-        build: |options| Ok(Box::new(IlfrRecursive { passes: options.count("passes").unwrap_or(1) })),
+        build: |options| {
+            let passes = options.count("passes").unwrap_or(1);
+            Ok(Box::new(IlfrRecursive { passes, choices: ilfr_choices(options) }))
+        },
     },
     MethodSpec {
         name: "ilfr-dof",
@@ -223,6 +240,22 @@ pub const METHODS: &[MethodSpec] = &[
         build: |_| Ok(Box::new(IlfrDof)),
     },
 ];
+
+/// The `conflict` and `shrink` options of the ILFR methods.
+fn ilfr_choices(options: &Options) -> IlfrChoices {
+    let defaults = IlfrChoices::default();
+    IlfrChoices {
+        conflict_test: match options.choice("conflict") {
+            Some("event-line") => ConflictTest::EventLine,
+            Some("facing") => ConflictTest::FacingOrCoplanar,
+            Some(_) => ConflictTest::EventLineOffPlane,
+            None => defaults.conflict_test,
+        },
+        shrink_with_escaped_rays: options
+            .choice("shrink")
+            .map_or(defaults.shrink_with_escaped_rays, |c| c == "all-rays"),
+    }
+}
 
 /// A filter of the filtered path-tracing pipeline with `options` applied.
 fn filter(variant: FilteredIndirect, options: &Options) -> Result<Box<dyn Method>, Error> {
@@ -328,6 +361,20 @@ mod tests {
         assert_eq!(find("bilateral:lookup=own-pixel").unwrap().unwrap().name(), "bilateral:lookup=own-pixel");
         assert_eq!(find("tlfr-bw:bandwidth=2").unwrap().unwrap().name(), "tlfr-bw:bandwidth=2");
         assert_eq!(find("ilfr-recursive:passes=2").unwrap().unwrap().name(), "ilfr-recursive:passes=2");
+        let variant = find("ilfr:shrink=hit-rays:conflict=event-line").unwrap().unwrap();
+        assert_eq!(variant.name(), "ilfr:conflict=event-line:shrink=hit-rays", "canonical order");
+        let options = spec("ilfr").unwrap().parse_options("conflict=facing:shrink=hit-rays").unwrap();
+        let choices = ilfr_choices(&options);
+        assert_eq!(
+            (choices.conflict_test, choices.shrink_with_escaped_rays),
+            (ConflictTest::FacingOrCoplanar, false),
+            "the options reach the reconstruction's settings"
+        );
+        let settings = choices.apply(crate::ilfr::method::IlfrSettings::default());
+        assert_eq!(
+            (settings.surfaces.conflict_test, settings.shrink.escaped_rays),
+            (ConflictTest::FacingOrCoplanar, false)
+        );
         assert!(find("median:radius=3").unwrap().is_none());
         assert!(find("median").unwrap().is_none());
         for (spec, needle) in [
@@ -351,6 +398,8 @@ mod tests {
             ("box:x=1", "box takes no options"),
             ("tlfr-bw:bandwidth=0", "positive"),
             ("ilfr-recursive:passes=0", "at least 1"),
+            ("ilfr:conflict=maybe", "off-plane"),
+            ("ilfr:shrink=some", "hit-rays"),
         ] {
             let error = find(spec).err().unwrap_or_else(|| panic!("{spec} must fail")).to_string();
             assert!(error.contains(needle) && error.contains(spec.split(':').next().unwrap()), "{spec}: {error}");

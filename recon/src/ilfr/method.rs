@@ -28,14 +28,45 @@ use super::recursive::{recursive_pass, RecursiveSettings, RecursiveStats};
 use super::samples::{read_indirect, IndirectSamples};
 use super::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams, ShrinkStats};
 use super::splats::{size_splats, GatheredPoints, SplatParams, SplatStats};
-use super::surfaces::SurfaceParams;
+use super::surfaces::{ConflictTest, SurfaceParams};
 use crate::error::Error;
 use crate::image::Image;
 use crate::method::{Effect, Input, Inputs, Method, MethodError, Output, Stats};
 
 /// `ilfr`: the paper's reconstruction (indirect light, glossy reflections, ambient occlusion).
-#[derive(Debug)]
-pub struct Ilfr;
+#[derive(Debug, Default)]
+pub struct Ilfr {
+    pub choices: IlfrChoices,
+}
+
+/// The choices the paper leaves open that a user can switch (`ilfr:conflict=…:shrink=…`);
+/// docs/ilfr.md measures each.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IlfrChoices {
+    pub conflict_test: ConflictTest,
+    /// Whether escaped input rays shrink splats ([`ShrinkParams::escaped_rays`]).
+    pub shrink_with_escaped_rays: bool,
+}
+
+impl Default for IlfrChoices {
+    fn default() -> Self {
+        IlfrChoices {
+            conflict_test: SurfaceParams::default().conflict_test,
+            shrink_with_escaped_rays: ShrinkParams::default().escaped_rays,
+        }
+    }
+}
+
+impl IlfrChoices {
+    /// `settings` with these choices.
+    pub fn apply(&self, settings: IlfrSettings) -> IlfrSettings {
+        IlfrSettings {
+            surfaces: SurfaceParams { conflict_test: self.conflict_test, ..settings.surfaces },
+            shrink: ShrinkParams { escaped_rays: self.shrink_with_escaped_rays, ..settings.shrink },
+            ..settings
+        }
+    }
+}
 
 impl Method for Ilfr {
     fn input(&self) -> Input {
@@ -47,7 +78,8 @@ impl Method for Ilfr {
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        run_ilfr("ilfr", inputs, IlfrSettings { recon_rays, seed: inputs.seed, ..IlfrSettings::default() })
+        let settings = IlfrSettings { recon_rays, seed: inputs.seed, ..IlfrSettings::default() };
+        run_ilfr("ilfr", inputs, self.choices.apply(settings))
     }
 }
 
@@ -55,6 +87,7 @@ impl Method for Ilfr {
 #[derive(Debug)]
 pub struct IlfrRecursive {
     pub passes: u32,
+    pub choices: IlfrChoices,
 }
 
 impl Method for IlfrRecursive {
@@ -69,7 +102,7 @@ impl Method for IlfrRecursive {
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
         let settings =
             IlfrSettings { recon_rays, seed: inputs.seed, recursive_passes: self.passes, ..IlfrSettings::default() };
-        run_ilfr("ilfr-recursive", inputs, settings)
+        run_ilfr("ilfr-recursive", inputs, self.choices.apply(settings))
     }
 }
 

@@ -12,7 +12,10 @@
 //!   event line formed by connecting the two endpoints h_i and h_j. If the intersection point
 //!   lies within the positive halfspaces of both samples, a conflict is declared" (Figure 5):
 //!   [`conflicts`] with [`ConflictTest::EventLine`]; the authors' code's active test
-//!   ("facing / coplanar") as [`ConflictTest::FacingOrCoplanar`].
+//!   ("facing / coplanar") as [`ConflictTest::FacingOrCoplanar`]; the default (issue 23),
+//!   [`ConflictTest::EventLineOffPlane`], asks the event line only of pairs whose connecting line
+//!   leaves both tangent planes by more than [`COPLANAR_DEGREES`], so that neighbours of one
+//!   noisy surface never fragment it while stacked surfaces stay apart (docs/ilfr.md, "Issue 23").
 //! - §2.5 two-sided splats: "back-facing splats contribute to [visibility] similarly to
 //!   front-facing splats … contribute to radiance only if all splats of the first surface are
 //!   back-facing": the flipped normal n̂ in [`conflicts`] and [`Surface::radiance_from_back_faces`]
@@ -45,7 +48,18 @@ pub enum ConflictTest {
     /// centre, or both away (within sin 2°), or either centre is within min(r_a, r_b) of the
     /// other's tangent plane.
     FacingOrCoplanar,
+    /// Ours (issue 23): the paper's event-line test, asked only when the event line leaves both
+    /// tangent planes by more than [`COPLANAR_DEGREES`]; a pair closer to coplanar is one
+    /// surface. The event line of two neighbours side by side across the ray on one noisy
+    /// surface crosses the st plane far away, on a side that normal noise picks, so the plain
+    /// test fragments such surfaces; stacked surfaces stay apart at any spacing.
+    EventLineOffPlane,
 }
+
+/// How far (degrees) the line between two splat centres may leave a splat's tangent plane and
+/// still count as lying in it, for [`ConflictTest::EventLineOffPlane`]: the spread of shading
+/// normals between neighbouring samples of one surface.
+pub const COPLANAR_DEGREES: f32 = 10.0;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SurfaceParams {
@@ -59,7 +73,7 @@ pub struct SurfaceParams {
 impl Default for SurfaceParams {
     fn default() -> Self {
         SurfaceParams {
-            conflict_test: ConflictTest::EventLine,
+            conflict_test: ConflictTest::EventLineOffPlane,
             backface_near_field_cull: true,
             small_surface_scale: [0.5, 0.6, 0.7],
         }
@@ -129,6 +143,11 @@ pub fn conflicts(ray: &Ray, a: &Candidate, b: &Candidate, test: ConflictTest) ->
             // n̂_a·(q − h_a) = λ n̂_a·e and n̂_b·(q − h_b) = (λ − 1) n̂_b·e.
             let eta = 1e-3 * a.radius.min(b.radius);
             lambda * dot(na, e) > eta && (lambda - 1.0) * dot(nb, e) > eta
+        }
+        ConflictTest::EventLineOffPlane => {
+            let limit = COPLANAR_DEGREES.to_radians().sin() * length(e);
+            let in_a_plane = dot(na, e).abs() <= limit || dot(nb, e).abs() <= limit;
+            !in_a_plane && conflicts(ray, a, b, ConflictTest::EventLine)
         }
         ConflictTest::FacingOrCoplanar => {
             let l = length(e);
@@ -283,11 +302,9 @@ mod tests {
         out
     }
 
-    fn both_tests() -> [SurfaceParams; 2] {
-        [
-            SurfaceParams::default(),
-            SurfaceParams { conflict_test: ConflictTest::FacingOrCoplanar, ..SurfaceParams::default() },
-        ]
+    fn every_test() -> [SurfaceParams; 3] {
+        [ConflictTest::EventLineOffPlane, ConflictTest::FacingOrCoplanar, ConflictTest::EventLine]
+            .map(|conflict_test| SurfaceParams { conflict_test, ..SurfaceParams::default() })
     }
 
     fn groups(discs: &[Disc], params: &SurfaceParams) -> Vec<Vec<u32>> {
@@ -311,9 +328,61 @@ mod tests {
         let at = |s: f32, z: f32| [0.0 + s * along[0], 2.0 + s * along[1], z];
         let discs =
             [Disc::new(at(-0.3, 0.1), n, 0.8), Disc::new(at(0.2, -0.2), n, 0.8), Disc::new(at(0.5, 0.0), n, 0.8)];
-        for params in both_tests() {
+        for params in every_test() {
             assert_eq!(groups(&discs, &params).len(), 1, "{params:?}");
         }
+    }
+
+    /// Issue 23: neighbouring splats of one noisy surface, side by side across the ray, must not
+    /// fragment it. A jittered lattice of splats on the plane y = 2 (spacing 0.1, radius 0.2, as
+    /// k-NN sizing makes them), each normal tilted by up to 10° at random (shading-normal noise),
+    /// seen by rays from the origin up to 60° off the plane's normal. Under the default test (and
+    /// the authors') every ray finds one surface of all the splats it hits, none merged. The
+    /// paper's plain event-line test
+    /// splits such surfaces (its crossing point runs off to infinity when a pair lies side by side
+    /// across the ray, so normal noise decides the sign): it must fragment a fair share of rays,
+    /// which is why it is not the default.
+    #[test]
+    fn side_by_side_coplanar_neighbours_with_noisy_normals_are_one_surface() {
+        let mut state = 0x9e37_79b9_u32;
+        let mut uniform = move || {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (state >> 8) as f32 / (1u32 << 24) as f32
+        };
+        let mut discs = Vec::new();
+        for i in -40..=40 {
+            for k in -40..=40 {
+                let centre = [i as f32 * 0.1 + 0.03 * uniform(), 2.0, k as f32 * 0.1 + 0.03 * uniform()];
+                let tilt = 10f32.to_radians() * uniform().sqrt();
+                let phi = std::f32::consts::TAU * uniform();
+                let normal = [tilt.sin() * phi.cos(), -tilt.cos(), tilt.sin() * phi.sin()];
+                discs.push(Disc::new(centre, normal, 0.2));
+            }
+        }
+        let bvh = DiscBvh::build(&discs).unwrap();
+        let (mut stack, mut hits, mut candidates) = (Vec::new(), Vec::new(), Vec::new());
+        let mut fragmented = [0usize; 3];
+        let rays = 400;
+        for r in 0..rays {
+            let theta = 60f32.to_radians() * uniform().sqrt();
+            let phi = std::f32::consts::TAU * uniform();
+            let direction = [theta.sin() * phi.cos(), theta.cos(), theta.sin() * phi.sin()];
+            let ray = Ray { time: 0.0, origin: [0.0; 3], direction };
+            bvh.collect_hits(&ray, 0.0, f32::INFINITY, &mut stack, &mut hits);
+            let tests = [ConflictTest::EventLineOffPlane, ConflictTest::FacingOrCoplanar, ConflictTest::EventLine];
+            for (slot, test) in tests.into_iter().enumerate() {
+                let params = SurfaceParams { conflict_test: test, ..SurfaceParams::default() };
+                prepare_candidates(&bvh, &hits, 0.0, &params, &mut candidates);
+                assert!(candidates.len() >= 3, "ray {r} meets the lattice");
+                let surface = first_surface(&ray, &candidates, &params).unwrap();
+                let whole = surface.members == (0..candidates.len()) && surface.merged_surfaces == 0;
+                fragmented[slot] += !whole as usize;
+            }
+        }
+        assert_eq!(SurfaceParams::default().conflict_test, ConflictTest::EventLineOffPlane);
+        assert_eq!(fragmented[0], 0, "the default test fragmented {} of {rays} rays", fragmented[0]);
+        assert_eq!(fragmented[1], 0, "the authors' test fragmented {} of {rays} rays", fragmented[1]);
+        assert!(fragmented[2] > rays / 20, "the event-line test fragmented only {} of {rays} rays", fragmented[2]);
     }
 
     #[test]
@@ -333,7 +402,7 @@ mod tests {
             Disc::new([-0.5, 1.5, 0.0], unit(1.0, -1.0, 0.0), 0.8),
             Disc::new([0.25, 1.75, 0.0], unit(-1.0, -1.0, 0.0), 0.8),
         ];
-        for params in both_tests() {
+        for params in every_test() {
             assert_eq!(groups(&convex, &params).len(), 1, "convex, {params:?}");
             assert_eq!(groups(&concave, &params).len(), 1, "concave, {params:?}");
         }
@@ -351,7 +420,7 @@ mod tests {
             Disc::new([0.3, 1.0, 0.0], down, 0.7),
             Disc::new([-0.1, 1.0, 0.2], down, 0.7),
         ];
-        for params in both_tests() {
+        for params in every_test() {
             assert_eq!(groups(&discs, &params), [vec![1, 2], vec![0]], "{params:?}");
             let c = candidates(&discs, &params);
             let surface = first_surface(&RAY, &c, &params).unwrap();
