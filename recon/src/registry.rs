@@ -98,10 +98,11 @@ const LOOKUP: OptionSpec = OptionSpec {
 };
 const CONFLICT: OptionSpec = OptionSpec {
     key: "conflict",
-    kind: OptionKind::Choice(&["event-line", "facing", "off-plane"]),
-    default: "off-plane",
+    kind: OptionKind::Choice(&["auto", "event-line", "facing", "off-plane"]),
+    default: "auto",
     help: "which splats belong to one apparent surface: the paper's event-line test (Figure 5), the authors' code's \
-           facing/coplanar test, or the event line asked only off the splats' tangent planes",
+           facing/coplanar test, the event line asked only off the splats' tangent planes, or (auto) off-plane but \
+           the event line for ambient occlusion",
 };
 const SHRINK: OptionSpec = OptionSpec {
     key: "shrink",
@@ -234,10 +235,10 @@ pub const METHODS: &[MethodSpec] = &[
     MethodSpec {
         name: "ilfr-dof",
         effects: DEFOCUS_AND_MOTION,
-        options: &[],
+        options: &[CONFLICT, SHRINK],
         description: "indirect light field reconstruction's machinery on camera rays: defocus and motion blur \
                       (Lehtinen et al. 2012 §3.4)",
-        build: |_| Ok(Box::new(IlfrDof)),
+        build: |options| Ok(Box::new(IlfrDof { choices: ilfr_choices(options) })),
     },
 ];
 
@@ -246,10 +247,10 @@ fn ilfr_choices(options: &Options) -> IlfrChoices {
     let defaults = IlfrChoices::default();
     IlfrChoices {
         conflict_test: match options.choice("conflict") {
-            Some("event-line") => ConflictTest::EventLine,
-            Some("facing") => ConflictTest::FacingOrCoplanar,
-            Some(_) => ConflictTest::EventLineOffPlane,
-            None => defaults.conflict_test,
+            Some("event-line") => Some(ConflictTest::EventLine),
+            Some("facing") => Some(ConflictTest::FacingOrCoplanar),
+            Some("off-plane") => Some(ConflictTest::EventLineOffPlane),
+            _ => defaults.conflict_test,
         },
         shrink_with_escaped_rays: options
             .choice("shrink")
@@ -367,10 +368,10 @@ mod tests {
         let choices = ilfr_choices(&options);
         assert_eq!(
             (choices.conflict_test, choices.shrink_with_escaped_rays),
-            (ConflictTest::FacingOrCoplanar, false),
+            (Some(ConflictTest::FacingOrCoplanar), false),
             "the options reach the reconstruction's settings"
         );
-        let settings = choices.apply(crate::ilfr::method::IlfrSettings::default());
+        let settings = choices.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Indirect);
         assert_eq!(
             (settings.surfaces.conflict_test, settings.shrink.escaped_rays),
             (ConflictTest::FacingOrCoplanar, false)
