@@ -63,9 +63,15 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     let settings =
         TlfrSettings { locations: args.locations, refocus, seed: args.seed, bandwidth_scale: args.bandwidth };
     let pool = crate::common::worker_pool(args.threads)?;
-    let output = pool
-        .install(|| reconstruct_file(&args.samples, &settings))
-        .map_err(|e| anyhow::anyhow!("{}: {e}", args.samples.display()))?;
+    let output = pool.install(|| reconstruct_file(&args.samples, &settings)).map_err(|e| {
+        // Errors about the file name it first; prefix the others (settings) with it, once.
+        let (message, path) = (e.to_string(), args.samples.display().to_string());
+        if message.starts_with(&path) {
+            anyhow::anyhow!(message)
+        } else {
+            anyhow::anyhow!("{path}: {message}")
+        }
+    })?;
     let image = &output.image;
     write_exr(&args.out, image.width, image.height, &[Layer { name: "", channels: rgb_channels(image) }])
         .with_context(|| format!("writing {}", args.out.display()))?;

@@ -69,6 +69,7 @@ pub fn average(file: &SampleFile, effect: Effect, ao_radius: f32) -> Result<(Ima
         );
         return Err(Error::sample_content(file.path(), message).into());
     }
+    file.check_needs(crate::needs::box_filter(expected))?;
     let required = |name: &str| -> Result<&Field, Error> {
         file.field(name).ok_or_else(|| {
             Error::sample_content(file.path(), format!("`{}` samples lack the field `{name}`", expected.name()))

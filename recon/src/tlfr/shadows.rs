@@ -49,6 +49,7 @@ pub struct Shading {
 
 /// Reads `albedo`, `normal` and `radiance_without_light` for the samples `camera` kept.
 pub fn read_shading(file: &SampleFile, camera: &LensTimeSamples) -> Result<Shading, Error> {
+    file.check_needs(&crate::needs::TLFR_SOFT_SHADOW)?;
     let content = |message: String| Error::sample_content(file.path(), message);
     let required = |name: &str| {
         file.field(name).ok_or_else(|| {
@@ -109,6 +110,7 @@ pub fn read_light(file: &SampleFile, camera_records: usize) -> Result<LightSampl
             file.len()
         )));
     }
+    file.check_needs(&crate::needs::TLFR_LIGHT)?;
     let mut space = LightSpace::from_file(file)?;
     let required = |name: &str| file.field(name).ok_or_else(|| content(format!("`light` samples lack `{name}`")));
     let (lu, lv, lx, ly) = (required("lu")?, required("lv")?, required("lx")?, required("ly")?);
