@@ -80,5 +80,12 @@ pub fn run(args: &DumpArgs) -> Result<()> {
         report.bytes_per_sample(),
         report.fields.join(", "),
     );
+    if report.dropped_contributions > 0 {
+        eprintln!(
+            "warning: {} path contributions were NaN or infinite (e.g. an emitter too bright for f32) and were \
+             dropped; the samples are darker than the scene",
+            report.dropped_contributions
+        );
+    }
     Ok(())
 }

@@ -89,7 +89,10 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
         output.recon_s
     );
     for note in &output.notes {
-        println!("  {note}");
+        match note.strip_prefix(recon::method::WARNING) {
+            Some(warning) => eprintln!("warning: {warning}"),
+            None => println!("  {note}"),
+        }
     }
     println!("wrote {} and {}", args.out.display(), preview.display());
     Ok(())

@@ -46,15 +46,8 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         frame.rays,
         frame.rays as f64 / frame.seconds.max(1e-9) / 1e6,
     );
-    if frame.invalid_samples > 0 {
-        eprintln!("warning: {} samples had non-finite radiance and were dropped", frame.invalid_samples);
-    }
-    if frame.clamped_variances > 0 {
-        eprintln!(
-            "warning: {} variance values exceed the f32 range (radiance above ~1.8e19) and were stored as {:e}",
-            frame.clamped_variances,
-            f32::MAX
-        );
+    for warning in frame.warnings() {
+        eprintln!("warning: {warning}");
     }
     println!("wrote {} and {}", args.out.display(), preview.display());
     Ok(())

@@ -39,7 +39,10 @@ impl Method for BoxFilter {
         let (image, skipped) = average(&file, inputs.effect, inputs.ao_radius)?;
         let mut notes = Vec::new();
         if skipped > 0 {
-            notes.push(format!("{skipped} samples with non-finite values were skipped"));
+            notes.push(crate::method::warning(format!(
+                "{}: {skipped} samples with non-finite values were skipped",
+                path.display()
+            )));
         }
         if (image.width, image.height) != (inputs.width, inputs.height) {
             let message = format!(

@@ -460,7 +460,7 @@ pub fn reconstruct_soft_shadow(
         |x, y| box_image.pixels[(y * width + x) as usize],
     );
     let recon_s = start.elapsed().as_secs_f64();
-    let notes = vec![
+    let mut notes = vec![
         format!(
             "R = {radius:.3} px measured on the camera pattern; light radius R·ρ with median ρ = {:.4} scene units/px",
             light.median_density
@@ -479,5 +479,9 @@ pub fn reconstruct_soft_shadow(
             light_tree.leaf_count()
         ),
     ];
+    if camera.dropped > 0 {
+        let total = camera.samples.len() + camera.dropped;
+        notes.push(super::method::dropped_warning(camera_path, camera.dropped, total));
+    }
     Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes })
 }
