@@ -335,6 +335,9 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         Some(r) => r,
         None => default_ao_radius(&scene),
     };
+    // Every check that does not need a traced image comes before the first one is traced.
+    let cache = reference::cache_dir(args.cache_dir.as_deref());
+    reference::check_cache_dir(&cache)?;
     let accel = Accel::build(&scene)?;
     let tracing = Tracing {
         scene: &scene,
@@ -350,7 +353,6 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     std::fs::create_dir_all(dir.join("images")).with_context(|| format!("creating {}", dir.display()))?;
 
     // The reference.
-    let cache = reference::cache_dir(args.cache_dir.as_deref());
     eprintln!(
         "compare: {} --effect {} at {width}x{height}; reference {} spp (cache {})",
         scene.source.display(),
