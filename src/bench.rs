@@ -25,6 +25,10 @@ pub struct BenchArgs {
     /// Scene files; the embedded Cornell box and scenes/sponza.toml when omitted.
     #[arg(long, value_delimiter = ',')]
     scenes: Vec<PathBuf>,
+    /// Let the scenes' file references name files outside the referencing file's folder and
+    /// the shared scenes folder.
+    #[arg(long)]
+    allow_outside_scene_dir: bool,
     #[arg(long, default_value_t = 256)]
     width: u32,
     #[arg(long, default_value_t = 256)]
@@ -90,7 +94,8 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let mut results = Vec::new();
     for scene_path in scenes {
-        let scene = crate::common::load_scene(scene_path.as_deref())?;
+        let scene =
+            crate::common::load_scene(scene_path.as_deref(), crate::common::file_access(args.allow_outside_scene_dir))?;
         let accel = Accel::build(&scene)?;
         let mut settings = RenderSettings::from_scene(&scene);
         settings.width = args.width;

@@ -31,6 +31,10 @@ pub struct BenchIlfrArgs {
     /// Scene files; the embedded Cornell box and scenes/sponza.toml when omitted.
     #[arg(long, value_delimiter = ',')]
     scenes: Vec<PathBuf>,
+    /// Let the scenes' file references name files outside the referencing file's folder and
+    /// the shared scenes folder.
+    #[arg(long)]
+    allow_outside_scene_dir: bool,
     #[arg(long, default_value_t = 128)]
     width: u32,
     #[arg(long, default_value_t = 128)]
@@ -96,7 +100,8 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
     let dir = tempfile::tempdir().context("a temporary directory for the samples")?;
     let mut rows = Vec::new();
     for scene_path in scenes {
-        let scene = crate::common::load_scene(scene_path.as_deref())?;
+        let scene =
+            crate::common::load_scene(scene_path.as_deref(), crate::common::file_access(args.allow_outside_scene_dir))?;
         let accel = Accel::build(&scene)?;
         let mut first_total = None;
         for &spp in &args.spp {

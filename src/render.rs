@@ -6,7 +6,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use tracer::Accel;
 
-use crate::common::{check_outputs, load_scene, scene_inputs, TraceArgs};
+use crate::common::{check_outputs, scene_inputs, TraceArgs};
 
 #[derive(clap::Args)]
 pub struct RenderArgs {
@@ -28,7 +28,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let preview = args.out.with_extension("png");
     check_outputs(&[&args.out, &preview], &scene_inputs(trace.scene.as_deref()))?;
     let load_start = Instant::now();
-    let scene = load_scene(trace.scene.as_deref())?;
+    let scene = trace.load_scene()?;
     let settings = trace.settings(&scene, args.spp.unwrap_or(scene.spp))?;
     let accel = Accel::build(&scene)?;
     let setup = load_start.elapsed().as_secs_f64();

@@ -309,7 +309,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         Some(path) => std::fs::read(path).with_context(|| format!("reading the scene {}", path.display()))?,
         None => crate::common::DEFAULT_SCENE.as_bytes().to_vec(),
     };
-    let mut scene = crate::common::load_scene(args.trace.scene.as_deref())?;
+    let mut scene = args.trace.load_scene()?;
     if let Some(radius) = args.aperture_radius {
         if !(radius.is_finite() && radius >= 0.0) {
             bail!("--aperture-radius must be finite and at least 0, got {radius}");

@@ -48,6 +48,7 @@ use gltf::khr_lights_punctual::Kind as LightKind;
 use gltf::material::AlphaMode;
 use gltf::mesh::Mode;
 
+use super::input::FileAccess;
 use super::{AlphaMask, Material, Mesh, PunctualLight, Scene};
 use crate::camera::{Camera, FovAxis};
 use crate::error::SceneError;
@@ -86,7 +87,7 @@ pub fn load_with_transform(path: &Path, scene: &mut Scene, transform: Mat4) -> R
     check_version(path, &document)?;
     let base_dir = path.parent().unwrap_or_else(|| Path::new("."));
     check_buffer_views(path, &document)?;
-    let buffers = load_buffers(path, base_dir, &document, blob)?;
+    let buffers = load_buffers(path, base_dir, &document, blob, scene.file_access)?;
     let mut importer = Importer {
         path,
         base_dir,
@@ -239,6 +240,7 @@ fn load_buffers(
     base_dir: &Path,
     document: &gltf::Document,
     mut blob: Option<Vec<u8>>,
+    access: FileAccess,
 ) -> Result<Vec<Vec<u8>>, SceneError> {
     document
         .buffers()
@@ -248,9 +250,7 @@ fn load_buffers(
                 gltf::buffer::Source::Bin => blob
                     .take()
                     .ok_or_else(|| SceneError::new(path, &field, "refers to the GLB binary chunk, which is missing"))?,
-                gltf::buffer::Source::Uri(uri) => {
-                    read_uri(base_dir, uri).map_err(|message| SceneError::new(path, &field, message))?
-                }
+                gltf::buffer::Source::Uri(uri) => read_uri(path, base_dir, uri, &field, access)?,
             };
             if data.len() < buffer.length() {
                 return Err(SceneError::new(
@@ -265,22 +265,26 @@ fn load_buffers(
 }
 
 /// Reads the bytes a URI names: a base64 `data:` URI, a `file:` URI or a (percent-encoded)
-/// path relative to the glTF file's directory.
-fn read_uri(base_dir: &Path, uri: &str) -> Result<Vec<u8>, String> {
+/// path relative to the glTF file's directory, confined as `access` says. Errors name the
+/// glTF file `path` and `field` (`buffers[0]`, `images[0].uri`).
+fn read_uri(path: &Path, base_dir: &Path, uri: &str, field: &str, access: FileAccess) -> Result<Vec<u8>, SceneError> {
+    let error = |message: String| SceneError::new(path, field, message);
     if uri.starts_with("data:") {
         return gltf::buffer::Data::from_source(gltf::buffer::Source::Uri(uri), None)
             .map(|data| data.0)
-            .map_err(|e| format!("cannot decode data URI: {e}"));
+            .map_err(|e| error(format!("cannot decode data URI: {e}")));
     }
     let file = if let Some(rest) = uri.strip_prefix("file://").or_else(|| uri.strip_prefix("file:")) {
         PathBuf::from(rest)
     } else if uri.contains(':') {
-        return Err(format!("unsupported URI scheme in '{uri}'"));
+        return Err(error(format!("unsupported URI scheme in '{uri}'")));
     } else {
-        let decoded = percent_decode(uri).ok_or_else(|| format!("URI '{uri}' is not valid percent-encoded UTF-8"))?;
+        let decoded =
+            percent_decode(uri).ok_or_else(|| error(format!("URI '{uri}' is not valid percent-encoded UTF-8")))?;
         base_dir.join(decoded)
     };
-    super::input::read_input(&file, crate::limits::MAX_MODEL_BYTES, &file, "uri").map_err(|e| e.message)
+    super::input::confine(&file, uri, path, field, access)?;
+    super::input::read_input(&file, crate::limits::MAX_MODEL_BYTES, path, field)
 }
 
 /// Decodes `%XX` escapes (RFC 3986); malformed escapes are kept literally.
@@ -714,7 +718,7 @@ impl<'a> Importer<'a> {
             (Cow::Borrowed(bytes), field, format!("buffer view {}", view_index.value()))
         } else if let Some(uri) = &json.uri {
             let field = format!("images[{image}].uri");
-            let bytes = read_uri(self.base_dir, uri).map_err(|message| self.error(&field, message))?;
+            let bytes = read_uri(self.path, self.base_dir, uri, &field, self.scene.file_access)?;
             let description = if uri.starts_with("data:") { "data URI".to_string() } else { uri.clone() };
             (Cow::Owned(bytes), field, description)
         } else {
@@ -1498,6 +1502,66 @@ mod tests {
         let hot = Scene::load(&write(dir.path(), "hot.gltf", hot)).unwrap();
         let warning = hot.warnings.iter().find(|w| w.contains("base colour")).expect("a warning");
         assert!(warning.contains("'Glow'.base_color") && warning.contains("[1.5, 0.4, 0.6]"), "{warning}");
+    }
+
+    #[test]
+    fn buffer_and_image_uris_stay_in_the_scene_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let (scene_dir, outside) = (dir.path().join("scene"), dir.path().join("outside"));
+        std::fs::create_dir_all(&scene_dir).unwrap();
+        std::fs::create_dir_all(&outside).unwrap();
+        write(&outside, "tri.bin", triangle_buffer([0, 1, 2]));
+        #[cfg(unix)]
+        std::os::unix::fs::symlink(outside.join("tri.bin"), scene_dir.join("link.bin")).unwrap();
+        let document = |uri: &str| {
+            let buffer = format!(r#"{{"byteLength": 102, "uri": "{uri}"}}"#);
+            format!(
+                r#"{{ {}, "scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0}}] }}"#,
+                geometry_json(&buffer, &[""])
+            )
+        };
+        let load_as = |uri: &str, access: FileAccess| {
+            let path = write(&scene_dir, "tri.gltf", document(uri));
+            let mut scene = Scene::empty(&path);
+            scene.file_access = access;
+            load(&path, &mut scene).map(|_| scene)
+        };
+        let depth = dir.path().components().count();
+        let passwd = format!("{}etc/passwd", "../".repeat(depth + 1));
+        let file_uri = format!("file://{}", outside.join("tri.bin").display());
+        for uri in [passwd.as_str(), "../outside/tri.bin", "link.bin", file_uri.as_str()] {
+            if uri == "link.bin" && !cfg!(unix) {
+                continue;
+            }
+            let error = load_as(uri, FileAccess::Confined).unwrap_err();
+            assert_eq!(error.field, "buffers[0]", "{uri}");
+            let message = error.to_string();
+            assert!(message.contains(&format!("`{uri}` resolves to ")) && message.contains("outside"), "{message}");
+            assert!(message.contains("--allow-outside-scene-dir"), "{message}");
+            assert!(!message.contains("root:"), "no byte of the refused file: {message}");
+        }
+        // Allowed with the option (a file of this test, never /etc/passwd), and inside the folder.
+        for uri in ["../outside/tri.bin", "link.bin", file_uri.as_str()] {
+            if uri == "link.bin" && !cfg!(unix) {
+                continue;
+            }
+            assert_eq!(load_as(uri, FileAccess::Anywhere).unwrap().meshes.len(), 1, "{uri}");
+        }
+        std::fs::copy(outside.join("tri.bin"), scene_dir.join("tri.bin")).unwrap();
+        assert_eq!(load_as("tri.bin", FileAccess::Confined).unwrap().meshes.len(), 1);
+        std::fs::create_dir(scene_dir.join("sub")).unwrap();
+        assert_eq!(load_as("./sub/../tri.bin", FileAccess::Confined).unwrap().meshes.len(), 1);
+
+        // Images too.
+        let geometry = geometry_json(&embedded_buffer(&triangle_buffer([0, 1, 2])), &[r#""material": 0"#]);
+        let json = format!(
+            r#"{{ {geometry}, "scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0}}],
+            "images": [{{"uri": "../outside/tri.bin"}}], "textures": [{{"source": 0}}],
+            "materials": [{{"pbrMetallicRoughness": {{"baseColorTexture": {{"index": 0}}}}}}] }}"#
+        );
+        let error = load_new(&write(&scene_dir, "image.gltf", json)).unwrap_err();
+        assert_eq!(error.field, "images[0].uri");
+        assert!(error.message.contains("`../outside/tri.bin` resolves to"), "{error}");
     }
 
     #[test]

@@ -149,6 +149,8 @@ pub struct Scene {
     pub max_bounces: u32,
     /// Warnings collected while loading (unsupported features skipped, degenerate triangles).
     pub warnings: Vec<String>,
+    /// Which files the loaders may read for references inside scene files.
+    pub file_access: input::FileAccess,
 }
 
 impl Scene {
@@ -167,16 +169,24 @@ impl Scene {
             spp: 16,
             max_bounces: 64,
             warnings: Vec::new(),
+            file_access: input::FileAccess::Confined,
         }
     }
 
-    /// Loads a scene from a TOML description, a glTF file or an OBJ file (by extension).
+    /// Loads a scene from a TOML description, a glTF file or an OBJ file (by extension); its
+    /// file references are confined ([`input::FileAccess::Confined`]).
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        Scene::load_with_access(path, input::FileAccess::Confined)
+    }
+
+    /// [`Scene::load`] with file references allowed as `access` says.
+    pub fn load_with_access(path: &Path, access: input::FileAccess) -> Result<Scene, SceneError> {
         let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).unwrap_or_default();
         let mut scene = match ext.as_str() {
-            "toml" => description::load(path)?,
+            "toml" => description::load_with_access(path, access)?,
             "gltf" | "glb" => {
                 let mut scene = Scene::empty(path);
+                scene.file_access = access;
                 let imported = gltf::load(path, &mut scene)?;
                 if let Some(aspect) = imported.aspect_ratio.filter(|a| a.is_finite() && *a > 0.0) {
                     scene.width = ((scene.height as f32 * aspect).round() as u32).max(1);
@@ -189,6 +199,7 @@ impl Scene {
             }
             "obj" => {
                 let mut scene = Scene::empty(path);
+                scene.file_access = access;
                 obj::load(path, &mut scene, &obj::ObjOptions::default())?;
                 scene.camera = Camera::framing(&scene.bounds(), scene.aspect());
                 scene

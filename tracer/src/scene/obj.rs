@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 
 use glam::{Mat4, Vec2, Vec3};
 
-use super::input::read_input;
+use super::input::{confine, read_input};
 use super::shapes::compute_normals;
 use super::{AlphaMask, Material, Mesh, Scene};
 use crate::error::SceneError;
@@ -102,12 +102,17 @@ fn convert_material(
     if let Some(ke) = m.emissive {
         material.emission = Vec3::from(ke).max(Vec3::ZERO);
     }
+    let access = cache.scene.file_access;
     if let Some(name) = m.diffuse_texture.as_ref().filter(|s| !s.is_empty()) {
-        let index = cache.get(&dir.join(name.replace('\\', "/")), true, mtl_path, &field("map_Kd"))?;
+        let file = dir.join(name.replace('\\', "/"));
+        confine(&file, name, mtl_path, &field("map_Kd"), access)?;
+        let index = cache.get(&file, true, mtl_path, &field("map_Kd"))?;
         material.base_color_texture = Some(TextureRef::new(index));
     }
     if let Some(name) = m.dissolve_texture.as_ref().filter(|s| !s.is_empty()) {
-        let index = cache.get(&dir.join(name.replace('\\', "/")), false, mtl_path, &field("map_d"))?;
+        let file = dir.join(name.replace('\\', "/"));
+        confine(&file, name, mtl_path, &field("map_d"), access)?;
+        let index = cache.get(&file, false, mtl_path, &field("map_d"))?;
         let texture = &cache.scene.textures[index as usize];
         let has_alpha = texture.texels.iter().any(|t| t[3] != 255);
         material.alpha = Some(AlphaMask {
@@ -170,11 +175,15 @@ pub fn load(path: &Path, scene: &mut Scene, options: &ObjOptions) -> Result<(), 
     let dir = path.parent().unwrap_or(Path::new("."));
     let load_options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
     // tobj would open the material library itself; it goes through the same checks as every
-    // input (a regular file, bounded), and the reason it could not be read is kept.
+    // input (inside the folders a scene may reach, a regular file, bounded), and the reason it
+    // could not be read is kept.
     let mtl_problem = std::cell::RefCell::new(None::<String>);
+    let access = scene.file_access;
     let (models, materials) = tobj::load_obj_buf(&mut std::io::Cursor::new(&bytes), &load_options, |mtl| {
         let mtl_path = dir.join(mtl);
-        match read_input(&mtl_path, MAX_MODEL_BYTES, path, "mtllib") {
+        let checked = confine(&mtl_path, &mtl.to_string_lossy(), path, "mtllib", access)
+            .and_then(|()| read_input(&mtl_path, MAX_MODEL_BYTES, path, "mtllib"));
+        match checked {
             Ok(mtl_bytes) => match check_mtl(&mtl_bytes) {
                 Err((line, message)) => {
                     *mtl_problem.borrow_mut() = Some(format!("{}, line {line}: {message}", mtl_path.display()));
