@@ -86,7 +86,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     let run = RunArgs { threads, ..args.scenes.run.clone() };
     let mut results = Vec::new();
     for scene_path in args.scenes.scene_paths() {
-        let scene = crate::common::load_scene(scene_path.as_deref())?;
+        let scene = args.scenes.load_scene(scene_path.as_deref())?;
         let accel = Accel::build(&scene)?;
         let settings = size.settings(&scene, args.spp, &run, run.seed_or(0), false)?;
         // The rays first, so that the timed tracer and raw runs can alternate: a slow phase of

@@ -15,7 +15,7 @@ use recon::gif::modulation::demodulate;
 use serde::Serialize;
 use tracer::Accel;
 
-use crate::common::{load_scene, RunArgs, TraceArgs};
+use crate::common::{RunArgs, TraceArgs};
 
 #[derive(clap::Args)]
 pub struct BenchFiltersArgs {
@@ -55,7 +55,7 @@ fn best_of(repeats: u32, mut run: impl FnMut() -> Result<()>) -> Result<f64> {
 
 pub fn run(args: &BenchFiltersArgs) -> Result<()> {
     let trace = &args.trace;
-    let scene = load_scene(trace.scene.as_deref())?;
+    let scene = trace.load_scene()?;
     let accel = Accel::build(&scene)?;
     let defaults = TraceArgs {
         size: trace.size.or(1024, 768),

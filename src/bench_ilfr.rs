@@ -91,7 +91,7 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
     let dir = tempfile::tempdir().context("a temporary directory for the samples")?;
     let mut rows = Vec::new();
     for scene_path in args.scenes.scene_paths() {
-        let scene = crate::common::load_scene(scene_path.as_deref())?;
+        let scene = args.scenes.load_scene(scene_path.as_deref())?;
         let accel = Accel::build(&scene)?;
         let mut first_total = None;
         for &spp in &args.spp {

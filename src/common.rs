@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use tracer::limits::MAX_THREADS;
+use tracer::scene::input::FileAccess;
 use tracer::{RenderSettings, Scene};
 
 /// The embedded default scene (scenes/cornell.toml).
@@ -64,6 +65,10 @@ pub struct TraceArgs {
     /// No progress bars.
     #[arg(long)]
     pub quiet: bool,
+    /// Let the scene's file references (meshes, textures, material libraries, glTF buffers and
+    /// images) name files outside the referencing file's folder and the shared scenes folder.
+    #[arg(long)]
+    pub allow_outside_scene_dir: bool,
 }
 
 /// The image size and path length, each the scene's unless given (or a command's own default:
@@ -126,9 +131,18 @@ pub struct SceneListArgs {
     pub size: SizeArgs,
     #[command(flatten)]
     pub run: RunArgs,
+    /// Let the scenes' file references name files outside the referencing file's folder and
+    /// the shared scenes folder.
+    #[arg(long)]
+    pub allow_outside_scene_dir: bool,
 }
 
 impl SceneListArgs {
+    /// Loads one of [`Self::scene_paths`], confined unless `--allow-outside-scene-dir`.
+    pub fn load_scene(&self, path: Option<&Path>) -> Result<Scene> {
+        load_scene(path, file_access(self.allow_outside_scene_dir))
+    }
+
     /// The scenes to run, `None` standing for the embedded default.
     pub fn scene_paths(&self) -> Vec<Option<PathBuf>> {
         if self.scenes.is_empty() {
@@ -153,7 +167,22 @@ pub fn scene_inputs(scene: Option<&Path>) -> Vec<&Path> {
     scene.into_iter().collect()
 }
 
+/// The scene file access of `--allow-outside-scene-dir`.
+pub fn file_access(allow_outside_scene_dir: bool) -> FileAccess {
+    if allow_outside_scene_dir {
+        FileAccess::Anywhere
+    } else {
+        FileAccess::Confined
+    }
+}
+
 impl TraceArgs {
+    /// Loads the scene (the embedded default without `--scene`), confined unless
+    /// `--allow-outside-scene-dir`.
+    pub fn load_scene(&self) -> Result<Scene> {
+        load_scene(self.scene.as_deref(), file_access(self.allow_outside_scene_dir))
+    }
+
     /// The seed, 0 unless given.
     pub fn seed(&self) -> u32 {
         self.run.seed_or(0)
@@ -175,10 +204,11 @@ pub fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
     Ok(())
 }
 
-/// Loads a scene file, or the embedded default when `path` is `None`.
-pub fn load_scene(path: Option<&Path>) -> Result<Scene> {
+/// Loads a scene file, or the embedded default when `path` is `None`; file references inside
+/// it are allowed as `access` says (`tracer::scene::input::FileAccess`).
+pub fn load_scene(path: Option<&Path>, access: FileAccess) -> Result<Scene> {
     let scene = match path {
-        Some(p) => Scene::load(p)?,
+        Some(p) => Scene::load_with_access(p, access)?,
         None => {
             let mut scene = tracer::scene::description::parse(DEFAULT_SCENE, Path::new(DEFAULT_SCENE_NAME))?;
             scene.validate()?;

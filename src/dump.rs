@@ -7,7 +7,7 @@ use anyhow::Result;
 use tracer::samples::secondary::SecondaryKind;
 use tracer::Accel;
 
-use crate::common::{check_outputs, load_scene, scene_inputs, TraceArgs};
+use crate::common::{check_outputs, scene_inputs, TraceArgs};
 
 /// Sample kinds `lfr dump` writes.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -52,7 +52,7 @@ pub fn run(args: &DumpArgs) -> Result<()> {
         (false, _) => anyhow::bail!("--out {}: samples are written as an .lfrs file", args.out.display()),
     }
     check_outputs(&[&args.out], &scene_inputs(trace.scene.as_deref()))?;
-    let scene = load_scene(trace.scene.as_deref())?;
+    let scene = trace.load_scene()?;
     let settings = trace.settings(&scene, args.spp)?;
     let accel = Accel::build(&scene)?;
     let report = match args.kind {
@@ -80,5 +80,12 @@ pub fn run(args: &DumpArgs) -> Result<()> {
         report.bytes_per_sample(),
         report.fields.join(", "),
     );
+    if report.dropped_contributions > 0 {
+        eprintln!(
+            "warning: {} path contributions were NaN or infinite (e.g. an emitter too bright for f32) and were \
+             dropped; the samples are darker than the scene",
+            report.dropped_contributions
+        );
+    }
     Ok(())
 }

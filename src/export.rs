@@ -47,7 +47,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use glam::{Mat3, Vec3};
-use sampleio::{SampleFile, SampleKind};
+use sampleio::{FieldNeed, Needs, SampleFile, SampleKind};
 use tracer::samples::secondary::decode_octahedral;
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -69,6 +69,55 @@ pub struct ExportArgs {
     /// Output file; TLFR's text header goes to OUT.header.
     out: PathBuf,
 }
+
+const fn real(name: &'static str, components: u32) -> FieldNeed {
+    FieldNeed::real(name, components)
+}
+
+const fn optional(name: &'static str, components: u32) -> FieldNeed {
+    FieldNeed::real(name, components).optional()
+}
+
+/// What `--format tlfr-1.3` reads of a `lens-time` file (checked before anything is written).
+pub const TLFR_1_3_NEEDS: Needs = Needs {
+    consumer: "`lfr export --format tlfr-1.3`",
+    fields: &[
+        real("x", 1),
+        real("y", 1),
+        real("z", 1),
+        real("radiance", 3),
+        real("depth_gradient", 2),
+        optional("u", 1),
+        optional("v", 1),
+        optional("t", 1),
+        optional("motion", 3),
+    ],
+};
+
+/// What `--format ilfr-2.2` reads of an `indirect` file (checked before anything is written).
+pub const ILFR_2_2_NEEDS: Needs = Needs {
+    consumer: "`lfr export --format ilfr-2.2`",
+    fields: &[
+        real("x", 1),
+        real("y", 1),
+        FieldNeed::octahedral("direction"),
+        real("radiance", 3),
+        real("origin", 3),
+        real("hit", 3),
+        FieldNeed::octahedral("origin_normal"),
+        FieldNeed::octahedral("hit_normal"),
+        real("albedo", 3),
+        real("direct", 3),
+        real("secondary_albedo", 3),
+        real("secondary_direct", 3),
+        optional("u", 1),
+        optional("v", 1),
+        optional("t", 1),
+        optional("origin_motion", 3),
+        optional("hit_motion", 3),
+        optional("bandwidth", 1),
+    ],
+};
 
 /// A field's values, or `None` when the file leaves the field out.
 fn optional_column(file: &SampleFile, name: &str) -> Result<Option<Vec<f32>>> {
@@ -144,6 +193,7 @@ pub fn write_tlfr_1_3(file: &SampleFile, out: &Path) -> Result<()> {
     if header.kind != SampleKind::LensTime {
         bail!("{}: TLFR 1.3 needs lens-time samples, this file holds {:?}", file.path().display(), header.kind);
     }
+    file.check_needs(&TLFR_1_3_NEEDS)?;
     let camera =
         header.camera.as_ref().with_context(|| format!("{}: no camera in the header", file.path().display()))?;
     let column = |name: &str| optional_column(file, name);
@@ -191,6 +241,7 @@ pub fn write_ilfr_2_2(file: &SampleFile, out: &Path) -> Result<()> {
     if header.kind != SampleKind::Indirect {
         bail!("{}: ILFR 2.2 needs indirect samples, this file holds {:?}", file.path().display(), header.kind);
     }
+    file.check_needs(&ILFR_2_2_NEEDS)?;
     let camera =
         header.camera.as_ref().with_context(|| format!("{}: no camera in the header", file.path().display()))?;
     let column = |name: &str| optional_column(file, name);

@@ -14,7 +14,7 @@ use recon::Image;
 use tracer::output::{write_exr, write_png, Layer};
 use tracer::Accel;
 
-use crate::common::{check_outputs, load_scene, scene_inputs, TraceArgs};
+use crate::common::{check_outputs, scene_inputs, TraceArgs};
 use crate::convert::{guide_input, rgb_channels};
 
 #[derive(clap::Args)]
@@ -78,7 +78,7 @@ pub fn run(args: &FilterArgs) -> Result<()> {
     let method = chosen_filter(args)?;
     let trace = &args.trace;
     check_outputs(&[&args.out, &args.out.with_extension("png")], &scene_inputs(trace.scene.as_deref()))?;
-    let scene = load_scene(trace.scene.as_deref())?;
+    let scene = trace.load_scene()?;
     let settings = trace.settings(&scene, args.spp)?;
     let accel = Accel::build(&scene)?;
     let trace_start = Instant::now();

@@ -61,9 +61,15 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     let settings =
         TlfrSettings { locations: args.locations, refocus, seed: args.run.seed_or(0), bandwidth_scale: args.bandwidth };
     let pool = args.run.worker_pool()?;
-    let output = pool
-        .install(|| reconstruct_file(&args.samples, &settings))
-        .map_err(|e| anyhow::anyhow!("{}: {e}", args.samples.display()))?;
+    let output = pool.install(|| reconstruct_file(&args.samples, &settings)).map_err(|e| {
+        // Errors about the file name it first; prefix the others (settings) with it, once.
+        let (message, path) = (e.to_string(), args.samples.display().to_string());
+        if message.starts_with(&path) {
+            anyhow::anyhow!(message)
+        } else {
+            anyhow::anyhow!("{path}: {message}")
+        }
+    })?;
     let image = &output.image;
     write_exr(&args.out, image.width, image.height, &[Layer { name: "", channels: rgb_channels(image) }])
         .with_context(|| format!("writing {}", args.out.display()))?;
@@ -81,7 +87,10 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
         output.recon_s
     );
     for note in &output.notes {
-        println!("  {note}");
+        match note.strip_prefix(recon::method::WARNING) {
+            Some(warning) => eprintln!("warning: {warning}"),
+            None => println!("  {note}"),
+        }
     }
     println!("wrote {} and {}", args.out.display(), preview.display());
     Ok(())

@@ -6,7 +6,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use tracer::Accel;
 
-use crate::common::{check_outputs, load_scene, scene_inputs, TraceArgs};
+use crate::common::{check_outputs, scene_inputs, TraceArgs};
 
 #[derive(clap::Args)]
 pub struct RenderArgs {
@@ -28,7 +28,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let preview = args.out.with_extension("png");
     check_outputs(&[&args.out, &preview], &scene_inputs(trace.scene.as_deref()))?;
     let load_start = Instant::now();
-    let scene = load_scene(trace.scene.as_deref())?;
+    let scene = trace.load_scene()?;
     let settings = trace.settings(&scene, args.spp.unwrap_or(scene.spp))?;
     let accel = Accel::build(&scene)?;
     let setup = load_start.elapsed().as_secs_f64();
@@ -46,15 +46,8 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         frame.rays,
         frame.rays as f64 / frame.seconds.max(1e-9) / 1e6,
     );
-    if frame.invalid_samples > 0 {
-        eprintln!("warning: {} samples had non-finite radiance and were dropped", frame.invalid_samples);
-    }
-    if frame.clamped_variances > 0 {
-        eprintln!(
-            "warning: {} variance values exceed the f32 range (radiance above ~1.8e19) and were stored as {:e}",
-            frame.clamped_variances,
-            f32::MAX
-        );
+    for warning in frame.warnings() {
+        eprintln!("warning: {warning}");
     }
     println!("wrote {} and {}", args.out.display(), preview.display());
     Ok(())

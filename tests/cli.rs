@@ -543,5 +543,9 @@ fn special_files_as_inputs_are_refused_at_once() {
     std::os::unix::fs::symlink("/dev/zero", path("zero.mtl")).unwrap();
     write(dir.path(), "tri.obj", "mtllib zero.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
     let scene = write(dir.path(), "c.toml", "[[mesh]]\nfile = \"tri.obj\"\n");
-    expect_render_error(&scene, &[], &["tri.obj", "mtllib", "zero.mtl", "not a regular file"]);
+    // The link leads out of the scene's folder (tests/confinement.rs); allowed, it is still
+    // refused as a device.
+    expect_render_error(&scene, &[], &["tri.obj", "mtllib", "`zero.mtl` resolves to /dev/zero", "outside"]);
+    let allow = ["--allow-outside-scene-dir"];
+    expect_render_error(&scene, &allow, &["tri.obj", "mtllib", "zero.mtl", "not a regular file"]);
 }

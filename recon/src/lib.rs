@@ -19,6 +19,7 @@ pub mod image;
 pub mod lcg;
 pub mod method;
 pub mod metrics;
+pub mod needs;
 pub mod octahedral;
 pub mod options;
 pub mod python;

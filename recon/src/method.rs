@@ -129,6 +129,16 @@ pub struct Inputs<'a> {
     pub threads: usize,
 }
 
+/// A note of [`Output::notes`] that starts with this is a warning: the method dropped or
+/// replaced input it could not use, so the image may be wrong (darker, black). Commands print
+/// warnings to standard error; [`warning`] builds one.
+pub const WARNING: &str = "warning: ";
+
+/// The note `text` as a warning ([`WARNING`]).
+pub fn warning(text: impl std::fmt::Display) -> String {
+    format!("{WARNING}{text}")
+}
+
 /// What a method run returns.
 #[derive(Clone, Debug)]
 pub struct Output {

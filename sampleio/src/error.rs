@@ -99,6 +99,17 @@ pub enum SampleError {
     /// An earlier call on this writer failed; the writer produces no file.
     #[error("{}: an earlier error aborted this writer; no file is written", path.display())]
     Aborted { path: PathBuf },
+
+    /// A field a consumer reads is declared with a type or component count it cannot read
+    /// ([`Needs::check`](crate::Needs::check)); `problem` says what it is and what is needed
+    /// ("is u8×1, TLFR needs f32×3 or f16×3").
+    #[error("{}: field `{field}` {problem}", path.display())]
+    WrongField { path: PathBuf, field: String, problem: String },
+
+    /// A field a consumer requires is absent ([`Needs::check`](crate::Needs::check)); `problem`
+    /// says who needs it as what ("TLFR needs the field `radiance` (f32×3 or f16×3)").
+    #[error("{}: {problem}; the file lacks it", path.display())]
+    MissingField { path: PathBuf, field: String, problem: String },
 }
 
 impl SampleError {
@@ -119,7 +130,9 @@ impl SampleError {
             | SampleError::TooManySamples { path, .. }
             | SampleError::TooFewSamples { path, .. }
             | SampleError::RefusedOutput { path, .. }
-            | SampleError::Aborted { path } => path,
+            | SampleError::Aborted { path }
+            | SampleError::WrongField { path, .. }
+            | SampleError::MissingField { path, .. } => path,
         }
     }
 

@@ -50,6 +50,7 @@
 mod error;
 mod field;
 mod header;
+mod needs;
 mod output;
 mod reader;
 mod writer;
@@ -61,6 +62,7 @@ pub use header::{
     DEFAULT_CHUNK_SAMPLES, FORMAT_NAME, FORMAT_VERSION, MAGIC, MAX_DIMENSION, MAX_FIELDS, MAX_HEADER_LEN,
     MAX_RECORD_SIZE, MAX_SPP, PREAMBLE_LEN, TRAILER_LEN, TRAILER_MAGIC,
 };
+pub use needs::{FieldNeed, Needs, OCTAHEDRAL, REAL};
 pub use output::check_output_target;
 pub use reader::SampleFile;
 pub use writer::SampleWriter;

@@ -13,6 +13,7 @@ use crate::field::Field;
 use crate::header::{
     Header, DATA_ALIGN, FORMAT_VERSION, MAGIC, MAX_HEADER_LEN, PREAMBLE_LEN, TRAILER_LEN, TRAILER_MAGIC,
 };
+use crate::needs::Needs;
 
 /// An open, validated sample file.
 #[derive(Debug)]
@@ -245,6 +246,13 @@ impl SampleFile {
     /// The whole data area: `len()` records of `header().record_size` bytes.
     pub fn data(&self) -> &[u8] {
         &self.map[self.data_start..self.data_start + self.data_len]
+    }
+
+    /// Checks this file's fields against what a consumer reads ([`Needs::check`]): call it
+    /// before reading, so that a field of the wrong type or component count is an error naming
+    /// the file and the field instead of a read past the field's end.
+    pub fn check_needs(&self, needs: &Needs) -> Result<()> {
+        needs.check(&self.path, self.fields())
     }
 
     /// The field called `name`.

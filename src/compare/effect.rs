@@ -45,6 +45,9 @@ pub fn prepare_scene(effect: Effect, scene: &mut Scene, max_bounces: Option<u32>
             if !emissive {
                 bail!("{source}: --effect soft-shadow needs an area light (an emissive mesh)");
             }
+            // The light samples need the brightest emitter to be planar; checked here, before
+            // the reference and the ladder are traced, rather than when the inputs are dumped.
+            tracer::samples::light::PlanarLight::find(scene)?;
             bounces = 1;
         }
         Effect::Indirect | Effect::Glossy => {

@@ -310,7 +310,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         Some(path) => std::fs::read(path).with_context(|| format!("reading the scene {}", path.display()))?,
         None => crate::common::DEFAULT_SCENE.as_bytes().to_vec(),
     };
-    let mut scene = crate::common::load_scene(args.trace.scene.as_deref())?;
+    let mut scene = args.trace.load_scene()?;
     if let Some(radius) = args.aperture_radius {
         if !(radius.is_finite() && radius >= 0.0) {
             bail!("--aperture-radius must be finite and at least 0, got {radius}");
@@ -335,6 +335,9 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         Some(r) => r,
         None => default_ao_radius(&scene),
     };
+    // Every check that does not need a traced image comes before the first one is traced.
+    let cache = reference::cache_dir(args.cache_dir.as_deref());
+    reference::check_cache_dir(&cache)?;
     let accel = Accel::build(&scene)?;
     let tracing = Tracing {
         scene: &scene,
@@ -350,7 +353,6 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     std::fs::create_dir_all(dir.join("images")).with_context(|| format!("creating {}", dir.display()))?;
 
     // The reference.
-    let cache = reference::cache_dir(args.cache_dir.as_deref());
     eprintln!(
         "compare: {} --effect {} at {width}x{height}; reference {} spp (cache {})",
         scene.source.display(),

@@ -68,6 +68,24 @@ pub fn reference_seeds(seed: u32) -> [u32; 2] {
 
 /// Where references are cached: `--cache-dir`, else `$LFR_CACHE_DIR`, else
 /// `$XDG_CACHE_HOME/lfr`, else `~/.cache/lfr`, else `.lfr-cache` in the working directory.
+/// Checks, before any tracing, that the reference can be stored in `dir`: it is (or can be
+/// created as) a directory in which a file can be created. A regular file, or a directory
+/// without write permission, is an error naming it, instead of a failure after the reference,
+/// the ladder and the methods were traced.
+pub fn check_cache_dir(dir: &Path) -> Result<()> {
+    let problem = |why: String| anyhow::anyhow!("--cache-dir {}: {why}", dir.display());
+    match std::fs::metadata(dir) {
+        Ok(meta) if !meta.is_dir() => return Err(problem("not a directory".into())),
+        Ok(_) => {}
+        Err(_) => std::fs::create_dir_all(dir).map_err(|e| problem(format!("cannot create the directory: {e}")))?,
+    }
+    tempfile::Builder::new()
+        .prefix(".lfr-write-test")
+        .tempfile_in(dir)
+        .map_err(|e| problem(format!("cannot write into the directory: {e}")))?;
+    Ok(())
+}
+
 pub fn cache_dir(given: Option<&Path>) -> PathBuf {
     if let Some(dir) = given {
         return dir.to_path_buf();

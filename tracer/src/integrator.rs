@@ -7,6 +7,8 @@
 //! split into `direct` (emission seen by the camera plus light reaching the first surface
 //! straight from an emitter) and `indirect` (everything else).
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use glam::{Vec2, Vec3};
 
 use crate::accel::{Accel, Hit};
@@ -335,14 +337,18 @@ pub struct TracedRay {
     pub rays: u32,
     /// The part of `direct + beyond` emitted by `Integrator::split_emitter`.
     pub split_emitter_light: Vec3,
+    /// Contributions dropped because they were NaN or infinite (an emitter so bright that a
+    /// product overflows f32, a degenerate BSDF value); the commands warn with the total.
+    pub dropped: u32,
 }
 
 impl TracedRay {
     /// Adds a contribution emitted towards vertex `level` (0 = emission of the first hit),
-    /// dropping non-finite values.
+    /// dropping (and counting) non-finite values.
     #[inline]
     fn add(&mut self, level: u32, value: Vec3) {
         if !value.is_finite() {
+            self.dropped += 1;
             return;
         }
         match level {
@@ -356,11 +362,8 @@ impl TracedRay {
     /// once and `from_split_emitter` says it left the split emitter.
     #[inline]
     fn add_from(&mut self, level: u32, value: Vec3, from_split_emitter: bool) {
-        if !value.is_finite() {
-            return;
-        }
         self.add(level, value);
-        if from_split_emitter && level > 0 {
+        if from_split_emitter && level > 0 && value.is_finite() {
             self.split_emitter_light += value;
         }
     }
@@ -388,6 +391,8 @@ pub struct Integrator<'a> {
     has_motion: bool,
     /// The ray cone's spread for camera rays (see `RayCone`).
     camera_spread: f32,
+    /// Non-finite contributions dropped by the paths traced so far (`TracedRay::dropped`).
+    dropped: AtomicU64,
 }
 
 impl<'a> Integrator<'a> {
@@ -415,7 +420,22 @@ impl<'a> Integrator<'a> {
             has_lens: scene.camera.has_lens(),
             has_motion: scene.has_motion(),
             camera_spread: pixel_angle * BUNDLE_SHARE,
+            dropped: AtomicU64::new(0),
         }
+    }
+
+    /// Adds the non-finite contributions `traced` dropped to this integrator's total; every
+    /// finished path goes through here (`trace_ray`, `render`'s tiles).
+    #[inline]
+    pub fn count_dropped(&self, traced: &TracedRay) {
+        if traced.dropped > 0 {
+            self.dropped.fetch_add(u64::from(traced.dropped), Ordering::Relaxed);
+        }
+    }
+
+    /// Non-finite contributions the paths traced by this integrator dropped, in total.
+    pub fn dropped_contributions(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
     }
 
     /// The ray cone of a camera ray.
@@ -495,6 +515,9 @@ impl<'a> Integrator<'a> {
         };
         if self.is_occluded(&test) {
             Vec3::ZERO
+        } else if !test.value.is_finite() {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+            Vec3::ZERO
         } else {
             test.value
         }
@@ -541,8 +564,10 @@ impl<'a> Integrator<'a> {
             Some(light_pdf) => power_heuristic(light_pdf, surface.bsdf.pdf(wo_local, wi_local)),
             None => 1.0,
         };
+        // A non-finite value stays as it is: `TracedRay::add` drops and counts it if the shadow
+        // ray is not blocked.
         let value = f * light.weighted_radiance * weight;
-        let (value, emitter) = if value.is_finite() { (value, light.mesh) } else { (Vec3::ZERO, None) };
+        let emitter = if value.is_finite() { light.mesh } else { None };
         Some(ShadowTest { origin, direction: light.wi, t_max, time, value, emitter, level: 0 })
     }
 
@@ -567,6 +592,7 @@ impl<'a> Integrator<'a> {
             }
         }
         *sampler = path.sampler;
+        self.count_dropped(&path.traced);
         path.traced
     }
 

@@ -94,6 +94,9 @@ pub struct Frame {
     /// Variance values beyond f32's range (radiance above about 1.8e19), stored as `f32::MAX`
     /// instead of becoming infinite.
     pub clamped_variances: u64,
+    /// Contributions to a path that were NaN or infinite and were dropped
+    /// (`TracedRay::dropped`): the image is then darker than the scene says.
+    pub dropped_contributions: u64,
     pub rays: u64,
     pub seconds: f64,
 }
@@ -101,6 +104,30 @@ pub struct Frame {
 impl Frame {
     pub fn pixel_count(&self) -> usize {
         self.width as usize * self.height as usize
+    }
+
+    /// One line per kind of value this frame dropped or clamped (none for a clean frame),
+    /// for the commands to print as warnings.
+    pub fn warnings(&self) -> Vec<String> {
+        let mut warnings = Vec::new();
+        if self.dropped_contributions > 0 {
+            warnings.push(format!(
+                "{} path contributions were NaN or infinite (e.g. an emitter too bright for f32) and were dropped; \
+                 the image is darker than the scene",
+                self.dropped_contributions
+            ));
+        }
+        if self.invalid_samples > 0 {
+            warnings.push(format!("{} samples had non-finite radiance and were dropped", self.invalid_samples));
+        }
+        if self.clamped_variances > 0 {
+            warnings.push(format!(
+                "{} variance values exceed the f32 range (radiance above ~1.8e19) and were stored as {:e}",
+                self.clamped_variances,
+                f32::MAX
+            ));
+        }
+        warnings
     }
 }
 
@@ -214,6 +241,7 @@ fn render_tile<R: RayRecorder>(
             }
         }
         for (acc, path) in pixels.iter_mut().zip(&paths) {
+            integrator.count_dropped(&path.traced);
             let sample = PathSample::from(path.traced);
             rays += sample.rays as u64;
             acc.add(&sample);
@@ -280,7 +308,9 @@ pub fn render(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result
     });
     let seconds = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
-    Ok(assemble(settings, results, seconds))
+    let mut frame = assemble(settings, results, seconds);
+    frame.dropped_contributions = integrator.dropped_contributions();
+    Ok(frame)
 }
 
 /// Traces the same paths as `render` and returns every ray, in a deterministic order (for
@@ -319,6 +349,7 @@ fn assemble(settings: &RenderSettings, results: Vec<TileResult>, seconds: f64) -
         variance: vec![Vec3::ZERO; n],
         invalid_samples: 0,
         clamped_variances: 0,
+        dropped_contributions: 0,
         rays: 0,
         seconds,
     };

@@ -298,6 +298,23 @@ impl Texture {
         }
     }
 
+    /// The largest linear value of each RGB channel over the finest level's texels (1 for an
+    /// empty texture, which samples as 1).
+    pub fn max_rgb(&self) -> Vec3 {
+        if self.texels.is_empty() {
+            return Vec3::ONE;
+        }
+        let table = if self.srgb { srgb_table() } else { &UNORM_TABLE };
+        let mut peak = [0u8; 3];
+        for texel in &self.texels {
+            for c in 0..3 {
+                peak[c] = peak[c].max(texel[c]);
+            }
+        }
+        // Both decodings increase with the byte, so the largest byte decodes to the largest value.
+        Vec3::new(table[peak[0] as usize], table[peak[1] as usize], table[peak[2] as usize])
+    }
+
     /// log2 of the texel count's square root: the level of detail of a footprint one unit of
     /// uv wide is `log2(width in uv) + half_log2_texels()`.
     pub fn half_log2_texels(&self) -> f32 {

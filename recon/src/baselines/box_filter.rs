@@ -39,7 +39,10 @@ impl Method for BoxFilter {
         let (image, skipped) = average(&file, inputs.effect, inputs.ao_radius)?;
         let mut notes = Vec::new();
         if skipped > 0 {
-            notes.push(format!("{skipped} samples with non-finite values were skipped"));
+            notes.push(crate::method::warning(format!(
+                "{}: {skipped} samples with non-finite values were skipped",
+                path.display()
+            )));
         }
         if (image.width, image.height) != (inputs.width, inputs.height) {
             let message = format!(
@@ -76,6 +79,7 @@ pub fn average(file: &SampleFile, effect: Effect, ao_radius: f32) -> Result<(Ima
         );
         return Err(Error::sample_content(file.path(), message).into());
     }
+    file.check_needs(crate::needs::box_filter(expected))?;
     let required = |name: &str| -> Result<&Field, Error> {
         file.field(name).ok_or_else(|| {
             Error::sample_content(file.path(), format!("`{}` samples lack the field `{name}`", expected.name()))

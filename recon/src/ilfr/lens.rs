@@ -138,6 +138,7 @@ pub fn read_primary_rays(file: &SampleFile) -> Result<(IndirectSamples, LensCame
             header.kind.name()
         )));
     }
+    file.check_needs(&crate::needs::ILFR_LENS)?;
     let camera = header.camera.as_ref().ok_or_else(|| content("the header has no `camera` block".to_string()))?;
     let camera = LensCamera::from_header(camera).map_err(|e| content(e.to_string()))?;
     let column = |name: &str, components: u32, required: bool| -> Result<Option<Vec<f32>>, Error> {

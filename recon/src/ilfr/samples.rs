@@ -186,6 +186,9 @@ pub fn read_indirect(file: &SampleFile) -> Result<IndirectSamples, Error> {
     if kind != SampleKind::Indirect && kind != SampleKind::Ao {
         return Err(content(format!("ILFR reads `indirect` or `ao` samples, the file holds `{}`", kind.name())));
     }
+    if let Some(needs) = crate::needs::ilfr(kind) {
+        file.check_needs(needs)?;
+    }
     let column = |name: &str, components: usize| -> Result<Option<Vec<f32>>, Error> {
         let Some(field) = file.field(name) else { return Ok(None) };
         if field.components as usize != components {

@@ -95,6 +95,17 @@ impl Method for TlfrMethod {
     }
 }
 
+/// The warning for `dropped` of `total` samples of the file at `path` that
+/// `read_lens_time` could not use (non-finite or impossible values).
+pub fn dropped_warning(path: &std::path::Path, dropped: usize, total: usize) -> String {
+    crate::method::warning(format!(
+        "{}: {dropped} of {total} samples have a non-finite or impossible position, lens, time, depth, motion or \
+         radiance and were dropped{}",
+        path.display(),
+        if dropped == total { "; the image is black" } else { "" }
+    ))
+}
+
 /// Reconstructs the image of a `lens-time` file.
 pub fn reconstruct_file(path: &std::path::Path, settings: &TlfrSettings) -> Result<Output, MethodError> {
     reconstruct_file_with(reconstruct, path, settings)
@@ -210,7 +221,7 @@ pub fn reconstruct_file_with(
         hierarchy.node_bytes() as f64 / input_samples.max(1) as f64
     ));
     if loaded.dropped > 0 {
-        notes.push(format!("{} samples with non-finite or impossible values were dropped", loaded.dropped));
+        notes.push(dropped_warning(path, loaded.dropped, input_samples + loaded.dropped));
     }
     if hierarchy.unplaced > 0 {
         notes.push(format!(

@@ -45,6 +45,7 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, Error> {
     if header.kind != SampleKind::LensTime {
         return Err(content(format!("TLFR reads `lens-time` samples, the file holds `{}`", header.kind.name())));
     }
+    file.check_needs(&crate::needs::TLFR)?;
     let camera = header.camera.as_ref().ok_or_else(|| content("the header has no `camera` block".to_string()))?;
     let lens = LensModel::from_camera(camera).map_err(|e| content(e.to_string()))?;
     let required = |name: &str| file.field(name).ok_or_else(|| content(format!("`lens-time` samples lack `{name}`")));

@@ -49,6 +49,7 @@ pub struct Shading {
 
 /// Reads `albedo`, `normal` and `radiance_without_light` for the samples `camera` kept.
 pub fn read_shading(file: &SampleFile, camera: &LensTimeSamples) -> Result<Shading, Error> {
+    file.check_needs(&crate::needs::TLFR_SOFT_SHADOW)?;
     let content = |message: String| Error::sample_content(file.path(), message);
     let required = |name: &str| {
         file.field(name).ok_or_else(|| {
@@ -109,6 +110,7 @@ pub fn read_light(file: &SampleFile, camera_records: usize) -> Result<LightSampl
             file.len()
         )));
     }
+    file.check_needs(&crate::needs::TLFR_LIGHT)?;
     let mut space = LightSpace::from_file(file)?;
     let required = |name: &str| file.field(name).ok_or_else(|| content(format!("`light` samples lack `{name}`")));
     let (lu, lv, lx, ly) = (required("lu")?, required("lv")?, required("lx")?, required("ly")?);
@@ -458,7 +460,7 @@ pub fn reconstruct_soft_shadow(
         |x, y| box_image.pixels[(y * width + x) as usize],
     );
     let recon_s = start.elapsed().as_secs_f64();
-    let notes = vec![
+    let mut notes = vec![
         format!(
             "R = {radius:.3} px measured on the camera pattern; light radius R·ρ with median ρ = {:.4} scene units/px",
             light.median_density
@@ -477,5 +479,9 @@ pub fn reconstruct_soft_shadow(
             light_tree.leaf_count()
         ),
     ];
+    if camera.dropped > 0 {
+        let total = camera.samples.len() + camera.dropped;
+        notes.push(super::method::dropped_warning(camera_path, camera.dropped, total));
+    }
     Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes, stats: Stats::new() })
 }

@@ -301,5 +301,6 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &RenderSettings, path: &Path
         record_size: 19 * 4,
         fields: layers.iter().map(|l| l.name.to_string()).collect(),
         seconds: start.elapsed().as_secs_f64(),
+        dropped_contributions: 0,
     })
 }

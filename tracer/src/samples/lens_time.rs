@@ -175,7 +175,7 @@ fn dump_with(
     integrator.split_emitter = split_emitter;
     let camera = &scene.camera;
     let spec = layout.header(scene, settings);
-    write_samples(path, spec, settings, layout.values_per_sample(), |x, y, values| {
+    let mut report = write_samples(path, spec, settings, layout.values_per_sample(), |x, y, values| {
         for index in 0..settings.spp {
             let mut sampler = Sampler::new(settings.seed, x, y, index);
             let camera_sample = integrator.camera_sample(x, y, &mut sampler);
@@ -231,7 +231,9 @@ fn dump_with(
                 }
             }
         }
-    })
+    })?;
+    report.dropped_contributions = integrator.dropped_contributions();
+    Ok(report)
 }
 
 #[cfg(test)]

@@ -42,6 +42,8 @@ pub struct DumpReport {
     pub record_size: usize,
     pub fields: Vec<String>,
     pub seconds: f64,
+    /// Path contributions that were NaN or infinite and were dropped (`TracedRay::dropped`).
+    pub dropped_contributions: u64,
 }
 
 impl DumpReport {
@@ -151,5 +153,6 @@ where
     let final_path = writer.finish().map_err(output_error)?;
     bar.finish_and_clear();
     let bytes = std::fs::metadata(&final_path).map(|m| m.len()).unwrap_or(0);
-    Ok(DumpReport { samples, bytes, record_size, fields, seconds: start.elapsed().as_secs_f64() })
+    let seconds = start.elapsed().as_secs_f64();
+    Ok(DumpReport { samples, bytes, record_size, fields, seconds, dropped_contributions: 0 })
 }

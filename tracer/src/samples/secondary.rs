@@ -315,14 +315,16 @@ pub fn dump(
     );
     spec.coordinates = Some(coordinates);
     let values = layout.values_per_sample();
-    write_samples(path, spec, settings, values, |x, y, out| {
+    let mut report = write_samples(path, spec, settings, values, |x, y, out| {
         for index in 0..settings.spp {
             let mut sampler = Sampler::new(settings.seed, x, y, index);
             let sample = trace_secondary(&integrator, &layout, x, y, &mut sampler);
             debug_assert_eq!(sample.len(), values);
             out.extend_from_slice(&sample);
         }
-    })
+    })?;
+    report.dropped_contributions = integrator.dropped_contributions();
+    Ok(report)
 }
 
 /// Ambient occlusion per pixel, from exactly the samples an `ao` dump with the same settings

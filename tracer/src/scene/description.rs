@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 use glam::{Mat4, Quat, Vec3};
 use serde::Deserialize;
 
+use super::input::{confine, FileAccess};
 use super::obj::ObjOptions;
 use super::shapes;
 use super::{Material, PunctualLight, Scene};
@@ -266,14 +267,21 @@ fn resolve(path: &str, dir: &Path) -> PathBuf {
     }
 }
 
-/// Parses the description text; `path` is used for messages and relative paths.
+/// Parses the description text; `path` is used for messages and relative paths. File
+/// references are confined ([`FileAccess::Confined`]).
 pub fn parse(text: &str, path: &Path) -> Result<Scene, SceneError> {
+    parse_with_access(text, path, FileAccess::Confined)
+}
+
+/// [`parse`] with file references allowed as `access` says.
+pub fn parse_with_access(text: &str, path: &Path, access: FileAccess) -> Result<Scene, SceneError> {
     let desc: Description = toml::from_str(text).map_err(|e| {
         let field = e.span().map(|s| locate(text, s.start)).unwrap_or_else(|| "toml".into());
         SceneError::new(path, field, e.message().to_string())
     })?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut scene = Scene::empty(path);
+    scene.file_access = access;
     scene.width = desc.render.width;
     scene.height = desc.render.height;
     scene.spp = desc.render.spp;
@@ -294,12 +302,9 @@ pub fn parse(text: &str, path: &Path) -> Result<Scene, SceneError> {
             ..Material::default()
         };
         if let Some(t) = &m.base_color_texture {
-            let texture = crate::texture::Texture::load(
-                &resolve(t, dir),
-                true,
-                path,
-                &format!("material[{i}].base_color_texture"),
-            )?;
+            let (file, field) = (resolve(t, dir), format!("material[{i}].base_color_texture"));
+            confine(&file, t, path, &field, access)?;
+            let texture = crate::texture::Texture::load(&file, true, path, &field)?;
             scene.textures.push(texture);
             material.base_color_texture = Some(TextureRef::new(scene.textures.len() as u32 - 1));
         }
@@ -336,6 +341,7 @@ pub fn parse(text: &str, path: &Path) -> Result<Scene, SceneError> {
         match (&m.file, &m.shape) {
             (Some(file), None) => {
                 let file_path = resolve(file, dir);
+                confine(&file_path, file, path, &format!("mesh[{i}].file"), access)?;
                 let ext = file_path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
                 match ext.as_str() {
                     "obj" => {
@@ -499,9 +505,14 @@ fn locate(text: &str, offset: usize) -> String {
 }
 
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
+    load_with_access(path, FileAccess::Confined)
+}
+
+/// [`load`] with file references allowed as `access` says.
+pub fn load_with_access(path: &Path, access: FileAccess) -> Result<Scene, SceneError> {
     let bytes = super::input::read_input(path, crate::limits::MAX_SCENE_TEXT_BYTES, path, "file")?;
     let text = String::from_utf8(bytes).map_err(|e| SceneError::new(path, "file", format!("not UTF-8 text: {e}")))?;
-    parse(&text, path)
+    parse_with_access(&text, path, access)
 }
 
 #[cfg(test)]

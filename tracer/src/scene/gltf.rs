@@ -48,6 +48,7 @@ use gltf::khr_lights_punctual::Kind as LightKind;
 use gltf::material::AlphaMode;
 use gltf::mesh::Mode;
 
+use super::input::FileAccess;
 use super::{AlphaMask, Material, Mesh, PunctualLight, Scene};
 use crate::camera::{Camera, FovAxis};
 use crate::error::SceneError;
@@ -83,8 +84,10 @@ pub fn load_with_transform(path: &Path, scene: &mut Scene, transform: Mat4) -> R
     let gltf::Gltf { document, blob } = parse(path, &bytes)?;
     check_extensions(path, &document, &mut scene.warnings)?;
     let document = validate(path, document)?;
+    check_version(path, &document)?;
     let base_dir = path.parent().unwrap_or_else(|| Path::new("."));
-    let buffers = load_buffers(path, base_dir, &document, blob)?;
+    check_buffer_views(path, &document)?;
+    let buffers = load_buffers(path, base_dir, &document, blob, scene.file_access)?;
     let mut importer = Importer {
         path,
         base_dir,
@@ -181,12 +184,63 @@ fn validate(path: &Path, document: gltf::Document) -> Result<gltf::Document, Sce
     })
 }
 
+/// Refuses a file whose `asset.version` (or `asset.minVersion`) is not 2.x: a later major
+/// version may change what the fields mean (the `gltf` crate parses any version string).
+fn check_version(path: &Path, document: &gltf::Document) -> Result<(), SceneError> {
+    let asset = &document.as_json().asset;
+    let is_2x = |version: &str| {
+        version.split_once('.').is_some_and(|(major, minor)| {
+            major == "2" && !minor.is_empty() && minor.bytes().all(|b| b.is_ascii_digit())
+        })
+    };
+    if !is_2x(&asset.version) {
+        return Err(SceneError::new(
+            path,
+            "asset.version",
+            format!("glTF version {:?} is not supported (this loader reads glTF 2.x)", asset.version),
+        ));
+    }
+    if let Some(min_version) = asset.min_version.as_deref().filter(|v| !is_2x(v)) {
+        return Err(SceneError::new(
+            path,
+            "asset.minVersion",
+            format!("glTF minVersion {min_version:?} is not supported (this loader reads glTF 2.x)"),
+        ));
+    }
+    Ok(())
+}
+
+/// Refuses a buffer view that does not lie inside its buffer's `byteLength` (the loaded data
+/// may be longer than `byteLength`; bytes beyond it are not the buffer's), before any buffer is
+/// read.
+fn check_buffer_views(path: &Path, document: &gltf::Document) -> Result<(), SceneError> {
+    for view in document.views() {
+        let buffer = view.buffer();
+        let end = view.offset().checked_add(view.length());
+        if !end.is_some_and(|end| end <= buffer.length()) {
+            return Err(SceneError::new(
+                path,
+                format!("bufferViews[{}]", view.index()),
+                format!(
+                    "byteOffset {} + byteLength {} exceeds the byteLength {} of buffers[{}]",
+                    view.offset(),
+                    view.length(),
+                    buffer.length(),
+                    buffer.index()
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Loads every buffer: the GLB binary chunk, a base64 `data:` URI or an external file.
 fn load_buffers(
     path: &Path,
     base_dir: &Path,
     document: &gltf::Document,
     mut blob: Option<Vec<u8>>,
+    access: FileAccess,
 ) -> Result<Vec<Vec<u8>>, SceneError> {
     document
         .buffers()
@@ -196,9 +250,7 @@ fn load_buffers(
                 gltf::buffer::Source::Bin => blob
                     .take()
                     .ok_or_else(|| SceneError::new(path, &field, "refers to the GLB binary chunk, which is missing"))?,
-                gltf::buffer::Source::Uri(uri) => {
-                    read_uri(base_dir, uri).map_err(|message| SceneError::new(path, &field, message))?
-                }
+                gltf::buffer::Source::Uri(uri) => read_uri(path, base_dir, uri, &field, access)?,
             };
             if data.len() < buffer.length() {
                 return Err(SceneError::new(
@@ -213,22 +265,26 @@ fn load_buffers(
 }
 
 /// Reads the bytes a URI names: a base64 `data:` URI, a `file:` URI or a (percent-encoded)
-/// path relative to the glTF file's directory.
-fn read_uri(base_dir: &Path, uri: &str) -> Result<Vec<u8>, String> {
+/// path relative to the glTF file's directory, confined as `access` says. Errors name the
+/// glTF file `path` and `field` (`buffers[0]`, `images[0].uri`).
+fn read_uri(path: &Path, base_dir: &Path, uri: &str, field: &str, access: FileAccess) -> Result<Vec<u8>, SceneError> {
+    let error = |message: String| SceneError::new(path, field, message);
     if uri.starts_with("data:") {
         return gltf::buffer::Data::from_source(gltf::buffer::Source::Uri(uri), None)
             .map(|data| data.0)
-            .map_err(|e| format!("cannot decode data URI: {e}"));
+            .map_err(|e| error(format!("cannot decode data URI: {e}")));
     }
     let file = if let Some(rest) = uri.strip_prefix("file://").or_else(|| uri.strip_prefix("file:")) {
         PathBuf::from(rest)
     } else if uri.contains(':') {
-        return Err(format!("unsupported URI scheme in '{uri}'"));
+        return Err(error(format!("unsupported URI scheme in '{uri}'")));
     } else {
-        let decoded = percent_decode(uri).ok_or_else(|| format!("URI '{uri}' is not valid percent-encoded UTF-8"))?;
+        let decoded =
+            percent_decode(uri).ok_or_else(|| error(format!("URI '{uri}' is not valid percent-encoded UTF-8")))?;
         base_dir.join(decoded)
     };
-    super::input::read_input(&file, crate::limits::MAX_MODEL_BYTES, &file, "uri").map_err(|e| e.message)
+    super::input::confine(&file, uri, path, field, access)?;
+    super::input::read_input(&file, crate::limits::MAX_MODEL_BYTES, path, field)
 }
 
 /// Decodes `%XX` escapes (RFC 3986); malformed escapes are kept literally.
@@ -662,7 +718,7 @@ impl<'a> Importer<'a> {
             (Cow::Borrowed(bytes), field, format!("buffer view {}", view_index.value()))
         } else if let Some(uri) = &json.uri {
             let field = format!("images[{image}].uri");
-            let bytes = read_uri(self.base_dir, uri).map_err(|message| self.error(&field, message))?;
+            let bytes = read_uri(self.path, self.base_dir, uri, &field, self.scene.file_access)?;
             let description = if uri.starts_with("data:") { "data URI".to_string() } else { uri.clone() };
             (Cow::Owned(bytes), field, description)
         } else {
@@ -766,6 +822,20 @@ fn check_accessor(
         let indices = sparse.indices();
         check_view_range(&indices.view(), indices.offset(), sparse_count, index_size, buffers)
             .map_err(|e| format!("accessor {index} sparse indices: {e}"))?;
+        // Every substituted element must exist (the ranges above make these reads in bounds).
+        let view = indices.view();
+        let data = &buffers[view.buffer().index()][view.offset()..view.offset() + view.length()];
+        let stride = view.stride().unwrap_or(index_size);
+        for k in 0..sparse_count {
+            let at = indices.offset() + k * stride;
+            let bytes = &data[at..at + index_size];
+            let target = bytes.iter().rev().fold(0usize, |value, &byte| value << 8 | usize::from(byte));
+            if target >= count {
+                return Err(format!(
+                    "accessor {index}: sparse index {k} is {target}, outside the accessor's {count} elements"
+                ));
+            }
+        }
         let values = sparse.values();
         check_view_range(&values.view(), values.offset(), sparse_count, element_size, buffers)
             .map_err(|e| format!("accessor {index} sparse values: {e}"))?;
@@ -1325,7 +1395,7 @@ mod tests {
                     r#""byteOffset": 96, "byteLength": 6"#,
                     r#""byteOffset": 18446744073709551610, "byteLength": 6"#,
                 ),
-                "indices",
+                "bufferViews[3]",
             ),
             ("short buffer", good.replace(r#""byteLength": 102"#, r#""byteLength": 1000"#), "buffers[0]"),
             (
@@ -1410,5 +1480,154 @@ mod tests {
         assert_eq!(scene.meshes[0].positions, vec![Vec3::Z, Vec3::X, Vec3::Y]);
         // Float sparse indices (the gltf crate would hit `unreachable!`).
         assert!(load_new(&write(dir.path(), "sparse.gltf", document("5126"))).is_err());
+    }
+
+    /// A one-triangle document over `tri.bin` (written beside it) whose buffer declares
+    /// `byte_length` bytes, with `asset` as its asset object.
+    fn triangle_over_bin(dir: &Path, asset: &str, byte_length: usize) -> PathBuf {
+        write(dir, "tri.bin", triangle_buffer([0, 1, 2]));
+        let geometry = geometry_json(&format!(r#"{{"byteLength": {byte_length}, "uri": "tri.bin"}}"#), &[""])
+            .replace(r#""asset": {"version": "2.0"}"#, &format!(r#""asset": {asset}"#));
+        write(dir, "tri.gltf", format!(r#"{{ {geometry}, "scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0}}] }}"#))
+    }
+
+    #[test]
+    fn an_energy_gaining_base_color_factor_is_named_in_a_warning() {
+        let dir = tempfile::tempdir().unwrap();
+        write(dir.path(), "tri.bin", triangle_buffer([0, 1, 2]));
+        let json = lit_scene_json(r#"{"byteLength": 102, "uri": "tri.bin"}"#);
+        let cool = Scene::load(&write(dir.path(), "cool.gltf", &json)).unwrap();
+        assert!(!cool.warnings.iter().any(|w| w.contains("base colour")), "{:?}", cool.warnings);
+        let hot = json.replace("[0.2, 0.4, 0.6, 1]", "[1.5, 0.4, 0.6, 1]");
+        let hot = Scene::load(&write(dir.path(), "hot.gltf", hot)).unwrap();
+        let warning = hot.warnings.iter().find(|w| w.contains("base colour")).expect("a warning");
+        assert!(warning.contains("'Glow'.base_color") && warning.contains("[1.5, 0.4, 0.6]"), "{warning}");
+    }
+
+    #[test]
+    fn buffer_and_image_uris_stay_in_the_scene_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let (scene_dir, outside) = (dir.path().join("scene"), dir.path().join("outside"));
+        std::fs::create_dir_all(&scene_dir).unwrap();
+        std::fs::create_dir_all(&outside).unwrap();
+        write(&outside, "tri.bin", triangle_buffer([0, 1, 2]));
+        #[cfg(unix)]
+        std::os::unix::fs::symlink(outside.join("tri.bin"), scene_dir.join("link.bin")).unwrap();
+        let document = |uri: &str| {
+            let buffer = format!(r#"{{"byteLength": 102, "uri": "{uri}"}}"#);
+            format!(
+                r#"{{ {}, "scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0}}] }}"#,
+                geometry_json(&buffer, &[""])
+            )
+        };
+        let load_as = |uri: &str, access: FileAccess| {
+            let path = write(&scene_dir, "tri.gltf", document(uri));
+            let mut scene = Scene::empty(&path);
+            scene.file_access = access;
+            load(&path, &mut scene).map(|_| scene)
+        };
+        let depth = dir.path().components().count();
+        let passwd = format!("{}etc/passwd", "../".repeat(depth + 1));
+        let file_uri = format!("file://{}", outside.join("tri.bin").display());
+        for uri in [passwd.as_str(), "../outside/tri.bin", "link.bin", file_uri.as_str()] {
+            if uri == "link.bin" && !cfg!(unix) {
+                continue;
+            }
+            let error = load_as(uri, FileAccess::Confined).unwrap_err();
+            assert_eq!(error.field, "buffers[0]", "{uri}");
+            let message = error.to_string();
+            assert!(message.contains(&format!("`{uri}` resolves to ")) && message.contains("outside"), "{message}");
+            assert!(message.contains("--allow-outside-scene-dir"), "{message}");
+            assert!(!message.contains("root:"), "no byte of the refused file: {message}");
+        }
+        // Allowed with the option (a file of this test, never /etc/passwd), and inside the folder.
+        for uri in ["../outside/tri.bin", "link.bin", file_uri.as_str()] {
+            if uri == "link.bin" && !cfg!(unix) {
+                continue;
+            }
+            assert_eq!(load_as(uri, FileAccess::Anywhere).unwrap().meshes.len(), 1, "{uri}");
+        }
+        std::fs::copy(outside.join("tri.bin"), scene_dir.join("tri.bin")).unwrap();
+        assert_eq!(load_as("tri.bin", FileAccess::Confined).unwrap().meshes.len(), 1);
+        std::fs::create_dir(scene_dir.join("sub")).unwrap();
+        assert_eq!(load_as("./sub/../tri.bin", FileAccess::Confined).unwrap().meshes.len(), 1);
+
+        // Images too.
+        let geometry = geometry_json(&embedded_buffer(&triangle_buffer([0, 1, 2])), &[r#""material": 0"#]);
+        let json = format!(
+            r#"{{ {geometry}, "scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0}}],
+            "images": [{{"uri": "../outside/tri.bin"}}], "textures": [{{"source": 0}}],
+            "materials": [{{"pbrMetallicRoughness": {{"baseColorTexture": {{"index": 0}}}}}}] }}"#
+        );
+        let error = load_new(&write(&scene_dir, "image.gltf", json)).unwrap_err();
+        assert_eq!(error.field, "images[0].uri");
+        assert!(error.message.contains("`../outside/tri.bin` resolves to"), "{error}");
+    }
+
+    #[test]
+    fn versions_other_than_2x_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        for version in [r#"{"version": "2.0"}"#, r#"{"version": "2.1"}"#, r#"{"version": "2.0", "minVersion": "2.0"}"#]
+        {
+            let (scene, _) = load_new(&triangle_over_bin(dir.path(), version, 102)).unwrap();
+            assert_eq!(scene.meshes.len(), 1, "{version}");
+        }
+        for (asset, field, shown) in [
+            (r#"{"version": "3.0"}"#, "asset.version", "\"3.0\""),
+            (r#"{"version": "1.0"}"#, "asset.version", "\"1.0\""),
+            (r#"{"version": "2"}"#, "asset.version", "\"2\""),
+            (r#"{"version": "20.0"}"#, "asset.version", "\"20.0\""),
+            (r#"{"version": "2.0", "minVersion": "3.0"}"#, "asset.minVersion", "\"3.0\""),
+        ] {
+            let path = triangle_over_bin(dir.path(), asset, 102);
+            let error = load_new(&path).unwrap_err();
+            assert_eq!(error.field, field, "{asset}");
+            let message = error.to_string();
+            assert!(message.starts_with(&format!("{}: {field}: ", path.display())), "{message}");
+            assert!(message.contains(shown) && message.contains("2.x"), "{message}");
+        }
+    }
+
+    #[test]
+    fn a_buffer_shorter_than_its_views_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        // tri.bin has 102 bytes; the buffer claims 96, the index view lies at 96..102.
+        let path = triangle_over_bin(dir.path(), r#"{"version": "2.0"}"#, 96);
+        let error = load_new(&path).unwrap_err();
+        assert_eq!(error.field, "bufferViews[3]");
+        let message = error.to_string();
+        assert!(message.contains("byteOffset 96 + byteLength 6 exceeds the byteLength 96 of buffers[0]"), "{message}");
+        // A view ending exactly at the buffer's end is fine; a file shorter than the buffer is not.
+        assert!(load_new(&triangle_over_bin(dir.path(), r#"{"version": "2.0"}"#, 102)).is_ok());
+        let error = load_new(&triangle_over_bin(dir.path(), r#"{"version": "2.0"}"#, 104)).unwrap_err();
+        assert_eq!(error.field, "buffers[0]", "{error}");
+    }
+
+    #[test]
+    fn out_of_range_sparse_indices_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        // Accessor 4: the 3 positions with one element replaced; its index is the u16 in buffer 1.
+        let sparse = r#"{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 1],
+            "sparse": {"count": 1, "indices": {"bufferView": 4, "componentType": 5123}, "values": {"bufferView": 1}}}"#;
+        let document = |index: u16| {
+            let buffers =
+                format!("{}, {}", embedded_buffer(&triangle_buffer([0, 1, 2])), embedded_buffer(&index.to_le_bytes()));
+            let geometry = geometry_json(&buffers, &[""])
+                .replace(r#""POSITION": 0"#, r#""POSITION": 4"#)
+                .replace(r#""type": "SCALAR"}"#, &format!(r#""type": "SCALAR"}}, {sparse}"#))
+                .replace(
+                    r#"{"buffer": 0, "byteOffset": 96, "byteLength": 6}"#,
+                    r#"{"buffer": 0, "byteOffset": 96, "byteLength": 6}, {"buffer": 1, "byteLength": 2}"#,
+                );
+            format!(r#"{{ {geometry}, "scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0}}] }}"#)
+        };
+        let (scene, _) = load_new(&write(dir.path(), "sparse.gltf", document(2))).unwrap();
+        assert_eq!(scene.meshes[0].positions, vec![Vec3::ZERO, Vec3::X, Vec3::Z], "element 2 replaced");
+        for index in [3, 65535] {
+            let path = write(dir.path(), "sparse.gltf", document(index));
+            let message = load_new(&path).unwrap_err().to_string();
+            let expected = format!("sparse index 0 is {index}, outside the accessor's 3 elements");
+            assert!(message.starts_with(&path.display().to_string()) && message.contains(&expected), "{message}");
+        }
     }
 }

@@ -1,11 +1,57 @@
 //! Reading an input file the way every loader must: only a regular file (a directory, a FIFO
 //! or a device is an error at once, where reading would block forever or never end), no larger
-//! than a documented bound (`crate::limits`), with an error that says which of these it was.
+//! than a documented bound (`crate::limits`), with an error that says which of these it was;
+//! and, for a file that a scene file references, only inside the folders a scene may reach
+//! ([`FileAccess`], [`confine`]).
 
 use std::io::Read;
 use std::path::Path;
 
 use crate::error::SceneError;
+
+/// Which files the references inside scene files (TOML mesh and texture paths, OBJ `mtllib`
+/// and texture maps, glTF buffer and image URIs) may name.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FileAccess {
+    /// Only files inside the folder of the file that makes the reference, or inside the shared
+    /// scenes folder that `@shared/` names (`$LFR_SCENES`, else `../../shared/scenes` from that
+    /// folder), after canonicalisation: `..` and symbolic links that lead out are refused.
+    #[default]
+    Confined,
+    /// Any file the user can read (`--allow-outside-scene-dir`).
+    Anywhere,
+}
+
+/// Checks that `target`, which `referencing_file` names as `reference` in `field`, may be read
+/// under `access` (see [`FileAccess::Confined`]). A target that does not exist passes: the read
+/// that follows reports it. The error names the referencing file, the field and the reference,
+/// never anything of the refused file's content (it is not opened).
+pub fn confine(
+    target: &Path,
+    reference: &str,
+    referencing_file: &Path,
+    field: &str,
+    access: FileAccess,
+) -> Result<(), SceneError> {
+    if access == FileAccess::Anywhere {
+        return Ok(());
+    }
+    let Ok(canonical) = std::fs::canonicalize(target) else { return Ok(()) };
+    let folder = referencing_file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let roots = [folder.to_path_buf(), super::description::shared_scenes_dir(folder)];
+    if roots.iter().filter_map(|root| std::fs::canonicalize(root).ok()).any(|root| canonical.starts_with(root)) {
+        return Ok(());
+    }
+    Err(SceneError::new(
+        referencing_file,
+        field,
+        format!(
+            "`{reference}` resolves to {}, outside this file's folder and the shared scenes folder; \
+             a scene may only reference files there (--allow-outside-scene-dir lifts this)",
+            canonical.display()
+        ),
+    ))
+}
 
 /// Checks that `path` (followed through symbolic links) is a regular file of at most
 /// `max_bytes`; `referenced_from` and `field` name where the path came from in errors.

@@ -149,6 +149,8 @@ pub struct Scene {
     pub max_bounces: u32,
     /// Warnings collected while loading (unsupported features skipped, degenerate triangles).
     pub warnings: Vec<String>,
+    /// Which files the loaders may read for references inside scene files.
+    pub file_access: input::FileAccess,
 }
 
 impl Scene {
@@ -167,16 +169,24 @@ impl Scene {
             spp: 16,
             max_bounces: 64,
             warnings: Vec::new(),
+            file_access: input::FileAccess::Confined,
         }
     }
 
-    /// Loads a scene from a TOML description, a glTF file or an OBJ file (by extension).
+    /// Loads a scene from a TOML description, a glTF file or an OBJ file (by extension); its
+    /// file references are confined ([`input::FileAccess::Confined`]).
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        Scene::load_with_access(path, input::FileAccess::Confined)
+    }
+
+    /// [`Scene::load`] with file references allowed as `access` says.
+    pub fn load_with_access(path: &Path, access: input::FileAccess) -> Result<Scene, SceneError> {
         let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).unwrap_or_default();
         let mut scene = match ext.as_str() {
-            "toml" => description::load(path)?,
+            "toml" => description::load_with_access(path, access)?,
             "gltf" | "glb" => {
                 let mut scene = Scene::empty(path);
+                scene.file_access = access;
                 let imported = gltf::load(path, &mut scene)?;
                 if let Some(aspect) = imported.aspect_ratio.filter(|a| a.is_finite() && *a > 0.0) {
                     scene.width = ((scene.height as f32 * aspect).round() as u32).max(1);
@@ -189,6 +199,7 @@ impl Scene {
             }
             "obj" => {
                 let mut scene = Scene::empty(path);
+                scene.file_access = access;
                 obj::load(path, &mut scene, &obj::ObjOptions::default())?;
                 scene.camera = Camera::framing(&scene.bounds(), scene.aspect());
                 scene
@@ -272,6 +283,21 @@ impl Scene {
                 if t.index as usize >= self.textures.len() {
                     return Err(SceneError::new(&source, field("texture"), "texture index out of range"));
                 }
+            }
+            // The factor times the texture's brightest texel, per channel: above 1 the surface
+            // reflects more light than it receives (allowed, but rarely meant).
+            let texture_peak =
+                m.base_color_texture.as_ref().map_or(Vec3::ONE, |t| self.textures[t.index as usize].max_rgb());
+            let peak = m.base_color * texture_peak;
+            if peak.max_element() > 1.0 {
+                let texture = if m.base_color_texture.is_some() { " times its texture" } else { "" };
+                self.warnings.push(format!(
+                    "{}: {}: the base colour{texture} reaches {:?} (above 1: the material reflects more light than \
+                     it receives and adds energy to the image)",
+                    source.display(),
+                    field("base_color"),
+                    peak.to_array()
+                ));
             }
         }
         for (i, light) in self.lights.iter().enumerate() {
@@ -376,5 +402,45 @@ impl Scene {
             self.warnings.push(format!("removed {degenerate} degenerate (zero-area) triangles"));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The warnings about energy-gaining base colours of a scene with `materials`
+    /// (factor, texture RGBA8 if any) after validation.
+    fn energy_warnings(materials: &[(&str, Vec3, Option<[u8; 4]>)]) -> Vec<String> {
+        let mut scene = Scene::empty("scene.toml");
+        for (name, base_color, texel) in materials {
+            let base_color_texture = texel.map(|texel| {
+                scene.textures.push(Texture::constant(texel, true));
+                TextureRef::new(scene.textures.len() as u32 - 1)
+            });
+            let material =
+                Material { name: name.to_string(), base_color: *base_color, base_color_texture, ..Material::default() };
+            scene.materials.push(material);
+        }
+        scene.validate().unwrap();
+        scene.warnings.into_iter().filter(|w| w.contains("base colour")).collect()
+    }
+
+    #[test]
+    fn energy_gaining_base_colours_are_named_in_a_warning() {
+        // Factors at most 1, or a factor above 1 over a texture dark enough (sRGB 128 is 0.216).
+        let quiet = [
+            ("white", Vec3::ONE, None),
+            ("grey", Vec3::splat(0.5), Some([255, 255, 255, 255])),
+            ("boosted", Vec3::splat(4.0), Some([128, 128, 128, 255])),
+        ];
+        assert!(energy_warnings(&quiet).is_empty(), "{:?}", energy_warnings(&quiet));
+        let loud = [("hot", Vec3::new(0.5, 1.5, 0.5), None), ("bright", Vec3::splat(1.2), Some([255, 10, 10, 255]))];
+        let warnings = energy_warnings(&loud);
+        assert_eq!(warnings.len(), 2, "{warnings:?}");
+        assert!(warnings[0].starts_with("scene.toml: material[1] 'hot'.base_color: "), "{}", warnings[0]);
+        assert!(warnings[0].contains("[0.5, 1.5, 0.5]"), "{}", warnings[0]);
+        assert!(warnings[1].contains("material[2] 'bright'.base_color") && warnings[1].contains("times its texture"));
+        assert!(warnings[1].contains("[1.2,"), "only the red channel's texel is white: {}", warnings[1]);
     }
 }

@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 
 use glam::{Mat4, Vec2, Vec3};
 
-use super::input::read_input;
+use super::input::{confine, read_input};
 use super::shapes::compute_normals;
 use super::{AlphaMask, Material, Mesh, Scene};
 use crate::error::SceneError;
@@ -102,12 +102,17 @@ fn convert_material(
     if let Some(ke) = m.emissive {
         material.emission = Vec3::from(ke).max(Vec3::ZERO);
     }
+    let access = cache.scene.file_access;
     if let Some(name) = m.diffuse_texture.as_ref().filter(|s| !s.is_empty()) {
-        let index = cache.get(&dir.join(name.replace('\\', "/")), true, mtl_path, &field("map_Kd"))?;
+        let file = dir.join(name.replace('\\', "/"));
+        confine(&file, name, mtl_path, &field("map_Kd"), access)?;
+        let index = cache.get(&file, true, mtl_path, &field("map_Kd"))?;
         material.base_color_texture = Some(TextureRef::new(index));
     }
     if let Some(name) = m.dissolve_texture.as_ref().filter(|s| !s.is_empty()) {
-        let index = cache.get(&dir.join(name.replace('\\', "/")), false, mtl_path, &field("map_d"))?;
+        let file = dir.join(name.replace('\\', "/"));
+        confine(&file, name, mtl_path, &field("map_d"), access)?;
+        let index = cache.get(&file, false, mtl_path, &field("map_d"))?;
         let texture = &cache.scene.textures[index as usize];
         let has_alpha = texture.texels.iter().any(|t| t[3] != 255);
         material.alpha = Some(AlphaMask {
@@ -125,20 +130,69 @@ fn convert_material(
     Ok(material)
 }
 
+/// The first line of an MTL text that tobj would refuse, as (line number from 1, what is
+/// wrong), so that the error can name it: tobj says only "material parse error", and it
+/// panics on a colour of fewer than three numbers. The rules are tobj 4's (`parse_mtl_line`):
+/// `Ka`/`Kd`/`Ks`/`Ke` need three numbers, `Ns`/`Ni`/`d` one, `illum` an integer 0..=255, a
+/// texture map and `newmtl` a name; every line must be UTF-8.
+pub fn check_mtl(text: &[u8]) -> Result<(), (usize, String)> {
+    for (i, line) in text.split(|&b| b == b'\n').enumerate() {
+        let number = i + 1;
+        let line = std::str::from_utf8(line).map_err(|_| (number, "not UTF-8 text".to_string()))?;
+        let mut words = line.split_whitespace();
+        let Some(keyword) = words.next() else { continue };
+        let rest: Vec<&str> = words.collect();
+        let is_number = |word: &&str| word.parse::<f32>().is_ok();
+        let problem = match keyword {
+            "Ka" | "Kd" | "Ks" | "Ke" if !(rest.len() >= 3 && rest[..3].iter().all(is_number)) => {
+                Some(format!("`{keyword}` needs three numbers, got {:?}", rest.join(" ")))
+            }
+            "Ns" | "Ni" | "d" if !rest.first().is_some_and(is_number) => {
+                Some(format!("`{keyword}` needs a number, got {:?}", rest.join(" ")))
+            }
+            "illum" if !rest.first().is_some_and(|w| w.parse::<u8>().is_ok()) => {
+                Some(format!("`illum` needs an integer in 0..=255, got {:?}", rest.join(" ")))
+            }
+            "map_Ka" | "map_Kd" | "map_Ks" | "map_Bump" | "map_bump" | "map_Ns" | "map_ns" | "map_NS" | "bump"
+            | "map_d"
+                if rest.is_empty() =>
+            {
+                Some(format!("`{keyword}` needs a file name"))
+            }
+            "newmtl" if rest.is_empty() => Some("`newmtl` needs a material name".to_string()),
+            _ => None,
+        };
+        if let Some(message) = problem {
+            return Err((number, message));
+        }
+    }
+    Ok(())
+}
+
 /// Appends the meshes (one per OBJ model and material) and materials of `path` to `scene`.
 pub fn load(path: &Path, scene: &mut Scene, options: &ObjOptions) -> Result<(), SceneError> {
     let bytes = read_input(path, MAX_MODEL_BYTES, path, "file")?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let load_options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
     // tobj would open the material library itself; it goes through the same checks as every
-    // input (a regular file, bounded), and the reason it could not be read is kept.
+    // input (inside the folders a scene may reach, a regular file, bounded), and the reason it
+    // could not be read is kept.
     let mtl_problem = std::cell::RefCell::new(None::<String>);
+    let access = scene.file_access;
     let (models, materials) = tobj::load_obj_buf(&mut std::io::Cursor::new(&bytes), &load_options, |mtl| {
         let mtl_path = dir.join(mtl);
-        match read_input(&mtl_path, MAX_MODEL_BYTES, path, "mtllib") {
-            Ok(mtl_bytes) => tobj::load_mtl_buf(&mut std::io::Cursor::new(mtl_bytes)).inspect_err(|e| {
-                *mtl_problem.borrow_mut() = Some(format!("{}: {e}", mtl_path.display()));
-            }),
+        let checked = confine(&mtl_path, &mtl.to_string_lossy(), path, "mtllib", access)
+            .and_then(|()| read_input(&mtl_path, MAX_MODEL_BYTES, path, "mtllib"));
+        match checked {
+            Ok(mtl_bytes) => match check_mtl(&mtl_bytes) {
+                Err((line, message)) => {
+                    *mtl_problem.borrow_mut() = Some(format!("{}, line {line}: {message}", mtl_path.display()));
+                    Err(tobj::LoadError::MaterialParseError)
+                }
+                Ok(()) => tobj::load_mtl_buf(&mut std::io::Cursor::new(mtl_bytes)).inspect_err(|e| {
+                    *mtl_problem.borrow_mut() = Some(format!("{}: {e}", mtl_path.display()));
+                }),
+            },
             Err(e) => {
                 *mtl_problem.borrow_mut() = Some(e.message);
                 Err(tobj::LoadError::OpenFileFailed)
@@ -240,6 +294,38 @@ mod tests {
         }
         assert!((phong_exponent_to_roughness(40.0) - (2.0f32 / 42.0).sqrt().sqrt()).abs() < 1e-6);
         assert_eq!(phong_exponent_to_roughness(f32::NAN), 1.0);
+    }
+
+    #[test]
+    fn a_bad_mtl_line_is_named_with_the_file_and_its_number() {
+        let dir = tempfile::tempdir().unwrap();
+        let obj = dir.path().join("q.obj");
+        std::fs::write(&obj, "mtllib q.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nusemtl a\nf 1 2 3\n").unwrap();
+        let good = "# colours\nnewmtl a\n  Kd 0.5 0.5 0.5 \r\nKs 0 0 0\nNs 10\nillum 2\nmap_Kd\tdiffuse.png\n";
+        // Each bad line replaces line 3 (a colour of two numbers made tobj panic).
+        for (line, message) in [
+            ("Kd 0.5 0.5", "`Kd` needs three numbers, got \"0.5 0.5\""),
+            ("Ke 1 x 1", "`Ke` needs three numbers"),
+            ("Ns", "`Ns` needs a number"),
+            ("d one", "`d` needs a number"),
+            ("illum 256", "`illum` needs an integer in 0..=255"),
+            ("map_d   ", "`map_d` needs a file name"),
+            ("newmtl", "`newmtl` needs a material name"),
+        ] {
+            let mut lines: Vec<&str> = good.lines().collect();
+            lines[2] = line;
+            std::fs::write(dir.path().join("q.mtl"), lines.join("\n")).unwrap();
+            let error = load(&obj, &mut Scene::empty("test"), &ObjOptions::default()).unwrap_err();
+            assert_eq!(error.field, "mtllib", "{line}");
+            let expected = format!("{}, line 3: {message}", dir.path().join("q.mtl").display());
+            assert!(error.to_string().contains(&expected), "{line}: expected {expected:?} in {error}");
+        }
+        let mut bytes = good.as_bytes().to_vec();
+        bytes.extend_from_slice(b"newmtl \xff\n");
+        assert_eq!(check_mtl(&bytes), Err((8, "not UTF-8 text".to_string())));
+        assert_eq!(check_mtl(good.as_bytes()), Ok(()));
+        // What the check accepts, tobj parses.
+        assert!(tobj::load_mtl_buf(&mut std::io::Cursor::new(good)).is_ok());
     }
 
     #[test]

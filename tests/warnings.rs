@@ -1,0 +1,117 @@
+//! Dropped non-finite values are warned about, with their count, once per run (issue 22,
+//! class 9): an emitter too bright for f32 in `lfr render` and `lfr dump`, and a sample file
+//! whose radiance is all NaN in `lfr reconstruct`, no longer give a silently black image.
+
+#[path = "../tracer/tests/common/mod.rs"]
+mod common;
+
+use std::process::{Command, Output};
+
+use common::project_root;
+use sampleio::{Camera, Coc, FieldSpec, FieldType, FovAxis, HeaderSpec, SampleKind, SampleWriter};
+
+fn lfr(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_lfr")).args(args).current_dir(project_root()).output().expect("lfr runs")
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+const BRIGHT_POINT_LIGHT: &str = r#"
+[render]
+max_bounces = 2
+[camera]
+position = [0, 5, 0]
+look_at = [0, 0, 0]
+up = [0, 0, 1]
+fov = 10
+[[material]]
+name = "grey"
+base_color = [0.5, 0.5, 0.5]
+specular = 0
+[[mesh]]
+shape = "polygon"
+material = "grey"
+points = [[-10, 0, -10], [-10, 0, 10], [10, 0, 10], [10, 0, -10]]
+[[light]]
+type = "point"
+position = [0, 0.5, 0]
+intensity = [3e38, 3e38, 3e38]
+"#;
+
+#[test]
+fn render_and_dump_warn_about_overflowing_contributions() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("bright.toml");
+    std::fs::write(&scene, BRIGHT_POINT_LIGHT).unwrap();
+    let out = dir.path().join("bright.exr");
+    let size = ["--width", "8", "--height", "8", "--spp", "2", "--quiet"];
+    let mut args = vec!["render", "--scene", scene.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    args.extend(size);
+    let result = lfr(&args);
+    let message = stderr(&result);
+    assert!(result.status.success(), "{message}");
+    let warnings: Vec<&str> =
+        message.lines().filter(|l| l.contains("path contributions were NaN or infinite")).collect();
+    assert_eq!(warnings.len(), 1, "one warning per run: {message}");
+    let count: u64 = warnings[0].trim_start_matches("warning: ").split(' ').next().unwrap().parse().unwrap();
+    assert!(count >= 8 * 8 * 2, "every sample's light sample overflows: {message}");
+
+    let samples = dir.path().join("bright.lfrs");
+    let mut args = vec!["dump", "--kind", "lens-time", "--scene", scene.to_str().unwrap(), "--out"];
+    args.push(samples.to_str().unwrap());
+    args.extend(size);
+    let result = lfr(&args);
+    let message = stderr(&result);
+    assert!(result.status.success(), "{message}");
+    assert_eq!(message.matches("path contributions were NaN or infinite").count(), 1, "{message}");
+
+    // The same scene with a finite light warns about nothing.
+    std::fs::write(&scene, BRIGHT_POINT_LIGHT.replace("3e38", "1")).unwrap();
+    let mut args = vec!["render", "--scene", scene.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    args.extend(size);
+    let result = lfr(&args);
+    assert!(result.status.success() && !stderr(&result).contains("warning"), "{}", stderr(&result));
+}
+
+#[test]
+fn reconstruct_warns_about_an_all_nan_radiance() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("nan.lfrs");
+    let mut spec = HeaderSpec::new(SampleKind::LensTime, 4, 4, 2)
+        .field(FieldSpec::new("x", FieldType::F32, 1))
+        .field(FieldSpec::new("y", FieldType::F32, 1))
+        .field(FieldSpec::new("z", FieldType::F32, 1))
+        .field(FieldSpec::new("radiance", FieldType::F32, 3));
+    spec.camera = Some(Camera {
+        position: [0.0; 3],
+        forward: [0.0, 0.0, 1.0],
+        up: [0.0, -1.0, 0.0],
+        right: [1.0, 0.0, 0.0],
+        fov_deg: 40.0,
+        fov_axis: FovAxis::Y,
+        aperture_radius: 0.0,
+        focus_distance: 2.0,
+        coc: Coc { c1: 0.0, c2: 0.0 },
+        shutter: [0.0, 1.0],
+        pixel_to_camera: [[0.02, 0.0, -0.04, 0.0], [0.0, 0.02, -0.04, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
+        world_to_camera: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
+    });
+    let mut writer = SampleWriter::create(&path, spec).unwrap();
+    for i in 0..32u32 {
+        let pixel = i / 2;
+        let (x, y) = ((pixel % 4) as f32 + 0.25 + 0.5 * (i % 2) as f32, (pixel / 4) as f32 + 0.5);
+        writer.push(&[x, y, 2.0, f32::NAN, f32::NAN, f32::NAN]).unwrap();
+    }
+    writer.finish().unwrap();
+    let out = dir.path().join("out.exr");
+    let result =
+        lfr(&["reconstruct", "--samples", path.to_str().unwrap(), "--out", out.to_str().unwrap(), "--locations", "4"]);
+    let message = stderr(&result);
+    assert!(result.status.success(), "{message}");
+    let expected = format!("warning: {}: 32 of 32 samples have a non-finite", path.display());
+    assert!(message.contains(&expected), "expected {expected:?} in {message}");
+    assert!(message.contains("the image is black"), "{message}");
+    assert_eq!(message.matches("warning").count(), 1, "one warning: {message}");
+}
