@@ -341,7 +341,11 @@ pub fn parse_with_access(text: &str, path: &Path, access: FileAccess) -> Result<
         match (&m.file, &m.shape) {
             (Some(file), None) => {
                 let file_path = resolve(file, dir);
-                confine(&file_path, file, path, &format!("mesh[{i}].file"), access)?;
+                let field = format!("mesh[{i}].file");
+                confine(&file_path, file, path, &field, access)?;
+                // Checked here too, so that a missing or special file is named with this field;
+                // problems inside the file are the loader's, named with the file itself.
+                super::input::check_input(&file_path, crate::limits::MAX_MODEL_BYTES, path, &field)?;
                 let ext = file_path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
                 match ext.as_str() {
                     "obj" => {
@@ -581,8 +585,13 @@ mod tests {
         let err =
             parse("[[mesh]]\nshape = \"box\"\nmin = [0,0,0]\nmax = [1,1,1]\nmaterial = \"nope\"\n", p).unwrap_err();
         assert!(err.field.contains("mesh[0].material"), "{err}");
-        let err = parse("[[mesh]]\nfile = \"missing.obj\"\n", p).unwrap_err();
-        assert!(err.to_string().contains("missing.obj"), "{err}");
+        // A missing mesh file is named with the description and its field (found by fuzzing: it
+        // was named as its own file, field `file`).
+        for name in ["missing.obj", "missing.gltf"] {
+            let err = parse(&format!("[[mesh]]\nfile = \"{name}\"\n"), p).unwrap_err();
+            assert_eq!((err.file.as_path(), err.field.as_str()), (p, "mesh[0].file"), "{err}");
+            assert!(err.message.contains(name) && err.message.contains("file not found"), "{err}");
+        }
         let err = parse("[render]\nwidht = 3\n", p).unwrap_err();
         assert!(err.message.contains("widht"), "{err}");
         let mut zero = parse("[render]\nwidth = 0\n", p).unwrap();

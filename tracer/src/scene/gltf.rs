@@ -81,7 +81,19 @@ pub fn load(path: &Path, scene: &mut Scene) -> Result<GltfImport, SceneError> {
 /// without a material.
 pub fn load_with_transform(path: &Path, scene: &mut Scene, transform: Mat4) -> Result<GltfImport, SceneError> {
     let bytes = super::input::read_input(path, crate::limits::MAX_MODEL_BYTES, path, "file")?;
-    let gltf::Gltf { document, blob } = parse(path, &bytes)?;
+    load_from_bytes(path, &bytes, scene, transform)
+}
+
+/// [`load_with_transform`] of the `.gltf` or `.glb` bytes `bytes`, named `path` in messages;
+/// buffers and images are taken from the GLB chunk and `data:` URIs in memory, other URIs
+/// read relative to `path`'s folder (the fuzz targets use a folder that does not exist).
+pub fn load_from_bytes(
+    path: &Path,
+    bytes: &[u8],
+    scene: &mut Scene,
+    transform: Mat4,
+) -> Result<GltfImport, SceneError> {
+    let gltf::Gltf { document, blob } = parse(path, bytes)?;
     check_extensions(path, &document, &mut scene.warnings)?;
     let document = validate(path, document)?;
     check_version(path, &document)?;

@@ -78,12 +78,15 @@ impl TextureCache<'_> {
     }
 }
 
+/// The scene material of MTL material `m`; `obj` is the OBJ file (texture maps are read
+/// relative to its folder, and confined to it), `mtl_path` the library messages name.
 fn convert_material(
     m: &tobj::Material,
-    dir: &Path,
+    obj: &Path,
     mtl_path: &Path,
     cache: &mut TextureCache,
 ) -> Result<Material, SceneError> {
+    let dir = obj.parent().unwrap_or(Path::new("."));
     let kd = m.diffuse.unwrap_or([0.8, 0.8, 0.8]);
     let ks = m.specular.unwrap_or([0.0; 3]);
     let field = |f: &str| format!("material '{}'.{f}", m.name);
@@ -105,13 +108,13 @@ fn convert_material(
     let access = cache.scene.file_access;
     if let Some(name) = m.diffuse_texture.as_ref().filter(|s| !s.is_empty()) {
         let file = dir.join(name.replace('\\', "/"));
-        confine(&file, name, mtl_path, &field("map_Kd"), access)?;
+        confine(&file, name, obj, &field("map_Kd"), access)?;
         let index = cache.get(&file, true, mtl_path, &field("map_Kd"))?;
         material.base_color_texture = Some(TextureRef::new(index));
     }
     if let Some(name) = m.dissolve_texture.as_ref().filter(|s| !s.is_empty()) {
         let file = dir.join(name.replace('\\', "/"));
-        confine(&file, name, mtl_path, &field("map_d"), access)?;
+        confine(&file, name, obj, &field("map_d"), access)?;
         let index = cache.get(&file, false, mtl_path, &field("map_d"))?;
         let texture = &cache.scene.textures[index as usize];
         let has_alpha = texture.texels.iter().any(|t| t[3] != 255);
@@ -173,17 +176,38 @@ pub fn check_mtl(text: &[u8]) -> Result<(), (usize, String)> {
 pub fn load(path: &Path, scene: &mut Scene, options: &ObjOptions) -> Result<(), SceneError> {
     let bytes = read_input(path, MAX_MODEL_BYTES, path, "file")?;
     let dir = path.parent().unwrap_or(Path::new("."));
-    let load_options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
-    // tobj would open the material library itself; it goes through the same checks as every
-    // input (inside the folders a scene may reach, a regular file, bounded), and the reason it
-    // could not be read is kept.
-    let mtl_problem = std::cell::RefCell::new(None::<String>);
     let access = scene.file_access;
-    let (models, materials) = tobj::load_obj_buf(&mut std::io::Cursor::new(&bytes), &load_options, |mtl| {
+    // A material library goes through the same checks as every input: inside the folders a
+    // scene may reach, a regular file, bounded.
+    let read_mtl = |mtl: &Path| {
         let mtl_path = dir.join(mtl);
-        let checked = confine(&mtl_path, &mtl.to_string_lossy(), path, "mtllib", access)
-            .and_then(|()| read_input(&mtl_path, MAX_MODEL_BYTES, path, "mtllib"));
-        match checked {
+        confine(&mtl_path, &mtl.to_string_lossy(), path, "mtllib", access)?;
+        read_input(&mtl_path, MAX_MODEL_BYTES, path, "mtllib")
+    };
+    load_from_bytes(path, &bytes, scene, options, &read_mtl)
+}
+
+/// [`load`] of the OBJ text `bytes` (named `path` in messages; texture maps are read relative
+/// to its folder), with `read_mtl` giving the bytes of the material library an `mtllib` names
+/// (the fuzz targets keep everything in memory this way).
+pub fn load_from_bytes(
+    path: &Path,
+    bytes: &[u8],
+    scene: &mut Scene,
+    options: &ObjOptions,
+    read_mtl: &dyn Fn(&Path) -> Result<Vec<u8>, SceneError>,
+) -> Result<(), SceneError> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let load_options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
+    // tobj would open the material library itself; `read_mtl` does, and the reason it could not
+    // be read is kept.
+    let mtl_problem = std::cell::RefCell::new(None::<String>);
+    // The libraries read, to name the one a material came from in messages.
+    let mtl_files = std::cell::RefCell::new(Vec::<PathBuf>::new());
+    let (models, materials) = tobj::load_obj_buf(&mut std::io::Cursor::new(bytes), &load_options, |mtl| {
+        let mtl_path = dir.join(mtl);
+        mtl_files.borrow_mut().push(mtl_path.clone());
+        match read_mtl(mtl) {
             Ok(mtl_bytes) => match check_mtl(&mtl_bytes) {
                 Err((line, message)) => {
                     *mtl_problem.borrow_mut() = Some(format!("{}, line {line}: {message}", mtl_path.display()));
@@ -215,14 +239,18 @@ pub fn load(path: &Path, scene: &mut Scene, options: &ObjOptions) -> Result<(), 
                 Vec::new()
             }
         };
-        let mtl_path = path.with_extension("mtl");
+        // With one library (the usual case) messages name it; with several, the OBJ.
+        let mtl_path = match mtl_files.borrow().as_slice() {
+            [one] => one.clone(),
+            _ => path.to_path_buf(),
+        };
         let mut cache = TextureCache { scene, loaded: HashMap::new() };
         for m in &materials {
             if let Some(&mapped) = options.material_map.get(&m.name) {
                 material_index.push(mapped);
                 continue;
             }
-            let material = convert_material(m, dir, &mtl_path, &mut cache)?;
+            let material = convert_material(m, path, &mtl_path, &mut cache)?;
             cache.scene.materials.push(material);
             material_index.push(cache.scene.materials.len() as u32 - 1);
         }
@@ -326,6 +354,19 @@ mod tests {
         assert_eq!(check_mtl(good.as_bytes()), Ok(()));
         // What the check accepts, tobj parses.
         assert!(tobj::load_mtl_buf(&mut std::io::Cursor::new(good)).is_ok());
+    }
+
+    #[test]
+    fn texture_map_errors_name_the_material_library_read() {
+        // Found by fuzzing: they named OBJ.mtl beside the OBJ, whatever `mtllib` said.
+        let dir = tempfile::tempdir().unwrap();
+        let obj = dir.path().join("q.obj");
+        std::fs::write(&obj, "mtllib lib.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nusemtl a\nf 1 2 3\n").unwrap();
+        std::fs::write(dir.path().join("lib.mtl"), "newmtl a\nmap_Kd missing.png\n").unwrap();
+        let error = load(&obj, &mut Scene::empty("test"), &ObjOptions::default()).unwrap_err();
+        assert_eq!(error.file, dir.path().join("lib.mtl"), "{error}");
+        assert_eq!(error.field, "material 'a'.map_Kd", "{error}");
+        assert!(error.message.contains("missing.png"), "{error}");
     }
 
     #[test]
