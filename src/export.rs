@@ -70,52 +70,33 @@ pub struct ExportArgs {
     out: PathBuf,
 }
 
-const fn real(name: &'static str, components: u32) -> FieldNeed {
-    FieldNeed::real(name, components)
-}
-
-const fn optional(name: &'static str, components: u32) -> FieldNeed {
-    FieldNeed::real(name, components).optional()
-}
-
-/// What `--format tlfr-1.3` reads of a `lens-time` file (checked before anything is written).
-pub const TLFR_1_3_NEEDS: Needs = Needs {
-    consumer: "`lfr export --format tlfr-1.3`",
-    fields: &[
-        real("x", 1),
-        real("y", 1),
-        real("z", 1),
-        real("radiance", 3),
-        real("depth_gradient", 2),
-        optional("u", 1),
-        optional("v", 1),
-        optional("t", 1),
-        optional("motion", 3),
-    ],
-};
+/// What `--format tlfr-1.3` reads of a `lens-time` file (checked before anything is written):
+/// the fields ILFR's lens mode reads, camera rays with depth gradients.
+pub const TLFR_1_3_NEEDS: Needs =
+    Needs { consumer: "`lfr export --format tlfr-1.3`", fields: recon::needs::ILFR_LENS.fields };
 
 /// What `--format ilfr-2.2` reads of an `indirect` file (checked before anything is written).
 pub const ILFR_2_2_NEEDS: Needs = Needs {
     consumer: "`lfr export --format ilfr-2.2`",
     fields: &[
-        real("x", 1),
-        real("y", 1),
+        FieldNeed::real("x", 1),
+        FieldNeed::real("y", 1),
         FieldNeed::octahedral("direction"),
-        real("radiance", 3),
-        real("origin", 3),
-        real("hit", 3),
+        FieldNeed::real("radiance", 3),
+        FieldNeed::real("origin", 3),
+        FieldNeed::real("hit", 3),
         FieldNeed::octahedral("origin_normal"),
         FieldNeed::octahedral("hit_normal"),
-        real("albedo", 3),
-        real("direct", 3),
-        real("secondary_albedo", 3),
-        real("secondary_direct", 3),
-        optional("u", 1),
-        optional("v", 1),
-        optional("t", 1),
-        optional("origin_motion", 3),
-        optional("hit_motion", 3),
-        optional("bandwidth", 1),
+        FieldNeed::real("albedo", 3),
+        FieldNeed::real("direct", 3),
+        FieldNeed::real("secondary_albedo", 3),
+        FieldNeed::real("secondary_direct", 3),
+        FieldNeed::optional_real("u", 1),
+        FieldNeed::optional_real("v", 1),
+        FieldNeed::optional_real("t", 1),
+        FieldNeed::optional_real("origin_motion", 3),
+        FieldNeed::optional_real("hit_motion", 3),
+        FieldNeed::optional_real("bandwidth", 1),
     ],
 };
 

@@ -12,28 +12,20 @@
 
 use sampleio::{FieldNeed, Needs, SampleKind};
 
-const fn real(name: &'static str, components: u32) -> FieldNeed {
-    FieldNeed::real(name, components)
-}
-
-const fn optional(name: &'static str, components: u32) -> FieldNeed {
-    FieldNeed::real(name, components).optional()
-}
-
 /// TLFR (`tlfr`, `tlfr-nn`, `tlfr-bw`, `lfr reconstruct`): `lens-time` samples
 /// (`tlfr::samples::read_lens_time`).
 pub const TLFR: Needs = Needs {
     consumer: "TLFR",
     fields: &[
-        real("x", 1),
-        real("y", 1),
-        real("z", 1),
-        real("radiance", 3),
-        optional("u", 1),
-        optional("v", 1),
-        optional("t", 1),
-        optional("motion", 3),
-        optional("bandwidth", 1),
+        FieldNeed::real("x", 1),
+        FieldNeed::real("y", 1),
+        FieldNeed::real("z", 1),
+        FieldNeed::real("radiance", 3),
+        FieldNeed::optional_real("u", 1),
+        FieldNeed::optional_real("v", 1),
+        FieldNeed::optional_real("t", 1),
+        FieldNeed::optional_real("motion", 3),
+        FieldNeed::optional_real("bandwidth", 1),
     ],
 };
 
@@ -41,22 +33,26 @@ pub const TLFR: Needs = Needs {
 /// (`tlfr::shadows::read_shading`), on top of [`TLFR`].
 pub const TLFR_SOFT_SHADOW: Needs = Needs {
     consumer: "TLFR soft shadows",
-    fields: &[real("albedo", 3), FieldNeed::octahedral("normal"), real("radiance_without_light", 3)],
+    fields: &[
+        FieldNeed::real("albedo", 3),
+        FieldNeed::octahedral("normal"),
+        FieldNeed::real("radiance_without_light", 3),
+    ],
 };
 
 /// TLFR's soft shadows: the `light` file (`tlfr::shadows::read_light`).
 pub const TLFR_LIGHT: Needs = Needs {
     consumer: "TLFR soft shadows (light samples)",
     fields: &[
-        real("lu", 1),
-        real("lv", 1),
-        real("lx", 1),
-        real("ly", 1),
-        real("z", 1),
-        real("radiance", 3),
-        real("density", 1),
-        optional("t", 1),
-        optional("motion", 3),
+        FieldNeed::real("lu", 1),
+        FieldNeed::real("lv", 1),
+        FieldNeed::real("lx", 1),
+        FieldNeed::real("ly", 1),
+        FieldNeed::real("z", 1),
+        FieldNeed::real("radiance", 3),
+        FieldNeed::real("density", 1),
+        FieldNeed::optional_real("t", 1),
+        FieldNeed::optional_real("motion", 3),
     ],
 };
 
@@ -64,43 +60,43 @@ pub const TLFR_LIGHT: Needs = Needs {
 macro_rules! ilfr_fields {
     ($($own:expr),*) => {
         &[
-            real("x", 1),
-            real("y", 1),
+            FieldNeed::real("x", 1),
+            FieldNeed::real("y", 1),
             FieldNeed::octahedral("direction"),
-            real("origin", 3),
-            real("hit", 3),
+            FieldNeed::real("origin", 3),
+            FieldNeed::real("hit", 3),
             FieldNeed::octahedral("origin_normal"),
             FieldNeed::octahedral("hit_normal"),
             $($own,)*
-            optional("u", 1),
-            optional("v", 1),
-            optional("bandwidth", 1),
-            optional("albedo", 3),
-            optional("weight", 3),
-            optional("direct", 3),
-            optional("secondary_albedo", 3),
-            optional("secondary_direct", 3),
+            FieldNeed::optional_real("u", 1),
+            FieldNeed::optional_real("v", 1),
+            FieldNeed::optional_real("bandwidth", 1),
+            FieldNeed::optional_real("albedo", 3),
+            FieldNeed::optional_real("weight", 3),
+            FieldNeed::optional_real("direct", 3),
+            FieldNeed::optional_real("secondary_albedo", 3),
+            FieldNeed::optional_real("secondary_direct", 3),
             FieldNeed::octahedral("origin_geometric_normal").optional(),
-            optional("origin_base_color", 3),
-            optional("origin_metallic", 1),
-            optional("origin_roughness", 1),
-            optional("origin_specular", 1),
-            optional("origin_f0", 1),
-            optional("hit_base_color", 3),
-            optional("hit_metallic", 1),
-            optional("hit_roughness", 1),
-            optional("hit_specular", 1),
-            optional("hit_f0", 1),
+            FieldNeed::optional_real("origin_base_color", 3),
+            FieldNeed::optional_real("origin_metallic", 1),
+            FieldNeed::optional_real("origin_roughness", 1),
+            FieldNeed::optional_real("origin_specular", 1),
+            FieldNeed::optional_real("origin_f0", 1),
+            FieldNeed::optional_real("hit_base_color", 3),
+            FieldNeed::optional_real("hit_metallic", 1),
+            FieldNeed::optional_real("hit_roughness", 1),
+            FieldNeed::optional_real("hit_specular", 1),
+            FieldNeed::optional_real("hit_f0", 1),
         ]
     };
 }
 
 /// ILFR (`ilfr`, `ilfr-recursive`, `lfr bench-ilfr`): `indirect` samples
 /// (`ilfr::samples::read_indirect`).
-pub const ILFR_INDIRECT: Needs = Needs { consumer: "ILFR", fields: ilfr_fields!(real("radiance", 3)) };
+pub const ILFR_INDIRECT: Needs = Needs { consumer: "ILFR", fields: ilfr_fields!(FieldNeed::real("radiance", 3)) };
 
 /// ILFR's ambient occlusion: `ao` samples (`ilfr::samples::read_indirect`).
-pub const ILFR_AO: Needs = Needs { consumer: "ILFR", fields: ilfr_fields!(real("distance", 1)) };
+pub const ILFR_AO: Needs = Needs { consumer: "ILFR", fields: ilfr_fields!(FieldNeed::real("distance", 1)) };
 
 /// [`ILFR_INDIRECT`] or [`ILFR_AO`] by the file's kind (`None` for a kind ILFR does not read).
 pub fn ilfr(kind: SampleKind) -> Option<&'static Needs> {
@@ -116,29 +112,35 @@ pub fn ilfr(kind: SampleKind) -> Option<&'static Needs> {
 pub const ILFR_LENS: Needs = Needs {
     consumer: "ILFR's lens mode",
     fields: &[
-        real("x", 1),
-        real("y", 1),
-        real("z", 1),
-        real("radiance", 3),
-        real("depth_gradient", 2),
-        optional("u", 1),
-        optional("v", 1),
-        optional("t", 1),
-        optional("motion", 3),
+        FieldNeed::real("x", 1),
+        FieldNeed::real("y", 1),
+        FieldNeed::real("z", 1),
+        FieldNeed::real("radiance", 3),
+        FieldNeed::real("depth_gradient", 2),
+        FieldNeed::optional_real("u", 1),
+        FieldNeed::optional_real("v", 1),
+        FieldNeed::optional_real("t", 1),
+        FieldNeed::optional_real("motion", 3),
     ],
 };
 
 /// `box` on `indirect` samples: `weight · radiance`, `albedo` standing in for a missing `weight`
 /// (`box` itself requires one of the two).
-pub const BOX_INDIRECT: Needs =
-    Needs { consumer: "box", fields: &[real("radiance", 3), optional("weight", 3), optional("albedo", 3)] };
+pub const BOX_INDIRECT: Needs = Needs {
+    consumer: "box",
+    fields: &[
+        FieldNeed::real("radiance", 3),
+        FieldNeed::optional_real("weight", 3),
+        FieldNeed::optional_real("albedo", 3),
+    ],
+};
 
 /// `box` on `ao` samples: the distance and whether the camera ray hit.
 pub const BOX_AO: Needs =
-    Needs { consumer: "box", fields: &[real("distance", 1), FieldNeed::octahedral("origin_normal")] };
+    Needs { consumer: "box", fields: &[FieldNeed::real("distance", 1), FieldNeed::octahedral("origin_normal")] };
 
 /// `box` on `lens-time` and `light` samples: the radiance.
-pub const BOX_RADIANCE: Needs = Needs { consumer: "box", fields: &[real("radiance", 3)] };
+pub const BOX_RADIANCE: Needs = Needs { consumer: "box", fields: &[FieldNeed::real("radiance", 3)] };
 
 /// What `box` reads of a file of `kind`.
 pub fn box_filter(kind: SampleKind) -> &'static Needs {

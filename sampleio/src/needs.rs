@@ -52,6 +52,11 @@ impl FieldNeed {
         FieldNeed { required: false, ..self }
     }
 
+    /// An optional field of `components` real numbers.
+    pub const fn optional_real(name: &'static str, components: u32) -> FieldNeed {
+        FieldNeed::real(name, components).optional()
+    }
+
     /// Whether `field` (of this need's name) has an accepted type and component count.
     pub fn accepts(&self, field: &Field) -> bool {
         field.components == self.components && self.types.contains(&field.ty)
