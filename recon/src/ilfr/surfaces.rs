@@ -473,8 +473,30 @@ mod tests {
         assert!(!conflicts(&RAY, &c[0], &c[1], ConflictTest::EventLine));
         // Coincident centres: no conflict and nothing non-finite.
         let twin = candidates(&[a, a], &SurfaceParams::default());
-        for test in [ConflictTest::EventLine, ConflictTest::FacingOrCoplanar] {
+        for test in [ConflictTest::EventLine, ConflictTest::FacingOrCoplanar, ConflictTest::EventLineOffPlane] {
             assert!(!conflicts(&RAY, &twin[0], &twin[1], test));
+        }
+        // Stiff cases of the off-plane test: splats a millionth apart, or 1e6 apart on stacked
+        // planes, at scales 1e-6 and 1e9: the same decisions as at scale 1 (scale-free: the
+        // coplanar limit is an angle), never from a NaN.
+        for scale in [1e-6f32, 1.0, 1e9] {
+            let at = |p: [f32; 3]| p.map(|c| c * scale);
+            let near = candidates(
+                &[
+                    Disc::new(at([0.0, 1.0, 0.0]), [0.0, -1.0, 0.0], 0.5 * scale),
+                    Disc::new(at([1e-6, 1.0, 1e-6]), [0.0, -1.0, 0.0], 0.5 * scale),
+                ],
+                &SurfaceParams::default(),
+            );
+            assert!(!conflicts(&RAY, &near[0], &near[1], ConflictTest::EventLineOffPlane), "scale {scale}");
+            let stacked = candidates(
+                &[
+                    Disc::new(at([0.1, 1.0, 0.0]), [0.0, -1.0, 0.0], 0.7 * scale),
+                    Disc::new(at([-0.1, 2.0, 0.0]), [0.0, -1.0, 0.0], 0.7 * scale),
+                ],
+                &SurfaceParams::default(),
+            );
+            assert!(conflicts(&RAY, &stacked[0], &stacked[1], ConflictTest::EventLineOffPlane), "scale {scale}");
         }
     }
 
