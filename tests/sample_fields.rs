@@ -5,12 +5,15 @@
 
 #[path = "../tracer/tests/common/mod.rs"]
 mod common;
+#[path = "../recon/tests/common/sample_camera.rs"]
+mod sample_camera;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use common::project_root;
-use sampleio::{Camera, Coc, FieldSpec, FieldType, FovAxis, HeaderSpec, SampleKind, SampleWriter};
+use sample_camera::camera;
+use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleKind, SampleWriter};
 
 use FieldType::{F16, F32, U16, U32, U8};
 
@@ -19,23 +22,6 @@ type Declared = (&'static str, FieldType, u32);
 
 fn lfr(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_lfr")).args(args).current_dir(project_root()).output().expect("lfr runs")
-}
-
-fn camera() -> Camera {
-    Camera {
-        position: [0.0; 3],
-        forward: [0.0, 0.0, 1.0],
-        up: [0.0, -1.0, 0.0],
-        right: [1.0, 0.0, 0.0],
-        fov_deg: 40.0,
-        fov_axis: FovAxis::Y,
-        aperture_radius: 0.1,
-        focus_distance: 2.0,
-        coc: Coc { c1: 2.0, c2: -1.0 },
-        shutter: [0.0, 1.0],
-        pixel_to_camera: [[0.02, 0.0, -0.04, 0.0], [0.0, 0.02, -0.04, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
-        world_to_camera: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
-    }
 }
 
 const LENS_TIME: &[Declared] = &[

@@ -7,7 +7,11 @@ use std::path::{Path, PathBuf};
 
 use recon::method::{Effect, Input, Inputs, MethodError};
 use recon::registry::METHODS;
-use sampleio::{Camera, Coc, FieldSpec, FieldType, FovAxis, HeaderSpec, LightGeometry, SampleKind, SampleWriter};
+#[path = "common/sample_camera.rs"]
+mod sample_camera;
+
+use sample_camera::camera;
+use sampleio::{FieldSpec, FieldType, HeaderSpec, LightGeometry, SampleKind, SampleWriter};
 
 use FieldType::{F16, F32, U16, U8};
 
@@ -62,23 +66,6 @@ fn format_fields(kind: SampleKind) -> Vec<(&'static str, FieldType, u32)> {
             }
             fields
         }
-    }
-}
-
-fn camera() -> Camera {
-    Camera {
-        position: [0.0; 3],
-        forward: [0.0, 0.0, 1.0],
-        up: [0.0, -1.0, 0.0],
-        right: [1.0, 0.0, 0.0],
-        fov_deg: 40.0,
-        fov_axis: FovAxis::Y,
-        aperture_radius: 0.1,
-        focus_distance: 2.0,
-        coc: Coc { c1: 2.0, c2: -1.0 },
-        shutter: [0.0, 1.0],
-        pixel_to_camera: [[0.02, 0.0, -0.04, 0.0], [0.0, 0.02, -0.04, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
-        world_to_camera: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
     }
 }
 
