@@ -123,6 +123,42 @@ fn tiny_compare_follows_the_schema_and_path_tracing_error_falls() {
     assert!(report.contains("**box**"));
     assert!(!out.join("inputs").exists(), "input samples are removed unless --keep-samples");
 
+    // Repeated timings: these runs are short, so each is timed three times (the default), and a
+    // run's time is its median repetition.
+    for run in results["runs"].as_array().unwrap() {
+        let timings: Vec<f64> = run["timings"].as_array().unwrap().iter().map(number).collect();
+        assert_eq!(timings.len(), 3, "{run}");
+        let mut sorted = timings.clone();
+        sorted.sort_by(f64::total_cmp);
+        assert_eq!(number(&run["total_s"]), sorted[1], "the median repetition: {run}");
+        let spread = (sorted[2] - sorted[0]) / sorted[1];
+        assert!((number(&run["timing_spread"]) - spread).abs() <= 1e-9 * spread.max(1.0), "{run}");
+        let parts = number(&run["trace_s"]) + number(&run["preprocess_s"]) + number(&run["recon_s"]);
+        assert!((parts - number(&run["total_s"])).abs() < 1e-9, "the parts are the median repetition's: {run}");
+        if run["method"] != "pt" {
+            let [lo, hi] = [0, 1].map(|i| number(&run["speedup_range"][i]));
+            assert!(lo <= number(&run["speedup"]) && number(&run["speedup"]) <= hi, "{run}");
+            // No repetition gave another image (the warning note says so when one does).
+            assert!(!run["notes"].to_string().contains("not deterministic"), "{run}");
+        }
+    }
+    for verdict in results["verdicts"].as_array().unwrap() {
+        let difference = verdict["difference"].as_str().unwrap();
+        let [lo, hi] = [0, 1].map(|i| number(&verdict["best_speedup_range"][i]));
+        let expected = if lo <= 1.0 && 1.0 <= hi {
+            "no clear difference"
+        } else if number(&verdict["best_speedup"]) >= 1.0 {
+            "faster"
+        } else {
+            "slower"
+        };
+        assert_eq!(difference, expected, "{verdict}");
+        assert_eq!(
+            verdict["summary"].as_str().unwrap().contains("no clear difference"),
+            expected == "no clear difference"
+        );
+    }
+
     // OIDN: run when pyoidn is installed, otherwise skipped with a reason.
     let oidn = runs(&results, "oidn");
     let skipped = results["skipped"].as_array().unwrap();
@@ -138,6 +174,46 @@ fn tiny_compare_follows_the_schema_and_path_tracing_error_falls() {
             assert!(number(&run["psnr_db"]) > number(&twin["psnr_db"]) + 2.0, "{run}");
         }
     }
+}
+
+#[test]
+fn the_ladder_holds_every_input_spp_and_a_rerun_replaces_the_previous_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let (out, cache) = (dir.path().join("out"), dir.path().join("cache"));
+    // Whatever the methods, the ladder holds the input spp (3 is not a power of two).
+    let first = tiny_compare(&out, &cache, &["--methods", "gif", "--spp", "3", "--repeats", "1"]);
+    let spp: Vec<u64> = runs(&first, "pt").iter().map(|r| r["input_spp"].as_u64().unwrap()).collect();
+    assert_eq!(spp, vec![1, 2, 3, 4, 8, 16, 32, 64]);
+    assert!(runs(&first, "pt").iter().all(|r| r["timings"].as_array().unwrap().len() == 1));
+    let gif_images = |dir: &Path| {
+        std::fs::read_dir(dir.join("images"))
+            .unwrap()
+            .filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().starts_with("gif"))
+            .count()
+    };
+    assert!(gif_images(&out) > 0);
+    // A rerun with other methods leaves no image of the previous run behind.
+    let second = tiny_compare(&out, &cache, &["--methods", "box", "--spp", "1", "--repeats", "1"]);
+    assert!(runs(&second, "gif").is_empty());
+    assert_eq!(gif_images(&out), 0, "the previous run's images are removed");
+    // A folder holding other files is refused before any work, and nothing in it is touched.
+    std::fs::write(out.join("thesis.tex"), b"mine").unwrap();
+    let refused = lfr(&[
+        "compare",
+        "--effect",
+        "indirect",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(!refused.status.success());
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(stderr.contains("thesis.tex") && stderr.contains("--force"), "{stderr}");
+    assert!(out.join("results.json").is_file() && out.join("thesis.tex").is_file());
 }
 
 #[test]

@@ -11,10 +11,12 @@
 pub mod effect;
 pub mod images;
 pub mod memory;
+pub mod out_dir;
 pub mod plot;
 pub mod reference;
 pub mod report;
 pub mod results;
+pub mod timing;
 pub mod verdict;
 
 use std::collections::BTreeMap;
@@ -35,6 +37,7 @@ use tracer::Accel;
 
 use effect::{default_ao_radius, prepare_scene, Tracing};
 use results::{ReferenceInfo, Results, Run, Skipped, ToneMapInfo, Verdict};
+use timing::Difference;
 use verdict::{monotone_curve, psnr_at_time, time_to_psnr, CurvePoint};
 
 fn parse_effect(name: &str) -> Result<Effect, String> {
@@ -97,6 +100,14 @@ pub struct CompareArgs {
     /// Keep the methods' input sample files in OUT/inputs.
     #[arg(long)]
     pub keep_samples: bool,
+    /// Time every run up to this many times (runs over 5 s twice, over 30 s once), alternating
+    /// over all runs; verdicts use the median and report the spread. 1 = one measurement.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=20))]
+    pub repeats: u32,
+    /// Write into an --out folder that holds other files than a comparison's (they are kept;
+    /// only the comparison's own files are replaced).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// The methods named on the command line, in order, without repeats.
@@ -122,6 +133,87 @@ fn resolve_methods(names: &[String], effect: Effect) -> Result<Vec<Registered>> 
 struct Measured {
     run: Run,
     image: Image,
+    /// The trace whose timings are this run's trace times.
+    trace: TraceKey,
+    /// (preprocess, reconstruct) seconds of each repetition; empty for path tracing.
+    parts: Vec<[f64; 2]>,
+}
+
+impl Measured {
+    /// Sets the run's times to its median repetition and records every repetition
+    /// (`timing`); repetition i pairs `trace_times[i]` (or the last) with `parts[i]`.
+    fn settle_timings(&mut self, trace_times: &[f64]) {
+        let count = trace_times.len().max(self.parts.len()).max(1);
+        let repetition = |i: usize| -> (f64, f64, f64) {
+            let trace = trace_times.get(i.min(trace_times.len().saturating_sub(1))).copied().unwrap_or(0.0);
+            let [pre, recon] = self.parts.get(i.min(self.parts.len().saturating_sub(1))).copied().unwrap_or([0.0; 2]);
+            (trace, pre, recon)
+        };
+        let totals: Vec<f64> = (0..count).map(repetition).map(|(t, p, r)| t + p + r).collect();
+        let (trace, pre, recon) = repetition(timing::median_index(&totals).unwrap_or(0));
+        let run = &mut self.run;
+        (run.trace_s, run.preprocess_s, run.recon_s, run.total_s) = (trace, pre, recon, trace + pre + recon);
+        run.timing_spread = timing::relative_spread(&totals);
+        run.timings = totals;
+    }
+}
+
+/// A trace that the methods' runs share: the ladder's image at some spp (also the `Frame`
+/// input), the input samples or the guide buffers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum TraceKey {
+    Pt(u32),
+    Samples(u32),
+    Guide(u32),
+}
+
+impl TraceKey {
+    fn label(self) -> String {
+        match self {
+            TraceKey::Pt(spp) => format!("path tracing, {spp} spp"),
+            TraceKey::Samples(spp) => format!("input samples, {spp} spp"),
+            TraceKey::Guide(spp) => format!("guide buffers, {spp} spp"),
+        }
+    }
+}
+
+/// A timed unit that the repetitions run again.
+enum Job {
+    /// A trace, and the ladder run it belongs to (`usize::MAX`: none).
+    Trace(TraceKey, usize),
+    /// A method's reconstruction (index into the available methods) and its measured run.
+    Method { method: usize, spp: u32, recon_rays: u32, measured: usize },
+}
+
+fn rays_label(recon_rays: u32) -> String {
+    if recon_rays > 0 {
+        format!(" × {recon_rays} rays")
+    } else {
+        String::new()
+    }
+}
+
+fn not_deterministic(pass: u32) -> String {
+    format!(
+        "{}repetition {} gave a different image from the first with the same seed (not deterministic)",
+        recon::method::WARNING,
+        pass + 1
+    )
+}
+
+/// The comparison's progress bar over every timed run (hidden with --quiet).
+fn progress_bar(show: bool) -> indicatif::ProgressBar {
+    if !show {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(0);
+    let style = indicatif::ProgressStyle::with_template(
+        "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} runs, ETA {eta}: {msg}",
+    )
+    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+    bar.set_style(style);
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    bar
 }
 
 /// Scores images against the reference and writes them.
@@ -130,6 +222,8 @@ struct Scoring<'a> {
     reference: &'a Image,
     tone: ToneMap,
     layer: &'static str,
+    /// Lines are printed around it.
+    bar: &'a indicatif::ProgressBar,
 }
 
 impl Scoring<'_> {
@@ -166,15 +260,17 @@ impl Scoring<'_> {
                 metrics.nonfinite_pixels
             ));
         }
-        eprintln!(
-            "  {method:>10} {input_spp:>5} spp{}: {:>8.3} s, {:6.2} dB, relMSE {:.3e}, SSIM {:.4}{}",
-            if recon_rays > 0 { format!(" × {recon_rays} rays") } else { String::new() },
-            trace_s + preprocess_s + recon_s,
-            metrics.psnr_db,
-            metrics.rel_mse,
-            metrics.ssim,
-            if metrics.nonfinite_pixels > 0 { " (INVALID: non-finite pixels)" } else { "" }
-        );
+        self.bar.suspend(|| {
+            eprintln!(
+                "  {method:>10} {input_spp:>5} spp{}: {:>8.3} s, {:6.2} dB, relMSE {:.3e}, SSIM {:.4}{}",
+                rays_label(recon_rays),
+                trace_s + preprocess_s + recon_s,
+                metrics.psnr_db,
+                metrics.rel_mse,
+                metrics.ssim,
+                if metrics.nonfinite_pixels > 0 { " (INVALID: non-finite pixels)" } else { "" }
+            )
+        });
         Ok(Measured {
             run: Run {
                 method: method.to_string(),
@@ -184,6 +280,8 @@ impl Scoring<'_> {
                 preprocess_s,
                 recon_s,
                 total_s: trace_s + preprocess_s + recon_s,
+                timings: vec![trace_s + preprocess_s + recon_s],
+                timing_spread: 0.0,
                 psnr_db: metrics.psnr_db,
                 rel_mse: metrics.rel_mse,
                 ssim: metrics.ssim,
@@ -193,6 +291,7 @@ impl Scoring<'_> {
                 valid: metrics.nonfinite_pixels == 0,
                 equal_time_psnr_gain_db: None,
                 speedup: None,
+                speedup_range: None,
                 verdict_extrapolated: false,
                 image: format!("images/{stem}.exr"),
                 preview: format!("images/{stem}.png"),
@@ -201,6 +300,8 @@ impl Scoring<'_> {
                 stats,
             },
             image,
+            trace: TraceKey::Pt(input_spp),
+            parts: Vec::new(),
         })
     }
 }
@@ -214,20 +315,42 @@ fn ladder(max: u32, input_spp: &[u32]) -> Vec<u32> {
     spp
 }
 
-/// Fills in each run's verdicts from the PT curve and sums up each method.
-fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
-    let curve = monotone_curve(
+/// The PT curve of the runs' times picked by `time` (the median, the fastest or the slowest
+/// repetition).
+fn pt_curve(runs: &[Run], time: impl Fn(&Run) -> f64) -> Vec<CurvePoint> {
+    monotone_curve(
         &runs
             .iter()
             .filter(|r| r.method == "pt" && r.valid)
-            .map(|r| CurvePoint { seconds: r.total_s, psnr_db: r.psnr_db })
+            .map(|r| CurvePoint { seconds: time(r), psnr_db: r.psnr_db })
             .collect::<Vec<_>>(),
-    );
+    )
+}
+
+/// The fastest and slowest repetition of a run (its total when it has no list).
+fn time_range(run: &Run) -> (f64, f64) {
+    timing::range(&run.timings).unwrap_or((run.total_s, run.total_s))
+}
+
+/// Fills in each run's verdicts from the PT curve and sums up each method. The speedup uses
+/// the median repetitions; its range pairs the method's slowest repetition with path tracing's
+/// fastest curve and the other way round, and a range that holds 1 is no clear difference.
+fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
+    let curve = pt_curve(runs, |r| r.total_s);
+    let fast_curve = pt_curve(runs, |r| time_range(r).0);
+    let slow_curve = pt_curve(runs, |r| time_range(r).1);
     for run in runs.iter_mut().filter(|r| r.method != "pt" && r.valid) {
         let at_time = psnr_at_time(&curve, run.total_s);
         let to_psnr = time_to_psnr(&curve, run.psnr_db);
         run.equal_time_psnr_gain_db = at_time.map(|r| run.psnr_db - r.value);
         run.speedup = to_psnr.filter(|_| run.total_s > 0.0).map(|r| r.value / run.total_s);
+        let (fastest, slowest) = time_range(run);
+        run.speedup_range = match (time_to_psnr(&fast_curve, run.psnr_db), time_to_psnr(&slow_curve, run.psnr_db)) {
+            (Some(pt_fast), Some(pt_slow)) if fastest > 0.0 && run.speedup.is_some() => {
+                Some([pt_fast.value / slowest, pt_slow.value / fastest])
+            }
+            _ => None,
+        };
         run.verdict_extrapolated = at_time.is_some_and(|r| r.extrapolated) || to_psnr.is_some_and(|r| r.extrapolated);
     }
     let mut names: Vec<String> = Vec::new();
@@ -244,17 +367,25 @@ fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
             let best = valid.iter().max_by(|a, b| a.speedup.unwrap_or(0.0).total_cmp(&b.speedup.unwrap_or(0.0)));
             let best_gain = valid.iter().filter_map(|r| r.equal_time_psnr_gain_db).max_by(f64::total_cmp);
             let best_psnr = valid.iter().map(|r| r.psnr_db).max_by(f64::total_cmp);
+            let difference =
+                best.map(|run| Difference::of(run.speedup.unwrap_or(0.0), run.speedup_range.map(|[lo, hi]| (lo, hi))));
             let summary = match best {
                 Some(run) => {
                     let speedup = run.speedup.unwrap_or(0.0);
                     let rays = if run.recon_rays > 0 { format!(" with {} reconstruction rays", run.recon_rays) } else { String::new() };
+                    let ratio = if speedup >= 1.0 { format!("{speedup:.2}× faster") } else { format!("{:.2}× slower", 1.0 / speedup.max(1e-12)) };
+                    let judged = match (difference, run.speedup_range) {
+                        (Some(Difference::Unclear), Some([lo, hi])) => format!(
+                            "no clear difference ({ratio} by the median times; the repeated timings allow {lo:.2}× to {hi:.2}×)"
+                        ),
+                        _ => ratio,
+                    };
                     format!(
-                        "{method} at its best ({} input spp{rays}) reaches {:.2} dB in {:.3} s; path tracing needs {:.3} s for that: {}{}",
+                        "{method} at its best ({} input spp{rays}) reaches {:.2} dB in {:.3} s; path tracing needs {:.3} s for that: {judged}{}",
                         run.input_spp,
                         run.psnr_db,
                         run.total_s,
                         speedup * run.total_s,
-                        if speedup >= 1.0 { format!("{speedup:.2}× faster") } else { format!("{:.2}× slower", 1.0 / speedup.max(1e-12)) },
                         if run.verdict_extrapolated { " (PT curve extrapolated at 10 dB per decade)" } else { "" }
                     )
                 }
@@ -266,6 +397,8 @@ fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
             Verdict {
                 method,
                 best_speedup: best.and_then(|r| r.speedup),
+                best_speedup_range: best.and_then(|r| r.speedup_range),
+                difference: difference.map(|d| d.name()),
                 best_speedup_input_spp: best.map(|r| r.input_spp),
                 best_speedup_recon_rays: best.map(|r| r.recon_rays),
                 best_equal_time_psnr_gain_db: best_gain,
@@ -350,6 +483,10 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         threads: args.trace.run.threads,
     };
     let progress = !args.trace.quiet;
+    let cleared = out_dir::prepare(dir, args.force)?;
+    if cleared > 0 {
+        eprintln!("compare: removed the previous comparison's {cleared} files and folders from {}", dir.display());
+    }
     std::fs::create_dir_all(dir.join("images")).with_context(|| format!("creating {}", dir.display()))?;
 
     // The reference.
@@ -383,85 +520,123 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     // The mean of two halves has a quarter of the squared difference of the halves as error.
     let estimated_psnr_db = (half_psnr + 10.0 * 4f64.log10()).min(PSNR_CEILING_DB);
 
+    let mut skipped = Vec::new();
     let per_run_peak = memory::reset_peak();
-    let context = Scoring { dir, reference: &reference.image, tone, layer };
+    let bar = progress_bar(progress);
+    let context = Scoring { dir, reference: &reference.image, tone, layer, bar: &bar };
     let mut measured: Vec<Measured> = Vec::new();
+    // The input traces' timings, one per repetition; the ladder's are its runs' own.
+    let mut traces: BTreeMap<TraceKey, Vec<f64>> = BTreeMap::new();
+    let mut jobs: Vec<Job> = Vec::new();
+
+    // Which inputs the methods need, and how much there is to do (for the progress bar).
+    let available: Vec<&Registered> = methods
+        .iter()
+        .filter(|method| match method.available() {
+            Ok(()) => true,
+            Err(reason) => {
+                eprintln!("skipping {}: {reason}", method.name());
+                skipped.push(Skipped { method: method.name().to_string(), reason: reason.to_string() });
+                false
+            }
+        })
+        .collect();
+    let rays_of = |method: &Registered| -> Vec<u32> {
+        let default_rays = method.default_recon_rays();
+        if default_rays == [0] {
+            vec![0]
+        } else {
+            args.recon_rays.clone().unwrap_or(default_rays)
+        }
+    };
+    let needs = |input: Input| available.iter().any(|m| m.input() == input);
+    // The ladder holds every input spp whatever the methods, so that each method's input spp has
+    // a path-traced image of the same samples beside it.
+    let ladder_spp = ladder(args.pt_max_spp, &args.spp);
+    let input_count = args.spp.len() * (usize::from(needs(Input::Samples)) + usize::from(needs(Input::Guide)));
+    let method_count: usize = available.iter().map(|m| rays_of(m).len() * args.spp.len()).sum();
+    bar.set_length((ladder_spp.len() + input_count + method_count) as u64);
 
     // The path-tracing ladder; its frames are the `Frame` inputs of the methods.
-    let mut frames: BTreeMap<u32, (FrameInput, f64)> = BTreeMap::new();
-    let needs_frame = methods.iter().any(|m| m.input() == Input::Frame);
-    for spp in ladder(args.pt_max_spp, if needs_frame { &args.spp } else { &[] }) {
+    let mut frames: BTreeMap<u32, FrameInput> = BTreeMap::new();
+    for &spp in &ladder_spp {
+        bar.set_message(format!("path tracing, {spp} spp"));
         memory::reset_peak();
         let traced = tracing.trace(spp, seed, false)?;
         let peak = memory::peak_rss_mb();
         let image = traced.frame.color.clone();
-        measured.push(context.measure("pt", spp, 0, (traced.seconds, 0.0, 0.0), peak, image, Default::default())?);
-        if needs_frame && args.spp.contains(&spp) {
-            frames.insert(spp, (traced.frame, traced.seconds));
+        let run = context.measure("pt", spp, 0, (traced.seconds, 0.0, 0.0), peak, image, Default::default())?;
+        measured.push(Measured { trace: TraceKey::Pt(spp), parts: Vec::new(), ..run });
+        traces.insert(TraceKey::Pt(spp), vec![traced.seconds]);
+        jobs.push(Job::Trace(TraceKey::Pt(spp), measured.len() - 1));
+        if args.spp.contains(&spp) {
+            frames.insert(spp, traced.frame);
         }
+        bar.inc(1);
     }
 
-    // The methods.
+    // The other inputs, once per input spp for every method that reads them.
     let inputs_dir = dir.join("inputs");
-    let mut samples: BTreeMap<u32, (effect::Dumped, f64)> = BTreeMap::new();
-    let mut guides: BTreeMap<u32, (recon::method::GuideInput, f64)> = BTreeMap::new();
-    let mut skipped = Vec::new();
-    'methods: for method in &methods {
-        if let Err(reason) = method.available() {
-            eprintln!("skipping {}: {reason}", method.name());
-            skipped.push(Skipped { method: method.name().to_string(), reason: reason.to_string() });
-            continue;
+    let mut samples: BTreeMap<u32, effect::Dumped> = BTreeMap::new();
+    let mut guides: BTreeMap<u32, recon::method::GuideInput> = BTreeMap::new();
+    for &spp in &args.spp {
+        if needs(Input::Samples) {
+            bar.set_message(format!("tracing the input samples, {spp} spp"));
+            std::fs::create_dir_all(&inputs_dir).with_context(|| format!("creating {}", inputs_dir.display()))?;
+            let (dumped, seconds) = tracing.dump(spp, seed, &inputs_dir)?;
+            samples.insert(spp, dumped);
+            traces.insert(TraceKey::Samples(spp), vec![seconds]);
+            jobs.push(Job::Trace(TraceKey::Samples(spp), usize::MAX));
+            bar.inc(1);
         }
-        let default_rays = method.default_recon_rays();
-        let rays: Vec<u32> =
-            if default_rays == [0] { vec![0] } else { args.recon_rays.clone().unwrap_or(default_rays) };
+        if needs(Input::Guide) {
+            bar.set_message(format!("tracing the guide buffers, {spp} spp"));
+            let (guide, seconds) = tracing.guide(spp, seed)?;
+            guides.insert(spp, guide);
+            traces.insert(TraceKey::Guide(spp), vec![seconds]);
+            jobs.push(Job::Trace(TraceKey::Guide(spp), usize::MAX));
+            bar.inc(1);
+        }
+    }
+    let inputs_of = |method: &Registered, spp: u32| -> (Inputs, TraceKey) {
+        let (samples, light_samples, frame, guide, key) = match method.input() {
+            Input::Samples => {
+                let dumped = &samples[&spp];
+                (Some(dumped.samples.clone()), dumped.light_samples.clone(), None, None, TraceKey::Samples(spp))
+            }
+            Input::Frame => (None, None, Some(&frames[&spp]), None, TraceKey::Pt(spp)),
+            Input::Guide => (None, None, None, Some(&guides[&spp]), TraceKey::Guide(spp)),
+        };
+        let inputs = Inputs {
+            effect,
+            width,
+            height,
+            spp,
+            samples,
+            light_samples,
+            frame,
+            guide,
+            ao_radius,
+            seed,
+            threads: args.trace.run.threads,
+        };
+        (inputs, key)
+    };
+
+    // The methods.
+    'methods: for (index, method) in available.iter().enumerate() {
         for &spp in &args.spp {
-            let (dumped, frame, guide, trace_s) = match method.input() {
-                Input::Samples => {
-                    if let std::collections::btree_map::Entry::Vacant(entry) = samples.entry(spp) {
-                        std::fs::create_dir_all(&inputs_dir)
-                            .with_context(|| format!("creating {}", inputs_dir.display()))?;
-                        entry.insert(tracing.dump(spp, seed, &inputs_dir)?);
-                    }
-                    let (dumped, seconds) = &samples[&spp];
-                    (Some(dumped.clone()), None, None, *seconds)
-                }
-                Input::Frame => {
-                    let (frame, seconds) = &frames[&spp];
-                    (None, Some(frame), None, *seconds)
-                }
-                Input::Guide => {
-                    if let std::collections::btree_map::Entry::Vacant(entry) = guides.entry(spp) {
-                        entry.insert(tracing.guide(spp, seed)?);
-                    }
-                    let (guide, seconds) = &guides[&spp];
-                    (None, None, Some(guide), *seconds)
-                }
-            };
-            let (sample_path, light_sample_path) = match dumped {
-                Some(dumped) => (Some(dumped.samples), dumped.light_samples),
-                None => (None, None),
-            };
-            let inputs = Inputs {
-                effect,
-                width,
-                height,
-                spp,
-                samples: sample_path,
-                light_samples: light_sample_path,
-                frame,
-                guide,
-                ao_radius,
-                seed,
-                threads: args.trace.run.threads,
-            };
-            for &recon_rays in &rays {
+            let (inputs, key) = inputs_of(method, spp);
+            for recon_rays in rays_of(method) {
+                bar.set_message(format!("{}, {spp} spp{}", method.name(), rays_label(recon_rays)));
                 memory::reset_peak();
                 let output = match method.run(&inputs, recon_rays) {
                     Ok(output) => output,
                     Err(MethodError::Unavailable(reason)) => {
-                        eprintln!("skipping {}: {reason}", method.name());
+                        bar.suspend(|| eprintln!("skipping {}: {reason}", method.name()));
                         skipped.push(Skipped { method: method.name().to_string(), reason: reason.to_string() });
+                        measured.retain(|m| m.run.method != method.name());
+                        jobs.retain(|job| !matches!(job, Job::Method { method, .. } if *method == index));
                         continue 'methods;
                     }
                     Err(error) => bail!("{} at {spp} spp: {error}", method.name()),
@@ -471,7 +646,8 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                     (Some(a), Some(b)) => Some(a.max(b)),
                     (a, b) => a.or(b),
                 };
-                measured.push(context.measure(
+                let trace_s = traces[&key][0];
+                let run = context.measure(
                     method.name(),
                     spp,
                     recon_rays,
@@ -479,9 +655,68 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                     peak,
                     output.image,
                     (output.notes, output.stats),
-                )?);
+                )?;
+                measured.push(Measured { trace: key, parts: vec![[output.preprocess_s, output.recon_s]], ..run });
+                jobs.push(Job::Method { method: index, spp, recon_rays, measured: measured.len() - 1 });
+                bar.inc(1);
             }
         }
+    }
+
+    // The repetitions, alternating over every run (module `timing`).
+    let first_total = |job: &Job| -> f64 {
+        match job {
+            Job::Trace(key, _) => traces[key][0],
+            Job::Method { measured: m, .. } => measured[*m].run.total_s,
+        }
+    };
+    let repeats: Vec<u32> = jobs.iter().map(|job| timing::repetitions(first_total(job), args.repeats)).collect();
+    bar.set_length(bar.position() + repeats.iter().map(|&r| u64::from(r - 1)).sum::<u64>());
+    for pass in 1..args.repeats {
+        for (job, _) in jobs.iter().zip(&repeats).filter(|(_, &r)| pass < r) {
+            match job {
+                Job::Trace(key, run) => {
+                    bar.set_message(format!("repetition {}: {}", pass + 1, key.label()));
+                    let seconds = match *key {
+                        TraceKey::Pt(spp) => {
+                            let traced = tracing.trace(spp, seed, false)?;
+                            if traced.frame.color != measured[*run].image {
+                                measured[*run].run.notes.push(not_deterministic(pass));
+                            }
+                            traced.seconds
+                        }
+                        TraceKey::Samples(spp) => tracing.dump(spp, seed, &inputs_dir)?.1,
+                        TraceKey::Guide(spp) => tracing.guide(spp, seed)?.1,
+                    };
+                    traces.get_mut(key).expect("traced in pass 1").push(seconds);
+                }
+                &Job::Method { method, spp, recon_rays, measured: m } => {
+                    let method = available[method];
+                    bar.set_message(format!(
+                        "repetition {}: {}, {spp} spp{}",
+                        pass + 1,
+                        method.name(),
+                        rays_label(recon_rays)
+                    ));
+                    let (inputs, _) = inputs_of(method, spp);
+                    let output = method
+                        .run(&inputs, recon_rays)
+                        .map_err(|e| anyhow::anyhow!("{} at {spp} spp: {e}", method.name()))?;
+                    if output.image != measured[m].image {
+                        measured[m].run.notes.push(not_deterministic(pass));
+                    }
+                    measured[m].parts.push([output.preprocess_s, output.recon_s]);
+                }
+            }
+            bar.inc(1);
+        }
+    }
+    bar.finish_and_clear();
+    for m in &mut measured {
+        m.settle_timings(&traces[&m.trace]);
+    }
+    if args.repeats > 1 {
+        eprintln!("  timings: the median of up to {} repetitions per run (results.json `timings`)", args.repeats);
     }
     if !args.keep_samples && inputs_dir.exists() {
         std::fs::remove_dir_all(&inputs_dir).with_context(|| format!("removing {}", inputs_dir.display()))?;
@@ -571,6 +806,8 @@ mod tests {
             preprocess_s: 0.0,
             recon_s: 0.0,
             total_s,
+            timings: vec![total_s],
+            timing_spread: 0.0,
             psnr_db,
             rel_mse: 0.0,
             ssim: 1.0,
@@ -580,6 +817,7 @@ mod tests {
             valid,
             equal_time_psnr_gain_db: None,
             speedup: None,
+            speedup_range: None,
             verdict_extrapolated: false,
             image: String::new(),
             preview: String::new(),
@@ -590,7 +828,8 @@ mod tests {
     }
 
     fn scoring_in(dir: &Path, reference: &Image) -> Result<Measured> {
-        let scoring = Scoring { dir, reference, tone: ToneMap::auto(reference), layer: "beauty" };
+        let bar = indicatif::ProgressBar::hidden();
+        let scoring = Scoring { dir, reference, tone: ToneMap::auto(reference), layer: "beauty", bar: &bar };
         let mut image = reference.clone();
         image.set(1, 1, [f32::NAN, 0.0, 0.0]);
         image.set(2, 1, [f32::INFINITY; 3]);
@@ -618,8 +857,14 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         std::fs::create_dir_all(dir.path().join("images")).unwrap();
         let reference = Image::new(4, 4);
-        let scoring =
-            Scoring { dir: dir.path(), reference: &reference, tone: ToneMap::auto(&reference), layer: "beauty" };
+        let bar = indicatif::ProgressBar::hidden();
+        let scoring = Scoring {
+            dir: dir.path(),
+            reference: &reference,
+            tone: ToneMap::auto(&reference),
+            layer: "beauty",
+            bar: &bar,
+        };
         let error = scoring
             .measure("shrinker", 1, 0, (0.0, 0.0, 0.0), None, Image::new(3, 4), Default::default())
             .err()
@@ -661,6 +906,56 @@ mod tests {
         assert!(verdicts[0].summary.contains("10.00× faster"), "{}", verdicts[0].summary);
         assert_eq!(verdicts[1].best_speedup, None);
         assert!(verdicts[1].summary.contains("no valid run"), "{}", verdicts[1].summary);
+    }
+
+    fn timed(mut run: Run, timings: &[f64]) -> Run {
+        run.timings = timings.to_vec();
+        run.timing_spread = timing::relative_spread(timings);
+        run.total_s = timings[timing::median_index(timings).unwrap()];
+        run
+    }
+
+    #[test]
+    fn a_speedup_within_the_timing_spread_is_no_clear_difference() {
+        // PT through (1 s, 20 dB) and (10 s, 30 dB), each timed three times with ±10 % noise.
+        let pt = [
+            timed(run("pt", 1, 0.0, 20.0, true), &[0.9, 1.0, 1.1]),
+            timed(run("pt", 10, 0.0, 30.0, true), &[9.0, 10.0, 11.0]),
+        ];
+        // `box`: path tracing's 20 dB, timed a little faster by chance: the median says 1.05×
+        // faster, but the repetitions allow 0.86× to 1.29×.
+        let mut runs = pt.to_vec();
+        runs.push(timed(run("box", 1, 0.0, 20.0, true), &[0.85, 0.95, 1.05]));
+        // Ten times faster whatever the repetitions.
+        runs.push(timed(run("fast", 1, 0.0, 30.0, true), &[0.9, 1.0, 1.1]));
+        let verdicts = verdicts(&mut runs);
+        let (box_run, fast_run) = (&runs[2], &runs[3]);
+        assert!((box_run.speedup.unwrap() - 1.0 / 0.95).abs() < 1e-9);
+        let [lo, hi] = box_run.speedup_range.unwrap();
+        assert!((lo - 0.9 / 1.05).abs() < 1e-9 && (hi - 1.1 / 0.85).abs() < 1e-9, "{lo} {hi}");
+        assert_eq!(verdicts[0].difference, Some("no clear difference"));
+        assert!(verdicts[0].summary.contains("no clear difference"), "{}", verdicts[0].summary);
+        let [lo, hi] = fast_run.speedup_range.unwrap();
+        assert!((lo - 9.0 / 1.1).abs() < 1e-9 && (hi - 11.0 / 0.9).abs() < 1e-9, "{lo} {hi}");
+        assert_eq!(verdicts[1].difference, Some("faster"));
+        assert!(verdicts[1].summary.contains("10.00× faster"), "{}", verdicts[1].summary);
+    }
+
+    #[test]
+    fn settled_timings_pair_trace_and_reconstruction_repetitions() {
+        let reference = Image::new(2, 2);
+        let run = run("ilfr", 4, 0.0, 30.0, true);
+        let mut measured = Measured {
+            run,
+            image: reference,
+            trace: TraceKey::Samples(4),
+            parts: vec![[0.1, 1.0], [0.1, 3.0], [0.1, 2.0]],
+        };
+        // Two trace repetitions: the third reconstruction pairs with the last trace time.
+        measured.settle_timings(&[0.5, 0.7]);
+        assert_eq!(measured.run.timings, vec![1.6, 3.8, 2.8]);
+        assert_eq!((measured.run.trace_s, measured.run.recon_s, measured.run.total_s), (0.7, 2.0, 2.8));
+        assert!((measured.run.timing_spread - 2.2 / 2.8).abs() < 1e-12);
     }
 
     #[test]

@@ -130,19 +130,21 @@ pub fn markdown(results: &Results) -> String {
     let _ = writeln!(md, "## Every run\n");
     let _ = writeln!(
         md,
-        "| run | trace s | preprocess s | reconstruct s | total s | PSNR dB | rel. MSE | SSIM | FLIP | peak MiB | equal-time gain dB | speedup |"
+        "| run | trace s | preprocess s | reconstruct s | total s | timed | PSNR dB | rel. MSE | SSIM | FLIP | peak MiB | equal-time gain dB | speedup (range) |"
     );
-    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for run in &r.runs {
         let _ = writeln!(
             md,
-            "| {}{} | {:.3} | {:.3} | {:.3} | {:.3} | {:.2} | {:.3e} | {:.4} | {} | {} | {} | {}{} |",
+            "| {}{} | {:.3} | {:.3} | {:.3} | {:.3} | {}× ±{:.0} % | {:.2} | {:.3e} | {:.4} | {} | {} | {} | {}{}{} |",
             run_label(run),
             if run.valid { "" } else { " **INVALID**" },
             run.trace_s,
             run.preprocess_s,
             run.recon_s,
             run.total_s,
+            run.timings.len(),
+            50.0 * run.timing_spread,
             run.psnr_db,
             run.rel_mse,
             run.ssim,
@@ -150,6 +152,7 @@ pub fn markdown(results: &Results) -> String {
             opt(run.peak_rss_mb, 0),
             opt(run.equal_time_psnr_gain_db, 2),
             opt(run.speedup, 2),
+            run.speedup_range.map(|[lo, hi]| format!(" ({lo:.2}–{hi:.2})")).unwrap_or_default(),
             if run.verdict_extrapolated { "*" } else { "" },
         );
     }
@@ -196,7 +199,10 @@ pub fn markdown(results: &Results) -> String {
          - **SSIM**: Wang et al. 2004 on the tone-mapped images, 11×11 Gaussian window (σ 1.5), mean over channels.\n\
          - **FLIP**: mean HDR-FLIP (Andersson et al. 2021), lower is better; `–` when `flip-evaluator` is not installed.\n\
          - **times**: trace = tracing the method's inputs (for sample-based methods, writing the sample file included); \
-         preprocess and reconstruct as the method reports them; total = their sum. Path tracing's time is its render.\n\
+         preprocess and reconstruct as the method reports them; total = their sum. Path tracing's time is its render. \
+         Each run was timed several times, alternating over the runs (\"timed\": repetitions and ± half the range over \
+         the median); the times shown are the median repetition's, and the speedup's range pairs the fastest with the \
+         slowest repetitions. A verdict whose range holds 1 says \"no clear difference\".\n\
          - **INVALID**: the output had NaN or infinite pixels; they are scored as worst-case errors and the run is \
          excluded from the verdicts.\n\
          \nFull definitions: `docs/compare.md` in the lfr repository.",

@@ -4,7 +4,7 @@
 
 use serde::Serialize;
 
-pub const SCHEMA: &str = "lfr-compare/1";
+pub const SCHEMA: &str = "lfr-compare/2";
 
 #[derive(Clone, Debug, Serialize)]
 pub struct Results {
@@ -64,7 +64,15 @@ pub struct Run {
     pub trace_s: f64,
     pub preprocess_s: f64,
     pub recon_s: f64,
+    /// The median repetition's `trace_s + preprocess_s + recon_s` (for two repetitions, the
+    /// faster one).
     pub total_s: f64,
+    /// Total seconds of every repetition, in the order they ran (the runs' repetitions
+    /// alternate: all runs once, then all again). For a method, repetition i pairs its
+    /// reconstruction's i-th timing with its input trace's i-th (or last) timing.
+    pub timings: Vec<f64>,
+    /// (slowest − fastest) / median of `timings`; 0 for one repetition.
+    pub timing_spread: f64,
     pub psnr_db: f64,
     pub rel_mse: f64,
     pub ssim: f64,
@@ -78,6 +86,9 @@ pub struct Run {
     pub equal_time_psnr_gain_db: Option<f64>,
     /// PT time to reach `psnr_db` / `total_s` (null for `pt` runs).
     pub speedup: Option<f64>,
+    /// The speedups the repetitions allow: [PT's fastest time / this run's slowest, PT's slowest
+    /// / this run's fastest] (null for `pt` runs).
+    pub speedup_range: Option<[f64; 2]>,
     /// Whether the PT curve had to be extended beyond its measured range for the verdicts.
     pub verdict_extrapolated: bool,
     /// Relative paths in the output directory.
@@ -101,6 +112,11 @@ pub struct Verdict {
     pub method: String,
     /// The valid run with the highest equal-quality speedup.
     pub best_speedup: Option<f64>,
+    /// That run's `speedup_range`.
+    pub best_speedup_range: Option<[f64; 2]>,
+    /// `"faster"`, `"slower"` or `"no clear difference"` (the range holds 1); null without a
+    /// verdict.
+    pub difference: Option<&'static str>,
     pub best_speedup_input_spp: Option<u32>,
     pub best_speedup_recon_rays: Option<u32>,
     pub best_equal_time_psnr_gain_db: Option<f64>,
