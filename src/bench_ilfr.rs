@@ -89,6 +89,7 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
     let seed = run.seed_or(1);
     let pool = thread_pool(threads)?;
     let dir = tempfile::tempdir().context("a temporary directory for the samples")?;
+    let _registration = sampleio::interrupt::remove_on_interrupt(dir.path());
     let mut rows = Vec::new();
     for scene_path in args.scenes.scene_paths() {
         let scene = args.scenes.load_scene(scene_path.as_deref())?;

@@ -64,6 +64,11 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // SIGINT, SIGTERM and SIGHUP: remove the temporary files and folders being written
+    // (`sampleio::interrupt`) and exit with 130, leaving no half-written output behind.
+    if let Err(error) = ctrlc::set_handler(|| sampleio::interrupt::clean_up_and_exit(130)) {
+        eprintln!("warning: no interrupt handler ({error}); an interrupt may leave temporary files behind");
+    }
     let result = match &cli.command {
         Command::Render(args) => render::run(args),
         Command::Dump(args) => dump::run(args),

@@ -50,6 +50,7 @@
 mod error;
 mod field;
 mod header;
+pub mod interrupt;
 mod needs;
 mod output;
 mod reader;

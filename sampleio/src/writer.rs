@@ -23,6 +23,8 @@ const BUFFER_BYTES: usize = 1 << 20;
 pub struct SampleWriter {
     path: PathBuf,
     tmp: PathBuf,
+    /// Removes `tmp` if the process is interrupted while writing.
+    _interrupt: crate::interrupt::Registered,
     out: Option<BufWriter<File>>,
     header: Header,
     /// CRC-32 of the header text, for the trailer.
@@ -63,10 +65,12 @@ impl SampleWriter {
             field: "path".into(),
             message: "the path has no file name".into(),
         })?;
+        let registration = crate::interrupt::remove_on_interrupt(&tmp);
         let file = File::create(&tmp).map_err(|e| SampleError::io(&tmp, "create", e))?;
         let mut writer = SampleWriter {
             path: path.to_path_buf(),
             tmp,
+            _interrupt: registration,
             out: Some(BufWriter::with_capacity(BUFFER_BYTES, file)),
             record: vec![0; header.record_size as usize],
             header_crc: crc32fast::hash(&header_bytes),

@@ -577,6 +577,8 @@ pub fn run(args: &CompareArgs) -> Result<()> {
 
     // The other inputs, once per input spp for every method that reads them.
     let inputs_dir = dir.join("inputs");
+    // An interrupt removes the input samples too, unless they are to be kept.
+    let _inputs_registration = (!args.keep_samples).then(|| sampleio::interrupt::remove_on_interrupt(&inputs_dir));
     let mut samples: BTreeMap<u32, effect::Dumped> = BTreeMap::new();
     let mut guides: BTreeMap<u32, recon::method::GuideInput> = BTreeMap::new();
     for &spp in &args.spp {

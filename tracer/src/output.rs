@@ -79,6 +79,7 @@ pub fn write_atomically(
         std::fs::create_dir_all(parent).map_err(|e| output_error(parent, format!("cannot create directory: {e}")))?;
     }
     let tmp = temporary_path(path);
+    let _registration = sampleio::interrupt::remove_on_interrupt(&tmp);
     match write(&tmp) {
         Ok(()) => std::fs::rename(&tmp, path).map_err(|e| {
             let _ = std::fs::remove_file(&tmp);

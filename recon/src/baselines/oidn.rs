@@ -134,6 +134,8 @@ impl Method for Oidn {
             .prefix("lfr-oidn-")
             .tempdir()
             .map_err(|e| Error::external(TOOL, format!("cannot create a temporary directory: {e}")))?;
+        // Removed on interrupt too (dropping `dir` removes it otherwise).
+        let _registration = sampleio::interrupt::remove_on_interrupt(dir.path());
         let bridge = |error: Error| Error::external(TOOL, error.to_string());
         let path = |name: &str| dir.path().join(format!("{name}.f32"));
         for (name, image) in [("color", &color), ("albedo", &albedo), ("normal", &normal)] {

@@ -46,6 +46,8 @@ pub fn hdr_flip_many(reference: &Image, tests: &[&Image]) -> Result<Option<Vec<f
         .prefix("lfr-flip-")
         .tempdir()
         .map_err(|e| Error::external(TOOL, format!("cannot create a temporary directory: {e}")))?;
+    // Removed on interrupt too (dropping `dir` removes it otherwise).
+    let _registration = sampleio::interrupt::remove_on_interrupt(dir.path());
     let bridge = |error: Error| Error::external(TOOL, error.to_string());
     let reference_path = dir.path().join("reference.f32");
     python::write_image_f32(&reference_path, reference).map_err(bridge)?;
