@@ -31,6 +31,7 @@ fn run_selftest(browser: &Path, page: &Path, profile: &Path) -> (String, String)
             "--headless=new",
             "--no-sandbox", // as root in CI containers
             "--disable-gpu",
+            "--disable-dev-shm-usage", // containers often have a small /dev/shm
             "--no-first-run",
             "--allow-file-access-from-files",
             // The console on stderr, so that an uncaught error shows there too.
