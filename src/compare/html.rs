@@ -72,8 +72,8 @@ mod tests {
 
     #[test]
     fn the_template_is_self_contained_and_small() {
-        // No network: no absolute URLs in src or href, no fetch, nothing from a CDN.
-        for needle in ["http://", "https://", "fetch(", "src=\"//", "href=\"//", "@import"] {
+        // No network: no absolute URLs, no fetch, no external script or style sheet, nothing from a CDN.
+        for needle in ["http://", "https://", "fetch(", "src=\"//", "href=\"//", "@import", "<script src", "<link"] {
             let allowed = needle == "http://"
                 && TEMPLATE.matches(needle).count() == 1
                 && TEMPLATE.contains("'http://www.w3.org/2000/svg'");
