@@ -9,6 +9,7 @@
 //! (`results`) and `report.md` (`report`).
 
 pub mod effect;
+pub mod html;
 pub mod images;
 pub mod memory;
 pub mod out_dir;
@@ -784,6 +785,10 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     let markdown = report::markdown(&results);
     write_atomically(&report_path, |tmp| std::fs::write(tmp, &markdown).map_err(|e| e.to_string()))
         .with_context(|| format!("writing {}", report_path.display()))?;
+    let html_path = dir.join("report.html");
+    let html = html::html(&results);
+    write_atomically(&html_path, |tmp| std::fs::write(tmp, &html).map_err(|e| e.to_string()))
+        .with_context(|| format!("writing {}", html_path.display()))?;
     let json_path = dir.join("results.json");
     let json = serde_json::to_vec_pretty(&results)?;
     write_atomically(&json_path, |tmp| std::fs::write(tmp, &json).map_err(|e| e.to_string()))
@@ -791,7 +796,13 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     for verdict in &results.verdicts {
         println!("{}", verdict.summary);
     }
-    println!("wrote {} and {} in {:.1} s", report_path.display(), json_path.display(), results.total_seconds);
+    println!(
+        "wrote {}, {} and {} in {:.1} s",
+        report_path.display(),
+        html_path.display(),
+        json_path.display(),
+        results.total_seconds
+    );
     Ok(())
 }
 
