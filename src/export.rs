@@ -161,8 +161,22 @@ pub fn run(args: &ExportArgs) -> Result<()> {
         ExportFormat::Tlfr13 => write_tlfr_1_3(&file, &args.out)?,
         ExportFormat::Ilfr22 => write_ilfr_2_2(&file, &args.out)?,
     }
-    println!("wrote {} samples to {} ({:?})", file.len(), args.out.display(), args.format);
+    let format = match args.format {
+        ExportFormat::Tlfr13 => "TLFR 1.3",
+        ExportFormat::Ilfr22 => "ILFR 2.2",
+    };
+    println!("wrote {} samples to {} ({format})", file.len(), args.out.display());
     Ok(())
+}
+
+/// `v` with six decimals, without the sign of a value that rounds to zero (`-0.000000` reads as
+/// a mistake in a text header).
+fn fixed6(v: impl Into<f64>) -> String {
+    let text = format!("{:.6}", v.into());
+    match text.strip_prefix('-') {
+        Some(rest) if rest.bytes().all(|b| b == b'0' || b == b'.') => rest.to_string(),
+        _ => text,
+    }
 }
 
 /// Miss depth written for rays that hit nothing.
@@ -172,7 +186,11 @@ pub const TLFR_MISS_DEPTH: f32 = 1e30;
 pub fn write_tlfr_1_3(file: &SampleFile, out: &Path) -> Result<()> {
     let header = file.header();
     if header.kind != SampleKind::LensTime {
-        bail!("{}: TLFR 1.3 needs lens-time samples, this file holds {:?}", file.path().display(), header.kind);
+        bail!(
+            "{}: TLFR 1.3 needs lens-time samples, this file holds {} samples",
+            file.path().display(),
+            header.kind.name()
+        );
     }
     file.check_needs(&TLFR_1_3_NEEDS)?;
     let camera =
@@ -220,7 +238,11 @@ pub fn write_tlfr_1_3(file: &SampleFile, out: &Path) -> Result<()> {
 pub fn write_ilfr_2_2(file: &SampleFile, out: &Path) -> Result<()> {
     let header = file.header();
     if header.kind != SampleKind::Indirect {
-        bail!("{}: ILFR 2.2 needs indirect samples, this file holds {:?}", file.path().display(), header.kind);
+        bail!(
+            "{}: ILFR 2.2 needs indirect samples, this file holds {} samples",
+            file.path().display(),
+            header.kind.name()
+        );
     }
     file.check_needs(&ILFR_2_2_NEEDS)?;
     let camera =
@@ -245,14 +267,14 @@ pub fn write_ilfr_2_2(file: &SampleFile, out: &Path) -> Result<()> {
     let to_camera_vector = |v: Vec3| rotation * v;
     let (fx, fy, cx, cy) = pixel_projection(camera);
     let matrix = [1.0 / fx, 0.0, 0.0, -cx / fx, 0.0, -1.0 / fy, 0.0, cy / fy, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
-    let matrix_text: Vec<String> = matrix.iter().map(|v| format!("{:.6}", v)).collect();
+    let matrix_text: Vec<String> = matrix.iter().map(|&v| fixed6(v)).collect();
     let header_text = format!(
-        "Version 2.2\nWidth {}\nHeight {}\nSamples per pixel {}\nCoC coefficients (coc radius = C0/w+C1): {:.6},{:.6}\nPixel-to-camera matrix: {}\nEncoding = binary\nx,y,w,u,v,t,r,g,b,pri_mv(3d),pri_normal(3d),albedo(3d),sec_origin(3d),sec_hitpoint(3d),sec_mv(3d),sec_normal(3d),direct(3d),sec_albedo(3d),sec_direct(3d)\n",
+        "Version 2.2\nWidth {}\nHeight {}\nSamples per pixel {}\nCoC coefficients (coc radius = C0/w+C1): {},{}\nPixel-to-camera matrix: {}\nEncoding = binary\nx,y,w,u,v,t,r,g,b,pri_mv(3d),pri_normal(3d),albedo(3d),sec_origin(3d),sec_hitpoint(3d),sec_mv(3d),sec_normal(3d),direct(3d),sec_albedo(3d),sec_direct(3d)\n",
         header.width,
         header.height,
         header.spp,
-        camera.coc.c1,
-        camera.coc.c2,
+        fixed6(camera.coc.c1),
+        fixed6(camera.coc.c2),
         matrix_text.join(",")
     );
     let vec3 = |c: &[f32], i: usize| Vec3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]);
@@ -289,4 +311,17 @@ pub fn write_ilfr_2_2(file: &SampleFile, out: &Path) -> Result<()> {
         }
         entry
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fixed_decimals_never_show_a_negative_zero() {
+        assert_eq!(fixed6(-0.0f32), "0.000000");
+        assert_eq!(fixed6(-1e-9), "0.000000");
+        assert_eq!(fixed6(-0.5), "-0.500000");
+        assert_eq!(fixed6(2.0f32), "2.000000");
+    }
 }

@@ -115,8 +115,10 @@ pub fn run(args: &FilterArgs) -> Result<()> {
     }
     if composite.unmatched_eye_rays > 0 {
         eprintln!(
-            "note: {} eye rays hit geometry no neighbouring guide ray hit; they got no indirect light",
-            composite.unmatched_eye_rays
+            "note: {} eye ray{} hit geometry no neighbouring guide ray hit; {} no indirect light",
+            composite.unmatched_eye_rays,
+            if composite.unmatched_eye_rays == 1 { "" } else { "s" },
+            if composite.unmatched_eye_rays == 1 { "it got" } else { "they got" }
         );
     }
     println!("wrote {} and {}", args.out.display(), preview.display());
