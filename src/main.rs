@@ -13,6 +13,8 @@ mod convert;
 mod dump;
 mod export;
 mod filter;
+mod fingerprint;
+mod merge;
 mod reconstruct;
 mod render;
 
@@ -39,6 +41,8 @@ enum Command {
     /// Path trace a scene into a multi-layer EXR (beauty, direct, indirect, albedo, normal,
     /// depth, position, variance) and a PNG preview beside it.
     Render(render::RenderArgs),
+    /// Assemble the shards of `lfr render --shard I/N` into the image one process would render.
+    Merge(merge::MergeArgs),
     /// Write samples for the reconstructions and external tools (docs/sample-format.md).
     Dump(dump::DumpArgs),
     /// Convert a sample file to the authors' public sample-buffer formats.
@@ -71,6 +75,7 @@ fn main() -> ExitCode {
     }
     let result = match &cli.command {
         Command::Render(args) => render::run(args),
+        Command::Merge(args) => merge::run(args),
         Command::Dump(args) => dump::run(args),
         Command::Export(args) => export::run(args),
         Command::Bench(args) => bench::run(args),

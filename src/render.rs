@@ -1,10 +1,14 @@
-//! `lfr render`: path traces a scene into a multi-layer EXR and a PNG preview beside it.
+//! `lfr render`: path traces a scene into a multi-layer EXR and a PNG preview beside it, whole or
+//! as one of N disjoint tile sets (`--shard I/N`) that `lfr merge` assembles (docs/scale-out.md).
+//! Every EXR records how it was made in its header (`lfr.render`, a [`RenderRecord`]).
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use tracer::Accel;
+use serde::{Deserialize, Serialize};
+use tracer::render::Shard;
+use tracer::{Accel, Frame, RenderSettings};
 
 use crate::common::{check_outputs, scene_inputs, TraceArgs};
 
@@ -15,9 +19,96 @@ pub struct RenderArgs {
     /// Samples per pixel (default: the scene's).
     #[arg(long)]
     spp: Option<u32>,
+    /// Render only shard I of N disjoint tile sets (counted from 0), for `lfr merge`.
+    #[arg(long, value_parser = Shard::parse)]
+    shard: Option<Shard>,
     /// Output EXR; the PNG preview goes beside it.
     #[arg(long)]
     out: PathBuf,
+}
+
+/// The EXR header attribute that holds the [`RenderRecord`] as JSON.
+pub const RECORD_ATTRIBUTE: &str = "lfr.render";
+
+/// How an image was rendered: what `lfr merge` checks its shards against, and what an external
+/// reference given to `lfr compare --reference` is checked against.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RenderRecord {
+    /// `lfr-render/1`.
+    pub schema: String,
+    pub lfr_version: String,
+    /// `crate::fingerprint::scene_sha256` of the scene as traced.
+    pub scene_sha256: String,
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    pub seed: u32,
+    pub max_bounces: u32,
+    /// [index, count]; [0, 1] for a whole image.
+    pub shard: [u32; 2],
+    pub rays: u64,
+    pub invalid_samples: u64,
+    pub clamped_variances: u64,
+    pub dropped_contributions: u64,
+    /// Wall time of the render (for a merged image, the sum over its shards).
+    pub seconds: f64,
+}
+
+pub const RECORD_SCHEMA: &str = "lfr-render/1";
+
+impl RenderRecord {
+    fn new(scene_sha256: String, settings: &RenderSettings, shard: Shard, frame: &Frame) -> RenderRecord {
+        RenderRecord {
+            schema: RECORD_SCHEMA.into(),
+            lfr_version: env!("CARGO_PKG_VERSION").into(),
+            scene_sha256,
+            width: settings.width,
+            height: settings.height,
+            spp: settings.spp,
+            seed: settings.seed,
+            max_bounces: settings.max_bounces,
+            shard: [shard.index, shard.count],
+            rays: frame.rays,
+            invalid_samples: frame.invalid_samples,
+            clamped_variances: frame.clamped_variances,
+            dropped_contributions: frame.dropped_contributions,
+            seconds: frame.seconds,
+        }
+    }
+
+    /// The header attribute.
+    pub fn attribute(&self) -> Result<(&'static str, String)> {
+        Ok((RECORD_ATTRIBUTE, serde_json::to_string(self)?))
+    }
+
+    /// Reads the record of an EXR `lfr render` or `lfr merge` wrote; `None` when it has none.
+    pub fn read(path: &std::path::Path) -> Result<Option<RenderRecord>> {
+        let attributes = tracer::output::read_exr_attributes(path)?;
+        let Some((_, json)) = attributes.iter().find(|(name, _)| name == RECORD_ATTRIBUTE) else {
+            return Ok(None);
+        };
+        let record: RenderRecord = serde_json::from_str(json).with_context(|| {
+            format!("{}: the header attribute {RECORD_ATTRIBUTE} is not a render record", path.display())
+        })?;
+        anyhow::ensure!(
+            record.schema == RECORD_SCHEMA,
+            "{}: {RECORD_ATTRIBUTE}: schema `{}`, this lfr reads `{RECORD_SCHEMA}`",
+            path.display(),
+            record.schema
+        );
+        Ok(Some(record))
+    }
+}
+
+/// Writes `frame` as the EXR and PNG preview with its record.
+pub fn write_recorded(path: &std::path::Path, frame: &Frame, record: &RenderRecord) -> Result<PathBuf> {
+    let layers = tracer::output::frame_layers(frame);
+    tracer::output::write_exr_with_attributes(path, frame.width, frame.height, &layers, &[record.attribute()?])
+        .with_context(|| "writing the image")?;
+    let preview = path.with_extension("png");
+    tracer::output::write_png(&preview, frame.width, frame.height, &frame.beauty, 1.0)
+        .with_context(|| "writing the preview")?;
+    Ok(preview)
 }
 
 pub fn run(args: &RenderArgs) -> Result<()> {
@@ -28,15 +119,19 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let preview = args.out.with_extension("png");
     check_outputs(&[&args.out, &preview], &scene_inputs(trace.scene.as_deref()))?;
     let load_start = Instant::now();
+    let scene_text = crate::fingerprint::scene_text(trace.scene.as_deref())?;
     let scene = trace.load_scene()?;
     let settings = trace.settings(&scene, args.spp.unwrap_or(scene.spp))?;
+    let shard = args.shard.unwrap_or(Shard::WHOLE);
     let accel = Accel::build(&scene)?;
     let setup = load_start.elapsed().as_secs_f64();
-    let frame = tracer::render(&scene, &accel, &settings)?;
-    let preview = tracer::output::write_frame(&args.out, &frame).with_context(|| "writing the image")?;
+    let frame = tracer::render::render_shard(&scene, &accel, &settings, shard)?;
+    let record = RenderRecord::new(crate::fingerprint::scene_sha256(&scene_text, &scene), &settings, shard, &frame);
+    let preview = write_recorded(&args.out, &frame, &record)?;
     println!(
-        "rendered {} ({} triangles) at {}x{}, {} spp in {:.3} s (scene and BVH {:.3} s): {} rays, {:.2} Mrays/s",
+        "rendered {}{} ({} triangles) at {}x{}, {} spp in {:.3} s (scene and BVH {:.3} s): {} rays, {:.2} Mrays/s",
         scene.source.display(),
+        if shard == Shard::WHOLE { String::new() } else { format!(", shard {}/{}", shard.index, shard.count) },
         accel.triangle_count,
         frame.width,
         frame.height,

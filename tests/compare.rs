@@ -7,7 +7,7 @@
 #[path = "../tracer/tests/common/mod.rs"]
 mod common;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use common::{project_root, shared_scenes};
@@ -499,4 +499,89 @@ fn ilfr_runs_report_their_statistics_as_named_numbers() {
     for run in runs(&results, "box") {
         assert_eq!(run["stats"].as_object().map(|o| o.len()), Some(0), "{run}");
     }
+}
+
+#[test]
+fn an_external_reference_rendered_as_shards_gives_the_same_comparison() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let own = tiny_compare(&dir.path().join("own"), &cache, &["--methods", "box", "--repeats", "1"]);
+    let seeds: Vec<u64> = own["reference"]["seeds"].as_array().unwrap().iter().map(|s| s.as_u64().unwrap()).collect();
+    // The same two halves rendered elsewhere: half A whole, half B as three shards merged.
+    let render = |out: &Path, seed: u64, extra: &[&str]| {
+        let seed = seed.to_string();
+        let mut args = vec!["render", "--width", "32", "--height", "32", "--spp", "256", "--seed", &seed, "--quiet"];
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&["--out", out.to_str().unwrap()]);
+        let result = lfr(&args);
+        assert!(result.status.success(), "{}", String::from_utf8_lossy(&result.stderr));
+    };
+    let half_a = dir.path().join("half-a.exr");
+    render(&half_a, seeds[0], &[]);
+    let shards: Vec<PathBuf> = (0..3).map(|i| dir.path().join(format!("b{i}.exr"))).collect();
+    for (i, shard) in shards.iter().enumerate() {
+        render(shard, seeds[1], &["--shard", &format!("{i}/3")]);
+    }
+    let half_b = dir.path().join("half-b.exr");
+    let mut merge = vec!["merge".to_string(), "--out".into(), half_b.to_str().unwrap().into()];
+    merge.extend(shards.iter().map(|s| s.to_str().unwrap().to_string()));
+    assert!(lfr(&merge.iter().map(String::as_str).collect::<Vec<_>>()).status.success());
+
+    let both = format!("{},{}", half_a.display(), half_b.display());
+    let external =
+        tiny_compare(&dir.path().join("ext"), &cache, &["--methods", "box", "--repeats", "1", "--reference", &both]);
+    check_schema(&external);
+    assert_eq!(external["reference"]["external"].as_array().unwrap().len(), 2);
+    assert_eq!(external["reference"]["seeds"], own["reference"]["seeds"]);
+    assert_eq!(external["reference"]["spp"], own["reference"]["spp"]);
+    assert_eq!(external["reference"]["estimated_psnr_db"], own["reference"]["estimated_psnr_db"]);
+    for (a, b) in own["runs"].as_array().unwrap().iter().zip(external["runs"].as_array().unwrap()) {
+        for key in ["method", "input_spp", "psnr_db", "rel_mse", "ssim"] {
+            assert_eq!(a[key], b[key], "{key}: the external reference is the same image");
+        }
+    }
+    // One image: no halves, so no estimate of its own error.
+    let one = tiny_compare(
+        &dir.path().join("one"),
+        &cache,
+        &["--methods", "box", "--repeats", "1", "--reference", half_a.to_str().unwrap()],
+    );
+    check_schema(&one);
+    assert!(one["reference"]["estimated_psnr_db"].is_null());
+
+    // Refused, naming the file, before anything is written: a shard, the comparison's own seed,
+    // another path length, another size, the same seed twice.
+    let refuse = |reference: &str, extra: &[&str], expected: &str| {
+        let out = dir.path().join("refused");
+        let mut args = vec!["compare", "--effect", "indirect", "--width", "32", "--height", "32", "--seed", "7"];
+        args.extend_from_slice(&["--reference", reference, "--out", out.to_str().unwrap(), "--quiet"]);
+        args.extend_from_slice(extra);
+        let result = lfr(&args);
+        let stderr = String::from_utf8_lossy(&result.stderr);
+        assert!(!result.status.success() && stderr.contains(expected), "{reference}: {stderr}");
+        assert!(!out.exists(), "nothing written");
+    };
+    refuse(shards[0].to_str().unwrap(), &[], "shard 0/3 only");
+    let own_seed = dir.path().join("seed7.exr");
+    render(&own_seed, 7, &[]);
+    refuse(own_seed.to_str().unwrap(), &[], "the comparison's own");
+    refuse(half_a.to_str().unwrap(), &["--max-bounces", "2"], "bounces");
+    refuse(&format!("{0},{0}", half_a.display()), &[], "same samples");
+    let wide = dir.path().join("wide.exr");
+    let result = lfr(&[
+        "render",
+        "--width",
+        "33",
+        "--height",
+        "32",
+        "--spp",
+        "1",
+        "--seed",
+        "3",
+        "--quiet",
+        "--out",
+        wide.to_str().unwrap(),
+    ]);
+    assert!(result.status.success());
+    refuse(wide.to_str().unwrap(), &[], "33x32");
 }

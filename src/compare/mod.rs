@@ -9,6 +9,7 @@
 //! (`results`) and `report.md` (`report`).
 
 pub mod effect;
+pub mod external;
 pub mod html;
 pub mod images;
 pub mod memory;
@@ -95,6 +96,11 @@ pub struct CompareArgs {
     /// Reference cache directory (default: $LFR_CACHE_DIR, $XDG_CACHE_HOME/lfr or ~/.cache/lfr).
     #[arg(long)]
     pub cache_dir: Option<PathBuf>,
+    /// A reference rendered elsewhere: one EXR of `lfr render` or `lfr merge`, or two with
+    /// different seeds (two halves, which give its own error), instead of the traced or cached
+    /// one (docs/scale-out.md). Its header record must match this comparison's scene and set-up.
+    #[arg(long, value_delimiter = ',', num_args = 1..=2, conflicts_with_all = ["no_cache"])]
+    pub reference: Option<Vec<PathBuf>>,
     /// Trace the reference even when a cached one exists (and replace it).
     #[arg(long)]
     pub no_cache: bool,
@@ -440,10 +446,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     };
     let methods = resolve_methods(&args.methods, effect)?;
 
-    let scene_text: Vec<u8> = match &args.trace.scene {
-        Some(path) => std::fs::read(path).with_context(|| format!("reading the scene {}", path.display()))?,
-        None => crate::common::DEFAULT_SCENE.as_bytes().to_vec(),
-    };
+    let scene_text = crate::fingerprint::scene_text(args.trace.scene.as_deref())?;
     let mut scene = args.trace.load_scene()?;
     if let Some(radius) = args.aperture_radius {
         if !(radius.is_finite() && radius >= 0.0) {
@@ -484,6 +487,13 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         threads: args.trace.run.threads,
     };
     let progress = !args.trace.quiet;
+    // An external reference is read and checked before anything is written or traced.
+    let scene_sha256 = crate::fingerprint::scene_sha256(&scene_text, &scene);
+    let external_reference = args
+        .reference
+        .as_ref()
+        .map(|files| external::external_reference(&tracing, &scene_sha256, seed, files))
+        .transpose()?;
     let cleared = out_dir::prepare(dir, args.force)?;
     if cleared > 0 {
         eprintln!("compare: removed the previous comparison's {cleared} files and folders from {}", dir.display());
@@ -491,20 +501,37 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     std::fs::create_dir_all(dir.join("images")).with_context(|| format!("creating {}", dir.display()))?;
 
     // The reference.
-    eprintln!(
-        "compare: {} --effect {} at {width}x{height}; reference {} spp (cache {})",
-        scene.source.display(),
-        effect.name(),
-        args.reference_spp,
-        cache.display()
-    );
-    let reference =
-        reference::reference(&tracing, &scene_text, args.reference_spp, seed, &cache, !args.no_cache, progress)?;
+    let reference = match external_reference {
+        Some(reference) => {
+            eprintln!(
+                "compare: {} --effect {} at {width}x{height}; external reference",
+                scene.source.display(),
+                effect.name()
+            );
+            reference
+        }
+        None => {
+            eprintln!(
+                "compare: {} --effect {} at {width}x{height}; reference {} spp (cache {})",
+                scene.source.display(),
+                effect.name(),
+                args.reference_spp,
+                cache.display()
+            );
+            reference::reference(&tracing, &scene_text, args.reference_spp, seed, &cache, !args.no_cache, progress)?
+        }
+    };
     eprintln!(
         "  reference: {} spp, {:.1} s{}",
         reference.spp,
         reference.seconds,
-        if reference.from_cache { " (cached)" } else { "" }
+        if reference.from_cache {
+            " (cached)"
+        } else if args.reference.is_some() {
+            " (external)"
+        } else {
+            ""
+        }
     );
     let (tone, exposure_source) = match tone_given {
         Some(tone) => (tone, "given"),
@@ -517,9 +544,11 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         _ => "beauty",
     };
     images::write_image(&dir.join("images"), "reference", layer, &reference.image, &tone)?;
-    let half_psnr = psnr_db(&reference.half_a, &reference.half_b, &tone)?;
     // The mean of two halves has a quarter of the squared difference of the halves as error.
-    let estimated_psnr_db = (half_psnr + 10.0 * 4f64.log10()).min(PSNR_CEILING_DB);
+    let estimated_psnr_db = match &reference.halves {
+        Some((a, b)) => Some((psnr_db(a, b, &tone)? + 10.0 * 4f64.log10()).min(PSNR_CEILING_DB)),
+        None => None,
+    };
 
     let mut skipped = Vec::new();
     let per_run_peak = memory::reset_peak();
@@ -769,6 +798,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
             seeds: reference.seeds,
             cache_key: reference.key.clone(),
             from_cache: reference.from_cache,
+            external: args.reference.iter().flatten().map(|p| p.display().to_string()).collect(),
             estimated_psnr_db,
             image: "images/reference.exr".into(),
         },

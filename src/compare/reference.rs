@@ -16,13 +16,13 @@ use super::effect::Tracing;
 use crate::convert::rgb_channels;
 
 /// Bumped whenever the tracer's estimators change what a reference contains.
-const ESTIMATOR_VERSION: &str = "lfr-reference/2";
+const ESTIMATOR_VERSION: &str = "lfr-reference/3";
 
-/// A reference: the mean of two halves, and the halves.
+/// A reference: the mean of two halves, and the halves (none for an external reference given as
+/// one image).
 pub struct Reference {
     pub image: Image,
-    pub half_a: Image,
-    pub half_b: Image,
+    pub halves: Option<(Image, Image)>,
     pub spp: u32,
     pub seconds: f64,
     pub seeds: [u32; 2],
@@ -106,28 +106,7 @@ pub fn cache_dir(given: Option<&Path>) -> PathBuf {
 pub fn cache_key(scene_text: &[u8], tracing: &Tracing, spp: u32, seeds: [u32; 2]) -> String {
     let mut hash = Sha256::new();
     hash.update(ESTIMATOR_VERSION.as_bytes());
-    hash.update((scene_text.len() as u64).to_le_bytes());
-    hash.update(scene_text);
-    for mesh in &tracing.scene.meshes {
-        hash.update((mesh.positions.len() as u64).to_le_bytes());
-        for p in &mesh.positions {
-            for c in p.to_array() {
-                hash.update(c.to_le_bytes());
-            }
-        }
-        for t in &mesh.indices {
-            for i in t {
-                hash.update(i.to_le_bytes());
-            }
-        }
-        hash.update(mesh.material.to_le_bytes());
-        for c in mesh.motion.to_array() {
-            hash.update(c.to_le_bytes());
-        }
-    }
-    // The camera's lens, which `lfr compare --aperture-radius/--focus-distance` may change.
-    hash.update(tracing.scene.camera.aperture_radius.to_le_bytes());
-    hash.update(tracing.scene.camera.focus_distance.to_le_bytes());
+    crate::fingerprint::hash_scene(&mut hash, scene_text, tracing.scene);
     let settings = format!(
         "effect={} width={} height={} spp={} seeds={:?} max_bounces={} ao_radius={}",
         tracing.effect.name(),
@@ -139,7 +118,7 @@ pub fn cache_key(scene_text: &[u8], tracing: &Tracing, spp: u32, seeds: [u32; 2]
         tracing.ao_radius
     );
     hash.update(settings.as_bytes());
-    hash.finalize().iter().map(|b| format!("{b:02x}")).collect()
+    crate::fingerprint::hex(&hash.finalize())
 }
 
 fn layer_image(path: &Path, width: u32, height: u32, channels: &[(String, Vec<f32>)], layer: &str) -> Result<Image> {
@@ -202,8 +181,7 @@ fn read_cached(
     }
     Ok(Some(Reference {
         image: mean(&half_a, &half_b),
-        half_a,
-        half_b,
+        halves: Some((half_a, half_b)),
         spp: record.spp,
         seconds: record.seconds,
         seeds: record.seeds,
@@ -258,8 +236,7 @@ pub fn reference(
     .with_context(|| format!("writing {}", json.display()))?;
     Ok(Reference {
         image: mean(&half_a, &half_b),
-        half_a,
-        half_b,
+        halves: Some((half_a, half_b)),
         spp: half * 2,
         seconds,
         seeds,

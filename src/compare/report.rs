@@ -108,11 +108,20 @@ pub fn markdown(results: &Results) -> String {
     let _ = writeln!(md, "| threads | {} |", r.threads);
     let _ = writeln!(
         md,
-        "| reference | {} spp in {:.1} s{}; its own PSNR is about {:.1} dB (from its two halves) |",
+        "| reference | {} spp in {:.1} s{}; {} |",
         r.reference.spp,
         r.reference.seconds,
-        if r.reference.from_cache { ", from the cache" } else { "" },
-        r.reference.estimated_psnr_db
+        if r.reference.from_cache {
+            ", from the cache".to_string()
+        } else if r.reference.external.is_empty() {
+            String::new()
+        } else {
+            format!(", rendered elsewhere ({})", r.reference.external.join(", "))
+        },
+        match r.reference.estimated_psnr_db {
+            Some(db) => format!("its own PSNR is about {db:.1} dB (from its two halves)"),
+            None => "its own PSNR is unknown (one image, no halves)".to_string(),
+        }
     );
     let _ = writeln!(
         md,

@@ -48,9 +48,12 @@ pub struct ReferenceInfo {
     pub seeds: [u32; 2],
     pub cache_key: String,
     pub from_cache: bool,
+    /// The files of an external reference (`--reference`); empty when traced or cached.
+    pub external: Vec<String>,
     /// PSNR of the reference itself against the truth, estimated from its two halves:
-    /// PSNR(half A, half B) + 6.02 dB. Method PSNRs near it are limited by the reference.
-    pub estimated_psnr_db: f64,
+    /// PSNR(half A, half B) + 6.02 dB. Method PSNRs near it are limited by the reference. Null
+    /// for an external reference given as one image.
+    pub estimated_psnr_db: Option<f64>,
     pub image: String,
 }
 

@@ -95,6 +95,18 @@ pub fn write_atomically(
 /// Writes a single-part EXR whose channels are named `layer.channel` (or just `channel` for
 /// the unnamed layer), 32-bit float, lossless ZIP compression.
 pub fn write_exr(path: &Path, width: u32, height: u32, layers: &[Layer]) -> std::result::Result<(), RenderError> {
+    write_exr_with_attributes(path, width, height, layers, &[])
+}
+
+/// [`write_exr`] with text attributes (name, value) in the header, e.g. how the image was made;
+/// [`read_exr_attributes`] reads them back. Names and values must be Latin-1 text.
+pub fn write_exr_with_attributes(
+    path: &Path,
+    width: u32,
+    height: u32,
+    layers: &[Layer],
+    attributes: &[(&str, String)],
+) -> std::result::Result<(), RenderError> {
     let n = width as usize * height as usize;
     let mut channels = SmallVec::<[AnyChannel<FlatSamples>; 4]>::new();
     for layer in layers {
@@ -109,9 +121,16 @@ pub fn write_exr(path: &Path, width: u32, height: u32, layers: &[Layer]) -> std:
             channels.push(AnyChannel::new(name.as_str(), FlatSamples::F32(data.clone())));
         }
     }
+    let mut layer_attributes = LayerAttributes::default();
+    for (name, value) in attributes {
+        let text = |t: &str| {
+            Text::new_or_none(t).ok_or_else(|| output_error(path, format!("attribute {name} is not Latin-1 text")))
+        };
+        layer_attributes.other.insert(text(name)?, AttributeValue::Text(text(value)?));
+    }
     let image = Image::from_layer(exr::prelude::Layer::new(
         (width as usize, height as usize),
-        LayerAttributes::default(),
+        layer_attributes,
         Encoding::SMALL_LOSSLESS,
         AnyChannels::sort(channels),
     ));
@@ -129,6 +148,25 @@ pub fn read_exr(path: &Path) -> std::result::Result<Channels, RenderError> {
     let channels =
         layer.channel_data.list.iter().map(|c| (c.name.to_string(), c.sample_data.values_as_f32().collect())).collect();
     Ok((size.0 as u32, size.1 as u32, channels))
+}
+
+/// The text attributes of a single-part EXR's header (those [`write_exr_with_attributes`] wrote,
+/// and any other text attribute).
+pub fn read_exr_attributes(path: &Path) -> std::result::Result<Vec<(String, String)>, RenderError> {
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| output_error(path, e))?;
+    let header = meta.headers.first().ok_or_else(|| output_error(path, "no header"))?;
+    let mut found: Vec<(String, String)> = header
+        .own_attributes
+        .other
+        .iter()
+        .chain(&header.shared_attributes.other)
+        .filter_map(|(name, value)| match value {
+            AttributeValue::Text(text) => Some((name.to_string(), text.to_string())),
+            _ => None,
+        })
+        .collect();
+    found.sort();
+    Ok(found)
 }
 
 /// Linear to sRGB-encoded 8-bit after exposure and clamping.
@@ -196,6 +234,25 @@ mod tests {
         assert_eq!(get("depth.Z"), vec![7.5, f32::INFINITY]);
         // No temporary file is left behind.
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn text_attributes_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.exr");
+        let layers = vec![Layer { name: "", channels: vec![("R", vec![1.0]), ("G", vec![2.0]), ("B", vec![3.0])] }];
+        let attributes = [("lfr.render", r#"{"spp": 4}"#.to_string()), ("lfr.note", "x".to_string())];
+        write_exr_with_attributes(&path, 1, 1, &layers, &attributes).unwrap();
+        let read = read_exr_attributes(&path).unwrap();
+        assert!(read.contains(&("lfr.render".into(), r#"{"spp": 4}"#.into())), "{read:?}");
+        assert!(read.contains(&("lfr.note".into(), "x".into())), "{read:?}");
+        // A plain image has none of ours.
+        write_exr(&path, 1, 1, &layers).unwrap();
+        assert!(read_exr_attributes(&path).unwrap().iter().all(|(n, _)| !n.starts_with("lfr.")));
+        // Text EXR cannot hold is refused, and nothing is written.
+        let bad = dir.path().join("b.exr");
+        assert!(write_exr_with_attributes(&bad, 1, 1, &layers, &[("lfr.x", "日本".into())]).is_err());
+        assert!(!bad.exists());
     }
 
     #[test]

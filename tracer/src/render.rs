@@ -287,12 +287,65 @@ fn progress_bar(settings: &RenderSettings, len: u64, message: &str) -> ProgressB
     bar
 }
 
+/// One of `count` disjoint sets of tiles (`lfr render --shard I/N`): tile t, counted row by
+/// row, belongs to shard t mod `count`, so every shard gets tiles from the whole image (equal
+/// work on any scene) and the shards together cover it once. A pixel's value depends only on
+/// the seed, the pixel and its sample indices, so the pixels of a shard are bit for bit those
+/// of the whole render.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shard {
+    pub index: u32,
+    pub count: u32,
+}
+
+/// The most shards a render may be split into.
+pub const MAX_SHARDS: u32 = 1 << 20;
+
+impl Shard {
+    /// The whole image.
+    pub const WHOLE: Shard = Shard { index: 0, count: 1 };
+
+    /// `I/N` with 0 ≤ I < N ≤ [`MAX_SHARDS`].
+    pub fn parse(text: &str) -> Result<Shard, String> {
+        let (index, count) = text.split_once('/').ok_or_else(|| format!("expected I/N (e.g. 0/4), got `{text}`"))?;
+        let number = |part: &str, what: &str| {
+            part.trim().parse::<u32>().map_err(|_| format!("{what} `{part}` in `{text}` is not a whole number"))
+        };
+        let (index, count) = (number(index, "the shard index")?, number(count, "the shard count")?);
+        if count == 0 || count > MAX_SHARDS {
+            return Err(format!("the shard count must be in 1..={MAX_SHARDS}, got {count}"));
+        }
+        if index >= count {
+            return Err(format!("the shard index must be in 0..{count} (counted from 0), got {index}"));
+        }
+        Ok(Shard { index, count })
+    }
+
+    /// Whether pixel (x, y) of an image `width` pixels wide belongs to this shard.
+    pub fn covers(self, width: u32, x: u32, y: u32) -> bool {
+        let tiles_across = width.div_ceil(TILE);
+        let tile = (y / TILE) as u64 * tiles_across as u64 + (x / TILE) as u64;
+        tile % self.count as u64 == self.index as u64
+    }
+}
+
 /// Renders the scene; the accelerator is built by the caller so it can be reused.
 pub fn render(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result<Frame, RenderError> {
+    render_shard(scene, accel, settings, Shard::WHOLE)
+}
+
+/// Renders only the tiles of `shard`; the other pixels stay zero.
+pub fn render_shard(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &RenderSettings,
+    shard: Shard,
+) -> Result<Frame, RenderError> {
     settings.validate()?;
     let lights = LightSampler::new(scene);
     let integrator = Integrator::new(scene, accel, &lights, settings.max_bounces, settings.width, settings.height);
-    let tile_list = tiles(settings);
+    let tile_list: Vec<(u32, u32)> =
+        tiles(settings).into_iter().filter(|&(x, y)| shard.covers(settings.width, x, y)).collect();
     let bar = progress_bar(settings, tile_list.len() as u64, "render");
     let pool = thread_pool(settings.threads)?;
     let start = Instant::now();

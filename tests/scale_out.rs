@@ -1,0 +1,116 @@
+//! Scale-out (issue 27): `lfr render --shard I/N` in separate processes and `lfr merge` give the
+//! image one process renders, bit for bit in every channel; shards of different renders,
+//! missing or repeated shards are refused before anything is written.
+
+#[path = "../tracer/tests/common/mod.rs"]
+mod common;
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use common::project_root;
+
+fn lfr(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_lfr")).args(args).current_dir(project_root()).output().expect("lfr runs")
+}
+
+fn ok(output: Output) -> Output {
+    assert!(output.status.success(), "lfr failed: {}", String::from_utf8_lossy(&output.stderr));
+    output
+}
+
+/// 40x24 is 3x2 tiles of 16, the last column and row partial.
+fn render(out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec!["render", "--width", "40", "--height", "24", "--spp", "3", "--quiet"];
+    args.extend_from_slice(extra);
+    if !extra.contains(&"--seed") {
+        args.extend_from_slice(&["--seed", "5"]);
+    }
+    args.extend_from_slice(&["--out", out.to_str().unwrap()]);
+    lfr(&args)
+}
+
+fn channels(path: &Path) -> Vec<(String, Vec<u32>)> {
+    let (_, _, channels) = tracer::output::read_exr(path).unwrap();
+    channels.into_iter().map(|(name, values)| (name, values.iter().map(|v| v.to_bits()).collect())).collect()
+}
+
+#[test]
+fn shards_in_separate_processes_merge_into_the_single_process_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = dir.path().join("whole.exr");
+    ok(render(&whole, &[]));
+    // 4 shards of 6 tiles: shard 3 has one tile, and the shards run with other thread counts.
+    let shards: Vec<String> =
+        (0..4).map(|i| dir.path().join(format!("s{i}.exr")).to_str().unwrap().to_string()).collect();
+    for (i, shard) in shards.iter().enumerate() {
+        let threads = if i % 2 == 0 { "1" } else { "2" };
+        ok(render(Path::new(shard), &["--shard", &format!("{i}/4"), "--threads", threads]));
+    }
+    // A shard alone is not the image (its other tiles are empty).
+    assert_ne!(channels(Path::new(&shards[0])), channels(&whole));
+    let merged = dir.path().join("merged.exr");
+    let mut args = vec!["merge", "--out", merged.to_str().unwrap()];
+    // In any order.
+    args.extend(shards.iter().rev().map(String::as_str));
+    ok(lfr(&args));
+    assert_eq!(channels(&merged), channels(&whole), "bit for bit, every channel");
+    assert!(merged.with_extension("png").is_file());
+
+    // The merged record sums the shards' rays and equals the whole render's.
+    let attribute = |path: &Path| {
+        let attributes = tracer::output::read_exr_attributes(path).unwrap();
+        let json = &attributes.iter().find(|(n, _)| n == "lfr.render").expect("a record").1;
+        serde_json::from_str::<serde_json::Value>(json).unwrap()
+    };
+    let (whole_record, merged_record) = (attribute(&whole), attribute(&merged));
+    for key in ["scene_sha256", "width", "height", "spp", "seed", "max_bounces", "rays", "shard"] {
+        assert_eq!(whole_record[key], merged_record[key], "{key}");
+    }
+}
+
+#[test]
+fn wrong_shard_sets_are_refused_before_writing() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    ok(render(Path::new(&path("a0.exr")), &["--shard", "0/2"]));
+    ok(render(Path::new(&path("a1.exr")), &["--shard", "1/2"]));
+    ok(render(Path::new(&path("b1.exr")), &["--shard", "1/2", "--seed", "6"]));
+    ok(render(Path::new(&path("c1.exr")), &["--shard", "1/3"]));
+    ok(render(Path::new(&path("plain.exr")), &[]));
+    let out = path("out.exr");
+    let cases: [(&[String], &[&str]); 5] = [
+        (&[path("a0.exr")], &["shard 1 of 2 missing"]),
+        (&[path("a0.exr"), path("a0.exr")], &["both shard 0/2"]),
+        (&[path("a0.exr"), path("b1.exr")], &["not shards of one render", "seed 6"]),
+        (&[path("a0.exr"), path("c1.exr")], &["not shards of one render", "3 shards"]),
+        (&[path("plain.exr"), path("a1.exr")], &["not shards of one render"]),
+    ];
+    for (shards, expected) in cases {
+        let mut args = vec!["merge", "--out", out.as_str()];
+        args.extend(shards.iter().map(String::as_str));
+        let output = lfr(&args);
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success(), "{shards:?} merged");
+        for needle in expected {
+            assert!(stderr.contains(needle), "{shards:?}: `{needle}` not in: {stderr}");
+        }
+        assert!(!Path::new(&out).exists(), "nothing written for {shards:?}");
+    }
+    for bad in ["2/2", "1/0", "x/3", "3"] {
+        let output = render(Path::new(&path("bad.exr")), &["--shard", bad]);
+        assert!(!output.status.success(), "--shard {bad} accepted");
+        assert!(String::from_utf8_lossy(&output.stderr).contains("--shard"), "{bad}");
+    }
+    // An EXR without a record (not written by lfr) is named.
+    let foreign = path("foreign.exr");
+    let layers =
+        vec![tracer::output::Layer { name: "", channels: vec![("R", vec![1.0]), ("G", vec![1.0]), ("B", vec![1.0])] }];
+    tracer::output::write_exr(Path::new(&foreign), 1, 1, &layers).unwrap();
+    let output = lfr(&["merge", "--out", out.as_str(), foreign.as_str()]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        !output.status.success() && stderr.contains("foreign.exr") && stderr.contains("no lfr.render record"),
+        "{stderr}"
+    );
+}
