@@ -58,6 +58,11 @@ fn opt(value: Option<f64>, digits: usize) -> String {
     }
 }
 
+/// Whether a run's note is something the reader must see: a method's warning or an invalid run.
+fn is_warning(note: &str) -> bool {
+    note.starts_with(recon::method::WARNING) || note.starts_with("INVALID")
+}
+
 fn run_label(run: &Run) -> String {
     let rays = if run.recon_rays > 0 { format!(" × {} rays", run.recon_rays) } else { String::new() };
     format!("{} {} spp{rays}", if run.method == "pt" { "path tracing" } else { &run.method }, run.input_spp)
@@ -169,14 +174,24 @@ pub fn markdown(results: &Results) -> String {
         md,
         "\n\\* the path-tracing curve was extended beyond its measured range at 10 dB per decade of time (MSE ∝ 1/time).\n"
     );
+    // What a reader must know (warnings, invalid runs) in the open; the methods' internals
+    // (stage times, counts) collapsed, and as numbers in results.json's `stats`.
     let notes: Vec<(String, &String)> =
         r.runs.iter().flat_map(|run| run.notes.iter().map(move |n| (run_label(run), n))).collect();
-    if !notes.is_empty() {
-        let _ = writeln!(md, "Notes:\n");
-        for (label, note) in notes {
+    let (warnings, internals): (Vec<_>, Vec<_>) = notes.into_iter().partition(|(_, note)| is_warning(note));
+    if !warnings.is_empty() {
+        let _ = writeln!(md, "Warnings:\n");
+        for (label, note) in warnings {
             let _ = writeln!(md, "- {label}: {note}");
         }
         let _ = writeln!(md);
+    }
+    if !internals.is_empty() {
+        let _ = writeln!(md, "<details><summary>Internals of each run (the methods' own notes)</summary>\n");
+        for (label, note) in internals {
+            let _ = writeln!(md, "- {label}: {note}");
+        }
+        let _ = writeln!(md, "\n</details>\n");
     }
 
     let _ = writeln!(md, "## Images\n");
@@ -218,4 +233,79 @@ pub fn markdown(results: &Results) -> String {
         r.tone_map.gamma
     );
     md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::compare::results::{ReferenceInfo, ToneMapInfo};
+
+    fn run(method: &str, notes: &[&str]) -> Run {
+        Run {
+            method: method.into(),
+            input_spp: 4,
+            recon_rays: 0,
+            trace_s: 1.0,
+            preprocess_s: 0.0,
+            recon_s: 0.0,
+            total_s: 1.0,
+            timings: vec![1.0],
+            timing_spread: 0.0,
+            psnr_db: 30.0,
+            rel_mse: 0.1,
+            ssim: 0.9,
+            flip: None,
+            peak_rss_mb: None,
+            nonfinite_pixels: 0,
+            valid: true,
+            equal_time_psnr_gain_db: None,
+            speedup: None,
+            speedup_range: None,
+            verdict_extrapolated: false,
+            image: String::new(),
+            preview: String::new(),
+            error_map: String::new(),
+            notes: notes.iter().map(|n| n.to_string()).collect(),
+            stats: Default::default(),
+        }
+    }
+
+    #[test]
+    fn warnings_stay_in_the_open_and_internals_are_collapsed() {
+        let results = Results {
+            schema: crate::compare::results::SCHEMA,
+            lfr_version: "0",
+            scene: "s.toml".into(),
+            effect: "indirect".into(),
+            width: 4,
+            height: 4,
+            seed: 1,
+            threads: 1,
+            max_bounces: 2,
+            ao_radius: None,
+            tone_map: ToneMapInfo { exposure: 1.0, gamma: 2.2, exposure_source: "auto" },
+            reference: ReferenceInfo {
+                spp: 8,
+                seconds: 1.0,
+                seeds: [2, 3],
+                cache_key: String::new(),
+                from_cache: false,
+                external: Vec::new(),
+                estimated_psnr_db: None,
+                image: String::new(),
+            },
+            flip_available: false,
+            peak_rss_per_run: true,
+            runs: vec![run("pt", &[]), run("ilfr", &["time: read 0.1 s", "warning: 3 samples dropped"])],
+            skipped: Vec::new(),
+            verdicts: Vec::new(),
+            total_seconds: 1.0,
+        };
+        let md = markdown(&results);
+        let details = md.find("<details>").expect("a collapsed section");
+        let warning = md.find("warning: 3 samples dropped").expect("the warning");
+        let internal = md.find("time: read 0.1 s").expect("the internal note");
+        assert!(warning < details && details < internal, "{md}");
+        assert!(md.contains("its own PSNR is unknown"), "no halves, no estimate");
+    }
 }
