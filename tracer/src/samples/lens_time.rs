@@ -175,8 +175,8 @@ fn dump_with(
     integrator.split_emitter = split_emitter;
     let camera = &scene.camera;
     let spec = layout.header(scene, settings);
-    let mut report = write_samples(path, spec, settings, layout.values_per_sample(), |x, y, values| {
-        for index in 0..settings.spp {
+    let mut report = write_samples(path, spec, settings, layout.values_per_sample(), |x, y, samples, values| {
+        for index in samples {
             let mut sampler = Sampler::new(settings.seed, x, y, index);
             let camera_sample = integrator.camera_sample(x, y, &mut sampler);
             let path = integrator.trace_camera_sample(&camera_sample, &mut sampler, &mut NoRecording);

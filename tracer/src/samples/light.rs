@@ -209,8 +209,8 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &RenderSettings, path: &Path
     spec.seed = Some(settings.seed);
     let values_per_sample = 4 + time_field as usize + 1 + 3 + 1 + 3 * time_field as usize;
     let light_mesh = &scene.meshes[light.mesh as usize];
-    write_samples(path, spec, settings, values_per_sample, |x, y, out| {
-        for index in 0..settings.spp {
+    write_samples(path, spec, settings, values_per_sample, |x, y, samples, out| {
+        for index in samples {
             let mut sampler = Sampler::new(settings.seed, x, y, index);
             let camera_sample = integrator.camera_sample(x, y, &mut sampler);
             let [lu, lv] = sampler.next_2d();

@@ -1,8 +1,10 @@
 //! Sample dumps: the tracer's samples written through `sampleio` for the reconstructions and
 //! for external tools. One file per kind (`lens_time.rs`, ...); this module holds what every
-//! kind shares: the camera block of the header and the streaming driver that traces rows in
-//! parallel and writes them in pixel-major order, so that memory stays bounded by one batch
-//! of rows and the file is identical for any thread count.
+//! kind shares: the camera block of the header and the streaming driver that traces pieces of
+//! the image (runs of whole pixels, or a range of one pixel's samples when a pixel alone is too
+//! big) in parallel and writes them in pixel-major order, so that memory stays bounded by one
+//! batch of pieces (about 64 MiB, whatever the size and spp) and the file is identical for any
+//! thread count.
 
 pub mod guide;
 pub mod lens_time;
@@ -91,9 +93,60 @@ pub fn camera_header(camera: &Camera, width: u32, height: u32) -> sampleio::Came
     }
 }
 
-/// Traces every pixel's samples with `sample_pixel` (which appends `spp` records of
-/// `values_per_sample` values for pixel (x, y)) in parallel batches of rows and streams them
-/// into `path` in pixel-major order.
+/// How the dump is cut into pieces: at most `piece_values` values per piece (several whole
+/// pixels, or a range of one pixel's samples), at most `batch_values` per parallel batch.
+#[derive(Clone, Copy, Debug)]
+struct Pieces {
+    piece_values: usize,
+    batch_values: usize,
+}
+
+/// About 4 MiB per piece and 64 MiB per batch.
+const PIECES: Pieces = Pieces { piece_values: 1 << 20, batch_values: 16 << 20 };
+
+/// A piece: `pixels` whole pixels from `first_pixel` (row-major), or, when `pixels` is 1, the
+/// samples `samples` of that pixel.
+#[derive(Clone, Debug, PartialEq)]
+struct Piece {
+    first_pixel: u64,
+    pixels: u64,
+    samples: std::ops::Range<u32>,
+}
+
+/// The pieces of a `pixel_count`-pixel image at `spp`, in file order.
+fn pieces(pixel_count: u64, spp: u32, values_per_sample: usize, piece_values: usize) -> impl Iterator<Item = Piece> {
+    let per_sample = values_per_sample.max(1) as u64;
+    let per_pixel = spp as u64 * per_sample;
+    let budget = piece_values.max(1) as u64;
+    let pixels_per_piece = (budget / per_pixel.max(1)).max(1);
+    let samples_per_piece = (budget / per_sample).clamp(1, spp.max(1) as u64) as u32;
+    let whole_pixels = per_pixel <= budget;
+    let mut pixel = 0u64;
+    let mut sample = 0u32;
+    std::iter::from_fn(move || {
+        if pixel >= pixel_count {
+            return None;
+        }
+        if whole_pixels {
+            let pixels = pixels_per_piece.min(pixel_count - pixel);
+            let piece = Piece { first_pixel: pixel, pixels, samples: 0..spp };
+            pixel += pixels;
+            return Some(piece);
+        }
+        let end = sample.saturating_add(samples_per_piece).min(spp);
+        let piece = Piece { first_pixel: pixel, pixels: 1, samples: sample..end };
+        if end == spp {
+            (pixel, sample) = (pixel + 1, 0);
+        } else {
+            sample = end;
+        }
+        Some(piece)
+    })
+}
+
+/// Traces every pixel's samples with `sample_pixel` (which appends the records of the given
+/// sample indices, `values_per_sample` values each, for pixel (x, y)) in parallel batches of
+/// pieces and streams them into `path` in pixel-major order.
 pub fn write_samples<F>(
     path: &Path,
     spec: HeaderSpec,
@@ -102,7 +155,21 @@ pub fn write_samples<F>(
     sample_pixel: F,
 ) -> Result<DumpReport, RenderError>
 where
-    F: Fn(u32, u32, &mut Vec<f32>) + Sync,
+    F: Fn(u32, u32, std::ops::Range<u32>, &mut Vec<f32>) + Sync,
+{
+    write_samples_in(path, spec, settings, values_per_sample, sample_pixel, PIECES)
+}
+
+fn write_samples_in<F>(
+    path: &Path,
+    spec: HeaderSpec,
+    settings: &RenderSettings,
+    values_per_sample: usize,
+    sample_pixel: F,
+    cut: Pieces,
+) -> Result<DumpReport, RenderError>
+where
+    F: Fn(u32, u32, std::ops::Range<u32>, &mut Vec<f32>) + Sync,
 {
     settings.validate()?;
     let output_error =
@@ -111,10 +178,11 @@ where
     let record_size = writer.header().record_size as usize;
     let fields = writer.header().fields.iter().map(|f| f.name.clone()).collect();
     let pool = crate::render::thread_pool(settings.threads)?;
+    let pixel_count = settings.width as u64 * settings.height as u64;
     let bar = if settings.progress {
-        let bar = ProgressBar::new(settings.height as u64);
+        let bar = ProgressBar::new(pixel_count * settings.spp as u64);
         bar.set_style(
-            ProgressStyle::with_template("dump [{elapsed_precise}] {wide_bar} {pos}/{len} rows (eta {eta})")
+            ProgressStyle::with_template("dump [{elapsed_precise}] {wide_bar} {percent}% of the samples (eta {eta})")
                 .unwrap_or_else(|_| ProgressStyle::default_bar()),
         );
         bar
@@ -122,32 +190,36 @@ where
         ProgressBar::hidden()
     };
     let start = Instant::now();
-    // Enough rows per batch to keep every thread busy, few enough to bound memory (~64 MiB).
-    let row_values = settings.width as usize * settings.spp as usize * values_per_sample;
-    let rows_per_batch = ((16 << 20) / row_values.max(1)).clamp(1, 64) as u32;
-    let mut y0 = 0;
-    while y0 < settings.height {
-        let y1 = (y0 + rows_per_batch).min(settings.height);
-        let rows: Vec<Vec<f32>> = pool.install(|| {
-            (y0..y1)
-                .into_par_iter()
-                .map(|y| {
-                    let mut values = Vec::with_capacity(row_values);
-                    for x in 0..settings.width {
-                        sample_pixel(x, y, &mut values);
-                    }
-                    values
-                })
-                .collect()
-        });
-        for row in rows {
-            debug_assert_eq!(row.len(), row_values);
-            for sample in row.chunks_exact(values_per_sample) {
+    let width = settings.width as u64;
+    let trace = |piece: &Piece| {
+        let size = piece.pixels as usize * piece.samples.len() * values_per_sample;
+        let mut values = Vec::with_capacity(size);
+        for pixel in piece.first_pixel..piece.first_pixel + piece.pixels {
+            sample_pixel((pixel % width) as u32, (pixel / width) as u32, piece.samples.clone(), &mut values);
+        }
+        debug_assert_eq!(values.len(), size);
+        values
+    };
+    let mut all = pieces(pixel_count, settings.spp, values_per_sample, cut.piece_values).peekable();
+    while all.peek().is_some() {
+        // One batch: pieces until the batch's values would pass the cap (at least one piece).
+        let mut batch = Vec::new();
+        let mut batch_values = 0usize;
+        while let Some(piece) = all.peek() {
+            let size = piece.pixels as usize * piece.samples.len() * values_per_sample;
+            if !batch.is_empty() && batch_values + size > cut.batch_values {
+                break;
+            }
+            batch_values += size;
+            batch.push(all.next().expect("peeked"));
+        }
+        let traced: Vec<Vec<f32>> = pool.install(|| batch.par_iter().map(trace).collect());
+        for (piece, values) in batch.iter().zip(traced) {
+            for sample in values.chunks_exact(values_per_sample) {
                 writer.push(sample).map_err(output_error)?;
             }
-            bar.inc(1);
+            bar.inc(piece.pixels * piece.samples.len() as u64);
         }
-        y0 = y1;
     }
     let samples = writer.pushed();
     let final_path = writer.finish().map_err(output_error)?;
@@ -155,4 +227,64 @@ where
     let bytes = std::fs::metadata(&final_path).map(|m| m.len()).unwrap_or(0);
     let seconds = start.elapsed().as_secs_f64();
     Ok(DumpReport { samples, bytes, record_size, fields, seconds, dropped_contributions: 0 })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sampleio::{FieldSpec, FieldType, SampleKind};
+
+    /// Every (pixel, sample) once, in file order, and no piece over the budget unless it is a
+    /// single sample.
+    #[test]
+    fn pieces_cover_every_sample_once_in_order_within_the_budget() {
+        for (pixels, spp, per_sample, budget) in [
+            (1, 1, 3, 1),
+            (7, 5, 3, 4),
+            (7, 5, 3, 15),
+            (7, 5, 3, 16),
+            (3, 1000, 2, 64),
+            (10, 3, 1, 1 << 20),
+            (0, 4, 2, 8),
+        ] {
+            let mut expected = (0..pixels).flat_map(|p| (0..spp).map(move |s| (p, s)));
+            for piece in pieces(pixels, spp, per_sample, budget) {
+                let values = piece.pixels as usize * piece.samples.len() * per_sample;
+                assert!(values <= budget.max(per_sample), "{piece:?} over {budget}");
+                assert!(piece.pixels == 1 || piece.samples == (0..spp), "{piece:?}");
+                for p in piece.first_pixel..piece.first_pixel + piece.pixels {
+                    for s in piece.samples.clone() {
+                        assert_eq!(expected.next(), Some((p, s)), "{pixels} {spp} {per_sample} {budget}");
+                    }
+                }
+            }
+            assert_eq!(expected.next(), None);
+        }
+    }
+
+    /// Tiny pieces and batches write the same file, byte for byte, as the defaults.
+    #[test]
+    fn the_file_does_not_depend_on_how_it_is_cut() {
+        let dir = tempfile::tempdir().unwrap();
+        let settings =
+            RenderSettings { width: 5, height: 3, spp: 7, seed: 1, max_bounces: 1, threads: 2, progress: false };
+        let spec = || {
+            HeaderSpec::new(SampleKind::Ao, 5, 3, 7)
+                .field(FieldSpec::new("xy", FieldType::F32, 2))
+                .field(FieldSpec::new("index", FieldType::F32, 1))
+        };
+        let sample_pixel = |x: u32, y: u32, samples: std::ops::Range<u32>, out: &mut Vec<f32>| {
+            for s in samples {
+                out.extend_from_slice(&[x as f32 + 0.25, y as f32 + 0.5, s as f32]);
+            }
+        };
+        let whole = dir.path().join("whole.lfrs");
+        let cut = dir.path().join("cut.lfrs");
+        write_samples(&whole, spec(), &settings, 3, sample_pixel).unwrap();
+        write_samples_in(&cut, spec(), &settings, 3, sample_pixel, Pieces { piece_values: 6, batch_values: 7 })
+            .unwrap();
+        assert_eq!(std::fs::read(&whole).unwrap(), std::fs::read(&cut).unwrap());
+        let file = sampleio::SampleFile::open(&cut).unwrap();
+        assert_eq!(file.len(), 5 * 3 * 7);
+    }
 }

@@ -315,8 +315,8 @@ pub fn dump(
     );
     spec.coordinates = Some(coordinates);
     let values = layout.values_per_sample();
-    let mut report = write_samples(path, spec, settings, values, |x, y, out| {
-        for index in 0..settings.spp {
+    let mut report = write_samples(path, spec, settings, values, |x, y, samples, out| {
+        for index in samples {
             let mut sampler = Sampler::new(settings.seed, x, y, index);
             let sample = trace_secondary(&integrator, &layout, x, y, &mut sampler);
             debug_assert_eq!(sample.len(), values);
