@@ -80,6 +80,9 @@ pub fn run(args: &FilterArgs) -> Result<()> {
     check_outputs(&[&args.out, &args.out.with_extension("png")], &scene_inputs(trace.scene.as_deref()))?;
     let scene = trace.load_scene()?;
     let settings = trace.settings(&scene, args.spp)?;
+    // The guide buffers, the filter's planes and the composite: about two renders' worth.
+    let (width, height) = (settings.width, settings.height);
+    tracer::memory::check(&format!("filtering {width}x{height}"), 2 * tracer::memory::render_bytes(width, height))?;
     let accel = Accel::build(&scene)?;
     let trace_start = Instant::now();
     let buffers = tracer::samples::guide::guide_buffers(&scene, &accel, &settings)?;

@@ -123,6 +123,8 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let scene = trace.load_scene()?;
     let settings = trace.settings(&scene, args.spp.unwrap_or(scene.spp))?;
     let shard = args.shard.unwrap_or(Shard::WHOLE);
+    let (width, height) = (settings.width, settings.height);
+    tracer::memory::check(&format!("a {width}x{height} render"), tracer::memory::render_bytes(width, height))?;
     let accel = Accel::build(&scene)?;
     let setup = load_start.elapsed().as_secs_f64();
     let frame = tracer::render::render_shard(&scene, &accel, &settings, shard)?;

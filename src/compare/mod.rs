@@ -136,6 +136,20 @@ fn resolve_methods(names: &[String], effect: Effect) -> Result<Vec<Registered>> 
     Ok(methods)
 }
 
+/// Refuses a comparison whose images would not fit in memory, before anything is traced: one
+/// render at a time (`tracer::memory::RENDER_BYTES_PER_PIXEL`), the reference and its halves,
+/// every run's image and its FLIP copy, and the frames and guide buffers kept per input spp.
+fn check_memory(args: &CompareArgs, methods: &[Registered], width: u32, height: u32) -> Result<()> {
+    let ladder_runs = ladder(args.pt_max_spp, &args.spp).len() as u64;
+    let rays = args.recon_rays.as_ref().map_or(3, Vec::len) as u64;
+    let method_runs = methods.len() as u64 * args.spp.len() as u64 * rays;
+    let inputs = args.spp.len() as u64;
+    let per_pixel = tracer::memory::RENDER_BYTES_PER_PIXEL + 3 * 12 + 24 * (ladder_runs + method_runs) + 100 * inputs;
+    let what = format!("a comparison at {width}x{height} with {} runs", ladder_runs + method_runs);
+    tracer::memory::check(&what, width as u64 * height as u64 * per_pixel)?;
+    Ok(())
+}
+
 /// A measured image before its verdicts.
 struct Measured {
     run: Run,
@@ -472,6 +486,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         Some(r) => r,
         None => default_ao_radius(&scene),
     };
+    check_memory(args, &methods, width, height)?;
     // Every check that does not need a traced image comes before the first one is traced.
     let cache = reference::cache_dir(args.cache_dir.as_deref());
     reference::check_cache_dir(&cache)?;

@@ -15,6 +15,7 @@ pub mod error;
 pub mod integrator;
 pub mod lights;
 pub mod limits;
+pub mod memory;
 pub mod output;
 pub mod render;
 pub mod sampler;

@@ -1,0 +1,53 @@
+//! Memory estimated before allocation (issue 22, class 5): a size within the option limits that
+//! this machine cannot hold is refused at once with the estimate and what is available, before
+//! any tracing and without writing anything, instead of an aborted allocation or the OOM killer.
+
+#[path = "../tracer/tests/common/mod.rs"]
+mod common;
+
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+use common::project_root;
+
+fn lfr(args: &[&str], available: Option<&str>) -> Output {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_lfr"));
+    command.args(args).current_dir(project_root()).env_remove("LFR_MEMORY_AVAILABLE");
+    if let Some(bytes) = available {
+        command.env("LFR_MEMORY_AVAILABLE", bytes);
+    }
+    command.output().expect("lfr runs")
+}
+
+#[test]
+fn sizes_beyond_the_machine_are_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.exr");
+    let out = out.to_str().unwrap();
+    // 32768² needs about 320 GiB: more than any test machine has.
+    let start = Instant::now();
+    let refused = lfr(&["render", "--width", "32768", "--height", "32768", "--spp", "1", "--out", out], None);
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success(), "{stderr}");
+    assert!(stderr.contains("a 32768x32768 render needs about 320.0 GiB") && stderr.contains("available"), "{stderr}");
+    assert!(start.elapsed() < Duration::from_secs(60), "refused at once, not after tracing");
+
+    // With the available memory set low, small sizes are refused by every tracing command too.
+    let tiny = Some("1000000");
+    let cases: [&[&str]; 3] = [
+        &["render", "--width", "100", "--height", "100", "--spp", "1", "--out", out],
+        &["filter", "--width", "100", "--height", "100", "--spp", "1", "--out", out],
+        &["compare", "--effect", "indirect", "--width", "100", "--height", "100", "--out", out],
+    ];
+    for args in cases {
+        let refused = lfr(args, tiny);
+        let stderr = String::from_utf8_lossy(&refused.stderr);
+        assert!(!refused.status.success(), "{args:?}: {stderr}");
+        assert!(stderr.contains("needs about") && stderr.contains("976.6 KiB is available"), "{args:?}: {stderr}");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "{args:?}: nothing written");
+    }
+    // The same render fits when the memory is there.
+    let fits =
+        lfr(&["render", "--width", "16", "--height", "16", "--spp", "1", "--quiet", "--out", out], Some("100000000"));
+    assert!(fits.status.success(), "{}", String::from_utf8_lossy(&fits.stderr));
+}
