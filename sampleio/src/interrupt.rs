@@ -73,9 +73,59 @@ pub fn clean_up_and_exit(code: i32) -> ! {
     std::process::exit(code);
 }
 
+/// Removes the temporary files that killed processes left beside `target` (`NAME.<pid>.tmp`
+/// whose process no longer runs: SIGKILL or a power cut give no chance to clean up); returns how
+/// many. Only on systems with /proc, where a process's liveness can be read; elsewhere nothing
+/// is removed.
+pub fn remove_stale_temporaries(target: &Path) -> usize {
+    let proc = Path::new("/proc");
+    if !proc.join("self").exists() {
+        return 0;
+    }
+    let (Some(dir), Some(name)) = (target.parent(), target.file_name().and_then(|n| n.to_str())) else {
+        return 0;
+    };
+    let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
+    let Ok(entries) = std::fs::read_dir(dir) else { return 0 };
+    let mut removed = 0;
+    for entry in entries.flatten() {
+        let file_name = entry.file_name();
+        let Some(pid) = file_name
+            .to_str()
+            .and_then(|n| n.strip_prefix(name))
+            .and_then(|rest| rest.strip_prefix('.'))
+            .and_then(|rest| rest.strip_suffix(".tmp"))
+            .filter(|pid| !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()))
+        else {
+            continue;
+        };
+        let alive = proc.join(pid).exists();
+        if !alive && entry.file_type().is_ok_and(|t| t.is_file()) && std::fs::remove_file(entry.path()).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn stale_temporaries_of_dead_processes_are_removed_and_live_ones_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("image.exr");
+        // No process has a pid beyond the kernel's pid_max (at most 2^22).
+        let dead = dir.path().join("image.exr.999999999.tmp");
+        let live = dir.path().join(format!("image.exr.{}.tmp", std::process::id()));
+        let other = dir.path().join("other.exr.999999999.tmp");
+        let unrelated = dir.path().join("image.exr.notes.tmp");
+        for path in [&dead, &live, &other, &unrelated] {
+            std::fs::write(path, b"x").unwrap();
+        }
+        assert_eq!(remove_stale_temporaries(&target), 1);
+        assert!(!dead.exists() && live.exists() && other.exists() && unrelated.exists());
+    }
 
     #[test]
     fn registrations_end_when_dropped_and_removal_takes_files_and_folders() {

@@ -65,6 +65,7 @@ impl SampleWriter {
             field: "path".into(),
             message: "the path has no file name".into(),
         })?;
+        crate::interrupt::remove_stale_temporaries(path);
         let registration = crate::interrupt::remove_on_interrupt(&tmp);
         let file = File::create(&tmp).map_err(|e| SampleError::io(&tmp, "create", e))?;
         let mut writer = SampleWriter {

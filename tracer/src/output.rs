@@ -79,6 +79,7 @@ pub fn write_atomically(
         std::fs::create_dir_all(parent).map_err(|e| output_error(parent, format!("cannot create directory: {e}")))?;
     }
     let tmp = temporary_path(path);
+    sampleio::interrupt::remove_stale_temporaries(path);
     let _registration = sampleio::interrupt::remove_on_interrupt(&tmp);
     match write(&tmp) {
         Ok(()) => std::fs::rename(&tmp, path).map_err(|e| {
