@@ -46,11 +46,12 @@ pub fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// The bytes of the scene file, or of the embedded default scene.
+/// The bytes of the scene file (a regular file of at most `limits::MAX_MODEL_BYTES`, like every
+/// input: never a device read until memory runs out), or of the embedded default scene. Read
+/// after the scene was loaded, so that its own errors come first.
 pub fn scene_text(path: Option<&std::path::Path>) -> anyhow::Result<Vec<u8>> {
-    use anyhow::Context;
     match path {
-        Some(path) => std::fs::read(path).with_context(|| format!("reading the scene {}", path.display())),
+        Some(path) => Ok(tracer::scene::input::read_input(path, tracer::limits::MAX_MODEL_BYTES, path, "scene")?),
         None => Ok(crate::common::DEFAULT_SCENE.as_bytes().to_vec()),
     }
 }

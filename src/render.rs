@@ -119,8 +119,8 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let preview = args.out.with_extension("png");
     check_outputs(&[&args.out, &preview], &scene_inputs(trace.scene.as_deref()))?;
     let load_start = Instant::now();
-    let scene_text = crate::fingerprint::scene_text(trace.scene.as_deref())?;
     let scene = trace.load_scene()?;
+    let scene_text = crate::fingerprint::scene_text(trace.scene.as_deref())?;
     let settings = trace.settings(&scene, args.spp.unwrap_or(scene.spp))?;
     let shard = args.shard.unwrap_or(Shard::WHOLE);
     let (width, height) = (settings.width, settings.height);

@@ -113,7 +113,8 @@ impl Tracing<'_> {
         let (width, height) = (self.width, self.height);
         let start = Instant::now();
         let frame = if self.effect == Effect::Ao {
-            let ao = ambient_occlusion_frame(self.scene, self.accel, &self.dump_settings(spp, seed), self.ao_radius)?;
+            let settings = RenderSettings { progress, ..self.dump_settings(spp, seed) };
+            let ao = ambient_occlusion_frame(self.scene, self.accel, &settings, self.ao_radius)?;
             FrameInput {
                 color: Image::from_pixels(width, height, ao.visibility.iter().map(|&v| [v; 3]).collect()),
                 albedo: image_from_vec3(width, height, &ao.albedo),

@@ -460,8 +460,8 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     };
     let methods = resolve_methods(&args.methods, effect)?;
 
-    let scene_text = crate::fingerprint::scene_text(args.trace.scene.as_deref())?;
     let mut scene = args.trace.load_scene()?;
+    let scene_text = crate::fingerprint::scene_text(args.trace.scene.as_deref())?;
     if let Some(radius) = args.aperture_radius {
         if !(radius.is_finite() && radius >= 0.0) {
             bail!("--aperture-radius must be finite and at least 0, got {radius}");

@@ -373,13 +373,25 @@ pub fn ambient_occlusion_frame(
     let lights = LightSampler::new(scene);
     let integrator = super::integrator(scene, accel, &lights, settings);
     let pool = crate::render::thread_pool(settings.threads)?;
+    let bar = if settings.progress {
+        let bar = indicatif::ProgressBar::new(settings.height as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "ambient occlusion [{elapsed_precise}] {wide_bar} {pos}/{len} rows (eta {eta})",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
     let start = std::time::Instant::now();
     let rows: Vec<Vec<(f32, Vec3, Vec3)>> = pool.install(|| {
         use rayon::prelude::*;
         (0..settings.height)
             .into_par_iter()
             .map(|y| {
-                (0..settings.width)
+                let row: Vec<(f32, Vec3, Vec3)> = (0..settings.width)
                     .map(|x| {
                         let (mut visible, mut normal, mut hits) = (0u32, Vec3::ZERO, 0u32);
                         for index in 0..settings.spp {
@@ -396,10 +408,13 @@ pub fn ambient_occlusion_frame(
                         let albedo = if hits > 0 { Vec3::ONE } else { Vec3::ZERO };
                         (visible as f32 / spp, normal.normalize_or_zero(), albedo)
                     })
-                    .collect()
+                    .collect();
+                bar.inc(1);
+                row
             })
             .collect()
     });
+    bar.finish_and_clear();
     let pixels: Vec<(f32, Vec3, Vec3)> = rows.into_iter().flatten().collect();
     Ok(AmbientOcclusionFrame {
         width: settings.width,
