@@ -37,6 +37,20 @@ fn agreement(record: &RenderRecord) -> (String, u32, u32, u32, u32, u32, u32) {
     )
 }
 
+/// The agreed fields in words, for errors.
+fn describe(record: &RenderRecord) -> String {
+    format!(
+        "scene {}…, {}x{}, {} spp, seed {}, {} bounces, {} shards",
+        &record.scene_sha256[..12.min(record.scene_sha256.len())],
+        record.width,
+        record.height,
+        record.spp,
+        record.seed,
+        record.max_bounces,
+        record.shard[1]
+    )
+}
+
 /// Reads and checks every shard's record before any pixel is read; returns them in shard order.
 fn check_records(shards: &[PathBuf]) -> Result<Vec<(PathBuf, RenderRecord)>> {
     let mut records: BTreeMap<u32, (PathBuf, RenderRecord)> = BTreeMap::new();
@@ -48,24 +62,11 @@ fn check_records(shards: &[PathBuf]) -> Result<Vec<(PathBuf, RenderRecord)>> {
         if let Some((first_path, first_record)) = &first {
             if agreement(&record) != agreement(first_record) {
                 bail!(
-                    "{} and {} are not shards of one render: scene {}…, {}x{}, {} spp, seed {}, {} bounces, {} shards \
-                     against scene {}…, {}x{}, {} spp, seed {}, {} bounces, {} shards",
+                    "{} and {} are not shards of one render: {} against {}",
                     path.display(),
                     first_path.display(),
-                    &record.scene_sha256[..12.min(record.scene_sha256.len())],
-                    record.width,
-                    record.height,
-                    record.spp,
-                    record.seed,
-                    record.max_bounces,
-                    record.shard[1],
-                    &first_record.scene_sha256[..12.min(first_record.scene_sha256.len())],
-                    first_record.width,
-                    first_record.height,
-                    first_record.spp,
-                    first_record.seed,
-                    first_record.max_bounces,
-                    first_record.shard[1],
+                    describe(&record),
+                    describe(first_record)
                 );
             }
         } else {

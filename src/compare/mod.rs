@@ -856,33 +856,10 @@ mod tests {
     use super::*;
 
     fn run(method: &str, spp: u32, total_s: f64, psnr_db: f64, valid: bool) -> Run {
-        Run {
-            method: method.into(),
-            input_spp: spp,
-            recon_rays: 0,
-            trace_s: total_s,
-            preprocess_s: 0.0,
-            recon_s: 0.0,
-            total_s,
-            timings: vec![total_s],
-            timing_spread: 0.0,
-            psnr_db,
-            rel_mse: 0.0,
-            ssim: 1.0,
-            flip: None,
-            peak_rss_mb: None,
-            nonfinite_pixels: if valid { 0 } else { 3 },
-            valid,
-            equal_time_psnr_gain_db: None,
-            speedup: None,
-            speedup_range: None,
-            verdict_extrapolated: false,
-            image: String::new(),
-            preview: String::new(),
-            error_map: String::new(),
-            notes: Vec::new(),
-            stats: Default::default(),
-        }
+        let mut run = Run::example(method, spp, total_s, psnr_db);
+        run.valid = valid;
+        run.nonfinite_pixels = if valid { 0 } else { 3 };
+        run
     }
 
     fn scoring_in(dir: &Path, reference: &Image) -> Result<Measured> {

@@ -241,33 +241,9 @@ mod tests {
     use crate::compare::results::{ReferenceInfo, ToneMapInfo};
 
     fn run(method: &str, notes: &[&str]) -> Run {
-        Run {
-            method: method.into(),
-            input_spp: 4,
-            recon_rays: 0,
-            trace_s: 1.0,
-            preprocess_s: 0.0,
-            recon_s: 0.0,
-            total_s: 1.0,
-            timings: vec![1.0],
-            timing_spread: 0.0,
-            psnr_db: 30.0,
-            rel_mse: 0.1,
-            ssim: 0.9,
-            flip: None,
-            peak_rss_mb: None,
-            nonfinite_pixels: 0,
-            valid: true,
-            equal_time_psnr_gain_db: None,
-            speedup: None,
-            speedup_range: None,
-            verdict_extrapolated: false,
-            image: String::new(),
-            preview: String::new(),
-            error_map: String::new(),
-            notes: notes.iter().map(|n| n.to_string()).collect(),
-            stats: Default::default(),
-        }
+        let mut run = Run::example(method, 4, 1.0, 30.0);
+        run.notes = notes.iter().map(|n| n.to_string()).collect();
+        run
     }
 
     #[test]

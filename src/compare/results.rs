@@ -126,3 +126,37 @@ pub struct Verdict {
     pub best_psnr_db: Option<f64>,
     pub summary: String,
 }
+
+#[cfg(test)]
+impl Run {
+    /// A valid run with these numbers and nothing else measured, for tests.
+    pub fn example(method: &str, input_spp: u32, total_s: f64, psnr_db: f64) -> Run {
+        Run {
+            method: method.into(),
+            input_spp,
+            recon_rays: 0,
+            trace_s: total_s,
+            preprocess_s: 0.0,
+            recon_s: 0.0,
+            total_s,
+            timings: vec![total_s],
+            timing_spread: 0.0,
+            psnr_db,
+            rel_mse: 0.0,
+            ssim: 1.0,
+            flip: None,
+            peak_rss_mb: None,
+            nonfinite_pixels: 0,
+            valid: true,
+            equal_time_psnr_gain_db: None,
+            speedup: None,
+            speedup_range: None,
+            verdict_extrapolated: false,
+            image: String::new(),
+            preview: String::new(),
+            error_map: String::new(),
+            notes: Vec::new(),
+            stats: Default::default(),
+        }
+    }
+}
