@@ -7,7 +7,10 @@
 //! - ✓ Eq. 3, probe radiance as real SH of order 7, and the clamped-cosine measurement of
 //!   Eq. 7 in the SH domain: `sh`.
 //! - ✓ Eq. 10, the spatial weight w: `kernel`.
-//! - ✗ Receivers and senders (surfels), probe placement and radius (phases 2–3).
+//! - ✓ Section 5 ("receivers … the sample points of a light map's texels; any other set of
+//!   receivers can be used just as well"): world-space surface elements that are receivers and
+//!   senders, `surfels`; a shading point's weighted surfels, `lookup`.
+//! - ✗ Section 4.1, probe placement and radius (phase 3).
 //! - ✗ Eq. 2, 4–7, the visibility-aware local transport per receiver (phase 4).
 //! - ✗ Eq. 11, CPCA compression (phase 5); Section 4.2, relight rays, cluster projection,
 //!   receiver irradiance and bounces (phase 4).
@@ -15,5 +18,13 @@
 #![forbid(unsafe_code)]
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod error;
+pub mod geometry;
 pub mod kernel;
+pub mod lookup;
 pub mod sh;
+pub mod surfels;
+#[cfg(test)]
+mod test_scenes;
+
+pub use error::ProbesError;
