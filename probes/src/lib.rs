@@ -10,8 +10,13 @@
 //! - ✓ Section 5 ("receivers … the sample points of a light map's texels; any other set of
 //!   receivers can be used just as well"): world-space surface elements that are receivers and
 //!   senders, `surfels`; a shading point's weighted surfels, `lookup`.
-//! - ✗ Section 4.1, probe placement and radius (phase 3).
-//! - ✗ Eq. 2, 4–7, the visibility-aware local transport per receiver (phase 4).
+//! - ✓ Section 4.1, "Probe Locations and Radii": voxelisation and flood fill, `voxel`;
+//!   candidates next to surfaces, kernel-density removal to the target count and the one support
+//!   radius for a mean overlap of N_overlap, `placement`; coverage statistics, `placement`; all
+//!   of it in one call with timings, `layout`.
+//! - ✓ Eq. 2's visibility V_i by exact rays, and a survey of the directions no covering probe
+//!   sees: `visibility`.
+//! - ✗ Eq. 4–7, the local transport operator and the transport vector per receiver (phase 4).
 //! - ✗ Eq. 11, CPCA compression (phase 5); Section 4.2, relight rays, cluster projection,
 //!   receiver irradiance and bounces (phase 4).
 
@@ -21,10 +26,14 @@
 pub mod error;
 pub mod geometry;
 pub mod kernel;
+pub mod layout;
 pub mod lookup;
+pub mod placement;
 pub mod sh;
 pub mod surfels;
 #[cfg(test)]
 mod test_scenes;
+pub mod visibility;
+pub mod voxel;
 
 pub use error::ProbesError;

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use glam::Vec3;
-use tracer::scene::shapes::polygon;
+use tracer::scene::shapes::{axis_aligned_box, polygon};
 use tracer::scene::Mesh;
 use tracer::Scene;
 
@@ -22,6 +22,17 @@ pub fn unit_quad() -> Mesh {
         &[Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)],
         0,
     )
+}
+
+/// A closed box from `lo` to `hi` whose triangles face inwards (a room seen from inside, like
+/// the Cornell box's walls).
+pub fn room(lo: Vec3, hi: Vec3) -> Mesh {
+    let mut m = axis_aligned_box("room", lo, hi, 0);
+    for t in &mut m.indices {
+        t.swap(1, 2);
+    }
+    m.name = "room".into();
+    m
 }
 
 /// Multiplies every position (and the camera position) by `s`.
