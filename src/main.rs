@@ -13,6 +13,7 @@ mod convert;
 mod dump;
 mod export;
 mod filter;
+mod probes;
 mod reconstruct;
 mod render;
 
@@ -60,6 +61,9 @@ enum Command {
     /// Temporal light field reconstruction of a lens-time sample file (depth of field, motion
     /// blur), optionally refocused: --focus-distance D --aperture A.
     Reconstruct(reconstruct::ReconstructArgs),
+    /// Sparse radiance probes (Silvennoinen & Lehtinen 2017): `stats` reports receivers, probe
+    /// placement, coverage and memory (docs/probes-design.md).
+    Probes(probes::ProbesArgs),
 }
 
 fn main() -> ExitCode {
@@ -74,6 +78,7 @@ fn main() -> ExitCode {
         Command::BenchIlfr(args) => bench_ilfr::run(args),
         Command::Filter(args) => filter::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
+        Command::Probes(args) => probes::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -88,6 +88,8 @@ pub struct Placement {
     pub candidates: usize,
     /// Seed points (camera, point and spot lights) that started a fill in an empty voxel.
     pub seeds_used: usize,
+    /// The voxel grid with its flood fill (receiver validity reads it).
+    pub grid: VoxelGrid,
 }
 
 /// The spacing ρ for `count` probes over bounds of size `extent`: the middle (geometric mean)
@@ -140,6 +142,7 @@ pub fn place(geometry: &Geometry, seeds: &[DVec3], settings: &PlacementSettings)
         reached_voxels: grid.reached_count(),
         candidates: candidates.len(),
         seeds_used: grid.seeds_used,
+        grid,
     })
 }
 

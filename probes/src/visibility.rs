@@ -12,6 +12,7 @@ use tracer::sampler::Sampler;
 use tracer::Accel;
 
 use crate::surfels::Surfels;
+use crate::voxel::VoxelGrid;
 
 /// The push-off of a ray origin at `p` in a scene of largest extent `scale`: relative to the
 /// position's magnitude and the scene's size (no absolute epsilon).
@@ -43,6 +44,9 @@ pub struct UnseenSurvey {
     /// Receivers with at least 30 % of their hits on back faces (the wrong side of closed
     /// geometry): counted, left out of the figures below.
     pub back_facing_receivers: usize,
+    /// Receivers whose front voxel the flood fill never reached (hidden; only with a grid):
+    /// counted, left out of the figures below.
+    pub hidden_receivers: usize,
     /// Over the other receivers: directions that hit something, and of those, hits no covering
     /// probe sees.
     pub hits: u64,
@@ -70,11 +74,15 @@ impl UnseenSurvey {
 /// Per receiver: (hits, back-face hits, unseen hits, escaped, covering sum, seeing sum).
 type Tally = (u64, u64, u64, u64, u64, u64);
 
-/// Surveys `count` receivers (one drawn from each of `count` equal runs of surfels) with `directions` cosine-distributed
-/// Owen-scrambled Sobol' rays each against `probes` of support radius `radius`.
+/// Surveys `count` receivers (one drawn from each of `count` equal runs of surfels) with
+/// `directions` cosine-distributed Owen-scrambled Sobol' rays each against `probes` of support
+/// radius `radius`; with `grid`, receivers whose front voxel the flood fill never reached are
+/// counted as hidden and not surveyed (the notes' §3.3 protocol).
+#[allow(clippy::too_many_arguments)]
 pub fn survey_unseen(
     accel: &Accel,
     surfels: &Surfels,
+    grid: Option<&VoxelGrid>,
     probes: &[DVec3],
     radius: f64,
     count: usize,
@@ -94,7 +102,7 @@ pub fn survey_unseen(
     }
     let scale = (hi - lo).max_element() as f32;
     let probes_f: Vec<Vec3> = probes.iter().map(|p| p.as_vec3()).collect();
-    let tallies: Vec<Tally> = (0..count)
+    let tallies: Vec<Option<Tally>> = (0..count)
         .into_par_iter()
         .map(|k| {
             let index = k * stride + (shading::sampling::hash_u32(seed ^ k as u32) as usize % stride);
@@ -109,6 +117,9 @@ pub fn survey_unseen(
             let frame = Frame::new(s.normal);
             let origin = x + s.normal * offset(x, scale);
             let mut t: Tally = (0, 0, 0, 0, 0, 0);
+            if grid.is_some_and(|g| !g.front_reached(x.as_dvec3(), s.normal.as_dvec3())) {
+                return None;
+            }
             for d in 0..directions {
                 let u = Sampler::new(seed, index as u32, 0x3fff_ffff, d).next_2d();
                 let dir = frame.to_world(sample_cosine_hemisphere(u)).normalize();
@@ -130,12 +141,16 @@ pub fn survey_unseen(
                     t.2 += 1;
                 }
             }
-            t
+            Some(t)
         })
         .collect();
     let mut survey = UnseenSurvey { receivers: count, directions, ..Default::default() };
     let (mut covering, mut seeing) = (0u64, 0u64);
-    for &(hits, back, unseen, escaped, cov, see) in &tallies {
+    for tally in &tallies {
+        let Some((hits, back, unseen, escaped, cov, see)) = *tally else {
+            survey.hidden_receivers += 1;
+            continue;
+        };
         if hits > 0 && back as f64 >= 0.3 * hits as f64 {
             survey.back_facing_receivers += 1;
             continue;
@@ -185,17 +200,17 @@ mod tests {
         });
         assert!(left.surfels.len() > 200);
         let radius = 10.0;
-        let beyond = survey_unseen(&accel, &left, &[DVec3::new(0.75, 0.5, 0.5)], radius, 200, 32, 0);
+        let beyond = survey_unseen(&accel, &left, None, &[DVec3::new(0.75, 0.5, 0.5)], radius, 200, 32, 0);
         assert_eq!(beyond.back_facing_receivers, 0);
         assert!(beyond.hits > 0);
         assert_eq!(beyond.unseen, beyond.hits, "a probe behind the wall sees a hit point");
         assert_eq!(beyond.lose_over_90_percent, beyond.counted_receivers);
-        let here = survey_unseen(&accel, &left, &[DVec3::new(0.25, 0.5, 0.5)], radius, 200, 32, 0);
+        let here = survey_unseen(&accel, &left, None, &[DVec3::new(0.25, 0.5, 0.5)], radius, 200, 32, 0);
         assert_eq!(here.unseen, 0, "the convex half hides a point from its centre");
         assert_eq!(here.seeing_per_hit, 1.0);
         assert_eq!(here.escaped, 0);
         // Out of range: not covering, so unseen.
-        let far = survey_unseen(&accel, &left, &[DVec3::new(0.25, 0.5, 0.5)], 1e-3, 200, 32, 0);
+        let far = survey_unseen(&accel, &left, None, &[DVec3::new(0.25, 0.5, 0.5)], 1e-3, 200, 32, 0);
         assert_eq!(far.unseen, far.hits);
     }
 
@@ -207,11 +222,18 @@ mod tests {
         let scene = scene_of(vec![boxed], Vec3::splat(3.0));
         let accel = Accel::build(&scene).unwrap();
         let surfels = Surfels::build(&scene, &SurfelSettings { budget: 2000, ..Default::default() }).unwrap();
-        let survey = survey_unseen(&accel, &surfels, &[DVec3::splat(2.0)], 10.0, 400, 16, 1);
+        let survey = survey_unseen(&accel, &surfels, None, &[DVec3::splat(2.0)], 10.0, 400, 16, 1);
         // Half the surfels face inwards (hits on back faces), half outwards (escape).
         let inward = survey.back_facing_receivers as f64 / survey.receivers as f64;
         assert!((inward - 0.5).abs() < 0.1, "{inward}");
         assert_eq!(survey.hits, 0);
         assert_eq!(survey.escaped, (survey.receivers - survey.back_facing_receivers) as u64 * 16);
+        // With the flood fill (from outside), the inward sides are hidden instead.
+        let geometry = crate::geometry::Geometry::from_scene(&scene).unwrap();
+        let grid = VoxelGrid::build(&geometry, 0.1, &[]).unwrap();
+        let with_grid = survey_unseen(&accel, &surfels, Some(&grid), &[DVec3::splat(2.0)], 10.0, 400, 16, 1);
+        assert_eq!(with_grid.hidden_receivers, survey.back_facing_receivers);
+        assert_eq!(with_grid.back_facing_receivers, 0);
+        assert_eq!(with_grid.escaped, survey.escaped);
     }
 }

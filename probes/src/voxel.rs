@@ -205,6 +205,17 @@ impl VoxelGrid {
         }
     }
 
+    /// Whether the point one voxel in front of a surface point `p` with unit normal `n` lies in
+    /// a voxel the flood fill reached: a receiver whose front is never reached faces the inside
+    /// of closed geometry or a gap narrower than a voxel (hidden). Points outside the grid count
+    /// as reached (open space).
+    pub fn front_reached(&self, p: DVec3, n: DVec3) -> bool {
+        match self.voxel_of(p + n * self.size) {
+            Some(c) => self.reached[self.index(c)],
+            None => true,
+        }
+    }
+
     pub fn solid_count(&self) -> usize {
         self.solid.iter().filter(|&&s| s).count()
     }

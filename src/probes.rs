@@ -1,0 +1,303 @@
+//! `lfr probes`: sparse radiance probes (Silvennoinen & Lehtinen 2017, crate `probes`,
+//! docs/probes-design.md). `lfr probes stats` builds the receivers and places the probes, and
+//! prints the placement, the coverage it gives and the memory the precompute will need.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use probes::layout::{Layout, Step};
+use probes::placement::{CandidateRule, PlacementSettings};
+use probes::surfels::SurfelSettings;
+use probes::visibility::{survey_unseen, UnseenSurvey};
+use serde::Serialize;
+
+use crate::common::{check_outputs, scene_inputs, write_json, TraceArgs};
+
+#[derive(clap::Args)]
+pub struct ProbesArgs {
+    #[command(subcommand)]
+    command: ProbesCommand,
+}
+
+#[derive(clap::Subcommand)]
+enum ProbesCommand {
+    /// Receivers, probe placement, support radius, coverage and memory of a scene.
+    Stats(StatsArgs),
+}
+
+/// Which empty voxels may hold a probe.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+enum Candidates {
+    /// Next to a surface that faces the voxel (default; an extension of the paper).
+    Front,
+    /// Next to any surface (the paper's rule).
+    Paper,
+}
+
+#[derive(clap::Args)]
+pub struct StatsArgs {
+    #[command(flatten)]
+    trace: TraceArgs,
+    /// Number of probes.
+    #[arg(long, default_value_t = 64)]
+    probes: usize,
+    /// Receiver budget (surfels; the count comes close to it).
+    #[arg(long, default_value_t = 100_000)]
+    receivers: usize,
+    /// N_overlap: mean number of probes covering a receiver (sets the support radius).
+    #[arg(long, default_value_t = 10.0)]
+    overlap: f64,
+    /// Candidate rule for probe positions.
+    #[arg(long, value_enum, default_value_t = Candidates::Front)]
+    candidates: Candidates,
+    /// Receivers to survey for hit points no covering probe sees (0: no survey).
+    #[arg(long, default_value_t = 2000)]
+    survey: usize,
+    /// Cosine-distributed directions per surveyed receiver.
+    #[arg(long, default_value_t = 128)]
+    survey_directions: u32,
+    /// Also write the report as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+pub fn run(args: &ProbesArgs) -> Result<()> {
+    match &args.command {
+        ProbesCommand::Stats(stats) => run_stats(stats),
+    }
+}
+
+#[derive(Serialize)]
+struct Report {
+    scene: String,
+    triangles: usize,
+    scene_extent: f64,
+    threads: usize,
+    receivers_budget: usize,
+    receivers: usize,
+    receiver_cell: f64,
+    receiver_area: f64,
+    area_samples: usize,
+    degenerate_triangles: usize,
+    probes_target: usize,
+    probes: usize,
+    candidate_rule: String,
+    spacing: f64,
+    voxel: f64,
+    voxel_grid: [usize; 3],
+    solid_voxels: usize,
+    reached_voxels: usize,
+    candidates: usize,
+    flood_fill_seeds: usize,
+    overlap_target: f64,
+    support_radius: f64,
+    probes_per_receiver_min: usize,
+    probes_per_receiver_mean: f64,
+    probes_per_receiver_max: usize,
+    receivers_without_probe: usize,
+    surfel_bytes: f64,
+    dense_transport_bytes: f64,
+    dense_transport_bytes_per_receiver: f64,
+    survey_receivers: usize,
+    survey_directions: u32,
+    survey_back_facing_receivers: usize,
+    survey_hidden_receivers: usize,
+    survey_unseen_fraction: f64,
+    survey_escaped: u64,
+    survey_covering_per_hit: f64,
+    survey_seeing_per_hit: f64,
+    survey_receivers_losing_none: f64,
+    survey_receivers_losing_at_most_5_percent: f64,
+    survey_receivers_losing_over_90_percent: f64,
+    surfels_s: f64,
+    placement_s: f64,
+    radius_s: f64,
+    coverage_s: f64,
+    survey_s: f64,
+}
+
+fn run_stats(args: &StatsArgs) -> Result<()> {
+    let surfel_settings = SurfelSettings { budget: args.receivers, seed: args.trace.seed(), ..Default::default() };
+    let rule = match args.candidates {
+        Candidates::Front => CandidateRule::FrontFacing,
+        Candidates::Paper => CandidateRule::Paper,
+    };
+    let placement_settings = PlacementSettings { probes: args.probes, overlap: args.overlap, rule };
+    // Every setting and output is checked before the scene is read.
+    surfel_settings.validate()?;
+    placement_settings.validate()?;
+    let threads = args.trace.run.thread_count()?;
+    if args.survey > 0 && !(1..=65536).contains(&args.survey_directions) {
+        anyhow::bail!("survey-directions: must be between 1 and 65536, got {}", args.survey_directions);
+    }
+    if let Some(json) = &args.json {
+        check_outputs(&[json], &scene_inputs(args.trace.scene.as_deref()))?;
+    }
+    let scene = args.trace.load_scene()?;
+    let pool = tracer::render::thread_pool(threads)?;
+
+    let bar = if args.trace.quiet { ProgressBar::hidden() } else { ProgressBar::new_spinner() };
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} probes stats: {msg} [{elapsed_precise}]")
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+    );
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let layout = pool
+        .install(|| {
+            Layout::build(&scene, &surfel_settings, &placement_settings, &mut |step| {
+                bar.set_message(match step {
+                    Step::Surfels => "receivers (surfels)",
+                    Step::Placement => "voxels, flood fill and probe placement",
+                    Step::Radius => "support radius",
+                    Step::Coverage => "coverage",
+                });
+            })
+        })
+        .with_context(|| format!("probes on {}", scene.source.display()))?;
+    let t = std::time::Instant::now();
+    let survey = if args.survey > 0 {
+        bar.set_message("survey of unseen hit points (rays)");
+        let accel = tracer::Accel::build(&scene)?;
+        pool.install(|| {
+            survey_unseen(
+                &accel,
+                &layout.surfels,
+                Some(&layout.placement.grid),
+                &layout.placement.probes,
+                layout.radius,
+                args.survey,
+                args.survey_directions,
+                args.trace.seed(),
+            )
+        })
+    } else {
+        UnseenSurvey::default()
+    };
+    let survey_s = t.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    let share = |n: usize| n as f64 / survey.counted_receivers.max(1) as f64;
+
+    let s = &layout.surfels.stats;
+    let p = &layout.placement;
+    let c = &layout.coverage;
+    let report = Report {
+        scene: scene.source.display().to_string(),
+        triangles: s.triangles,
+        scene_extent: layout.scale,
+        threads,
+        receivers_budget: args.receivers,
+        receivers: s.surfels,
+        receiver_cell: s.h,
+        receiver_area: s.area,
+        area_samples: s.samples,
+        degenerate_triangles: s.degenerate_triangles,
+        probes_target: args.probes,
+        probes: p.probes.len(),
+        candidate_rule: format!("{:?}", args.candidates).to_lowercase(),
+        spacing: p.spacing,
+        voxel: p.voxel,
+        voxel_grid: p.dims,
+        solid_voxels: p.solid_voxels,
+        reached_voxels: p.reached_voxels,
+        candidates: p.candidates,
+        flood_fill_seeds: p.seeds_used,
+        overlap_target: args.overlap,
+        support_radius: layout.radius,
+        probes_per_receiver_min: c.min,
+        probes_per_receiver_mean: c.mean,
+        probes_per_receiver_max: c.max,
+        receivers_without_probe: c.uncovered,
+        surfel_bytes: layout.surfel_bytes(),
+        dense_transport_bytes: layout.dense_transport_bytes(),
+        dense_transport_bytes_per_receiver: layout.dense_transport_bytes() / s.surfels.max(1) as f64,
+        survey_receivers: survey.receivers,
+        survey_directions: survey.directions,
+        survey_back_facing_receivers: survey.back_facing_receivers,
+        survey_hidden_receivers: survey.hidden_receivers,
+        survey_unseen_fraction: survey.unseen_fraction(),
+        survey_escaped: survey.escaped,
+        survey_covering_per_hit: survey.covering_per_hit,
+        survey_seeing_per_hit: survey.seeing_per_hit,
+        survey_receivers_losing_none: share(survey.lose_none),
+        survey_receivers_losing_at_most_5_percent: share(survey.lose_at_most_5_percent),
+        survey_receivers_losing_over_90_percent: share(survey.lose_over_90_percent),
+        surfels_s: layout.timings.surfels_s,
+        placement_s: layout.timings.placement_s,
+        radius_s: layout.timings.radius_s,
+        coverage_s: layout.timings.coverage_s,
+        survey_s,
+    };
+    print_report(&report);
+    if let Some(json) = &args.json {
+        write_json(json, &report)?;
+    }
+    Ok(())
+}
+
+fn print_report(r: &Report) {
+    let mb = |b: f64| b / 1e6;
+    let pct = |n: usize, of: usize| 100.0 * n as f64 / of.max(1) as f64;
+    println!(
+        "scene       {} ({} triangles, extent {:.4e}, {} threads)",
+        r.scene, r.triangles, r.scene_extent, r.threads
+    );
+    println!(
+        "receivers   {} surfels (budget {}), cell h {:.4e}, two-sided area {:.4e}, {} area samples, {} degenerate triangles skipped",
+        r.receivers, r.receivers_budget, r.receiver_cell, r.receiver_area, r.area_samples, r.degenerate_triangles
+    );
+    println!(
+        "placement   {} probes (target {}, rule {}), spacing {:.4e}, voxel {:.4e}, grid {}x{}x{}",
+        r.probes,
+        r.probes_target,
+        r.candidate_rule,
+        r.spacing,
+        r.voxel,
+        r.voxel_grid[0],
+        r.voxel_grid[1],
+        r.voxel_grid[2]
+    );
+    println!(
+        "            {} solid voxels, {} reached by the flood fill ({} seeds inside the grid), {} candidates",
+        r.solid_voxels, r.reached_voxels, r.flood_fill_seeds, r.candidates
+    );
+    println!(
+        "radius      r = {:.4e} ({:.2} spacings) for a mean overlap of {}",
+        r.support_radius,
+        r.support_radius / r.spacing,
+        r.overlap_target
+    );
+    println!(
+        "coverage    probes per receiver min {} / mean {:.2} / max {}; {} receivers ({:.2} %) with no probe in range",
+        r.probes_per_receiver_min,
+        r.probes_per_receiver_mean,
+        r.probes_per_receiver_max,
+        r.receivers_without_probe,
+        pct(r.receivers_without_probe, r.receivers)
+    );
+    if r.survey_receivers > 0 {
+        println!(
+            "unseen      {} receivers x {} cosine rays; left out: {} hidden (front voxel never reached by the flood fill), {} on the wrong side of closed geometry (>= 30 % back-face hits);",
+            r.survey_receivers, r.survey_directions, r.survey_hidden_receivers, r.survey_back_facing_receivers
+        );
+        println!(
+            "            {:.2} % of hit directions seen by no covering probe; per hit {:.2} covering probes, {:.2} seeing; receivers losing none {:.1} %, <= 5 % {:.1} %, > 90 % {:.1} %",
+            100.0 * r.survey_unseen_fraction,
+            r.survey_covering_per_hit,
+            r.survey_seeing_per_hit,
+            100.0 * r.survey_receivers_losing_none,
+            100.0 * r.survey_receivers_losing_at_most_5_percent,
+            100.0 * r.survey_receivers_losing_over_90_percent
+        );
+    }
+    println!(
+        "memory      surfels {:.1} MB; dense order-7 transport (f32) {:.1} MB = {:.0} B per receiver before CPCA",
+        mb(r.surfel_bytes),
+        mb(r.dense_transport_bytes),
+        r.dense_transport_bytes_per_receiver
+    );
+    println!(
+        "time        surfels {:.2} s, placement {:.2} s, radius {:.2} s, coverage {:.2} s, survey {:.2} s",
+        r.surfels_s, r.placement_s, r.radius_s, r.coverage_s, r.survey_s
+    );
+}
