@@ -16,7 +16,8 @@
 //!   of it in one call with timings, `layout`.
 //! - ✓ Eq. 2's visibility V_i by exact rays, and a survey of the directions no covering probe
 //!   sees: `visibility`.
-//! - ✗ Eq. 4–7, the local transport operator and the transport vector per receiver (phase 4).
+//! - ✓ Eq. 2 and 4–7, the visibility-aware local transport and the irradiance transport vector
+//!   α_x per receiver, and Eq. 1's spatial-only baseline: `transport` (phase 4, dense).
 //! - ✗ Eq. 11, CPCA compression (phase 5); Section 4.2, relight rays, cluster projection,
 //!   receiver irradiance and bounces (phase 4).
 
@@ -33,6 +34,7 @@ pub mod sh;
 pub mod surfels;
 #[cfg(test)]
 mod test_scenes;
+pub mod transport;
 pub mod visibility;
 pub mod voxel;
 
