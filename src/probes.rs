@@ -9,6 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use probes::layout::{Layout, Step};
 use probes::placement::{CandidateRule, PlacementSettings};
 use probes::surfels::SurfelSettings;
+use probes::transport::{TransportContext, TransportSettings};
 use probes::visibility::{survey_unseen, UnseenSurvey};
 use serde::Serialize;
 
@@ -57,6 +58,13 @@ pub struct StatsArgs {
     /// Cosine-distributed directions per surveyed receiver.
     #[arg(long, default_value_t = 128)]
     survey_directions: u32,
+    /// Receivers whose dense transport (Eq. 7, order 7) is computed and timed, to estimate the
+    /// precompute (0: none).
+    #[arg(long, default_value_t = 0)]
+    time_transport: usize,
+    /// Directions per receiver for --time-transport.
+    #[arg(long, default_value_t = 2048)]
+    directions: u32,
     /// Also write the report as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -115,6 +123,10 @@ struct Report {
     radius_s: f64,
     coverage_s: f64,
     survey_s: f64,
+    transport_receivers: usize,
+    transport_directions: u32,
+    transport_s_per_receiver: f64,
+    transport_estimate_all_s: f64,
 }
 
 fn run_stats(args: &StatsArgs) -> Result<()> {
@@ -131,6 +143,9 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
     if args.survey > 0 && !(1..=65536).contains(&args.survey_directions) {
         anyhow::bail!("survey-directions: must be between 1 and 65536, got {}", args.survey_directions);
     }
+    let transport_settings =
+        TransportSettings { directions: args.directions, seed: args.trace.seed(), ..Default::default() };
+    transport_settings.validate()?;
     if let Some(json) = &args.json {
         check_outputs(&[json], &scene_inputs(args.trace.scene.as_deref()))?;
     }
@@ -175,6 +190,28 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
         UnseenSurvey::default()
     };
     let survey_s = t.elapsed().as_secs_f64();
+    let mut transport_s = 0.0;
+    let timed = args.time_transport.min(layout.surfels.surfels.len());
+    if let Some(stride) = layout.surfels.surfels.len().checked_div(timed) {
+        bar.set_message("timing the dense transport");
+        let accel = tracer::Accel::build(&scene)?;
+        let ctx = TransportContext::new(
+            &accel,
+            &layout.placement.probes,
+            layout.radius,
+            layout.scale as f32,
+            transport_settings,
+        )?;
+        let t = std::time::Instant::now();
+        pool.install(|| {
+            use rayon::prelude::*;
+            (0..timed).into_par_iter().for_each(|k| {
+                let s = &layout.surfels.surfels[k * stride];
+                std::hint::black_box(ctx.receiver((k * stride) as u32, s.position, s.normal));
+            })
+        });
+        transport_s = t.elapsed().as_secs_f64();
+    }
     bar.finish_and_clear();
     let share = |n: usize| n as f64 / survey.counted_receivers.max(1) as f64;
 
@@ -227,6 +264,10 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
         radius_s: layout.timings.radius_s,
         coverage_s: layout.timings.coverage_s,
         survey_s,
+        transport_receivers: timed,
+        transport_directions: args.directions,
+        transport_s_per_receiver: transport_s / timed.max(1) as f64,
+        transport_estimate_all_s: transport_s / timed.max(1) as f64 * s.surfels as f64,
     };
     print_report(&report);
     if let Some(json) = &args.json {
@@ -296,6 +337,17 @@ fn print_report(r: &Report) {
         mb(r.dense_transport_bytes),
         r.dense_transport_bytes_per_receiver
     );
+    if r.transport_receivers > 0 {
+        println!(
+            "transport   {} receivers x {} directions (order 7, dense): {:.3} ms per receiver on {} threads; all {} receivers ~ {:.0} s",
+            r.transport_receivers,
+            r.transport_directions,
+            1e3 * r.transport_s_per_receiver,
+            r.threads,
+            r.receivers,
+            r.transport_estimate_all_s
+        );
+    }
     println!(
         "time        surfels {:.2} s, placement {:.2} s, radius {:.2} s, coverage {:.2} s, survey {:.2} s",
         r.surfels_s, r.placement_s, r.radius_s, r.coverage_s, r.survey_s

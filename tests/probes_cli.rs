@@ -28,6 +28,7 @@ fn bad_parameters_are_refused_before_any_work() {
         (vec!["--receivers", "100000000000"], "receivers:"),
         (vec!["--threads", "100000"], "--threads"),
         (vec!["--survey-directions", "0"], "survey-directions:"),
+        (vec!["--directions", "0"], "directions:"),
     ] {
         // A scene that does not exist: the settings must be refused before it is looked for.
         let mut args = vec!["probes", "stats", "--quiet", "--scene", "does-not-exist.toml"];
@@ -48,8 +49,21 @@ fn bad_parameters_are_refused_before_any_work() {
 fn stats_on_the_cornell_box_are_consistent() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("stats.json");
-    let out =
-        lfr(&["probes", "stats", "--quiet", "--probes", "12", "--receivers", "3000", "--json", json.to_str().unwrap()]);
+    let out = lfr(&[
+        "probes",
+        "stats",
+        "--quiet",
+        "--probes",
+        "12",
+        "--receivers",
+        "3000",
+        "--time-transport",
+        "50",
+        "--directions",
+        "64",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("coverage") && stdout.contains("memory"), "{stdout}");
@@ -66,6 +80,8 @@ fn stats_on_the_cornell_box_are_consistent() {
     assert!(survey > 0.0 && survey <= receivers);
     let unseen = report["survey_unseen_fraction"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&unseen), "{unseen}");
+    assert_eq!(report["transport_receivers"], 50);
+    assert!(report["transport_s_per_receiver"].as_f64().unwrap() > 0.0);
     let dense = report["dense_transport_bytes"].as_f64().unwrap();
     assert!((dense / (receivers * mean * 256.0) - 1.0).abs() < 1e-9);
 }
