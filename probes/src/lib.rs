@@ -18,8 +18,9 @@
 //!   sees: `visibility`.
 //! - ✓ Eq. 2 and 4–7, the visibility-aware local transport and the irradiance transport vector
 //!   α_x per receiver, and Eq. 1's spatial-only baseline: `transport` (phase 4, dense).
-//! - ✗ Eq. 11, CPCA compression (phase 5); Section 4.2, relight rays, cluster projection,
-//!   receiver irradiance and bounces (phase 4).
+//! - ✓ Section 4.2, "Probe Transport": relight rays and the per-frame probe SH λ: `relight`.
+//! - ✗ Eq. 11, CPCA compression (phase 5); Section 4.2, cluster projection, receiver irradiance
+//!   and bounces (phase 4).
 
 #![forbid(unsafe_code)]
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -30,6 +31,7 @@ pub mod kernel;
 pub mod layout;
 pub mod lookup;
 pub mod placement;
+pub mod relight;
 pub mod sh;
 pub mod surfels;
 #[cfg(test)]
