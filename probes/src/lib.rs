@@ -19,13 +19,16 @@
 //! - ✓ Eq. 2 and 4–7, the visibility-aware local transport and the irradiance transport vector
 //!   α_x per receiver, and Eq. 1's spatial-only baseline: `transport` (phase 4, dense).
 //! - ✓ Section 4.2, "Probe Transport": relight rays and the per-frame probe SH λ: `relight`.
-//! - ✗ Eq. 11, CPCA compression (phase 5); Section 4.2, cluster projection, receiver irradiance
-//!   and bounces (phase 4).
+//! - ✓ Section 4.2, receiver irradiance (dense, Eq. 7 per receiver) and the feedback loop of
+//!   bounces: `frame`.
+//! - ✗ Eq. 11, CPCA compression and the cluster projection (phase 5); direct light at the
+//!   senders for lfr's lights, the image from the receivers, `lfr compare` (phase 4 rest, 6).
 
 #![forbid(unsafe_code)]
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod error;
+pub mod frame;
 pub mod geometry;
 pub mod kernel;
 pub mod layout;

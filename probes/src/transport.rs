@@ -97,6 +97,19 @@ impl Transport {
         }
         sum as f32
     }
+
+    /// [`Transport::irradiance`] for RGB coefficients.
+    pub fn irradiance_rgb(&self, lambda: &[Vec3], coefficients: usize) -> Vec3 {
+        let mut sum = DVec3::ZERO;
+        for (k, &p) in self.probes.iter().enumerate() {
+            let a = &self.alpha[k * coefficients..(k + 1) * coefficients];
+            let l = &lambda[p as usize * coefficients..(p as usize + 1) * coefficients];
+            for (&a, l) in a.iter().zip(l) {
+                sum += l.as_dvec3() * a as f64;
+            }
+        }
+        sum.as_vec3()
+    }
 }
 
 /// What every receiver's transport shares.
