@@ -21,12 +21,15 @@
 //! - ✓ Section 4.2, "Probe Transport": relight rays and the per-frame probe SH λ: `relight`.
 //! - ✓ Section 4.2, receiver irradiance (dense, Eq. 7 per receiver) and the feedback loop of
 //!   bounces: `frame`.
-//! - ✗ Eq. 11, CPCA compression and the cluster projection (phase 5); direct light at the
-//!   senders for lfr's lights, the image from the receivers, `lfr compare` (phase 4 rest, 6).
+//! - ✓ Section 4.2, "Scene relight": direct irradiance at the senders through the tracer's light
+//!   model: `direct`.
+//! - ✗ Eq. 11, CPCA compression and the cluster projection (phase 5); the image from the
+//!   receivers, `lfr compare` (phase 4 rest, 6).
 
 #![forbid(unsafe_code)]
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod direct;
 pub mod error;
 pub mod frame;
 pub mod geometry;
