@@ -6,8 +6,11 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
+use probes::direct::direct_irradiance;
+use probes::frame::{indirect, surfel_albedo};
 use probes::layout::{Layout, Step};
 use probes::placement::{CandidateRule, PlacementSettings};
+use probes::relight::RelightTable;
 use probes::surfels::SurfelSettings;
 use probes::transport::{TransportContext, TransportSettings};
 use probes::visibility::{survey_unseen, UnseenSurvey};
@@ -65,6 +68,13 @@ pub struct StatsArgs {
     /// Directions per receiver for --time-transport.
     #[arg(long, default_value_t = 2048)]
     directions: u32,
+    /// Run the whole dense pipeline once on every receiver (transport with --directions, relight
+    /// rays, direct light, bounces to convergence) and time a relit frame; slow on big budgets.
+    #[arg(long)]
+    frame: bool,
+    /// Relight rays per probe for --frame.
+    #[arg(long, default_value_t = 8000)]
+    relight_rays: u32,
     /// Also write the report as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -127,6 +137,22 @@ struct Report {
     transport_directions: u32,
     transport_s_per_receiver: f64,
     transport_estimate_all_s: f64,
+    frame: Option<FrameReport>,
+}
+
+#[derive(Serialize)]
+struct FrameReport {
+    precompute_transport_s: f64,
+    precompute_relight_s: f64,
+    direct_s: f64,
+    bounces_s: f64,
+    iterations: usize,
+    bounce_s: f64,
+    clamped_channels: u64,
+    mean_indirect_irradiance: [f32; 3],
+    unseen_direction_fraction: f64,
+    relight_escaped: u64,
+    relight_holes: u64,
 }
 
 fn run_stats(args: &StatsArgs) -> Result<()> {
@@ -146,6 +172,15 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
     let transport_settings =
         TransportSettings { directions: args.directions, seed: args.trace.seed(), ..Default::default() };
     transport_settings.validate()?;
+    let coefficients = (transport_settings.order + 1) * (transport_settings.order + 1);
+    if args.frame && !(args.relight_rays >= 4 * coefficients as u32 && args.relight_rays <= probes::relight::MAX_RAYS) {
+        anyhow::bail!(
+            "relight-rays: must be between {} and {}, got {}",
+            4 * coefficients,
+            probes::relight::MAX_RAYS,
+            args.relight_rays
+        );
+    }
     if let Some(json) = &args.json {
         check_outputs(&[json], &scene_inputs(args.trace.scene.as_deref()))?;
     }
@@ -212,6 +247,12 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
         });
         transport_s = t.elapsed().as_secs_f64();
     }
+    let frame = if args.frame {
+        bar.set_message("dense pipeline: transport, relight rays, direct light, bounces");
+        Some(pool.install(|| run_frame(&scene, &layout, transport_settings, args.relight_rays, args.trace.seed()))?)
+    } else {
+        None
+    };
     bar.finish_and_clear();
     let share = |n: usize| n as f64 / survey.counted_receivers.max(1) as f64;
 
@@ -268,12 +309,58 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
         transport_directions: args.directions,
         transport_s_per_receiver: transport_s / timed.max(1) as f64,
         transport_estimate_all_s: transport_s / timed.max(1) as f64 * s.surfels as f64,
+        frame,
     };
     print_report(&report);
     if let Some(json) = &args.json {
         write_json(json, &report)?;
     }
     Ok(())
+}
+
+/// The dense pipeline once, timed.
+fn run_frame(
+    scene: &tracer::Scene,
+    layout: &Layout,
+    settings: TransportSettings,
+    relight_rays: u32,
+    seed: u32,
+) -> Result<FrameReport> {
+    use std::time::Instant;
+    let accel = tracer::Accel::build(scene)?;
+    let scale = layout.scale as f32;
+    let t = Instant::now();
+    let ctx = TransportContext::new(&accel, &layout.placement.probes, layout.radius, scale, settings)?;
+    let transports = ctx.all(&layout.surfels);
+    let precompute_transport_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let table =
+        RelightTable::build(&accel, &layout.surfels, &layout.placement.probes, relight_rays, settings.order, scale)?;
+    let precompute_relight_s = t.elapsed().as_secs_f64();
+    let albedo = surfel_albedo(scene, &layout.surfels);
+    let t = Instant::now();
+    let direct = direct_irradiance(scene, &accel, &layout.surfels, 16, seed, scale)?;
+    let direct_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let out = indirect(&transports, &table, &albedo, &direct, scene.max_bounces.max(1) as usize, 1e-3)?;
+    let bounces_s = t.elapsed().as_secs_f64();
+    let n = out.irradiance.len().max(1) as f32;
+    let mean = out.irradiance.iter().fold(glam::Vec3::ZERO, |a, e| a + *e) / n;
+    let hits: u64 = transports.iter().map(|t| t.hits as u64).sum();
+    let unseen: u64 = transports.iter().map(|t| t.unseen as u64).sum();
+    Ok(FrameReport {
+        precompute_transport_s,
+        precompute_relight_s,
+        direct_s,
+        bounces_s,
+        iterations: out.iterations,
+        bounce_s: bounces_s / out.iterations.max(1) as f64,
+        clamped_channels: out.clamped,
+        mean_indirect_irradiance: mean.to_array(),
+        unseen_direction_fraction: unseen as f64 / hits.max(1) as f64,
+        relight_escaped: table.escaped,
+        relight_holes: table.holes,
+    })
 }
 
 fn print_report(r: &Report) {
@@ -337,6 +424,27 @@ fn print_report(r: &Report) {
         mb(r.dense_transport_bytes),
         r.dense_transport_bytes_per_receiver
     );
+    if let Some(f) = &r.frame {
+        println!(
+            "frame       precompute: transport {:.1} s, relight rays {:.1} s; relit frame: direct {:.3} s + {} bounces {:.3} s ({:.4} s each), {} channels clamped",
+            f.precompute_transport_s,
+            f.precompute_relight_s,
+            f.direct_s,
+            f.iterations,
+            f.bounces_s,
+            f.bounce_s,
+            f.clamped_channels
+        );
+        println!(
+            "            mean indirect irradiance {:.4e} {:.4e} {:.4e}; {:.2} % of transport directions unseen; relight rays escaped {}, on holes {}",
+            f.mean_indirect_irradiance[0],
+            f.mean_indirect_irradiance[1],
+            f.mean_indirect_irradiance[2],
+            100.0 * f.unseen_direction_fraction,
+            f.relight_escaped,
+            f.relight_holes
+        );
+    }
     if r.transport_receivers > 0 {
         println!(
             "transport   {} receivers x {} directions (order 7, dense): {:.3} ms per receiver on {} threads; all {} receivers ~ {:.0} s",

@@ -29,6 +29,7 @@ fn bad_parameters_are_refused_before_any_work() {
         (vec!["--threads", "100000"], "--threads"),
         (vec!["--survey-directions", "0"], "survey-directions:"),
         (vec!["--directions", "0"], "directions:"),
+        (vec!["--frame", "--relight-rays", "10"], "relight-rays:"),
     ] {
         // A scene that does not exist: the settings must be refused before it is looked for.
         let mut args = vec!["probes", "stats", "--quiet", "--scene", "does-not-exist.toml"];
@@ -61,6 +62,9 @@ fn stats_on_the_cornell_box_are_consistent() {
         "50",
         "--directions",
         "64",
+        "--frame",
+        "--relight-rays",
+        "512",
         "--json",
         json.to_str().unwrap(),
     ]);
@@ -82,6 +86,10 @@ fn stats_on_the_cornell_box_are_consistent() {
     assert!((0.0..=1.0).contains(&unseen), "{unseen}");
     assert_eq!(report["transport_receivers"], 50);
     assert!(report["transport_s_per_receiver"].as_f64().unwrap() > 0.0);
+    let frame = &report["frame"];
+    assert!(frame["iterations"].as_u64().unwrap() >= 1);
+    let indirect = frame["mean_indirect_irradiance"].as_array().unwrap();
+    assert!(indirect.iter().all(|v| v.as_f64().unwrap() > 0.0 && v.as_f64().unwrap().is_finite()), "{indirect:?}");
     let dense = report["dense_transport_bytes"].as_f64().unwrap();
     assert!((dense / (receivers * mean * 256.0) - 1.0).abs() < 1e-9);
 }

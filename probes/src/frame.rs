@@ -10,8 +10,10 @@
 
 use glam::Vec3;
 use rayon::prelude::*;
+use tracer::Scene;
 
 use crate::relight::RelightTable;
+use crate::surfels::Surfels;
 use crate::transport::Transport;
 use crate::ProbesError;
 
@@ -24,6 +26,20 @@ pub struct Indirect {
     pub clamped: u64,
     /// The largest relative change of the last iteration (∞ after one).
     pub change: f32,
+}
+
+/// The diffuse albedo of every surfel: its material's base colour times (1 − metallic), without
+/// textures for now (Cornell is untextured; textured scenes need the surfel's uv, phase 4 rest).
+pub fn surfel_albedo(scene: &Scene, surfels: &Surfels) -> Vec<Vec3> {
+    surfels
+        .surfels
+        .iter()
+        .map(|s| {
+            let mesh = &scene.meshes[s.mesh as usize];
+            let m = &scene.materials[mesh.material as usize];
+            m.base_color * (1.0 - m.metallic.clamp(0.0, 1.0))
+        })
+        .collect()
 }
 
 /// Iterates the feedback loop at most `max_iterations` times, stopping early when the largest
@@ -142,6 +158,24 @@ mod tests {
                 .fold(0.0f32, f32::max);
             assert!(worst < 3e-2, "ρ = {rho}: converged off by {worst}");
         }
+    }
+
+    #[test]
+    fn albedo_comes_from_the_surfels_material() {
+        let s = sphere_setup();
+        let mut scene = scene_of(vec![sphere("s", Vec3::ZERO, 1.0, 4, 1)], Vec3::ZERO);
+        scene.materials.push(tracer::scene::Material {
+            base_color: Vec3::new(0.8, 0.4, 0.2),
+            metallic: 0.25,
+            ..Default::default()
+        });
+        let surfels = Surfels::build(&scene, &SurfelSettings { budget: 200, ..Default::default() }).unwrap();
+        let albedo = surfel_albedo(&scene, &surfels);
+        assert!(albedo.iter().all(|a| (*a - Vec3::new(0.6, 0.3, 0.15)).abs().max_element() < 1e-6));
+        assert_eq!(
+            surfel_albedo(&scene_of(vec![sphere("s", Vec3::ZERO, 1.0, 4, 0)], Vec3::ZERO), &s.surfels).len(),
+            s.surfels.surfels.len()
+        );
     }
 
     #[test]
