@@ -153,6 +153,7 @@ struct FrameReport {
     unseen_direction_fraction: f64,
     relight_escaped: u64,
     relight_holes: u64,
+    hidden_receivers: usize,
 }
 
 fn run_stats(args: &StatsArgs) -> Result<()> {
@@ -331,7 +332,7 @@ fn run_frame(
     let scale = layout.scale as f32;
     let t = Instant::now();
     let ctx = TransportContext::new(&accel, &layout.placement.probes, layout.radius, scale, settings)?;
-    let transports = ctx.all(&layout.surfels);
+    let (transports, hidden_receivers) = ctx.all_valid(&layout.surfels, &layout.placement.grid);
     let precompute_transport_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let table =
@@ -360,6 +361,7 @@ fn run_frame(
         unseen_direction_fraction: unseen as f64 / hits.max(1) as f64,
         relight_escaped: table.escaped,
         relight_holes: table.holes,
+        hidden_receivers,
     })
 }
 
@@ -436,7 +438,8 @@ fn print_report(r: &Report) {
             f.clamped_channels
         );
         println!(
-            "            mean indirect irradiance {:.4e} {:.4e} {:.4e}; {:.2} % of transport directions unseen; relight rays escaped {}, on holes {}",
+            "            {} hidden receivers without transport; mean indirect irradiance {:.4e} {:.4e} {:.4e}; {:.2} % of the valid receivers' hit directions unseen; relight rays escaped {}, on holes {}",
+            f.hidden_receivers,
             f.mean_indirect_irradiance[0],
             f.mean_indirect_irradiance[1],
             f.mean_indirect_irradiance[2],

@@ -19,6 +19,7 @@ use crate::kernel;
 use crate::sh::{Basis, MAX_ORDER};
 use crate::surfels::Surfels;
 use crate::visibility::{offset, probe_sees};
+use crate::voxel::VoxelGrid;
 use crate::ProbesError;
 
 /// The most directions per receiver.
@@ -79,13 +80,20 @@ pub struct Transport {
     pub probes: Vec<u32>,
     /// α, probe-major: `alpha[k * coefficients + j]` for `probes[k]` and SH coefficient j.
     pub alpha: Vec<f32>,
-    /// Directions that hit a surface, that hit one no covering probe sees, that escaped.
+    /// Directions that hit a surface, that hit one no covering probe sees, that escaped, and
+    /// that hit a back face (the wrong side of closed geometry).
     pub hits: u32,
     pub unseen: u32,
     pub escaped: u32,
+    pub back_faces: u32,
 }
 
 impl Transport {
+    /// No probes, no directions: the transport of a hidden receiver.
+    pub fn empty() -> Transport {
+        Transport { probes: Vec::new(), alpha: Vec::new(), hits: 0, unseen: 0, escaped: 0, back_faces: 0 }
+    }
+
     /// Eq. 7: I(x) = Σ_ij λ_ij α_ij for probe coefficients `lambda` (all probes, probe-major,
     /// `coefficients` per probe, one colour channel).
     pub fn irradiance(&self, lambda: &[f32], coefficients: usize) -> f32 {
@@ -160,7 +168,7 @@ impl<'a> TransportContext<'a> {
         let mut visible = vec![false; covering.len()];
         let frame = Frame::new(n);
         let origin = x + n * offset(x, self.scale);
-        let (mut hits, mut unseen, mut escaped) = (0u32, 0u32, 0u32);
+        let (mut hits, mut unseen, mut escaped, mut back_faces) = (0u32, 0u32, 0u32, 0u32);
         for k in 0..self.settings.directions {
             let u = Sampler::new(self.settings.seed, index, 0x1fff_ffff, k).next_2d();
             let dir = frame.to_world(sample_cosine_hemisphere(u)).normalize();
@@ -186,6 +194,9 @@ impl<'a> TransportContext<'a> {
                     };
                     hits += 1;
                     let ng = hit.geometric_normal.normalize_or_zero();
+                    if ng.dot(dir) > 0.0 {
+                        back_faces += 1;
+                    }
                     let side = if ng.dot(dir) > 0.0 { -ng } else { ng };
                     let point = origin + dir * hit.distance;
                     let mut total = 0.0f64;
@@ -220,7 +231,39 @@ impl<'a> TransportContext<'a> {
             hits,
             unseen,
             escaped,
+            back_faces,
         }
+    }
+
+    /// Whether a receiver is hidden: its front voxel never reached by the flood fill (inside
+    /// closed geometry or in a gap narrower than a voxel), or at least 30 % of its transport's
+    /// hits on back faces. A hidden receiver gets no transport (E = 0).
+    pub fn hidden(grid: &VoxelGrid, x: Vec3, n: Vec3, transport: Option<&Transport>) -> bool {
+        !grid.front_reached(x.as_dvec3(), n.as_dvec3())
+            || transport.is_some_and(|t| t.hits > 0 && t.back_faces as f64 >= 0.3 * t.hits as f64)
+    }
+
+    /// The transport of every surfel, hidden ones (see [`TransportContext::hidden`]) left empty
+    /// (no probes, no directions traced past the voxel test); and how many were hidden.
+    pub fn all_valid(&self, surfels: &Surfels, grid: &VoxelGrid) -> (Vec<Transport>, usize) {
+        let out: Vec<(Transport, bool)> = surfels
+            .surfels
+            .par_iter()
+            .enumerate()
+            .map(|(i, s)| {
+                if Self::hidden(grid, s.position, s.normal, None) {
+                    return (Transport::empty(), true);
+                }
+                let t = self.receiver(i as u32, s.position, s.normal);
+                if Self::hidden(grid, s.position, s.normal, Some(&t)) {
+                    (Transport::empty(), true)
+                } else {
+                    (t, false)
+                }
+            })
+            .collect();
+        let hidden = out.iter().filter(|(_, h)| *h).count();
+        (out.into_iter().map(|(t, _)| t).collect(), hidden)
     }
 
     /// The transport of every surfel, in surfel order.
@@ -376,6 +419,42 @@ mod tests {
             leaked += eq1.receiver(k as u32, x, n).irradiance(&red, nc) as f64;
         }
         assert!(leaked / room_b.len() as f64 > 1.0, "Eq. 1 should leak through the wall: {leaked}");
+    }
+
+    #[test]
+    fn hidden_receivers_get_no_transport() {
+        // A closed block (outward faces) inside a room: its inner sides are hidden by the flood
+        // fill, the room's outer sides see nothing, the rest is valid.
+        let block = tracer::scene::shapes::axis_aligned_box("block", Vec3::splat(0.3), Vec3::splat(0.6), 0);
+        let scene = scene_of(vec![room(Vec3::ZERO, Vec3::ONE), block], Vec3::splat(0.15));
+        let accel = Accel::build(&scene).unwrap();
+        let surfels = Surfels::build(&scene, &SurfelSettings { budget: 1500, ..Default::default() }).unwrap();
+        let geometry = crate::geometry::Geometry::from_scene(&scene).unwrap();
+        let grid = VoxelGrid::build(&geometry, 0.05, &[DVec3::splat(0.15)]).unwrap();
+        let probes = [DVec3::splat(0.15), DVec3::splat(0.85)];
+        let ctx = TransportContext::new(
+            &accel,
+            &probes,
+            1.5,
+            1.0,
+            TransportSettings { directions: 64, ..Default::default() },
+        )
+        .unwrap();
+        let (transports, hidden) = ctx.all_valid(&surfels, &grid);
+        let inside_block = |p: Vec3| p.cmpgt(Vec3::splat(0.3)).all() && p.cmplt(Vec3::splat(0.6)).all();
+        let mut block_inner = 0;
+        for (s, t) in surfels.surfels.iter().zip(&transports) {
+            if inside_block(s.position + s.normal * 0.01) {
+                block_inner += 1;
+                assert_eq!(*t, Transport::empty(), "a receiver inside the block has a transport");
+            }
+        }
+        assert!(block_inner > 20 && hidden >= block_inner, "{block_inner} inner, {hidden} hidden");
+        // Every valid receiver inside the room sees most of its hits.
+        let valid: Vec<&Transport> = transports.iter().filter(|t| t.hits > 0).collect();
+        let unseen: u32 = valid.iter().map(|t| t.unseen).sum();
+        let hits: u32 = valid.iter().map(|t| t.hits).sum();
+        assert!((unseen as f64) < 0.05 * hits as f64, "{unseen} of {hits} unseen");
     }
 
     #[test]
