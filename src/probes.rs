@@ -108,6 +108,7 @@ struct Report {
     reached_voxels: usize,
     candidates: usize,
     flood_fill_seeds: usize,
+    probes_inside_geometry_dropped: usize,
     overlap_target: f64,
     support_radius: f64,
     probes_per_receiver_min: usize,
@@ -281,6 +282,7 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
         reached_voxels: p.reached_voxels,
         candidates: p.candidates,
         flood_fill_seeds: p.seeds_used,
+        probes_inside_geometry_dropped: layout.probes_inside,
         overlap_target: args.overlap,
         support_radius: layout.radius,
         probes_per_receiver_min: c.min,
@@ -388,8 +390,8 @@ fn print_report(r: &Report) {
         r.voxel_grid[2]
     );
     println!(
-        "            {} solid voxels, {} reached by the flood fill ({} seeds inside the grid), {} candidates",
-        r.solid_voxels, r.reached_voxels, r.flood_fill_seeds, r.candidates
+        "            {} solid voxels, {} reached by the flood fill ({} seeds inside the grid), {} candidates, {} probes dropped inside geometry",
+        r.solid_voxels, r.reached_voxels, r.flood_fill_seeds, r.candidates, r.probes_inside_geometry_dropped
     );
     println!(
         "radius      r = {:.4e} ({:.2} spacings) for a mean overlap of {}",

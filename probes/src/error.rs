@@ -21,6 +21,9 @@ pub enum ProbesError {
          (voxel size {voxel}); try more probes (a finer voxel grid) or the paper's candidate rule"
     )]
     NoCandidates { voxel: f64 },
+    /// The tracer failed (building the accelerator).
+    #[error("tracer: {0}")]
+    Tracer(String),
     /// A size the machine cannot hold, refused before the work.
     #[error("{what}: an estimated {estimate} exceeds the limit of {limit}")]
     TooLarge { what: &'static str, estimate: String, limit: String },

@@ -5,10 +5,11 @@
 use std::time::Instant;
 
 use glam::DVec3;
-use tracer::Scene;
+use tracer::{Accel, Scene};
 
 use crate::geometry::{seed_points, Geometry};
 use crate::placement::{coverage, place, support_radius, Coverage, Placement, PlacementSettings};
+use crate::relight::probes_inside;
 use crate::sh;
 use crate::surfels::{SurfelSettings, Surfels};
 use crate::ProbesError;
@@ -39,6 +40,8 @@ pub struct Layout {
     /// The support radius r of every probe.
     pub radius: f64,
     pub coverage: Coverage,
+    /// Probes dropped because their rays saw mostly back faces (inside geometry).
+    pub probes_inside: usize,
     /// The scene's largest extent.
     pub scale: f64,
     pub timings: Timings,
@@ -64,7 +67,17 @@ impl Layout {
 
         progress(Step::Placement);
         let t = Instant::now();
-        let placement = place(&geometry, &seed_points(scene), placement_settings)?;
+        let mut placement = place(&geometry, &seed_points(scene), placement_settings)?;
+        // Probe validity: drop probes that see mostly back faces (a leaky flood fill).
+        let accel = Accel::build(scene).map_err(|e| ProbesError::Tracer(e.to_string()))?;
+        let inside = probes_inside(&accel, &placement.probes, 256, geometry.scale() as f32);
+        let before = placement.probes.len();
+        let mut flags = inside.iter();
+        placement.probes.retain(|_| !flags.next().copied().unwrap_or(false));
+        let probes_inside = before - placement.probes.len();
+        if placement.probes.is_empty() {
+            return Err(ProbesError::NoCandidates { voxel: placement.voxel });
+        }
         timings.placement_s = t.elapsed().as_secs_f64();
 
         progress(Step::Radius);
@@ -78,7 +91,7 @@ impl Layout {
         let coverage = coverage(&placement.probes, &receivers, radius);
         timings.coverage_s = t.elapsed().as_secs_f64();
 
-        Ok(Layout { surfels, placement, radius, coverage, scale: geometry.scale(), timings })
+        Ok(Layout { surfels, placement, radius, coverage, probes_inside, scale: geometry.scale(), timings })
     }
 
     /// Bytes of the uncompressed irradiance transport (Eq. 7) at order 7 in f32: one 64-vector

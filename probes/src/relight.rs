@@ -38,6 +38,31 @@ pub fn fibonacci_directions(count: u32) -> Vec<Vec3> {
         .collect()
 }
 
+/// The share of back-face hits above which a probe is inside geometry (DDGI-style).
+pub const INSIDE_BACK_FACES: f32 = 0.25;
+
+/// Which probes are inside geometry: at least [`INSIDE_BACK_FACES`] of the hits of `rays`
+/// Fibonacci rays land on back faces (a flood fill through a non-watertight mesh can leave
+/// probes there). Returns one flag per probe, `true` = inside.
+pub fn probes_inside(accel: &Accel, probes: &[DVec3], rays: u32, scale: f32) -> Vec<bool> {
+    let directions = fibonacci_directions(rays.max(1));
+    probes
+        .par_iter()
+        .map(|p| {
+            let origin = p.as_vec3();
+            let t_min = offset(origin, scale);
+            let (mut hits, mut back) = (0u32, 0u32);
+            for &d in &directions {
+                if let Some(hit) = accel.intersect(origin, d, t_min, f32::INFINITY, 0.0) {
+                    hits += 1;
+                    back += u32::from(hit.geometric_normal.dot(d) > 0.0);
+                }
+            }
+            hits > 0 && back as f32 >= INSIDE_BACK_FACES * hits as f32
+        })
+        .collect()
+}
+
 /// The precomputed relight rays of every probe.
 #[derive(Clone, Debug)]
 pub struct RelightTable {
@@ -175,6 +200,15 @@ mod tests {
     use crate::surfels::SurfelSettings;
     use crate::test_scenes::{room, scene_of};
     use tracer::scene::shapes::sphere;
+
+    #[test]
+    fn a_probe_forced_inside_a_closed_box_is_found_inside() {
+        let boxed = tracer::scene::shapes::axis_aligned_box("box", Vec3::splat(0.2), Vec3::splat(0.5), 0);
+        let scene = scene_of(vec![room(Vec3::ZERO, Vec3::ONE), boxed], Vec3::splat(0.8));
+        let accel = Accel::build(&scene).unwrap();
+        let probes = [DVec3::splat(0.35), DVec3::splat(0.8), DVec3::new(0.1, 0.9, 0.5)];
+        assert_eq!(probes_inside(&accel, &probes, 256, 1.0), vec![true, false, false]);
+    }
 
     #[test]
     fn fibonacci_quadrature_is_nearly_orthonormal() {

@@ -8,7 +8,7 @@
 //! triangle overlaps it (separating-axis test, the box grown by `GROW` voxels against rounding);
 //! per solid voxel a 6-bit mask records which of its 6 neighbours some triangle in it faces:
 //! the offset from the triangle's closest point to the neighbour's centre is at least a quarter
-//! voxel along the triangle's normal and within 60° of it (so a voxel beside a wall's edge, in
+//! voxel along the triangle's normal and within 25° of it (so a voxel beside a wall's edge, in
 //! front of its plane but not of the wall, is not faced).
 //! The flood fill starts from the grid's boundary and from the seed points (camera, point and
 //! spot lights) that lie in empty voxels.
@@ -30,7 +30,7 @@ const GROW: f64 = 1e-4;
 /// How far in front of a triangle's plane a neighbour's centre must be to be faced, in voxels.
 const FACING_MARGIN: f64 = 0.25;
 /// The cosine of the largest angle between a triangle's normal and the offset to a faced centre.
-const FACING_COS: f64 = 0.5;
+const FACING_COS: f64 = 0.9;
 
 /// The six neighbour offsets: −x, +x, −y, +y, −z, +z (bit d of a facing mask).
 pub const NEIGHBOURS: [[i64; 3]; 6] = [[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]];
