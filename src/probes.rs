@@ -61,7 +61,7 @@ pub struct StatsArgs {
     /// Cosine-distributed directions per surveyed receiver.
     #[arg(long, default_value_t = 128)]
     survey_directions: u32,
-    /// Receivers whose dense transport (Eq. 7, order 7) is computed and timed, to estimate the
+    /// Receivers whose dense transport (order 7) is computed and timed, to estimate the
     /// precompute (0: none).
     #[arg(long, default_value_t = 0)]
     time_transport: usize,

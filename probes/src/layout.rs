@@ -94,7 +94,7 @@ impl Layout {
         Ok(Layout { surfels, placement, radius, coverage, probes_inside, scale: geometry.scale(), timings })
     }
 
-    /// Bytes of the uncompressed irradiance transport (Eq. 7) at order 7 in f32: one 64-vector
+    /// Bytes of the uncompressed irradiance transport α_x at order 7 in f32: one 64-vector
     /// per covering probe per receiver.
     pub fn dense_transport_bytes(&self) -> f64 {
         self.coverage.mean * self.coverage.receivers as f64 * sh::coefficient_count(sh::MAX_ORDER) as f64 * 4.0

@@ -73,7 +73,8 @@ impl Basis {
         false
     }
 
-    /// Writes `Y_j(d)` for all `j < self.len()` into `out`; `d` must be a unit vector.
+    /// Writes `Y_j(d)`, the basis of Eq. 3, for all `j < self.len()` into `out`; `d` must be a
+    /// unit vector.
     pub fn eval_into(&self, d: Vec3, out: &mut [f32]) {
         let n = self.order;
         let out = &mut out[..coefficient_count(n)];

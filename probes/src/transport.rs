@@ -150,7 +150,8 @@ impl<'a> TransportContext<'a> {
         self.basis.len()
     }
 
-    /// The transport of the receiver at `x` with unit normal `n`; `index` seeds its directions.
+    /// The transport of the receiver at `x` with unit normal `n`: Eq. 4's kernel K_ij measured by
+    /// the clamped cosine (Eq. 5–6) into α_ij; `index` seeds its directions.
     pub fn receiver(&self, index: u32, x: Vec3, n: Vec3) -> Transport {
         let nc = self.basis.len();
         let xd = x.as_dvec3();

@@ -20,7 +20,7 @@ pub fn offset(p: Vec3, scale: f32) -> f32 {
     (p.abs().max_element() + 1e-3 * scale) * 4e-6
 }
 
-/// Eq. 2's V_i for the point `y` on a surface whose side facing the receiver has unit normal
+/// The visibility weight V_i for the point `y` on a surface whose side facing the receiver has unit normal
 /// `side`: whether the probe at `probe` is in front of that side and sees `y`.
 pub fn probe_sees(accel: &Accel, y: Vec3, side: Vec3, probe: Vec3, scale: f32) -> bool {
     if !((probe - y).dot(side) > 0.0) {
