@@ -69,7 +69,8 @@ pub struct StatsArgs {
     #[arg(long, default_value_t = 2048)]
     directions: u32,
     /// Run the whole dense pipeline once on every receiver (transport with --directions, relight
-    /// rays, direct light, bounces to convergence) and time a relit frame; slow on big budgets.
+    /// rays, direct light, bounces to convergence or --max-bounces) and time a relit frame; slow
+    /// on big budgets. (--width and --height are for the image, still to come.)
     #[arg(long)]
     frame: bool,
     /// Relight rays per probe for --frame.
@@ -251,7 +252,10 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
     }
     let frame = if args.frame {
         bar.set_message("dense pipeline: transport, relight rays, direct light, bounces");
-        Some(pool.install(|| run_frame(&scene, &layout, transport_settings, args.relight_rays, args.trace.seed()))?)
+        let max_bounces = args.trace.size.max_bounces.unwrap_or(scene.max_bounces);
+        Some(pool.install(|| {
+            run_frame(&scene, &layout, transport_settings, args.relight_rays, max_bounces, args.trace.seed())
+        })?)
     } else {
         None
     };
@@ -327,6 +331,7 @@ fn run_frame(
     layout: &Layout,
     settings: TransportSettings,
     relight_rays: u32,
+    max_bounces: u32,
     seed: u32,
 ) -> Result<FrameReport> {
     use std::time::Instant;
@@ -345,7 +350,7 @@ fn run_frame(
     let direct = direct_irradiance(scene, &accel, &layout.surfels, 16, seed, scale)?;
     let direct_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let out = indirect(&transports, &table, &albedo, &direct, scene.max_bounces.max(1) as usize, 1e-3)?;
+    let out = indirect(&transports, &table, &albedo, &direct, max_bounces.max(1) as usize, 1e-3)?;
     let bounces_s = t.elapsed().as_secs_f64();
     let n = out.irradiance.len().max(1) as f32;
     let mean = out.irradiance.iter().fold(glam::Vec3::ZERO, |a, e| a + *e) / n;
