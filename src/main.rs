@@ -15,6 +15,7 @@ mod export;
 mod filter;
 mod fingerprint;
 mod merge;
+mod probes;
 mod reconstruct;
 mod render;
 
@@ -64,6 +65,9 @@ enum Command {
     /// Temporal light field reconstruction of a lens-time sample file (depth of field, motion
     /// blur), optionally refocused: --focus-distance D --aperture A.
     Reconstruct(reconstruct::ReconstructArgs),
+    /// Sparse radiance probes (Silvennoinen & Lehtinen 2017): `stats` reports receivers, probe
+    /// placement, coverage and memory (docs/probes-design.md).
+    Probes(probes::ProbesArgs),
 }
 
 fn main() -> ExitCode {
@@ -84,6 +88,7 @@ fn main() -> ExitCode {
         Command::BenchIlfr(args) => bench_ilfr::run(args),
         Command::Filter(args) => filter::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
+        Command::Probes(args) => probes::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

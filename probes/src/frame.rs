@@ -1,0 +1,204 @@
+//! Section 4.2, run time, with the dense transport (CPCA comes in phase 5): sender radiance from
+//! direct and indirect irradiance, probe SH by the relight rays, receiver irradiance by Eq. 7,
+//! and the paper's feedback ("the resulting diffuse component of the outgoing radiance is fed
+//! back … as input for the next direct-to-indirect transport iteration"), iterated here a given
+//! number of times or to convergence.
+//!
+//! Sender radiance is `B_s = ρ_s / π · (E_direct,s + E_indirect,s)`: emission is not sent
+//! through the probes (lfr's `indirect` layer excludes emitter → first-hit light). Negative
+//! reconstructed irradiance (SH ringing) is clamped at zero and counted.
+
+use glam::Vec3;
+use rayon::prelude::*;
+use tracer::Scene;
+
+use crate::relight::RelightTable;
+use crate::surfels::Surfels;
+use crate::transport::Transport;
+use crate::ProbesError;
+
+/// The indirect irradiance at every receiver after some bounces.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Indirect {
+    pub irradiance: Vec<Vec3>,
+    pub iterations: usize,
+    /// Receiver channels clamped at zero in the last iteration.
+    pub clamped: u64,
+    /// The largest relative change of the last iteration (∞ after one).
+    pub change: f32,
+}
+
+/// The diffuse albedo of every surfel: its material's base colour times (1 − metallic), without
+/// textures for now (Cornell is untextured; textured scenes need the surfel's uv, phase 4 rest).
+pub fn surfel_albedo(scene: &Scene, surfels: &Surfels) -> Vec<Vec3> {
+    surfels
+        .surfels
+        .iter()
+        .map(|s| {
+            let mesh = &scene.meshes[s.mesh as usize];
+            let m = &scene.materials[mesh.material as usize];
+            m.base_color * (1.0 - m.metallic.clamp(0.0, 1.0))
+        })
+        .collect()
+}
+
+/// Iterates the feedback loop at most `max_iterations` times, stopping early when the largest
+/// change of a receiver's irradiance falls below `tolerance` times the largest irradiance
+/// (0 to run every iteration). `albedo` and `direct` have one value per surfel (the receivers
+/// and senders are the same surfels, in the same order as `transports`).
+pub fn indirect(
+    transports: &[Transport],
+    table: &RelightTable,
+    albedo: &[Vec3],
+    direct: &[Vec3],
+    max_iterations: usize,
+    tolerance: f32,
+) -> Result<Indirect, ProbesError> {
+    let n = transports.len();
+    if albedo.len() != n || direct.len() != n {
+        return Err(ProbesError::parameter(
+            "senders",
+            format!("{n} receivers, {} albedos and {} direct values: one each per surfel", albedo.len(), direct.len()),
+        ));
+    }
+    if let Some(i) = albedo.iter().chain(direct).position(|v| !v.is_finite() || v.min_element() < 0.0) {
+        return Err(ProbesError::parameter("senders", format!("value {i} is negative or not finite")));
+    }
+    let nc = table.coefficients;
+    let mut e = vec![Vec3::ZERO; n];
+    let mut out = Indirect { irradiance: Vec::new(), iterations: 0, clamped: 0, change: f32::INFINITY };
+    for _ in 0..max_iterations {
+        let radiance: Vec<Vec3> =
+            albedo.iter().zip(direct).zip(&e).map(|((a, d), e)| *a * (*d + *e) / std::f32::consts::PI).collect();
+        let lambda = table.project(&radiance);
+        let next: Vec<(Vec3, u64)> = transports
+            .par_iter()
+            .map(|t| {
+                let v = t.irradiance_rgb(&lambda, nc);
+                let clamped = v.to_array().iter().filter(|&&c| c < 0.0).count() as u64;
+                (v.max(Vec3::ZERO), clamped)
+            })
+            .collect();
+        let largest = next.iter().map(|(v, _)| v.max_element()).fold(0.0f32, f32::max);
+        let change = next.iter().zip(&e).map(|((v, _), old)| (*v - *old).abs().max_element()).fold(0.0f32, f32::max);
+        out.change = if largest > 0.0 { change / largest } else { 0.0 };
+        out.clamped = next.iter().map(|(_, c)| c).sum();
+        e = next.into_iter().map(|(v, _)| v).collect();
+        out.iterations += 1;
+        if out.change < tolerance {
+            break;
+        }
+    }
+    out.irradiance = e;
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::surfels::{SurfelSettings, Surfels};
+    use crate::test_scenes::scene_of;
+    use crate::transport::{TransportContext, TransportSettings};
+    use glam::DVec3;
+    use tracer::scene::shapes::sphere;
+    use tracer::Accel;
+
+    struct Setup {
+        transports: Vec<Transport>,
+        table: RelightTable,
+        inward: Vec<bool>,
+        surfels: Surfels,
+    }
+
+    /// A closed unit sphere with one probe at its centre (it sees every inner point).
+    fn sphere_setup() -> Setup {
+        let centre = Vec3::ZERO;
+        let scene = scene_of(vec![sphere("s", centre, 1.0, 4, 0)], centre);
+        let accel = Accel::build(&scene).unwrap();
+        let surfels = Surfels::build(&scene, &SurfelSettings { budget: 1200, ..Default::default() }).unwrap();
+        let probes = [DVec3::ZERO];
+        let settings = TransportSettings { order: 4, directions: 128, ..Default::default() };
+        let transports = TransportContext::new(&accel, &probes, 2.0, 2.0, settings).unwrap().all(&surfels);
+        let table = RelightTable::build(&accel, &surfels, &probes, 4000, 4, 2.0).unwrap();
+        let inward = surfels.surfels.iter().map(|s| s.normal.dot(s.position) < 0.0).collect();
+        Setup { transports, table, inward, surfels }
+    }
+
+    #[test]
+    fn multiple_bounces_follow_the_geometric_series() {
+        let s = sphere_setup();
+        let n = s.surfels.surfels.len();
+        let e0 = Vec3::new(1.0, 2.0, 0.5);
+        for rho in [0.5f32, 0.9] {
+            let albedo = vec![Vec3::splat(rho); n];
+            for k in [1usize, 3, 10] {
+                let out = indirect(&s.transports, &s.table, &albedo, &vec![e0; n], k, 0.0).unwrap();
+                assert_eq!(out.iterations, k);
+                let series: f32 = (1..=k).map(|i| rho.powi(i as i32)).sum();
+                for (e, &inside) in out.irradiance.iter().zip(&s.inward) {
+                    if inside {
+                        let rel = ((*e - e0 * series) / (e0 * series)).abs().max_element();
+                        assert!(rel < 2e-2, "ρ = {rho}, {k} bounces: {e} against {}", e0 * series);
+                    } else {
+                        // The outer side sees only the sky: no indirect light.
+                        assert_eq!(*e, Vec3::ZERO);
+                    }
+                }
+            }
+            // Converged: ρ / (1 − ρ).
+            let out = indirect(&s.transports, &s.table, &albedo, &vec![e0; n], 500, 1e-4).unwrap();
+            assert!(out.iterations < 500 && out.change < 1e-4);
+            let limit = e0 * rho / (1.0 - rho);
+            let worst = out
+                .irradiance
+                .iter()
+                .zip(&s.inward)
+                .filter(|(_, &i)| i)
+                .map(|(e, _)| ((*e - limit) / limit).abs().max_element())
+                .fold(0.0f32, f32::max);
+            assert!(worst < 3e-2, "ρ = {rho}: converged off by {worst}");
+        }
+    }
+
+    #[test]
+    fn albedo_comes_from_the_surfels_material() {
+        let s = sphere_setup();
+        let mut scene = scene_of(vec![sphere("s", Vec3::ZERO, 1.0, 4, 1)], Vec3::ZERO);
+        scene.materials.push(tracer::scene::Material {
+            base_color: Vec3::new(0.8, 0.4, 0.2),
+            metallic: 0.25,
+            ..Default::default()
+        });
+        let surfels = Surfels::build(&scene, &SurfelSettings { budget: 200, ..Default::default() }).unwrap();
+        let albedo = surfel_albedo(&scene, &surfels);
+        assert!(albedo.iter().all(|a| (*a - Vec3::new(0.6, 0.3, 0.15)).abs().max_element() < 1e-6));
+        assert_eq!(
+            surfel_albedo(&scene_of(vec![sphere("s", Vec3::ZERO, 1.0, 4, 0)], Vec3::ZERO), &s.surfels).len(),
+            s.surfels.surfels.len()
+        );
+    }
+
+    #[test]
+    fn indirect_light_is_linear_in_the_direct_light() {
+        let s = sphere_setup();
+        let n = s.surfels.surfels.len();
+        let albedo = vec![Vec3::new(0.7, 0.5, 0.3); n];
+        let a: Vec<Vec3> = s.surfels.surfels.iter().map(|x| Vec3::splat(1.0 + x.position.z)).collect();
+        let b: Vec<Vec3> = s.surfels.surfels.iter().map(|x| Vec3::new(2.0 - x.position.x, 0.5, 1.0)).collect();
+        let sum: Vec<Vec3> = a.iter().zip(&b).map(|(a, b)| *a + *b).collect();
+        let run = |d: &[Vec3]| indirect(&s.transports, &s.table, &albedo, d, 4, 0.0).unwrap();
+        let (ea, eb, es) = (run(&a), run(&b), run(&sum));
+        assert_eq!(es.clamped, 0);
+        for ((x, y), z) in ea.irradiance.iter().zip(&eb.irradiance).zip(&es.irradiance) {
+            assert!((*x + *y - *z).abs().max_element() <= 1e-5 * z.max_element().max(1.0), "{x} + {y} ≠ {z}");
+        }
+        let zero = run(&vec![Vec3::ZERO; n]);
+        assert!(zero.irradiance.iter().all(|e| *e == Vec3::ZERO));
+        // Mismatched or negative inputs are refused by name.
+        let err = indirect(&s.transports, &s.table, &albedo[1..], &a, 1, 0.0).unwrap_err();
+        assert!(err.to_string().starts_with("senders:"), "{err}");
+        let mut bad = a.clone();
+        bad[3] = Vec3::splat(f32::NAN);
+        assert!(indirect(&s.transports, &s.table, &albedo, &bad, 1, 0.0).is_err());
+    }
+}

@@ -1,0 +1,49 @@
+//! Sparse radiance probes: Silvennoinen & Lehtinen 2017, "Real-time Global Illumination by
+//! Precomputed Local Reconstruction from Sparse Radiance Probes" (ACM TOG 36(6) 230; text in
+//! `shared/papers/sparse-radiance-probes-2017.txt`, design in `docs/probes-design.md`).
+//! Issue 25, landed in phases.
+//!
+//! Paper → code:
+//! - ✓ Eq. 3, probe radiance as real SH of order 7, and the clamped-cosine measurement of
+//!   Eq. 7 in the SH domain: `sh`.
+//! - ✓ Eq. 10, the spatial weight w: `kernel`.
+//! - ✓ Section 5 ("receivers … the sample points of a light map's texels; any other set of
+//!   receivers can be used just as well"): world-space surface elements that are receivers and
+//!   senders, `surfels`; a shading point's weighted surfels, `lookup`.
+//! - ✓ Section 4.1, "Probe Locations and Radii": voxelisation and flood fill, `voxel`;
+//!   candidates next to surfaces, kernel-density removal to the target count and the one support
+//!   radius for a mean overlap of N_overlap, `placement`; coverage statistics, `placement`; all
+//!   of it in one call with timings, `layout`.
+//! - ✓ Eq. 2's visibility V_i by exact rays, and a survey of the directions no covering probe
+//!   sees: `visibility`.
+//! - ✓ Eq. 2 and 4–7, the visibility-aware local transport and the irradiance transport vector
+//!   α_x per receiver, and Eq. 1's spatial-only baseline: `transport` (phase 4, dense).
+//! - ✓ Section 4.2, "Probe Transport": relight rays and the per-frame probe SH λ: `relight`.
+//! - ✓ Section 4.2, receiver irradiance (dense, Eq. 7 per receiver) and the feedback loop of
+//!   bounces: `frame`.
+//! - ✓ Section 4.2, "Scene relight": direct irradiance at the senders through the tracer's light
+//!   model: `direct`.
+//! - ✗ Eq. 11, CPCA compression and the cluster projection (phase 5); the image from the
+//!   receivers, `lfr compare` (phase 4 rest, 6).
+
+#![forbid(unsafe_code)]
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+pub mod direct;
+pub mod error;
+pub mod frame;
+pub mod geometry;
+pub mod kernel;
+pub mod layout;
+pub mod lookup;
+pub mod placement;
+pub mod relight;
+pub mod sh;
+pub mod surfels;
+#[cfg(test)]
+mod test_scenes;
+pub mod transport;
+pub mod visibility;
+pub mod voxel;
+
+pub use error::ProbesError;
