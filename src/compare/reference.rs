@@ -128,6 +128,10 @@ pub fn cache_key(scene_text: &[u8], tracing: &Tracing, spp: u32, seeds: [u32; 2]
     // The camera's lens, which `lfr compare --aperture-radius/--focus-distance` may change.
     hash.update(tracing.scene.camera.aperture_radius.to_le_bytes());
     hash.update(tracing.scene.camera.focus_distance.to_le_bytes());
+    // The lighting and the camera, which `--environment`, `--sun`, `--camera` and the default
+    // lighting of a scene without lights change without changing the scene text.
+    let lighting = format!("{:?} {:?} {:?}", tracing.scene.environment, tracing.scene.lights, tracing.scene.camera);
+    hash.update(lighting.as_bytes());
     let settings = format!(
         "effect={} width={} height={} spp={} seeds={:?} max_bounces={} ao_radius={}",
         tracing.effect.name(),

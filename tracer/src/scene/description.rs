@@ -514,7 +514,9 @@ pub fn parse_with_access(text: &str, path: &Path, access: FileAccess) -> Result<
                         super::obj::load(&file_path, &mut scene, &options)?;
                     }
                     "gltf" | "glb" => {
-                        super::gltf::load_with_transform(&file_path, &mut scene, transform)?;
+                        let imported = super::gltf::load_with_transform(&file_path, &mut scene, transform)?;
+                        // Kept for `--camera N`; the scene's own camera stays the `[camera]` table's.
+                        scene.file_cameras.extend(imported.cameras);
                         for mesh in &mut scene.meshes[first_new_mesh..] {
                             if let Some(mat) = material_override {
                                 mesh.material = mat;

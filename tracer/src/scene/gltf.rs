@@ -69,6 +69,8 @@ pub struct GltfImport {
     pub camera: Option<Camera>,
     /// Image size the camera's aspect ratio suggests, if it has one.
     pub aspect_ratio: Option<f32>,
+    /// Every perspective camera met in the node walk, in that order (the first is `camera`).
+    pub cameras: Vec<super::FileCamera>,
 }
 
 /// Loads a glTF file into `scene` (see the module documentation).
@@ -762,7 +764,8 @@ impl<'a> Importer<'a> {
         self.scene.lights.push(light);
     }
 
-    /// Keeps the first perspective camera; it looks down its node's -Z with +Y up.
+    /// Keeps every perspective camera (the first is the default); it looks down its node's -Z
+    /// with +Y up.
     fn import_camera(&mut self, camera: &gltf::Camera, world: Mat4) {
         use gltf::json::camera::Type;
         // Read the JSON directly: `gltf::Camera::projection` unwraps the projection object
@@ -772,15 +775,18 @@ impl<'a> Importer<'a> {
         };
         match (&json.type_, &json.perspective) {
             (Checked::Valid(Type::Perspective), Some(perspective)) => {
-                if self.import.camera.is_some() {
-                    return;
-                }
                 let position = world.transform_point3(Vec3::ZERO);
                 let forward = world.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
                 let up = world.transform_vector3(Vec3::Y).normalize_or_zero();
-                self.import.camera =
-                    Some(Camera::look_at(position, position + forward, up, perspective.yfov.to_degrees(), FovAxis::Y));
-                self.import.aspect_ratio = perspective.aspect_ratio;
+                let camera =
+                    Camera::look_at(position, position + forward, up, perspective.yfov.to_degrees(), FovAxis::Y);
+                self.import
+                    .cameras
+                    .push(super::FileCamera { camera: camera.clone(), aspect_ratio: perspective.aspect_ratio });
+                if self.import.camera.is_none() {
+                    self.import.camera = Some(camera);
+                    self.import.aspect_ratio = perspective.aspect_ratio;
+                }
             }
             (Checked::Valid(Type::Orthographic), _) => {
                 self.warn(format!("camera {}: orthographic cameras are not supported; ignored", camera.index()));
