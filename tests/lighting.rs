@@ -235,3 +235,24 @@ fn bad_lighting_values_are_refused_before_any_work() {
     let written: Vec<_> = std::fs::read_dir(dir.path()).unwrap().flatten().map(|e| e.file_name()).collect();
     assert_eq!(written.len(), 2, "only the scene files: {written:?}");
 }
+
+#[test]
+fn a_bare_ply_renders_lit_by_the_default_lighting() {
+    let dir = tempfile::tempdir().unwrap();
+    let ply = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n\
+               element face 1\nproperty list uchar int vertex_indices\nend_header\n\
+               -1 -1 0\n1 -1 0\n1 1 0\n-1 1 0\n4 0 1 2 3\n";
+    let scene = dir.path().join("square.ply");
+    std::fs::write(&scene, ply).unwrap();
+    let (result, out) = render(&scene, &[]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    assert!(stderr(&result).contains("notice:"), "{}", stderr(&result));
+    let beauty = exr_channel(&out, "G");
+    assert!(beauty[8 * 16 + 8] > tracer::scene::DEFAULT_ENVIRONMENT * 1.2, "the square is lit: {beauty:?}");
+    // A truncated file: an error naming it, no output.
+    std::fs::write(&scene, &ply[..ply.len() - 6]).unwrap();
+    let (result, out) = render(&scene, &["--seed", "1"]);
+    assert!(!result.status.success() && stderr(&result).contains("square.ply"), "{}", stderr(&result));
+    assert!(stderr(&result).contains("square.ply: line 14: not a valid PLY file: "), "{}", stderr(&result));
+    assert!(!out.exists());
+}

@@ -294,7 +294,7 @@ fn default_subdivisions() -> u32 {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct MeshDesc {
-    /// An OBJ, glTF or GLB file.
+    /// An OBJ, glTF, GLB or PLY file.
     file: Option<String>,
     /// An inline shape when there is no file.
     shape: Option<String>,
@@ -523,6 +523,11 @@ pub fn parse_with_access(text: &str, path: &Path, access: FileAccess) -> Result<
                             }
                             mesh.motion = motion;
                         }
+                    }
+                    "ply" => {
+                        let options =
+                            super::ply::PlyOptions { transform, material: material_override.unwrap_or(0), motion };
+                        super::ply::load(&file_path, &mut scene, &options)?;
                     }
                     _ => {
                         return Err(SceneError::new(

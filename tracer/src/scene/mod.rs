@@ -9,6 +9,7 @@ pub mod description;
 pub mod gltf;
 pub mod input;
 pub mod obj;
+pub mod ply;
 pub mod shapes;
 
 use std::path::{Path, PathBuf};
@@ -251,7 +252,7 @@ impl Scene {
         Ok(())
     }
 
-    /// Loads a scene from a TOML description, a glTF file or an OBJ file (by extension); its
+    /// Loads a scene from a TOML description, a glTF, OBJ or PLY file (by extension); its
     /// file references are confined ([`input::FileAccess::Confined`]).
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
         Scene::load_with_access(path, input::FileAccess::Confined)
@@ -283,11 +284,18 @@ impl Scene {
                 scene.camera = Camera::framing(&scene.bounds(), scene.aspect());
                 scene
             }
+            "ply" => {
+                let mut scene = Scene::empty(path);
+                scene.file_access = access;
+                ply::load(path, &mut scene, &ply::PlyOptions::default())?;
+                scene.camera = Camera::framing(&scene.bounds(), scene.aspect());
+                scene
+            }
             _ => {
                 return Err(SceneError::new(
                     path,
                     "extension",
-                    "unknown scene format (expected .toml, .gltf, .glb or .obj)",
+                    "unknown scene format (expected .toml, .gltf, .glb, .obj or .ply)",
                 ))
             }
         };
