@@ -289,9 +289,19 @@ fn progress_bar(settings: &RenderSettings, len: u64, message: &str) -> ProgressB
 
 /// Renders the scene; the accelerator is built by the caller so it can be reused.
 pub fn render(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result<Frame, RenderError> {
+    render_with_lights(scene, accel, settings, &LightSampler::new(scene))
+}
+
+/// [`render`] with the light sampler `lights` (built for `scene`): the tests compare light
+/// sampling strategies with it (`crate::lights::LightStrategy`).
+pub fn render_with_lights(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &RenderSettings,
+    lights: &LightSampler,
+) -> Result<Frame, RenderError> {
     settings.validate()?;
-    let lights = LightSampler::new(scene);
-    let integrator = Integrator::new(scene, accel, &lights, settings.max_bounces, settings.width, settings.height);
+    let integrator = Integrator::new(scene, accel, lights, settings.max_bounces, settings.width, settings.height);
     let tile_list = tiles(settings);
     let bar = progress_bar(settings, tile_list.len() as u64, "render");
     let pool = thread_pool(settings.threads)?;

@@ -581,6 +581,9 @@ pub fn parse_with_access(text: &str, path: &Path, access: FileAccess) -> Result<
                         ))
                     }
                 };
+                if transform != Mat4::IDENTITY {
+                    mesh.sphere = None;
+                }
                 let normal_matrix = transform.inverse().transpose();
                 for p in &mut mesh.positions {
                     *p = transform.transform_point3(*p);

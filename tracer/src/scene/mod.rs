@@ -38,6 +38,19 @@ pub struct Mesh {
     /// World-space translation of the whole mesh from shutter open to shutter close
     /// (linear motion). Zero for static meshes.
     pub motion: Vec3,
+    /// Set by [`shapes::sphere`]: the mesh is a closed, convex icosphere whose vertices lie on
+    /// this sphere, which lets the light sampler sample it by solid angle. Cleared by a
+    /// transform; ignored when the mesh no longer has the triangle count it was made with.
+    pub sphere: Option<SphereShape>,
+}
+
+/// The sphere a tessellated sphere mesh is inscribed in (see [`Mesh::sphere`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SphereShape {
+    pub center: Vec3,
+    pub radius: f32,
+    /// The mesh's triangle count when it was made (a removed triangle leaves a hole).
+    pub triangles: usize,
 }
 
 impl Mesh {

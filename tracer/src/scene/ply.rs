@@ -183,6 +183,7 @@ pub fn parse(path: &Path, bytes: &[u8], options: &PlyOptions, warnings: &mut Vec
         indices,
         material: options.material,
         motion: options.motion,
+        sphere: None,
     })
 }
 
