@@ -115,6 +115,12 @@ pub fn load_from_bytes(
         import: GltfImport::default(),
     };
     importer.import_nodes(transform)?;
+    let animations = document.animations().len();
+    if animations > 0 {
+        importer.warn(format!(
+            "{animations} animation(s) ignored (not supported); nodes are placed as the file places them at rest"
+        ));
+    }
     if importer.unsupported_maps > 0 {
         let count = importer.unsupported_maps;
         importer.warn(format!("{count} normal/occlusion texture(s) ignored (not supported)"));
@@ -1242,6 +1248,22 @@ mod tests {
         assert_eq!(scene.meshes.len(), 1);
         assert!(scene.meshes[0].name.contains("Tri1"));
         assert!(scene.warnings.iter().any(|w| w.contains("Tri0") && w.contains("Lines")), "{:?}", scene.warnings);
+    }
+
+    #[test]
+    fn ignored_animations_are_named_in_a_warning() {
+        let dir = tempfile::tempdir().unwrap();
+        let geometry = geometry_json(&embedded_buffer(&triangle_buffer([0, 1, 2])), &[""]);
+        let animation = r#""animations": [{"channels": [{"sampler": 0, "target": {"node": 0, "path": "translation"}}],
+            "samplers": [{"input": 3, "output": 0}]}]"#;
+        let still = format!(r#"{{ {geometry}, "scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0}}] }}"#);
+        let moving =
+            format!(r#"{{ {geometry}, "scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0}}], {animation} }}"#);
+        let (scene, _) = load_new(&write(dir.path(), "still.gltf", still)).unwrap();
+        assert!(!scene.warnings.iter().any(|w| w.contains("animation")), "{:?}", scene.warnings);
+        let (scene, _) = load_new(&write(dir.path(), "moving.gltf", moving)).unwrap();
+        assert!(scene.warnings.iter().any(|w| w.contains("1 animation(s) ignored")), "{:?}", scene.warnings);
+        assert_eq!(scene.meshes.len(), 1, "the mesh is still loaded");
     }
 
     fn scenes_dir() -> PathBuf {
