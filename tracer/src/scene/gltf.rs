@@ -25,7 +25,7 @@
 //!
 //! Not supported (skipped, mostly with a warning in [`Scene::warnings`]): primitive modes
 //! other than triangles; texture coordinate sets other than 0 (such textures are dropped);
-//! sampler wrap and filter modes (textures always repeat and are filtered bilinearly);
+//! sampler filter modes (textures are filtered bilinearly; wrap modes are kept);
 //! normal and occlusion textures; vertex colours; skins and morph targets (the base mesh is
 //! placed by its node transform); animations; orthographic cameras; every extension other
 //! than the three above (an error when listed in `extensionsRequired`, a warning otherwise).
@@ -52,7 +52,7 @@ use super::input::FileAccess;
 use super::{AlphaMask, Material, Mesh, PunctualLight, Scene};
 use crate::camera::{Camera, FovAxis};
 use crate::error::SceneError;
-use crate::texture::{Texture, TextureRef};
+use crate::texture::{Texture, TextureRef, Wrap};
 
 /// Extensions this loader interprets; any other one in `extensionsRequired` is an error.
 const SUPPORTED_EXTENSIONS: [&str; 3] =
@@ -677,7 +677,8 @@ impl<'a> Importer<'a> {
     }
 
     /// Turns a texture reference into a [`TextureRef`], loading the image on first use.
-    /// The sampler (wrap and filter modes) is ignored: textures always repeat.
+    /// The sampler's wrap modes are kept (`Wrap`); its filter modes are ignored (bilinear with
+    /// mipmaps always).
     fn texture_ref(
         &mut self,
         info: &gltf::texture::Info,
@@ -692,7 +693,14 @@ impl<'a> Importer<'a> {
         }
         let index = self.texture_index(info.texture().source().index(), srgb)?;
         let transform = transform.map(|t| uv_transform(Vec2::from(t.offset()), t.rotation(), Vec2::from(t.scale())));
-        Ok(Some(TextureRef::with_transform(index, transform)))
+        let sampler = info.texture().sampler();
+        let wrap = |mode: gltf::texture::WrappingMode| match mode {
+            gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
+            gltf::texture::WrappingMode::ClampToEdge => Wrap::ClampToEdge,
+            gltf::texture::WrappingMode::MirroredRepeat => Wrap::MirroredRepeat,
+        };
+        let wrap = [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())];
+        Ok(Some(TextureRef::with_transform(index, transform).with_wrap(wrap)))
     }
 
     /// Index in `scene.textures` of an image decoded as sRGB or linear. Each (image, encoding)
@@ -1216,6 +1224,10 @@ mod tests {
         }
         let uv = base.apply(Vec2::new(0.25, 0.5));
         assert!((uv - Vec2::new(2.0, -1.5)).abs().max_element() < 1e-5, "{uv}");
+        // Texture 1's sampler clamps u (wrapS 33071) and repeats v (the default).
+        assert_eq!(base.wrap(), [Wrap::Repeat; 2]);
+        assert_eq!(emission.wrap(), [Wrap::ClampToEdge, Wrap::Repeat]);
+        assert_eq!(emission.apply(Vec2::new(1.5, 1.5)), Vec2::new(1.0, 1.5));
         assert!(metallic_roughness.transform().is_none() && emission.transform().is_none());
         let mask = masked.alpha.as_ref().expect("alpha mask");
         assert_eq!((&mask.texture, mask.channel, mask.factor, mask.cutoff), (&base, 3, 0.8, 0.3));
