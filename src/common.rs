@@ -62,6 +62,8 @@ pub struct TraceArgs {
     pub size: SizeArgs,
     #[command(flatten)]
     pub run: RunArgs,
+    #[command(flatten)]
+    pub lighting: LightingArgs,
     /// No progress bars.
     #[arg(long)]
     pub quiet: bool,
@@ -69,6 +71,96 @@ pub struct TraceArgs {
     /// images) name files outside the referencing file's folder and the shared scenes folder.
     #[arg(long)]
     pub allow_outside_scene_dir: bool,
+}
+
+/// Lighting and camera choices on top of any scene file (docs/scene-format.md, "Default
+/// lighting"). Flattened into `TraceArgs`: `render`, `dump`, `filter`, `compare` and
+/// `bench-filters`.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct LightingArgs {
+    /// Constant environment radiance, one value (grey) or R,G,B; replaces the scene's. With
+    /// --environment or --sun the default lighting of a scene without lights is not added.
+    #[arg(long, value_delimiter = ',', num_args = 1, value_name = "V|R,G,B", allow_negative_numbers = true)]
+    pub environment: Option<Vec<f32>>,
+    /// Adds a sun (directional light) shining from X,Y,Z: the direction from the scene towards
+    /// the sun, any length.
+    #[arg(long, value_delimiter = ',', num_args = 1, value_name = "X,Y,Z", allow_negative_numbers = true)]
+    pub sun: Option<Vec<f32>>,
+    /// The sun's irradiance on a surface facing it, one value or R,G,B (default 2.5; needs --sun).
+    #[arg(long, value_delimiter = ',', num_args = 1, value_name = "V|R,G,B", allow_negative_numbers = true)]
+    pub sun_irradiance: Option<Vec<f32>>,
+    /// Use the file's camera N (0-based, glTF perspective cameras in file order) instead of the
+    /// first.
+    #[arg(long, value_name = "N")]
+    pub camera: Option<usize>,
+}
+
+/// A colour option's value: one number (grey) or three, finite and non-negative.
+fn colour_option(name: &str, values: &[f32]) -> Result<glam::Vec3> {
+    let colour = match values {
+        [v] => glam::Vec3::splat(*v),
+        [r, g, b] => glam::Vec3::new(*r, *g, *b),
+        _ => anyhow::bail!("{name} takes one value or three (R,G,B), got {}", values.len()),
+    };
+    if !colour.is_finite() || colour.min_element() < 0.0 {
+        anyhow::bail!("{name} must be finite and non-negative, got {values:?}");
+    }
+    Ok(colour)
+}
+
+impl LightingArgs {
+    /// Checks every value (before any work): colours of one or three finite, non-negative
+    /// numbers, a sun direction of three finite numbers, not zero, and no --sun-irradiance
+    /// without --sun. Returns (environment, sun direction and irradiance).
+    #[allow(clippy::type_complexity)]
+    pub fn validated(&self) -> Result<(Option<glam::Vec3>, Option<(glam::Vec3, glam::Vec3)>)> {
+        let environment = self.environment.as_deref().map(|v| colour_option("--environment", v)).transpose()?;
+        let irradiance = match &self.sun_irradiance {
+            Some(v) => colour_option("--sun-irradiance", v)?,
+            None => glam::Vec3::splat(tracer::scene::DEFAULT_SUN_IRRADIANCE),
+        };
+        let sun = match self.sun.as_deref() {
+            None if self.sun_irradiance.is_some() => anyhow::bail!("--sun-irradiance needs --sun (the direction)"),
+            None => None,
+            Some([x, y, z]) => {
+                let towards = glam::Vec3::new(*x, *y, *z);
+                if !towards.is_finite() || towards.length_squared() == 0.0 || !towards.normalize().is_finite() {
+                    anyhow::bail!("--sun must be a finite, non-zero direction, got {:?}", [x, y, z]);
+                }
+                Some((towards, irradiance))
+            }
+            Some(values) => anyhow::bail!("--sun takes a direction X,Y,Z, got {} values", values.len()),
+        };
+        Ok((environment, sun))
+    }
+
+    /// Applies these choices to a loaded `scene`: the camera, then the environment and sun;
+    /// a scene still without any emitter gets the default lighting, with a notice on stderr.
+    pub fn apply(&self, scene: &mut Scene) -> Result<()> {
+        let (environment, sun) = self.validated()?;
+        if let Some(index) = self.camera {
+            scene
+                .select_file_camera(index)
+                .map_err(|why| anyhow::anyhow!("--camera {index}: {}: {why}", scene.source.display()))?;
+            scene.camera.validate(&scene.source)?;
+        }
+        if let Some(environment) = environment {
+            scene.environment = environment;
+        }
+        if let Some((towards, irradiance)) = sun {
+            scene.add_sun(towards, irradiance);
+        }
+        if environment.is_none() && sun.is_none() && scene.apply_default_lighting() {
+            eprintln!(
+                "notice: {}: the scene has no lights; using the default lighting (environment {}, a sun of irradiance \
+                 {} from behind the camera's left shoulder; --environment and --sun choose others)",
+                scene.source.display(),
+                tracer::scene::DEFAULT_ENVIRONMENT,
+                tracer::scene::DEFAULT_SUN_IRRADIANCE
+            );
+        }
+        Ok(())
+    }
 }
 
 /// The image size and path length, each the scene's unless given (or a command's own default:
@@ -140,7 +232,7 @@ pub struct SceneListArgs {
 impl SceneListArgs {
     /// Loads one of [`Self::scene_paths`], confined unless `--allow-outside-scene-dir`.
     pub fn load_scene(&self, path: Option<&Path>) -> Result<Scene> {
-        load_scene(path, file_access(self.allow_outside_scene_dir))
+        load_scene(path, file_access(self.allow_outside_scene_dir), &LightingArgs::default())
     }
 
     /// The scenes to run, `None` standing for the embedded default.
@@ -178,9 +270,11 @@ pub fn file_access(allow_outside_scene_dir: bool) -> FileAccess {
 
 impl TraceArgs {
     /// Loads the scene (the embedded default without `--scene`), confined unless
-    /// `--allow-outside-scene-dir`.
+    /// `--allow-outside-scene-dir`, with the lighting and camera options applied.
     pub fn load_scene(&self) -> Result<Scene> {
-        load_scene(self.scene.as_deref(), file_access(self.allow_outside_scene_dir))
+        // Bad lighting values are refused before the scene is read.
+        self.lighting.validated()?;
+        load_scene(self.scene.as_deref(), file_access(self.allow_outside_scene_dir), &self.lighting)
     }
 
     /// The seed, 0 unless given.
@@ -205,9 +299,10 @@ pub fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
 }
 
 /// Loads a scene file, or the embedded default when `path` is `None`; file references inside
-/// it are allowed as `access` says (`tracer::scene::input::FileAccess`).
-pub fn load_scene(path: Option<&Path>, access: FileAccess) -> Result<Scene> {
-    let scene = match path {
+/// it are allowed as `access` says (`tracer::scene::input::FileAccess`); `lighting` is applied
+/// (and a scene without lights gets the default lighting).
+pub fn load_scene(path: Option<&Path>, access: FileAccess, lighting: &LightingArgs) -> Result<Scene> {
+    let mut scene = match path {
         Some(p) => Scene::load_with_access(p, access)?,
         None => {
             let mut scene = tracer::scene::description::parse(DEFAULT_SCENE, Path::new(DEFAULT_SCENE_NAME))?;
@@ -218,5 +313,6 @@ pub fn load_scene(path: Option<&Path>, access: FileAccess) -> Result<Scene> {
     for warning in &scene.warnings {
         eprintln!("warning: {}: {warning}", scene.source.display());
     }
+    lighting.apply(&mut scene)?;
     Ok(scene)
 }

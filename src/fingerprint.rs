@@ -61,7 +61,7 @@ mod tests {
     use super::*;
 
     fn default_scene() -> Scene {
-        crate::common::load_scene(None, tracer::scene::input::FileAccess::Confined).unwrap()
+        crate::common::load_scene(None, tracer::scene::input::FileAccess::Confined, &Default::default()).unwrap()
     }
 
     #[test]

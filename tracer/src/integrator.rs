@@ -551,15 +551,20 @@ impl<'a> Integrator<'a> {
             return None;
         }
         let origin = surface.spawn_origin(light.wi);
-        // Stop short of the light's own surface by a relative margin.
-        let t_max = if light.distance.is_finite() {
-            let light_point = surface.position + light.wi * light.distance;
-            (light_point - origin).length() * (1.0 - 2e-4)
+        // Aim from the pushed-off origin at the light point itself and stop short of it by a
+        // relative margin. (Along `light.wi` from the pushed-off origin, the segment ended
+        // beside the light point, inside a convex emitter facing the surface whenever the push,
+        // which grows with the surface's coordinates, exceeded the margin: a 1200-unit floor
+        // lost a quarter of a sphere light's direct light.)
+        let (direction, t_max) = if light.distance.is_finite() {
+            let to_light = surface.position + light.wi * light.distance - origin;
+            let length = to_light.length();
+            (to_light / length, length * (1.0 - 2e-4))
         } else {
-            f32::INFINITY
+            (light.wi, f32::INFINITY)
         };
         *rays += 1;
-        recorder.record(RecordedRay { origin, direction: light.wi, t_max, time, kind: RayKind::Shadow });
+        recorder.record(RecordedRay { origin, direction, t_max, time, kind: RayKind::Shadow });
         let weight = match light.pdf {
             Some(light_pdf) => power_heuristic(light_pdf, surface.bsdf.pdf(wo_local, wi_local)),
             None => 1.0,
@@ -568,7 +573,7 @@ impl<'a> Integrator<'a> {
         // ray is not blocked.
         let value = f * light.weighted_radiance * weight;
         let emitter = if value.is_finite() { light.mesh } else { None };
-        Some(ShadowTest { origin, direction: light.wi, t_max, time, value, emitter, level: 0 })
+        Some(ShadowTest { origin, direction, t_max, time, value, emitter, level: 0 })
     }
 
     /// Whether a shadow ray is blocked (an empty segment counts as blocked).
@@ -670,7 +675,7 @@ impl<'a> Integrator<'a> {
             if scene.environment.max_element() > 0.0 {
                 let weight = match path.previous_bsdf_pdf {
                     None => 1.0,
-                    Some(pdf) => power_heuristic(pdf, self.lights.pdf_environment()),
+                    Some(pdf) => power_heuristic(pdf, self.lights.pdf_environment(path.previous_position)),
                 };
                 path.traced.add(level, path.throughput * scene.environment * weight);
             }

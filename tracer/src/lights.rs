@@ -1,10 +1,22 @@
 //! Light sampling for next-event estimation.
 //!
-//! Every emitter (each emissive triangle, each punctual light, the constant environment) is
-//! one entry of a table chosen in proportion to an estimate of its emitted power. Emissive
-//! triangles are sampled uniformly by area and converted to solid angle; the environment is
-//! sampled uniformly over the sphere. `pdf_*` functions give the densities the integrator needs
-//! for multiple importance sampling when a BSDF-sampled ray hits an emitter.
+//! The emitters fall in two kinds. *Local* emitters (emissive triangles and tessellated sphere
+//! lights) form one table, chosen within it in proportion to emitted power. *Distant and
+//! punctual* emitters (point, spot and directional lights, the constant environment) each stand
+//! alone. At every shading point one of these candidates (the local table or one light) is
+//! chosen in proportion to an estimate of the irradiance it delivers there: I/d² for point and
+//! spot lights, E for a directional light, πL for the environment, and for the local table its
+//! emitters' summed peak intensity over the squared distance to their centre (at least their
+//! spread), mixed with 5 % uniform choice so that no light is ever left out. None of these grows
+//! with the scene's size (the power of the environment and the sun used to be weighted by the
+//! scene's bounding radius², so that a large floor took samples from the real light).
+//!
+//! Emissive triangles are sampled uniformly by area and converted to solid angle; a sphere light
+//! seen from outside is sampled uniformly in the cone of directions its inscribed sphere
+//! subtends (every such direction hits the tessellation's near side), from inside by area; the
+//! environment uniformly over the sphere. `pdf_*` functions give the densities the integrator
+//! needs for multiple importance sampling when a BSDF-sampled ray hits an emitter. The sampling
+//! before issue 26 stays available as [`LightStrategy::Legacy`], the oracle of the tests.
 
 use std::f32::consts::PI;
 
@@ -16,8 +28,178 @@ use crate::scene::{PunctualLight, Scene};
 #[derive(Clone, Debug)]
 enum Emitter {
     Triangle(EmissiveTriangle),
+    Sphere(SphereEmitter),
     Punctual(PunctualLight),
     Environment,
+}
+
+/// How emitters are chosen and sampled.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LightStrategy {
+    /// By the irradiance each candidate delivers at the shading point, sphere lights by solid
+    /// angle (see the module documentation).
+    #[default]
+    ByContribution,
+    /// The sampling before issue 26: one table over every emitter by power, the environment's
+    /// and directional lights' power taken over the scene's bounding sphere, sphere lights
+    /// sampled over their whole surface. Same expected value; kept as the tests' oracle.
+    Legacy,
+}
+
+/// Which table entries a mesh's emission lives in.
+#[derive(Clone, Copy, Debug)]
+enum MeshEntry {
+    /// One entry per triangle, from this index.
+    Triangles(u32),
+    /// One sphere entry.
+    Sphere(u32),
+}
+
+/// A tessellated sphere light (a closed, convex, static mesh with vertices on a sphere and
+/// constant emission). From a point outside its circumscribed sphere it is sampled uniformly in
+/// the cone of its inscribed sphere: every direction in that cone hits the mesh, and the
+/// thin rim of directions between the two cones is left to BSDF sampling (pdf 0 here, so MIS
+/// gives BSDF samples there full weight). From inside, by area over its triangles.
+#[derive(Clone, Debug)]
+struct SphereEmitter {
+    mesh: u32,
+    center: Vec3,
+    /// Smallest distance from the centre to a triangle's plane.
+    radius_in: f32,
+    /// Largest distance from the centre to a vertex.
+    radius_out: f32,
+    emission: Vec3,
+    triangles: Vec<EmissiveTriangle>,
+    /// Cumulative area fractions of `triangles` (last = 1).
+    cdf: Vec<f32>,
+    area: f32,
+}
+
+impl SphereEmitter {
+    /// The sphere emitter of mesh `mesh`, when it qualifies (see [`SphereEmitter`]).
+    fn new(scene: &Scene, mesh: u32) -> Option<SphereEmitter> {
+        let m = &scene.meshes[mesh as usize];
+        let shape = m.sphere?;
+        let material = &scene.materials[m.material as usize];
+        if m.indices.len() != shape.triangles || m.is_moving() || material.emission_texture.is_some() {
+            return None;
+        }
+        let center = shape.center;
+        let triangles: Vec<EmissiveTriangle> =
+            (0..m.indices.len() as u32).map(|t| EmissiveTriangle::new(scene, mesh, t)).collect();
+        let mut radius_in = f32::INFINITY;
+        for t in &triangles {
+            // Outward-facing, at a positive distance from the centre: else not what we assume.
+            let distance = t.normal.dot(t.corner - center);
+            if !(t.area > 0.0) || !(distance > 0.0) {
+                return None;
+            }
+            radius_in = radius_in.min(distance);
+        }
+        let radius_out = m.positions.iter().map(|p| (*p - center).length()).fold(0.0f32, f32::max);
+        if !(radius_in > 0.0 && radius_out.is_finite()) {
+            return None;
+        }
+        let area: f64 = triangles.iter().map(|t| t.area as f64).sum();
+        let mut running = 0.0f64;
+        let mut cdf: Vec<f32> = triangles
+            .iter()
+            .map(|t| {
+                running += t.area as f64;
+                (running / area) as f32
+            })
+            .collect();
+        if let Some(last) = cdf.last_mut() {
+            *last = 1.0;
+        }
+        Some(SphereEmitter {
+            mesh,
+            center,
+            radius_in,
+            radius_out,
+            emission: material.emission,
+            triangles,
+            cdf,
+            area: area as f32,
+        })
+    }
+
+    /// Whether `point` is far enough outside for cone sampling, and if so the cone's
+    /// 1 − cos θmax and the unit direction and distance to the centre.
+    fn cone(&self, point: Vec3) -> Option<(f32, Vec3, f32)> {
+        let to_center = self.center - point;
+        let d2 = to_center.length_squared();
+        let outside = self.radius_out * (1.0 + 1e-3);
+        if !(d2 > outside * outside) {
+            return None;
+        }
+        let sin2 = (self.radius_in * self.radius_in / d2).min(1.0);
+        let cos_max = (1.0 - sin2).max(0.0).sqrt();
+        let one_minus_cos = sin2 / (1.0 + cos_max);
+        let d = d2.sqrt();
+        (one_minus_cos > 0.0).then_some((one_minus_cos, to_center / d, d))
+    }
+
+    /// Samples a direction towards the sphere from `point` (selection probability `select`);
+    /// `u_pick` chooses a triangle when the point is inside.
+    fn sample(&self, scene: &Scene, point: Vec3, select: f32, u_pick: f32, u: [f32; 2]) -> Option<LightSample> {
+        let Some((one_minus_cos, axis, d)) = self.cone(point) else {
+            let index = self.cdf.partition_point(|&c| c <= u_pick).min(self.triangles.len() - 1);
+            let (sample, (dist2, cos_light)) = sample_triangle(scene, &self.triangles[index], point, 0.0, u)?;
+            // The triangle's share of the area times its own area pdf: the sphere's area pdf.
+            let pdf = select * dist2 / (self.area * cos_light);
+            return Some(LightSample { pdf: Some(pdf), weighted_radiance: sample.weighted_radiance / pdf, ..sample });
+        };
+        let one_minus_cos_theta = u[0] * one_minus_cos;
+        let cos_theta = 1.0 - one_minus_cos_theta;
+        let sin_theta = (one_minus_cos_theta * (2.0 - one_minus_cos_theta)).max(0.0).sqrt();
+        let phi = 2.0 * PI * u[1];
+        let (tangent, bitangent) = axis.any_orthonormal_pair();
+        let wi =
+            (tangent * (sin_theta * phi.cos()) + bitangent * (sin_theta * phi.sin()) + axis * cos_theta).normalize();
+        // The near intersection with the circumscribed sphere, which lies before the mesh: the
+        // shadow ray stops there.
+        let b = d * cos_theta;
+        let disc = (self.radius_out * self.radius_out - d * d * sin_theta * sin_theta).max(0.0);
+        let distance = b - disc.sqrt();
+        if !(distance > 0.0) {
+            return None;
+        }
+        let pdf = select / (2.0 * PI * one_minus_cos);
+        Some(LightSample {
+            wi,
+            distance,
+            weighted_radiance: self.emission / pdf,
+            pdf: Some(pdf),
+            mesh: Some(self.mesh),
+        })
+    }
+
+    /// The density (without selection) of [`SphereEmitter::sample`] choosing the point `hit`
+    /// of triangle `triangle` from `from`.
+    fn pdf(&self, triangle: u32, from: Vec3, hit: Vec3) -> f32 {
+        match self.cone(from) {
+            Some((one_minus_cos, axis, _)) => {
+                let direction = (hit - from).normalize_or_zero();
+                let cos_max = 1.0 - one_minus_cos;
+                if direction.dot(axis) >= cos_max {
+                    1.0 / (2.0 * PI * one_minus_cos)
+                } else {
+                    0.0
+                }
+            }
+            None => {
+                let Some(t) = self.triangles.get(triangle as usize) else { return 0.0 };
+                let to_light = hit - from;
+                let dist2 = to_light.length_squared();
+                let cos_light = t.normal.dot(to_light / dist2.sqrt()).abs();
+                if !(dist2 > 0.0) || cos_light <= 1e-7 {
+                    return 0.0;
+                }
+                dist2 / (self.area * cos_light)
+            }
+        }
+    }
 }
 
 /// An emissive triangle with what sampling it needs, computed once when the table is built
@@ -79,16 +261,70 @@ pub struct LightSample {
     pub mesh: Option<u32>,
 }
 
-/// Power-proportional emitter table.
+/// The emitter table and how to choose from it (see the module documentation).
 pub struct LightSampler {
+    strategy: LightStrategy,
+    /// The table's entries first (`..table_len`), then the separately chosen lights.
     emitters: Vec<Emitter>,
-    /// Cumulative selection probabilities (last = 1).
+    table_len: usize,
+    /// Cumulative selection probabilities within the table (last = 1).
     cdf: Vec<f32>,
-    /// Selection probability of each emitter.
+    /// Selection probability of each table entry within the table.
     probability: Vec<f32>,
-    /// For each mesh, the table index of its first triangle when the mesh emits.
-    mesh_offset: Vec<Option<u32>>,
+    /// The table's summed peak intensity (luminance × projected area), its intensity-weighted
+    /// centre and the squared spread around it, for the irradiance estimate.
+    table_intensity: f32,
+    table_center: Vec3,
+    table_spread2: f32,
+    /// For each mesh, where its emission lives in the table.
+    mesh_entry: Vec<Option<MeshEntry>>,
     environment_index: Option<u32>,
+    environment_luminance: f32,
+}
+
+/// Share of the choice among candidates made uniformly, so that none is ever left out.
+const UNIFORM_SHARE: f32 = 0.05;
+
+/// The triangle sampled uniformly by area from `point` at time `time`: the sample with its
+/// emitted radiance as `weighted_radiance` and no pdf, and (dist², cos at the light), whose
+/// ratio is the solid-angle density times the triangle's area; `None` when nothing arrives.
+fn sample_triangle(
+    scene: &Scene,
+    emitter: &EmissiveTriangle,
+    point: Vec3,
+    time: f32,
+    u: [f32; 2],
+) -> Option<(LightSample, (f32, f32))> {
+    if !(emitter.area > 0.0) {
+        return None;
+    }
+    // Uniform point on the triangle; (b1, b2) are Embree's (u, v) barycentrics.
+    let su = u[0].sqrt();
+    let b1 = u[1] * su;
+    let b2 = su - b1;
+    let p = emitter.corner + emitter.motion * time + emitter.edge_b * b1 + emitter.edge_c * b2;
+    let to_light = p - point;
+    let dist2 = to_light.length_squared();
+    if !(dist2 > 0.0) {
+        return None;
+    }
+    let distance = dist2.sqrt();
+    let wi = to_light / distance;
+    let cos_signed = emitter.normal.dot(-wi);
+    let cos_light = cos_signed.abs();
+    if cos_light <= 1e-7 {
+        return None;
+    }
+    let le = match emitter.constant_emission {
+        Some(emission) if emitter.two_sided || cos_signed > 0.0 => emission,
+        Some(_) => return None,
+        None => triangle_emission(scene, emitter.mesh, emitter.triangle, Vec2::new(b1, b2), emitter.normal, -wi),
+    };
+    if le == Vec3::ZERO {
+        return None;
+    }
+    let sample = LightSample { wi, distance, weighted_radiance: le, pdf: None, mesh: Some(emitter.mesh) };
+    Some((sample, (dist2, cos_light)))
 }
 
 /// Barycentric interpolation helper: the triangle's vertices at ray time `time`.
@@ -129,42 +365,66 @@ pub fn triangle_emission(
 
 impl LightSampler {
     pub fn new(scene: &Scene) -> LightSampler {
+        LightSampler::with_strategy(scene, LightStrategy::default())
+    }
+
+    pub fn with_strategy(scene: &Scene, strategy: LightStrategy) -> LightSampler {
+        let legacy = strategy == LightStrategy::Legacy;
         let (lo, hi) = scene.bounds();
         let radius = (0.5 * (hi - lo).length()).max(1e-3);
         let mut emitters = Vec::new();
         let mut power = Vec::new();
-        let mut mesh_offset = vec![None; scene.meshes.len()];
+        // Peak intensity and centre of each table entry, for the table's irradiance estimate.
+        let mut intensity = Vec::new();
+        let mut mesh_entry = vec![None; scene.meshes.len()];
         for (mi, mesh) in scene.meshes.iter().enumerate() {
             let material = &scene.materials[mesh.material as usize];
             if !material.is_emissive() {
                 continue;
             }
-            mesh_offset[mi] = Some(emitters.len() as u32);
             let sides = if material.two_sided_emission { 2.0 } else { 1.0 };
             let lum = luminance(material.emission);
+            if !legacy {
+                if let Some(sphere) = SphereEmitter::new(scene, mi as u32) {
+                    mesh_entry[mi] = Some(MeshEntry::Sphere(emitters.len() as u32));
+                    power.push(lum * sphere.area * PI * sides);
+                    let r = sphere.radius_out;
+                    intensity.push((lum * PI * r * r, sphere.center, r * r));
+                    emitters.push(Emitter::Sphere(sphere));
+                    continue;
+                }
+            }
+            mesh_entry[mi] = Some(MeshEntry::Triangles(emitters.len() as u32));
             for t in 0..mesh.indices.len() {
                 let emitter = EmissiveTriangle::new(scene, mi as u32, t as u32);
                 power.push(lum * emitter.area * PI * sides);
+                let center = emitter.corner + (emitter.edge_b + emitter.edge_c) / 3.0 + 0.5 * emitter.motion;
+                intensity.push((lum * emitter.area, center, emitter.area / PI + emitter.motion.length_squared()));
                 emitters.push(Emitter::Triangle(emitter));
             }
         }
+        let local = emitters.len();
         for light in &scene.lights {
-            let p = match light {
-                PunctualLight::Point { intensity, .. } => 4.0 * PI * luminance(*intensity),
-                PunctualLight::Spot { intensity, inner_cone, outer_cone, .. } => {
-                    2.0 * PI * (1.0 - (0.5 * (inner_cone + outer_cone)).cos()) * luminance(*intensity)
-                }
-                PunctualLight::Directional { irradiance, .. } => PI * radius * radius * luminance(*irradiance),
-            };
             emitters.push(Emitter::Punctual(light.clone()));
-            power.push(p);
+            if legacy {
+                power.push(match light {
+                    PunctualLight::Point { intensity, .. } => 4.0 * PI * luminance(*intensity),
+                    PunctualLight::Spot { intensity, inner_cone, outer_cone, .. } => {
+                        2.0 * PI * (1.0 - (0.5 * (inner_cone + outer_cone)).cos()) * luminance(*intensity)
+                    }
+                    PunctualLight::Directional { irradiance, .. } => PI * radius * radius * luminance(*irradiance),
+                });
+            }
         }
         let mut environment_index = None;
         if scene.environment.max_element() > 0.0 {
             environment_index = Some(emitters.len() as u32);
             emitters.push(Emitter::Environment);
-            power.push(PI * 4.0 * PI * radius * radius * luminance(scene.environment));
+            if legacy {
+                power.push(PI * 4.0 * PI * radius * radius * luminance(scene.environment));
+            }
         }
+        let table_len = if legacy { emitters.len() } else { local };
         // Emitters with zero luminance but some colour still need a chance.
         for (p, e) in power.iter_mut().zip(&emitters) {
             if !(*p > 0.0) || !p.is_finite() {
@@ -186,11 +446,85 @@ impl LightSampler {
         if let Some(last) = cdf.last_mut() {
             *last = 1.0;
         }
-        LightSampler { emitters, cdf, probability, mesh_offset, environment_index }
+        // The table's intensity-weighted centre and spread (its emitters' own size included).
+        let (mut sum, mut center) = (0.0f64, glam::DVec3::ZERO);
+        for &(j, c, _) in &intensity {
+            let j = (j as f64).max(1e-12);
+            sum += j;
+            center += c.as_dvec3() * j;
+        }
+        let table_center = if sum > 0.0 { (center / sum).as_vec3() } else { Vec3::ZERO };
+        let mut spread = 0.0f64;
+        for &(j, c, size2) in &intensity {
+            spread += (j as f64).max(1e-12) * ((c - table_center).length_squared() + size2) as f64;
+        }
+        let table_spread2 = if sum > 0.0 { ((spread / sum) as f32).max(1e-8) } else { 1.0 };
+        LightSampler {
+            strategy,
+            emitters,
+            table_len,
+            cdf,
+            probability,
+            table_intensity: (sum as f32).max(1e-12),
+            table_center,
+            table_spread2,
+            mesh_entry,
+            environment_index,
+            environment_luminance: luminance(scene.environment),
+        }
+    }
+
+    pub fn strategy(&self) -> LightStrategy {
+        self.strategy
     }
 
     pub fn is_empty(&self) -> bool {
         self.emitters.is_empty()
+    }
+
+    /// The number of candidates chosen among at a point: the table (if it has entries) and
+    /// each light outside it.
+    fn candidate_count(&self) -> usize {
+        usize::from(self.table_len > 0) + self.emitters.len() - self.table_len
+    }
+
+    /// The irradiance estimate that weights candidate `k` at `point` (0 = the table when it has
+    /// entries, then the lights outside it in order).
+    fn candidate_weight(&self, k: usize, point: Vec3) -> f32 {
+        let k = if self.table_len > 0 {
+            if k == 0 {
+                let d2 = (point - self.table_center).length_squared().max(self.table_spread2);
+                return self.table_intensity / d2;
+            }
+            self.table_len + k - 1
+        } else {
+            k
+        };
+        let w = match &self.emitters[k] {
+            Emitter::Punctual(PunctualLight::Point { position, intensity })
+            | Emitter::Punctual(PunctualLight::Spot { position, intensity, .. }) => {
+                luminance(*intensity) / (*position - point).length_squared().max(1e-12)
+            }
+            Emitter::Punctual(PunctualLight::Directional { irradiance, .. }) => luminance(*irradiance),
+            Emitter::Environment => PI * self.environment_luminance,
+            _ => 0.0,
+        };
+        if w > 0.0 && w.is_finite() {
+            w
+        } else {
+            1e-6
+        }
+    }
+
+    /// The probability of choosing candidate `k` at `point` (1 with the legacy strategy, whose
+    /// only candidate is the whole table).
+    fn candidate_probability(&self, k: usize, point: Vec3) -> f32 {
+        let n = self.candidate_count();
+        if n <= 1 {
+            return 1.0;
+        }
+        let total: f32 = (0..n).map(|i| self.candidate_weight(i, point)).sum();
+        (1.0 - UNIFORM_SHARE) * self.candidate_weight(k, point) / total + UNIFORM_SHARE / n as f32
     }
 
     /// Samples one emitter and a point on it as seen from `point` at ray time `time`.
@@ -198,49 +532,41 @@ impl LightSampler {
         if self.emitters.is_empty() {
             return None;
         }
-        let index = self.cdf.partition_point(|&c| c <= u_select).min(self.emitters.len() - 1);
-        let select = self.probability[index];
+        // Choose a candidate, and reuse what is left of `u_select` inside its share.
+        let n = self.candidate_count();
+        let (mut k, mut start, mut share) = (n - 1, 0.0f32, 1.0f32);
+        if n > 1 {
+            let total: f32 = (0..n).map(|i| self.candidate_weight(i, point)).sum();
+            let mut acc = 0.0f32;
+            for i in 0..n {
+                let p = (1.0 - UNIFORM_SHARE) * self.candidate_weight(i, point) / total + UNIFORM_SHARE / n as f32;
+                if u_select < acc + p || i == n - 1 {
+                    (k, start, share) = (i, acc, p);
+                    break;
+                }
+                acc += p;
+            }
+        } else {
+            k = 0;
+        }
+        let u_rest = ((u_select - start) / share).clamp(0.0, 1.0 - f32::EPSILON);
+        let (index, select, u_pick) = if self.table_len > 0 && k == 0 {
+            let index = self.cdf.partition_point(|&c| c <= u_rest).min(self.table_len - 1);
+            let below = if index == 0 { 0.0 } else { self.cdf[index - 1] };
+            let within = self.probability[index];
+            let u_pick = if within > 0.0 { ((u_rest - below) / within).clamp(0.0, 1.0 - f32::EPSILON) } else { 0.0 };
+            (index, share * within, u_pick)
+        } else {
+            let index = if self.table_len > 0 { self.table_len + k - 1 } else { k };
+            (index, share, u_rest)
+        };
         match &self.emitters[index] {
             Emitter::Triangle(emitter) => {
-                if !(emitter.area > 0.0) {
-                    return None;
-                }
-                // Uniform point on the triangle; (b1, b2) are Embree's (u, v) barycentrics.
-                let su = u[0].sqrt();
-                let b1 = u[1] * su;
-                let b2 = su - b1;
-                let p = emitter.corner + emitter.motion * time + emitter.edge_b * b1 + emitter.edge_c * b2;
-                let to_light = p - point;
-                let dist2 = to_light.length_squared();
-                if !(dist2 > 0.0) {
-                    return None;
-                }
-                let distance = dist2.sqrt();
-                let wi = to_light / distance;
-                let cos_signed = emitter.normal.dot(-wi);
-                let cos_light = cos_signed.abs();
-                if cos_light <= 1e-7 {
-                    return None;
-                }
-                let le = match emitter.constant_emission {
-                    Some(emission) if emitter.two_sided || cos_signed > 0.0 => emission,
-                    Some(_) => return None,
-                    None => {
-                        triangle_emission(scene, emitter.mesh, emitter.triangle, Vec2::new(b1, b2), emitter.normal, -wi)
-                    }
-                };
-                if le == Vec3::ZERO {
-                    return None;
-                }
+                let (sample, (dist2, cos_light)) = sample_triangle(scene, emitter, point, time, u)?;
                 let pdf = select * dist2 / (emitter.area * cos_light);
-                Some(LightSample {
-                    wi,
-                    distance,
-                    weighted_radiance: le / pdf,
-                    pdf: Some(pdf),
-                    mesh: Some(emitter.mesh),
-                })
+                Some(LightSample { weighted_radiance: sample.weighted_radiance / pdf, pdf: Some(pdf), ..sample })
             }
+            Emitter::Sphere(sphere) => sphere.sample(scene, point, select, u_pick, u),
             Emitter::Punctual(light) => {
                 let (wi, distance, radiance) = punctual_incident(light, point)?;
                 Some(LightSample { wi, distance, weighted_radiance: radiance / select, pdf: None, mesh: None })
@@ -265,29 +591,42 @@ impl LightSampler {
     /// Solid-angle pdf with which `sample` would have chosen the point `hit` on a mesh
     /// triangle, seen from `from`.
     pub fn pdf_triangle(&self, mesh: u32, triangle: u32, from: Vec3, hit: Vec3) -> f32 {
-        let Some(offset) = self.mesh_offset.get(mesh as usize).copied().flatten() else {
+        let Some(entry) = self.mesh_entry.get(mesh as usize).copied().flatten() else {
             return 0.0;
         };
-        let index = (offset + triangle) as usize;
-        let Some(Emitter::Triangle(emitter)) = self.emitters.get(index) else {
-            return 0.0;
-        };
-        let to_light = hit - from;
-        let dist2 = to_light.length_squared();
-        if !(emitter.area > 0.0) || !(dist2 > 0.0) {
-            return 0.0;
+        let table = self.candidate_probability(0, from);
+        match entry {
+            MeshEntry::Sphere(index) => {
+                let Some(Emitter::Sphere(sphere)) = self.emitters.get(index as usize) else { return 0.0 };
+                table * self.probability[index as usize] * sphere.pdf(triangle, from, hit)
+            }
+            MeshEntry::Triangles(offset) => {
+                let index = (offset + triangle) as usize;
+                let Some(Emitter::Triangle(emitter)) = self.emitters.get(index) else {
+                    return 0.0;
+                };
+                let to_light = hit - from;
+                let dist2 = to_light.length_squared();
+                if !(emitter.area > 0.0) || !(dist2 > 0.0) {
+                    return 0.0;
+                }
+                let cos_light = emitter.normal.dot(to_light / dist2.sqrt()).abs();
+                if cos_light <= 1e-7 {
+                    return 0.0;
+                }
+                table * self.probability[index] * dist2 / (emitter.area * cos_light)
+            }
         }
-        let cos_light = emitter.normal.dot(to_light / dist2.sqrt()).abs();
-        if cos_light <= 1e-7 {
-            return 0.0;
-        }
-        self.probability[index] * dist2 / (emitter.area * cos_light)
     }
 
-    /// Solid-angle pdf of sampling the environment in any direction.
-    pub fn pdf_environment(&self) -> f32 {
+    /// Solid-angle pdf of sampling the environment in any direction from `from`.
+    pub fn pdf_environment(&self, from: Vec3) -> f32 {
         match self.environment_index {
-            Some(i) => self.probability[i as usize] / (4.0 * PI),
+            Some(i) if self.strategy == LightStrategy::Legacy => self.probability[i as usize] / (4.0 * PI),
+            Some(i) => {
+                let k = i as usize - self.table_len + usize::from(self.table_len > 0);
+                self.candidate_probability(k, from) / (4.0 * PI)
+            }
             None => 0.0,
         }
     }
@@ -472,5 +811,121 @@ mod tests {
             (sum / n as f64) as f32
         };
         assert!((estimate / expected - 1.0).abs() < 1e-2, "{estimate} vs Lambert {expected}");
+    }
+
+    /// A sphere light of radiance `radiance` and radius 0.5 at (0, 0, 3) (two-sided when asked,
+    /// so that it also lights points inside it), a dim environment, and a floor polygon of
+    /// half-width `floor` at z = -1.
+    fn sphere_light_scene(radiance: f32, two_sided: bool, floor: f32) -> Scene {
+        let mut scene = Scene::empty("sphere-light");
+        scene.materials.push(Material {
+            emission: Vec3::splat(radiance),
+            two_sided_emission: two_sided,
+            ..Material::default()
+        });
+        scene.meshes.push(crate::scene::shapes::sphere("light", Vec3::new(0.0, 0.0, 3.0), 0.5, 3, 1));
+        let corners = [
+            Vec3::new(-floor, -floor, -1.0),
+            Vec3::new(floor, -floor, -1.0),
+            Vec3::new(floor, floor, -1.0),
+            Vec3::new(-floor, floor, -1.0),
+        ];
+        scene.meshes.push(polygon("floor", &corners, 0));
+        scene.environment = Vec3::splat(0.01);
+        scene
+    }
+
+    /// Irradiance at `point` with normal +z from the sphere light (mesh 0) by next-event samples.
+    fn sphere_irradiance(lights: &LightSampler, scene: &Scene, point: Vec3) -> f64 {
+        let n = 1 << 18;
+        let mut sum = 0.0f64;
+        for i in 0..n {
+            let u_select = (i as f32 + 0.5) / n as f32;
+            let u = [(i as f32 * 0.754_877_7).fract(), (i as f32 * 0.569_840_3).fract()];
+            if let Some(sample) = lights.sample(scene, point, 0.0, u_select, u) {
+                if sample.mesh == Some(0) {
+                    sum += (sample.weighted_radiance.x * sample.wi.z.max(0.0)) as f64;
+                }
+            }
+        }
+        sum / n as f64
+    }
+
+    #[test]
+    fn sphere_lights_are_sampled_in_the_cone_they_subtend_with_the_analytic_irradiance() {
+        let scene = sphere_light_scene(4.0, false, 2.0);
+        let lights = LightSampler::new(&scene);
+        let legacy = LightSampler::with_strategy(&scene, LightStrategy::Legacy);
+        let Some(Emitter::Sphere(sphere)) = lights.emitters.first() else { panic!("the sphere is one entry") };
+        let (r_in, r_out) = (sphere.radius_in as f64, sphere.radius_out as f64);
+        assert!((r_out - 0.5).abs() < 1e-6 && r_in < r_out && r_in > 0.49, "{r_in} {r_out}");
+        // On the axis below the centre at distance h, facing it, a sphere of radius r gives
+        // E = π L (r / h)²; the tessellation lies between its inscribed and circumscribed spheres.
+        for h in [1.5f64, 3.0, 8.0] {
+            let point = Vec3::new(0.0, 0.0, 3.0 - h as f32);
+            let (lo, hi) = (PI as f64 * 4.0 * (r_in / h).powi(2), PI as f64 * 4.0 * (r_out / h).powi(2));
+            for (name, sampler) in [("cone", &lights), ("legacy area", &legacy)] {
+                let e = sphere_irradiance(sampler, &scene, point);
+                assert!(e > lo * 0.995 && e < hi * 1.005, "{name}, h = {h}: {e} not in [{lo}, {hi}]");
+            }
+        }
+    }
+
+    #[test]
+    fn the_sphere_density_matches_the_density_of_hitting_the_same_point() {
+        // From outside (cone) and from inside a two-sided sphere (area).
+        let scene = sphere_light_scene(2.0, true, 2.0);
+        let lights = LightSampler::new(&scene);
+        for point in [Vec3::new(0.3, -0.2, 0.0), Vec3::new(0.1, 0.05, 3.1)] {
+            let mut checked = 0;
+            for i in 0..400 {
+                let u_select = (i as f32 + 0.5) / 400.0;
+                let u = [(i as f32 * 0.754_877_7).fract(), (i as f32 * 0.569_840_3).fract()];
+                let Some(sample) = lights.sample(&scene, point, 0.0, u_select, u) else { continue };
+                if sample.mesh != Some(0) {
+                    continue;
+                }
+                let hit = point + sample.wi * sample.distance;
+                // The triangles holding the sampled point (more than one on an edge: the
+                // density of one of them must match).
+                let m = &scene.meshes[0];
+                let sampled = sample.pdf.unwrap();
+                let matches = (0..m.indices.len() as u32).any(|t| {
+                    let [a, b, c] = triangle_at(&scene, 0, t, 0.0);
+                    let n = (b - a).cross(c - a).normalize();
+                    let on_plane = n.dot(hit - a).abs() < 1e-4;
+                    let inside = [(a, b), (b, c), (c, a)].iter().all(|&(p, r)| (r - p).cross(hit - p).dot(n) >= -1e-5);
+                    let pdf = lights.pdf_triangle(0, t, point, hit);
+                    on_plane && inside && (pdf / sampled - 1.0).abs() < 1e-3
+                });
+                // From outside the sampled point lies on the circumscribed sphere, just before
+                // the mesh, and the density depends on the direction only.
+                let outside = lights.pdf_triangle(0, 0, point, hit);
+                assert!(matches || (outside / sampled - 1.0).abs() < 1e-4, "{point}: {sampled} vs {outside}");
+                checked += 1;
+            }
+            assert!(checked > 200, "{checked}");
+        }
+    }
+
+    #[test]
+    fn the_environments_share_does_not_grow_with_the_scene() {
+        // The same point near the light with a small and a huge floor: the environment's and
+        // the sphere's selection are the same; the legacy table gave the environment more.
+        let point = Vec3::new(0.5, 0.0, -1.0);
+        let (small, huge) = (sphere_light_scene(20.0, false, 5.0), sphere_light_scene(20.0, false, 600.0));
+        let env = |scene: &Scene, strategy| LightSampler::with_strategy(scene, strategy).pdf_environment(point);
+        assert_eq!(env(&small, LightStrategy::ByContribution), env(&huge, LightStrategy::ByContribution));
+        let legacy_share = |scene: &Scene| env(scene, LightStrategy::Legacy) * 4.0 * PI;
+        assert!(
+            legacy_share(&small) < 0.2 && legacy_share(&huge) > 0.9,
+            "{} {}",
+            legacy_share(&small),
+            legacy_share(&huge)
+        );
+        // Near a bright light, most samples go to it: the environment gets its uniform share
+        // (2.5 %) and its irradiance's (π 0.01 against about 1 from the light: 3 %).
+        let share = env(&huge, LightStrategy::ByContribution) * 4.0 * PI;
+        assert!(share > 0.025 && share < 0.07, "environment share {share}");
     }
 }

@@ -341,9 +341,32 @@ pub fn render_shard(
     settings: &RenderSettings,
     shard: Shard,
 ) -> Result<Frame, RenderError> {
+    render_shard_with_lights(scene, accel, settings, &LightSampler::new(scene), shard)
+}
+
+/// [`render`] with the light sampler `lights` (built for `scene`): the tests compare light
+/// sampling strategies with it (`crate::lights::LightStrategy`).
+pub fn render_with_lights(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &RenderSettings,
+    lights: &LightSampler,
+) -> Result<Frame, RenderError> {
+    render_shard_with_lights(scene, accel, settings, lights, Shard::WHOLE)
+}
+
+/// [`render_shard`] with the light sampler `lights`.
+pub fn render_shard_with_lights(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &RenderSettings,
+    lights: &LightSampler,
+    shard: Shard,
+) -> Result<Frame, RenderError> {
     settings.validate()?;
-    let lights = LightSampler::new(scene);
-    let integrator = Integrator::new(scene, accel, &lights, settings.max_bounces, settings.width, settings.height);
+    let (width, height) = (settings.width, settings.height);
+    crate::memory::check(&format!("a {width}x{height} render"), crate::memory::render_bytes(width, height))?;
+    let integrator = Integrator::new(scene, accel, lights, settings.max_bounces, settings.width, settings.height);
     let tile_list: Vec<(u32, u32)> =
         tiles(settings).into_iter().filter(|&(x, y)| shard.covers(settings.width, x, y)).collect();
     let bar = progress_bar(settings, tile_list.len() as u64, "render");

@@ -12,6 +12,37 @@ use glam::{Mat3, Vec2, Vec3, Vec4};
 
 use crate::error::SceneError;
 
+/// How a texture coordinate outside [0, 1] maps into the image along one axis (glTF sampler
+/// `wrapS`/`wrapT`). Applied to the coordinate before the lookup, which itself repeats: within
+/// half a texel of a clamped or mirrored edge, bilinear filtering still blends in the opposite
+/// edge's texels.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Wrap {
+    #[default]
+    Repeat,
+    ClampToEdge,
+    MirroredRepeat,
+}
+
+impl Wrap {
+    /// The coordinate `x` mapped as this mode says (unchanged for `Repeat`: the lookup repeats).
+    #[inline]
+    pub fn apply(self, x: f32) -> f32 {
+        match self {
+            Wrap::Repeat => x,
+            Wrap::ClampToEdge => x.clamp(0.0, 1.0),
+            Wrap::MirroredRepeat => {
+                let m = x.rem_euclid(2.0);
+                if m > 1.0 {
+                    2.0 - m
+                } else {
+                    m
+                }
+            }
+        }
+    }
+}
+
 /// A reference from a material to a texture, with its UV transform.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TextureRef {
@@ -21,11 +52,13 @@ pub struct TextureRef {
     transform: Option<Mat3>,
     /// ½ log2 of the transform's area scale, computed once (see [`TextureRef::half_log2_scale`]).
     half_log2_scale: f32,
+    /// Wrap modes along u and v, applied after the transform.
+    wrap: [Wrap; 2],
 }
 
 impl TextureRef {
     pub fn new(index: u32) -> Self {
-        TextureRef { index, transform: None, half_log2_scale: 0.0 }
+        TextureRef { index, transform: None, half_log2_scale: 0.0, wrap: [Wrap::Repeat; 2] }
     }
 
     /// A reference through the uv transform `transform` (`None`: uv as stored).
@@ -41,7 +74,17 @@ impl TextureRef {
                 }
             }
         };
-        TextureRef { index, transform, half_log2_scale }
+        TextureRef { index, transform, half_log2_scale, wrap: [Wrap::Repeat; 2] }
+    }
+
+    /// This reference with the wrap modes `wrap` along u and v.
+    pub fn with_wrap(mut self, wrap: [Wrap; 2]) -> Self {
+        self.wrap = wrap;
+        self
+    }
+
+    pub fn wrap(&self) -> [Wrap; 2] {
+        self.wrap
     }
 
     /// The uv transform, if any.
@@ -57,12 +100,16 @@ impl TextureRef {
     }
 
     pub fn apply(&self, uv: Vec2) -> Vec2 {
-        match &self.transform {
+        let uv = match &self.transform {
             None => uv,
             Some(m) => {
                 let p = *m * Vec3::new(uv.x, uv.y, 1.0);
                 Vec2::new(p.x, p.y)
             }
+        };
+        match self.wrap {
+            [Wrap::Repeat, Wrap::Repeat] => uv,
+            [u, v] => Vec2::new(u.apply(uv.x), v.apply(uv.y)),
         }
     }
 }
@@ -516,5 +563,21 @@ mod tests {
         assert_eq!(flat.half_log2_scale(), 0.0);
         let unbounded = TextureRef::with_transform(0, Some(Mat3::from_scale(Vec2::new(f32::INFINITY, 1.0))));
         assert_eq!(unbounded.half_log2_scale(), 0.0);
+    }
+
+    #[test]
+    fn wrap_modes_map_coordinates_like_gl() {
+        // Clamp: the edge beyond [0, 1]; mirror: continuous, period 2, equal to repeat on [0, 1].
+        for x in [-2.3f32, -1.0, -0.25, 0.0, 0.4, 1.0, 1.25, 2.6, 7.9] {
+            assert_eq!(Wrap::ClampToEdge.apply(x), x.clamp(0.0, 1.0));
+            let m = Wrap::MirroredRepeat.apply(x);
+            assert!((0.0..=1.0).contains(&m), "{x} -> {m}");
+            assert!((Wrap::MirroredRepeat.apply(x + 2.0) - m).abs() < 1e-5);
+            assert!((Wrap::MirroredRepeat.apply(-x) - m).abs() < 1e-5, "mirror symmetric about 0");
+        }
+        assert!((Wrap::MirroredRepeat.apply(1.25) - 0.75).abs() < 1e-6);
+        assert_eq!(Wrap::Repeat.apply(1.25), 1.25);
+        let reference = TextureRef::new(0).with_wrap([Wrap::ClampToEdge, Wrap::MirroredRepeat]);
+        assert_eq!(reference.apply(Vec2::new(1.5, 1.25)), Vec2::new(1.0, 0.75));
     }
 }

@@ -10,7 +10,9 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use glam::{Mat4, Quat, Vec3};
+use serde::de::{self, Deserializer, SeqAccess, Visitor};
 use serde::Deserialize;
+use toml::Spanned;
 
 use super::input::{confine, FileAccess};
 use super::obj::ObjOptions;
@@ -19,6 +21,72 @@ use super::{Material, PunctualLight, Scene};
 use crate::camera::{Camera, FovAxis};
 use crate::error::SceneError;
 use crate::texture::TextureRef;
+
+/// What an array of fixed length holds, for its messages ("expected 3 numbers, found 4").
+trait Noun {
+    const PLURAL: &'static str;
+}
+
+impl Noun for f32 {
+    const PLURAL: &'static str = "numbers";
+}
+
+impl Noun for Fixed<f32, 4> {
+    const PLURAL: &'static str = "rows of 4 numbers";
+}
+
+/// An array of exactly `N` items. Serde's `[T; N]` reads the first `N` items of a longer array
+/// and drops the rest; this type rejects every other length with
+/// `expected N numbers, found M`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Fixed<T, const N: usize>([T; N]);
+
+type Vec3Desc = Fixed<f32, 3>;
+
+impl<T: Default + Copy, const N: usize> Default for Fixed<T, N> {
+    fn default() -> Self {
+        Fixed([T::default(); N])
+    }
+}
+
+impl<T: Copy, const N: usize> Fixed<T, N> {
+    fn get(self) -> [T; N] {
+        self.0
+    }
+}
+
+impl From<Vec3Desc> for Vec3 {
+    fn from(v: Vec3Desc) -> Vec3 {
+        Vec3::from(v.0)
+    }
+}
+
+impl<'de, T: Deserialize<'de> + Noun + Copy + Default, const N: usize> Deserialize<'de> for Fixed<T, N> {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct FixedVisitor<T, const N: usize>(std::marker::PhantomData<T>);
+        impl<'de, T: Deserialize<'de> + Noun + Copy + Default, const N: usize> Visitor<'de> for FixedVisitor<T, N> {
+            type Value = Fixed<T, N>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                write!(f, "an array of {N} {}", T::PLURAL)
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+                let mut items = [T::default(); N];
+                let mut found = 0usize;
+                while let Some(item) = seq.next_element::<T>()? {
+                    if found < N {
+                        items[found] = item;
+                    }
+                    found += 1;
+                }
+                if found != N {
+                    return Err(de::Error::custom(format!("expected {N} {}, found {found}", T::PLURAL)));
+                }
+                Ok(Fixed(items))
+            }
+        }
+        deserializer.deserialize_seq(FixedVisitor::<T, N>(std::marker::PhantomData))
+    }
+}
 
 #[derive(Deserialize, Default)]
 #[serde(deny_unknown_fields)]
@@ -45,8 +113,12 @@ struct RenderDesc {
     spp: u32,
     #[serde(default = "default_bounces")]
     max_bounces: u32,
-    #[serde(default)]
-    environment: [f32; 3],
+    #[serde(default = "black")]
+    environment: Vec3Desc,
+}
+
+fn black() -> Vec3Desc {
+    Fixed([0.0; 3])
 }
 
 fn default_width() -> u32 {
@@ -69,7 +141,7 @@ impl Default for RenderDesc {
             height: default_height(),
             spp: default_spp(),
             max_bounces: default_bounces(),
-            environment: [0.0; 3],
+            environment: black(),
         }
     }
 }
@@ -77,10 +149,10 @@ impl Default for RenderDesc {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CameraDesc {
-    position: [f32; 3],
-    look_at: [f32; 3],
+    position: Vec3Desc,
+    look_at: Vec3Desc,
     #[serde(default = "default_up")]
-    up: [f32; 3],
+    up: Vec3Desc,
     /// Full field of view in degrees.
     fov: f32,
     #[serde(default)]
@@ -90,14 +162,14 @@ struct CameraDesc {
     /// Defaults to the distance to `look_at`.
     focus_distance: Option<f32>,
     #[serde(default = "default_shutter")]
-    shutter: [f32; 2],
+    shutter: Fixed<f32, 2>,
 }
 
-fn default_up() -> [f32; 3] {
-    [0.0, 1.0, 0.0]
+fn default_up() -> Vec3Desc {
+    Fixed([0.0, 1.0, 0.0])
 }
-fn default_shutter() -> [f32; 2] {
-    [0.0, 1.0]
+fn default_shutter() -> Fixed<f32, 2> {
+    Fixed([0.0, 1.0])
 }
 
 #[derive(Deserialize)]
@@ -105,7 +177,7 @@ fn default_shutter() -> [f32; 2] {
 struct MaterialDesc {
     name: String,
     #[serde(default = "default_base")]
-    base_color: [f32; 3],
+    base_color: Vec3Desc,
     base_color_texture: Option<String>,
     #[serde(default)]
     metallic: f32,
@@ -117,14 +189,14 @@ struct MaterialDesc {
     /// Index of refraction of the dielectric coat (1.5 gives F0 = 0.04).
     #[serde(default = "default_ior")]
     ior: f32,
-    #[serde(default)]
-    emission: [f32; 3],
+    #[serde(default = "black")]
+    emission: Vec3Desc,
     #[serde(default)]
     two_sided_emission: bool,
 }
 
-fn default_base() -> [f32; 3] {
-    [0.8, 0.8, 0.8]
+fn default_base() -> Vec3Desc {
+    Fixed([0.8, 0.8, 0.8])
 }
 fn default_ior() -> f32 {
     1.5
@@ -137,23 +209,48 @@ fn one() -> f32 {
 #[serde(deny_unknown_fields)]
 struct TransformDesc {
     #[serde(default)]
-    translate: Option<[f32; 3]>,
+    translate: Option<Vec3Desc>,
     /// Uniform or per-axis scale.
     #[serde(default)]
     scale: Option<ScaleDesc>,
     /// Rotation about an axis: [x, y, z, degrees].
     #[serde(default)]
-    rotate: Option<[f32; 4]>,
+    rotate: Option<Fixed<f32, 4>>,
     /// A full 4x4 matrix, row-major; applied after scale, rotate and translate are ignored.
     #[serde(default)]
-    matrix: Option<[[f32; 4]; 4]>,
+    matrix: Option<Fixed<Fixed<f32, 4>, 4>>,
 }
 
-#[derive(Deserialize)]
-#[serde(untagged)]
+/// A uniform scale (one number) or one per axis (3 numbers).
 enum ScaleDesc {
     Uniform(f32),
     Axes([f32; 3]),
+}
+
+impl<'de> Deserialize<'de> for ScaleDesc {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct ScaleVisitor;
+        impl<'de> Visitor<'de> for ScaleVisitor {
+            type Value = ScaleDesc;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a number (uniform scale) or an array of 3 numbers (per axis)")
+            }
+            fn visit_f64<E: de::Error>(self, v: f64) -> Result<ScaleDesc, E> {
+                Ok(ScaleDesc::Uniform(v as f32))
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<ScaleDesc, E> {
+                Ok(ScaleDesc::Uniform(v as f32))
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<ScaleDesc, E> {
+                Ok(ScaleDesc::Uniform(v as f32))
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, seq: A) -> Result<ScaleDesc, A::Error> {
+                let axes = Vec3Desc::deserialize(de::value::SeqAccessDeserializer::new(seq))?;
+                Ok(ScaleDesc::Axes(axes.get()))
+            }
+        }
+        deserializer.deserialize_any(ScaleVisitor)
+    }
 }
 
 impl TransformDesc {
@@ -162,6 +259,7 @@ impl TransformDesc {
     /// (projective transforms are not supported).
     fn matrix(&self) -> Result<Mat4, (&'static str, String)> {
         if let Some(m) = self.matrix {
+            let m = m.get().map(Fixed::get);
             if m[3] != [0.0, 0.0, 0.0, 1.0] {
                 return Err(("matrix", format!("the last row must be [0, 0, 0, 1], got {:?}", m[3])));
             }
@@ -174,7 +272,7 @@ impl TransformDesc {
         };
         let rotation = match self.rotate {
             None => Quat::IDENTITY,
-            Some([x, y, z, deg]) => {
+            Some(Fixed([x, y, z, deg])) => {
                 let axis = Vec3::new(x, y, z).normalize_or_zero();
                 if axis == Vec3::ZERO || !deg.is_finite() {
                     return Err((
@@ -185,7 +283,7 @@ impl TransformDesc {
                 Quat::from_axis_angle(axis, deg.to_radians())
             }
         };
-        Ok(Mat4::from_scale_rotation_translation(scale, rotation, Vec3::from(self.translate.unwrap_or([0.0; 3]))))
+        Ok(Mat4::from_scale_rotation_translation(scale, rotation, self.translate.map_or(Vec3::ZERO, Vec3::from)))
     }
 }
 
@@ -196,14 +294,14 @@ fn default_subdivisions() -> u32 {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct MeshDesc {
-    /// An OBJ, glTF or GLB file.
+    /// An OBJ, glTF, GLB or PLY file.
     file: Option<String>,
     /// An inline shape when there is no file.
     shape: Option<String>,
-    points: Option<Vec<[f32; 3]>>,
-    min: Option<[f32; 3]>,
-    max: Option<[f32; 3]>,
-    center: Option<[f32; 3]>,
+    points: Option<Vec<Vec3Desc>>,
+    min: Option<Vec3Desc>,
+    max: Option<Vec3Desc>,
+    center: Option<Vec3Desc>,
     radius: Option<f32>,
     subdivisions: Option<u32>,
     /// A scene material for every face (overrides the file's materials).
@@ -214,38 +312,97 @@ struct MeshDesc {
     #[serde(default)]
     transform: TransformDesc,
     /// World-space translation over the shutter interval.
-    #[serde(default)]
-    motion: [f32; 3],
+    #[serde(default = "black")]
+    motion: Vec3Desc,
 }
 
+/// A `[[light]]` table. Flat rather than a tagged enum so that every key keeps its place in
+/// the file: an error about a key names the key's line, not the table's. Which keys each `type`
+/// takes is checked in [`LightDesc::check_keys`].
 #[derive(Deserialize)]
-#[serde(deny_unknown_fields, tag = "type", rename_all = "lowercase")]
-enum LightDesc {
-    Point {
-        position: [f32; 3],
-        intensity: [f32; 3],
-    },
-    Spot {
-        position: [f32; 3],
-        direction: [f32; 3],
-        intensity: [f32; 3],
-        #[serde(default)]
-        inner_cone_deg: f32,
-        #[serde(default = "default_outer")]
-        outer_cone_deg: f32,
-    },
-    Directional {
-        direction: [f32; 3],
-        irradiance: [f32; 3],
-    },
-    /// A tessellated emissive sphere.
-    Sphere {
-        center: [f32; 3],
-        radius: f32,
-        radiance: [f32; 3],
-        #[serde(default = "default_subdivisions")]
-        subdivisions: u32,
-    },
+#[serde(deny_unknown_fields)]
+struct LightDesc {
+    #[serde(rename = "type")]
+    kind: Spanned<String>,
+    position: Option<Spanned<Vec3Desc>>,
+    direction: Option<Spanned<Vec3Desc>>,
+    intensity: Option<Spanned<Vec3Desc>>,
+    irradiance: Option<Spanned<Vec3Desc>>,
+    center: Option<Spanned<Vec3Desc>>,
+    radiance: Option<Spanned<Vec3Desc>>,
+    radius: Option<Spanned<f32>>,
+    subdivisions: Option<Spanned<u32>>,
+    inner_cone_deg: Option<Spanned<f32>>,
+    outer_cone_deg: Option<Spanned<f32>>,
+}
+
+/// The keys of each light type: (type, required keys, optional keys).
+const LIGHT_KEYS: [(&str, &[&str], &[&str]); 4] = [
+    ("point", &["position", "intensity"], &[]),
+    ("spot", &["position", "direction", "intensity"], &["inner_cone_deg", "outer_cone_deg"]),
+    ("directional", &["direction", "irradiance"], &[]),
+    ("sphere", &["center", "radius", "radiance"], &["subdivisions"]),
+];
+
+impl LightDesc {
+    /// The keys present besides `type`, with where their values start in the text.
+    fn present(&self) -> Vec<(&'static str, usize)> {
+        let vectors = [
+            ("position", &self.position),
+            ("direction", &self.direction),
+            ("intensity", &self.intensity),
+            ("irradiance", &self.irradiance),
+            ("center", &self.center),
+            ("radiance", &self.radiance),
+        ];
+        let mut keys: Vec<(&'static str, usize)> =
+            vectors.iter().filter_map(|(k, v)| v.as_ref().map(|v| (*k, v.span().start))).collect();
+        for (k, v) in [
+            ("radius", &self.radius),
+            ("inner_cone_deg", &self.inner_cone_deg),
+            ("outer_cone_deg", &self.outer_cone_deg),
+        ] {
+            if let Some(v) = v {
+                keys.push((k, v.span().start));
+            }
+        }
+        if let Some(v) = &self.subdivisions {
+            keys.push(("subdivisions", v.span().start));
+        }
+        keys
+    }
+
+    /// Checks that the keys fit the type: an unknown type is named at `type`'s line, a key that
+    /// the type does not take at that key's line, a missing key by its name.
+    fn check_keys(&self, i: usize, text: &str, path: &Path) -> Result<(), SceneError> {
+        let kind = self.kind.get_ref().as_str();
+        let Some((_, required, optional)) = LIGHT_KEYS.iter().find(|(k, _, _)| *k == kind) else {
+            return Err(SceneError::new(
+                path,
+                locate(text, self.kind.span().start),
+                format!("unknown light type '{kind}' (expected point, spot, directional or sphere)"),
+            ));
+        };
+        let present = self.present();
+        for (key, at) in &present {
+            if !required.contains(key) && !optional.contains(key) {
+                let keys: Vec<&str> = required.iter().chain(optional.iter()).copied().collect();
+                return Err(SceneError::new(
+                    path,
+                    locate(text, *at),
+                    format!("a {kind} light takes no `{key}` (its keys: type, {})", keys.join(", ")),
+                ));
+            }
+        }
+        if let Some(key) = required.iter().find(|k| !present.iter().any(|(p, _)| p == *k)) {
+            return Err(SceneError::new(
+                path,
+                format!("{} light[{i}].{key}", locate(text, self.kind.span().start)),
+                format!("a {kind} light needs `{key}`"),
+            ));
+        }
+        Ok(())
+    }
 }
 
 fn default_outer() -> f32 {
@@ -357,13 +514,20 @@ pub fn parse_with_access(text: &str, path: &Path, access: FileAccess) -> Result<
                         super::obj::load(&file_path, &mut scene, &options)?;
                     }
                     "gltf" | "glb" => {
-                        super::gltf::load_with_transform(&file_path, &mut scene, transform)?;
+                        let imported = super::gltf::load_with_transform(&file_path, &mut scene, transform)?;
+                        // Kept for `--camera N`; the scene's own camera stays the `[camera]` table's.
+                        scene.file_cameras.extend(imported.cameras);
                         for mesh in &mut scene.meshes[first_new_mesh..] {
                             if let Some(mat) = material_override {
                                 mesh.material = mat;
                             }
                             mesh.motion = motion;
                         }
+                    }
+                    "ply" => {
+                        let options =
+                            super::ply::PlyOptions { transform, material: material_override.unwrap_or(0), motion };
+                        super::ply::load(&file_path, &mut scene, &options)?;
                     }
                     _ => {
                         return Err(SceneError::new(
@@ -417,6 +581,9 @@ pub fn parse_with_access(text: &str, path: &Path, access: FileAccess) -> Result<
                         ))
                     }
                 };
+                if transform != Mat4::IDENTITY {
+                    mesh.sphere = None;
+                }
                 let normal_matrix = transform.inverse().transpose();
                 for p in &mut mesh.positions {
                     *p = transform.transform_point3(*p);
@@ -442,40 +609,44 @@ pub fn parse_with_access(text: &str, path: &Path, access: FileAccess) -> Result<
     }
 
     for (i, light) in desc.lights.iter().enumerate() {
-        match light {
-            LightDesc::Point { position, intensity } => scene
-                .lights
-                .push(PunctualLight::Point { position: Vec3::from(*position), intensity: Vec3::from(*intensity) }),
-            LightDesc::Spot { position, direction, intensity, inner_cone_deg, outer_cone_deg } => {
-                scene.lights.push(PunctualLight::Spot {
-                    position: Vec3::from(*position),
-                    direction: Vec3::from(*direction).normalize_or_zero(),
-                    intensity: Vec3::from(*intensity),
-                    inner_cone: inner_cone_deg.to_radians(),
-                    outer_cone: outer_cone_deg.to_radians(),
-                })
+        light.check_keys(i, text, path)?;
+        // check_keys made sure that the type's required keys are present.
+        let v = |value: &Option<Spanned<Vec3Desc>>| value.as_ref().map_or(Vec3::ZERO, |v| Vec3::from(*v.get_ref()));
+        let number = |value: &Option<Spanned<f32>>, default: f32| value.as_ref().map_or(default, |v| *v.get_ref());
+        match light.kind.get_ref().as_str() {
+            "point" => {
+                scene.lights.push(PunctualLight::Point { position: v(&light.position), intensity: v(&light.intensity) })
             }
-            LightDesc::Directional { direction, irradiance } => scene.lights.push(PunctualLight::Directional {
-                direction: Vec3::from(*direction).normalize_or_zero(),
-                irradiance: Vec3::from(*irradiance),
+            "spot" => scene.lights.push(PunctualLight::Spot {
+                position: v(&light.position),
+                direction: v(&light.direction).normalize_or_zero(),
+                intensity: v(&light.intensity),
+                inner_cone: number(&light.inner_cone_deg, 0.0).to_radians(),
+                outer_cone: number(&light.outer_cone_deg, default_outer()).to_radians(),
             }),
-            LightDesc::Sphere { center, radius, radiance, subdivisions } => {
-                if !(*radius > 0.0) {
+            "directional" => scene.lights.push(PunctualLight::Directional {
+                direction: v(&light.direction).normalize_or_zero(),
+                irradiance: v(&light.irradiance),
+            }),
+            _ => {
+                let radius = number(&light.radius, 0.0);
+                if !(radius > 0.0) {
                     return Err(SceneError::new(path, format!("light[{i}].radius"), "must be > 0"));
                 }
                 scene.materials.push(Material {
                     name: format!("light[{i}]"),
                     base_color: Vec3::ZERO,
                     specular: 0.0,
-                    emission: Vec3::from(*radiance),
+                    emission: v(&light.radiance),
                     ..Material::default()
                 });
                 let material = scene.materials.len() as u32 - 1;
+                let subdivisions = light.subdivisions.as_ref().map_or(default_subdivisions(), |s| *s.get_ref());
                 scene.meshes.push(shapes::sphere(
                     &format!("light[{i}]"),
-                    Vec3::from(*center),
-                    *radius,
-                    *subdivisions,
+                    v(&light.center),
+                    radius,
+                    subdivisions,
                     material,
                 ));
             }
@@ -489,7 +660,7 @@ pub fn parse_with_access(text: &str, path: &Path, access: FileAccess) -> Result<
             let mut camera = Camera::look_at(position, target, Vec3::from(c.up), c.fov, c.fov_axis);
             camera.aperture_radius = c.aperture_radius;
             camera.focus_distance = c.focus_distance.unwrap_or((target - position).length());
-            camera.shutter = c.shutter;
+            camera.shutter = c.shutter.get();
             camera
         }
         None => Camera::framing(&scene.bounds(), scene.aspect()),
@@ -497,14 +668,51 @@ pub fn parse_with_access(text: &str, path: &Path, access: FileAccess) -> Result<
     Ok(scene)
 }
 
-/// "line N" for a byte offset, for messages.
+/// "line N (key)" for a byte offset, for messages. The key is the one whose value holds
+/// `offset` (`key = value`, also inside an inline table or for an item of an array), else the
+/// key that starts the line.
 fn locate(text: &str, offset: usize) -> String {
-    let line = text[..offset.min(text.len())].matches('\n').count() + 1;
-    let key = text.lines().nth(line - 1).and_then(|l| l.split('=').next()).map(str::trim).unwrap_or("");
+    let offset = offset.min(text.len());
+    let line = text[..offset].matches('\n').count() + 1;
+    let key = value_key(text, offset).unwrap_or_else(|| {
+        text.lines().nth(line - 1).and_then(|l| l.split('=').next()).map(|k| k.trim().to_string()).unwrap_or_default()
+    });
     if key.is_empty() {
         format!("line {line}")
     } else {
         format!("line {line} ({key})")
+    }
+}
+
+/// The key whose value starts at `offset`, or holds it as an item of an array at any depth.
+fn value_key(text: &str, mut offset: usize) -> Option<String> {
+    loop {
+        let before = text[..offset].trim_end();
+        if let Some(rest) = before.strip_suffix('=') {
+            let rest = rest.trim_end_matches([' ', '\t']);
+            let start = rest
+                .rfind(|c: char| !(c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.' | '"' | '\'')))
+                .map_or(0, |i| i + 1);
+            return Some(rest[start..].to_string()).filter(|k| !k.is_empty());
+        }
+        if !(before.ends_with('[') || before.ends_with(',')) {
+            return None;
+        }
+        // An array item: go to the array's opening bracket.
+        let mut depth = 0usize;
+        let open = before.char_indices().rev().find(|&(_, c)| match c {
+            ']' => {
+                depth += 1;
+                false
+            }
+            '[' if depth == 0 => true,
+            '[' => {
+                depth -= 1;
+                false
+            }
+            _ => false,
+        })?;
+        offset = open.0;
     }
 }
 
@@ -596,5 +804,128 @@ mod tests {
         assert!(err.message.contains("widht"), "{err}");
         let mut zero = parse("[render]\nwidth = 0\n", p).unwrap();
         assert!(zero.validate().unwrap_err().field.contains("resolution"));
+    }
+
+    /// The error of `text`, which must fail to parse.
+    fn error_of(text: &str) -> String {
+        match parse(text, Path::new("/tmp/bad.toml")) {
+            Ok(_) => panic!("accepted:\n{text}"),
+            Err(e) => e.to_string(),
+        }
+    }
+
+    /// The 1-based line of `text` that holds `needle` (the expectation, found independently of
+    /// the parser's spans).
+    fn line_of(text: &str, needle: &str) -> usize {
+        text.lines().position(|l| l.contains(needle)).expect("needle in text") + 1
+    }
+
+    /// Every fixed-length array of the format, with a minimal scene around it: (key, scene
+    /// text with `@` where the array goes, length the key needs).
+    const ARRAY_KEYS: [(&str, &str, usize); 17] = [
+        ("environment", "[render]\nenvironment = @\n", 3),
+        ("position", "[camera]\nposition = @\nlook_at = [0, 0, 0]\nfov = 40\n", 3),
+        ("look_at", "[camera]\nposition = [0, 0, 5]\nlook_at = @\nfov = 40\n", 3),
+        ("up", "[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\nup = @\nfov = 40\n", 3),
+        ("shutter", "[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\nfov = 40\nshutter = @\n", 2),
+        ("base_color", "[[material]]\nname = \"m\"\nbase_color = @\n", 3),
+        ("emission", "[[material]]\nname = \"m\"\nemission = @\n", 3),
+        ("min", "[[mesh]]\nshape = \"box\"\nmin = @\nmax = [1, 1, 1]\n", 3),
+        ("max", "[[mesh]]\nshape = \"box\"\nmin = [0, 0, 0]\nmax = @\n", 3),
+        ("center", "[[mesh]]\nshape = \"sphere\"\ncenter = @\nradius = 1\n", 3),
+        ("motion", "[[mesh]]\nshape = \"sphere\"\ncenter = [0, 0, 0]\nradius = 1\nmotion = @\n", 3),
+        (
+            "translate",
+            "[[mesh]]\nshape = \"sphere\"\ncenter = [0, 0, 0]\nradius = 1\ntransform = { translate = @ }\n",
+            3,
+        ),
+        ("rotate", "[[mesh]]\nshape = \"sphere\"\ncenter = [0, 0, 0]\nradius = 1\n[mesh.transform]\nrotate = @\n", 4),
+        ("position", "[[light]]\ntype = \"point\"\nposition = @\nintensity = [1, 1, 1]\n", 3),
+        ("intensity", "[[light]]\ntype = \"point\"\nposition = [0, 1, 0]\nintensity = @\n", 3),
+        ("irradiance", "[[light]]\ntype = \"directional\"\ndirection = [0, -1, 0]\nirradiance = @\n", 3),
+        ("radiance", "[[light]]\ntype = \"sphere\"\ncenter = [0, 1, 0]\nradius = 1\nradiance = @\n", 3),
+    ];
+
+    #[test]
+    fn arrays_of_the_wrong_length_are_named_at_their_key() {
+        for (key, template, n) in ARRAY_KEYS {
+            // The right length parses (the template is otherwise valid).
+            let right: Vec<String> = (0..n).map(|i| format!("{}", i + 1)).collect();
+            let text = template.replace('@', &format!("[{}]", right.join(", ")));
+            parse(&text, Path::new("/tmp/good.toml")).unwrap_or_else(|e| panic!("{key}: {e}"));
+            for found in [n - 1, n + 1, 0] {
+                let values: Vec<String> = (0..found).map(|i| format!("0.{}", i + 1)).collect();
+                let text = template.replace('@', &format!("[{}]", values.join(", ")));
+                let line = line_of(&text, &format!("{key} ="));
+                let expected = format!("/tmp/bad.toml: line {line} ({key}): expected {n} numbers, found {found}");
+                assert_eq!(error_of(&text), expected, "{text}");
+            }
+        }
+        // A polygon's points: each one, and a 4x4 matrix's rows.
+        let text = "[[mesh]]\nshape = \"polygon\"\npoints = [[0, 0, 0], [1, 0, 0, 9], [0, 1, 0]]\n";
+        assert_eq!(error_of(text), "/tmp/bad.toml: line 3 (points): expected 3 numbers, found 4");
+        let text = "[[mesh]]\nshape = \"sphere\"\ncenter = [0, 0, 0]\nradius = 1\n\
+                    transform = { matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]] }\n";
+        assert_eq!(error_of(text), "/tmp/bad.toml: line 5 (matrix): expected 4 rows of 4 numbers, found 3");
+        let text = "[[mesh]]\nshape = \"sphere\"\ncenter = [0, 0, 0]\nradius = 1\n\
+                    transform = { matrix = [[1, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]] }\n";
+        assert_eq!(error_of(text), "/tmp/bad.toml: line 5 (matrix): expected 4 numbers, found 3");
+    }
+
+    #[test]
+    fn a_bad_scale_says_what_a_scale_is() {
+        let template = "[[mesh]]\nshape = \"sphere\"\ncenter = [0, 0, 0]\nradius = 1\ntransform = { scale = @ }\n";
+        for good in ["2", "0.5", "[1, 2, 3]"] {
+            parse(&template.replace('@', good), Path::new("/tmp/good.toml")).unwrap();
+        }
+        assert_eq!(
+            error_of(&template.replace('@', "[1, 2, 3, 4]")),
+            "/tmp/bad.toml: line 5 (scale): expected 3 numbers, found 4"
+        );
+        let message = error_of(&template.replace('@', "\"big\""));
+        assert!(message.starts_with("/tmp/bad.toml: line 5 (scale): invalid type: string"), "{message}");
+        assert!(
+            message.ends_with("expected a number (uniform scale) or an array of 3 numbers (per axis)"),
+            "{message}"
+        );
+    }
+
+    #[test]
+    fn light_errors_name_the_key_not_the_table() {
+        // A bad value, a key the type does not take, and an unknown type: each at its own line.
+        let text = "[[light]]\ntype = \"point\"\nposition = [0, 1, 0]\nintensity = \"bright\"\n";
+        let message = error_of(text);
+        assert!(message.starts_with("/tmp/bad.toml: line 4 (intensity): invalid type: string"), "{message}");
+        let text = "[[light]]\ntype = \"point\"\nposition = [0, 1, 0]\nintensity = [1, 1, 1]\nradius = 2\n";
+        assert_eq!(
+            error_of(text),
+            "/tmp/bad.toml: line 5 (radius): a point light takes no `radius` (its keys: type, position, intensity)"
+        );
+        let text = "[[light]]\ntype = \"area\"\nposition = [0, 1, 0]\n";
+        assert_eq!(
+            error_of(text),
+            "/tmp/bad.toml: line 2 (type): unknown light type 'area' (expected point, spot, directional or sphere)"
+        );
+        let text = "[[light]]\ntype = \"directional\"\ndirection = [0, -1, 0]\n";
+        assert_eq!(
+            error_of(text),
+            "/tmp/bad.toml: line 2 (type) light[0].irradiance: a directional light needs `irradiance`"
+        );
+        let text = "[[light]]\ntype = \"spot\"\nposition = [0, 1, 0]\ndirection = [0, -1, 0]\nintensity = [1, 1, 1]\nbeam = 3\n";
+        assert!(error_of(text).starts_with("/tmp/bad.toml: line 6 (beam): unknown field `beam`"), "{}", error_of(text));
+        // The keys that a type does take still load as before.
+        let text = "[[light]]\ntype = \"spot\"\nposition = [0, 1, 0]\ndirection = [0, -2, 0]\nintensity = [1, 2, 3]\n\
+                    inner_cone_deg = 10\nouter_cone_deg = 20\n";
+        let scene = parse(text, Path::new("/tmp/good.toml")).unwrap();
+        assert_eq!(
+            scene.lights,
+            vec![PunctualLight::Spot {
+                position: Vec3::Y,
+                direction: -Vec3::Y,
+                intensity: Vec3::new(1.0, 2.0, 3.0),
+                inner_cone: 10f32.to_radians(),
+                outer_cone: 20f32.to_radians(),
+            }]
+        );
     }
 }

@@ -25,7 +25,7 @@
 //!
 //! Not supported (skipped, mostly with a warning in [`Scene::warnings`]): primitive modes
 //! other than triangles; texture coordinate sets other than 0 (such textures are dropped);
-//! sampler wrap and filter modes (textures always repeat and are filtered bilinearly);
+//! sampler filter modes (textures are filtered bilinearly; wrap modes are kept);
 //! normal and occlusion textures; vertex colours; skins and morph targets (the base mesh is
 //! placed by its node transform); animations; orthographic cameras; every extension other
 //! than the three above (an error when listed in `extensionsRequired`, a warning otherwise).
@@ -52,7 +52,7 @@ use super::input::FileAccess;
 use super::{AlphaMask, Material, Mesh, PunctualLight, Scene};
 use crate::camera::{Camera, FovAxis};
 use crate::error::SceneError;
-use crate::texture::{Texture, TextureRef};
+use crate::texture::{Texture, TextureRef, Wrap};
 
 /// Extensions this loader interprets; any other one in `extensionsRequired` is an error.
 const SUPPORTED_EXTENSIONS: [&str; 3] =
@@ -69,6 +69,8 @@ pub struct GltfImport {
     pub camera: Option<Camera>,
     /// Image size the camera's aspect ratio suggests, if it has one.
     pub aspect_ratio: Option<f32>,
+    /// Every perspective camera met in the node walk, in that order (the first is `camera`).
+    pub cameras: Vec<super::FileCamera>,
 }
 
 /// Loads a glTF file into `scene` (see the module documentation).
@@ -113,6 +115,12 @@ pub fn load_from_bytes(
         import: GltfImport::default(),
     };
     importer.import_nodes(transform)?;
+    let animations = document.animations().len();
+    if animations > 0 {
+        importer.warn(format!(
+            "{animations} animation(s) ignored (not supported); nodes are placed as the file places them at rest"
+        ));
+    }
     if importer.unsupported_maps > 0 {
         let count = importer.unsupported_maps;
         importer.warn(format!("{count} normal/occlusion texture(s) ignored (not supported)"));
@@ -669,7 +677,8 @@ impl<'a> Importer<'a> {
     }
 
     /// Turns a texture reference into a [`TextureRef`], loading the image on first use.
-    /// The sampler (wrap and filter modes) is ignored: textures always repeat.
+    /// The sampler's wrap modes are kept (`Wrap`); its filter modes are ignored (bilinear with
+    /// mipmaps always).
     fn texture_ref(
         &mut self,
         info: &gltf::texture::Info,
@@ -684,7 +693,14 @@ impl<'a> Importer<'a> {
         }
         let index = self.texture_index(info.texture().source().index(), srgb)?;
         let transform = transform.map(|t| uv_transform(Vec2::from(t.offset()), t.rotation(), Vec2::from(t.scale())));
-        Ok(Some(TextureRef::with_transform(index, transform)))
+        let sampler = info.texture().sampler();
+        let wrap = |mode: gltf::texture::WrappingMode| match mode {
+            gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
+            gltf::texture::WrappingMode::ClampToEdge => Wrap::ClampToEdge,
+            gltf::texture::WrappingMode::MirroredRepeat => Wrap::MirroredRepeat,
+        };
+        let wrap = [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())];
+        Ok(Some(TextureRef::with_transform(index, transform).with_wrap(wrap)))
     }
 
     /// Index in `scene.textures` of an image decoded as sRGB or linear. Each (image, encoding)
@@ -762,7 +778,8 @@ impl<'a> Importer<'a> {
         self.scene.lights.push(light);
     }
 
-    /// Keeps the first perspective camera; it looks down its node's -Z with +Y up.
+    /// Keeps every perspective camera (the first is the default); it looks down its node's -Z
+    /// with +Y up.
     fn import_camera(&mut self, camera: &gltf::Camera, world: Mat4) {
         use gltf::json::camera::Type;
         // Read the JSON directly: `gltf::Camera::projection` unwraps the projection object
@@ -772,15 +789,18 @@ impl<'a> Importer<'a> {
         };
         match (&json.type_, &json.perspective) {
             (Checked::Valid(Type::Perspective), Some(perspective)) => {
-                if self.import.camera.is_some() {
-                    return;
-                }
                 let position = world.transform_point3(Vec3::ZERO);
                 let forward = world.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
                 let up = world.transform_vector3(Vec3::Y).normalize_or_zero();
-                self.import.camera =
-                    Some(Camera::look_at(position, position + forward, up, perspective.yfov.to_degrees(), FovAxis::Y));
-                self.import.aspect_ratio = perspective.aspect_ratio;
+                let camera =
+                    Camera::look_at(position, position + forward, up, perspective.yfov.to_degrees(), FovAxis::Y);
+                self.import
+                    .cameras
+                    .push(super::FileCamera { camera: camera.clone(), aspect_ratio: perspective.aspect_ratio });
+                if self.import.camera.is_none() {
+                    self.import.camera = Some(camera);
+                    self.import.aspect_ratio = perspective.aspect_ratio;
+                }
             }
             (Checked::Valid(Type::Orthographic), _) => {
                 self.warn(format!("camera {}: orthographic cameras are not supported; ignored", camera.index()));
@@ -1204,6 +1224,10 @@ mod tests {
         }
         let uv = base.apply(Vec2::new(0.25, 0.5));
         assert!((uv - Vec2::new(2.0, -1.5)).abs().max_element() < 1e-5, "{uv}");
+        // Texture 1's sampler clamps u (wrapS 33071) and repeats v (the default).
+        assert_eq!(base.wrap(), [Wrap::Repeat; 2]);
+        assert_eq!(emission.wrap(), [Wrap::ClampToEdge, Wrap::Repeat]);
+        assert_eq!(emission.apply(Vec2::new(1.5, 1.5)), Vec2::new(1.0, 1.5));
         assert!(metallic_roughness.transform().is_none() && emission.transform().is_none());
         let mask = masked.alpha.as_ref().expect("alpha mask");
         assert_eq!((&mask.texture, mask.channel, mask.factor, mask.cutoff), (&base, 3, 0.8, 0.3));
@@ -1236,6 +1260,22 @@ mod tests {
         assert_eq!(scene.meshes.len(), 1);
         assert!(scene.meshes[0].name.contains("Tri1"));
         assert!(scene.warnings.iter().any(|w| w.contains("Tri0") && w.contains("Lines")), "{:?}", scene.warnings);
+    }
+
+    #[test]
+    fn ignored_animations_are_named_in_a_warning() {
+        let dir = tempfile::tempdir().unwrap();
+        let geometry = geometry_json(&embedded_buffer(&triangle_buffer([0, 1, 2])), &[""]);
+        let animation = r#""animations": [{"channels": [{"sampler": 0, "target": {"node": 0, "path": "translation"}}],
+            "samplers": [{"input": 3, "output": 0}]}]"#;
+        let still = format!(r#"{{ {geometry}, "scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0}}] }}"#);
+        let moving =
+            format!(r#"{{ {geometry}, "scenes": [{{"nodes": [0]}}], "nodes": [{{"mesh": 0}}], {animation} }}"#);
+        let (scene, _) = load_new(&write(dir.path(), "still.gltf", still)).unwrap();
+        assert!(!scene.warnings.iter().any(|w| w.contains("animation")), "{:?}", scene.warnings);
+        let (scene, _) = load_new(&write(dir.path(), "moving.gltf", moving)).unwrap();
+        assert!(scene.warnings.iter().any(|w| w.contains("1 animation(s) ignored")), "{:?}", scene.warnings);
+        assert_eq!(scene.meshes.len(), 1, "the mesh is still loaded");
     }
 
     fn scenes_dir() -> PathBuf {

@@ -9,6 +9,7 @@ pub mod description;
 pub mod gltf;
 pub mod input;
 pub mod obj;
+pub mod ply;
 pub mod shapes;
 
 use std::path::{Path, PathBuf};
@@ -37,6 +38,19 @@ pub struct Mesh {
     /// World-space translation of the whole mesh from shutter open to shutter close
     /// (linear motion). Zero for static meshes.
     pub motion: Vec3,
+    /// Set by [`shapes::sphere`]: the mesh is a closed, convex icosphere whose vertices lie on
+    /// this sphere, which lets the light sampler sample it by solid angle. Cleared by a
+    /// transform; ignored when the mesh no longer has the triangle count it was made with.
+    pub sphere: Option<SphereShape>,
+}
+
+/// The sphere a tessellated sphere mesh is inscribed in (see [`Mesh::sphere`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SphereShape {
+    pub center: Vec3,
+    pub radius: f32,
+    /// The mesh's triangle count when it was made (a removed triangle leaves a hole).
+    pub triangles: usize,
 }
 
 impl Mesh {
@@ -129,6 +143,26 @@ pub enum PunctualLight {
     Directional { direction: Vec3, irradiance: Vec3 },
 }
 
+/// A camera that a scene file defines (glTF), with the aspect ratio it asks for.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FileCamera {
+    pub camera: Camera,
+    pub aspect_ratio: Option<f32>,
+}
+
+/// The default lighting of a scene without any emitter (docs/scene-format.md, "Default
+/// lighting"): a neutral constant environment of this radiance ...
+pub const DEFAULT_ENVIRONMENT: f32 = 0.25;
+/// ... and a sun of this irradiance (on a surface facing it) ...
+pub const DEFAULT_SUN_IRRADIANCE: f32 = 2.5;
+
+/// ... shining from above, behind the camera and to its left: the direction towards the sun is
+/// camera up + 1/2 backwards + 1/2 left, so what the camera sees is lit from the front with
+/// shadows falling to the right, away from the viewer, whatever the file's orientation.
+pub fn default_sun_direction(camera: &Camera) -> Vec3 {
+    (camera.up - 0.5 * camera.forward - 0.5 * camera.right).normalize()
+}
+
 /// Everything the tracer needs to render.
 #[derive(Clone, Debug)]
 pub struct Scene {
@@ -151,6 +185,8 @@ pub struct Scene {
     pub warnings: Vec<String>,
     /// Which files the loaders may read for references inside scene files.
     pub file_access: input::FileAccess,
+    /// The cameras that the scene's glTF files define, in file order (`--camera N`).
+    pub file_cameras: Vec<FileCamera>,
 }
 
 impl Scene {
@@ -170,10 +206,66 @@ impl Scene {
             max_bounces: 64,
             warnings: Vec::new(),
             file_access: input::FileAccess::Confined,
+            file_cameras: Vec::new(),
         }
     }
 
-    /// Loads a scene from a TOML description, a glTF file or an OBJ file (by extension); its
+    /// Whether anything in the scene emits light: an emissive material on some mesh, a
+    /// punctual light of non-zero colour, or a non-black environment.
+    pub fn has_emitter(&self) -> bool {
+        let emissive_mesh =
+            self.meshes.iter().any(|m| self.materials.get(m.material as usize).is_some_and(Material::is_emissive));
+        let light = self.lights.iter().any(|l| match l {
+            PunctualLight::Point { intensity, .. } | PunctualLight::Spot { intensity, .. } => {
+                intensity.max_element() > 0.0
+            }
+            PunctualLight::Directional { irradiance, .. } => irradiance.max_element() > 0.0,
+        });
+        emissive_mesh || light || self.environment.max_element() > 0.0
+    }
+
+    /// Adds a sun: directional light from `towards_sun` (the direction from the scene to the
+    /// sun, any length) with `irradiance` on a surface facing it.
+    pub fn add_sun(&mut self, towards_sun: Vec3, irradiance: Vec3) {
+        self.lights.push(PunctualLight::Directional { direction: -towards_sun.normalize(), irradiance });
+    }
+
+    /// Gives a scene without any emitter the default lighting ([`DEFAULT_ENVIRONMENT`],
+    /// [`DEFAULT_SUN_IRRADIANCE`], [`default_sun_direction`] of the current camera); returns
+    /// whether it did. A scene that emits anything is left alone.
+    pub fn apply_default_lighting(&mut self) -> bool {
+        if self.has_emitter() {
+            return false;
+        }
+        self.environment = Vec3::splat(DEFAULT_ENVIRONMENT);
+        self.add_sun(default_sun_direction(&self.camera), Vec3::splat(DEFAULT_SUN_IRRADIANCE));
+        true
+    }
+
+    /// Makes the file's camera `index` (0-based, in [`Scene::file_cameras`]) the scene's camera;
+    /// for a glTF scene its aspect ratio sets the width, as for the first camera at loading.
+    pub fn select_file_camera(&mut self, index: usize) -> Result<(), String> {
+        let Some(chosen) = self.file_cameras.get(index).cloned() else {
+            return Err(match self.file_cameras.len() {
+                0 => format!("the scene defines no cameras, so there is no camera {index}"),
+                n => format!(
+                    "the scene defines {n} camera{} (0 to {}), not {index}",
+                    if n == 1 { "" } else { "s" },
+                    n - 1
+                ),
+            });
+        };
+        self.camera = chosen.camera;
+        let ext = self.source.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        if matches!(ext.as_str(), "gltf" | "glb") {
+            if let Some(aspect) = chosen.aspect_ratio.filter(|a| a.is_finite() && *a > 0.0) {
+                self.width = ((self.height as f32 * aspect).round() as u32).max(1);
+            }
+        }
+        Ok(())
+    }
+
+    /// Loads a scene from a TOML description, a glTF, OBJ or PLY file (by extension); its
     /// file references are confined ([`input::FileAccess::Confined`]).
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
         Scene::load_with_access(path, input::FileAccess::Confined)
@@ -195,6 +287,7 @@ impl Scene {
                     Some(camera) => camera,
                     None => Camera::framing(&scene.bounds(), scene.aspect()),
                 };
+                scene.file_cameras = imported.cameras;
                 scene
             }
             "obj" => {
@@ -204,11 +297,18 @@ impl Scene {
                 scene.camera = Camera::framing(&scene.bounds(), scene.aspect());
                 scene
             }
+            "ply" => {
+                let mut scene = Scene::empty(path);
+                scene.file_access = access;
+                ply::load(path, &mut scene, &ply::PlyOptions::default())?;
+                scene.camera = Camera::framing(&scene.bounds(), scene.aspect());
+                scene
+            }
             _ => {
                 return Err(SceneError::new(
                     path,
                     "extension",
-                    "unknown scene format (expected .toml, .gltf, .glb or .obj)",
+                    "unknown scene format (expected .toml, .gltf, .glb, .obj or .ply)",
                 ))
             }
         };

@@ -298,6 +298,7 @@ pub fn load_from_bytes(
             indices,
             material,
             motion: options.motion,
+            sphere: None,
         };
         if mesh.normals.is_none() && mesh.positions.iter().all(|p| p.is_finite()) {
             compute_normals(&mut mesh, 60.0);

@@ -3,7 +3,7 @@
 
 use glam::{Vec2, Vec3};
 
-use super::Mesh;
+use super::{Mesh, SphereShape};
 
 /// A planar convex polygon, fan-triangulated; counter-clockwise vertices face the viewer.
 pub fn polygon(name: &str, corners: &[Vec3], material: u32) -> Mesh {
@@ -15,7 +15,7 @@ pub fn polygon(name: &str, corners: &[Vec3], material: u32) -> Mesh {
         uvs: None,
         indices,
         material,
-        motion: Vec3::ZERO,
+        ..Mesh::default()
     }
 }
 
@@ -45,7 +45,7 @@ pub fn axis_aligned_box(name: &str, min: Vec3, max: Vec3, material: u32) -> Mesh
         indices.push([base, base + 1, base + 2]);
         indices.push([base, base + 2, base + 3]);
     }
-    Mesh { name: name.to_string(), positions, normals: None, uvs: None, indices, material, motion: Vec3::ZERO }
+    Mesh { name: name.to_string(), positions, normals: None, uvs: None, indices, material, ..Mesh::default() }
 }
 
 /// An icosphere: an icosahedron subdivided `subdivisions` times, with smooth normals and
@@ -110,6 +110,7 @@ pub fn sphere(name: &str, center: Vec3, radius: f32, subdivisions: u32, material
     }
     // The face list above winds counter-clockwise seen from outside.
     let indices = faces;
+    let sphere = Some(SphereShape { center, radius, triangles: indices.len() });
     Mesh {
         name: name.to_string(),
         positions: unit.iter().map(|&n| center + n * radius).collect(),
@@ -118,6 +119,7 @@ pub fn sphere(name: &str, center: Vec3, radius: f32, subdivisions: u32, material
         indices,
         material,
         motion: Vec3::ZERO,
+        sphere,
     }
 }
 
@@ -312,7 +314,7 @@ mod tests {
             uvs: None,
             indices,
             material: 0,
-            motion: Vec3::ZERO,
+            ..Mesh::default()
         });
         for mut mesh in meshes {
             mesh.normals = None;
