@@ -158,6 +158,9 @@ struct Measured {
     trace: TraceKey,
     /// (preprocess, reconstruct) seconds of each repetition; empty for path tracing.
     parts: Vec<[f64; 2]>,
+    /// The method's statistics of each repetition (they hold stage times): the run reports the
+    /// median repetition's, so that its stage times belong to its `recon_s`.
+    stats: Vec<recon::method::Stats>,
 }
 
 impl Measured {
@@ -171,7 +174,11 @@ impl Measured {
             (trace, pre, recon)
         };
         let totals: Vec<f64> = (0..count).map(repetition).map(|(t, p, r)| t + p + r).collect();
-        let (trace, pre, recon) = repetition(timing::median_index(&totals).unwrap_or(0));
+        let median = timing::median_index(&totals).unwrap_or(0);
+        let (trace, pre, recon) = repetition(median);
+        if let Some(stats) = self.stats.get(median.min(self.stats.len().saturating_sub(1))) {
+            self.run.stats = stats.clone();
+        }
         let run = &mut self.run;
         (run.trace_s, run.preprocess_s, run.recon_s, run.total_s) = (trace, pre, recon, trace + pre + recon);
         run.timing_spread = timing::relative_spread(&totals);
@@ -323,6 +330,7 @@ impl Scoring<'_> {
             image,
             trace: TraceKey::Pt(input_spp),
             parts: Vec::new(),
+            stats: Vec::new(),
         })
     }
 }
@@ -703,7 +711,13 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                     output.image,
                     (output.notes, output.stats),
                 )?;
-                measured.push(Measured { trace: key, parts: vec![[output.preprocess_s, output.recon_s]], ..run });
+                let stats = vec![run.run.stats.clone()];
+                measured.push(Measured {
+                    trace: key,
+                    parts: vec![[output.preprocess_s, output.recon_s]],
+                    stats,
+                    ..run
+                });
                 jobs.push(Job::Method { method: index, spp, recon_rays, measured: measured.len() - 1 });
                 bar.inc(1);
             }
@@ -753,6 +767,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                         measured[m].run.notes.push(not_deterministic(pass));
                     }
                     measured[m].parts.push([output.preprocess_s, output.recon_s]);
+                    measured[m].stats.push(output.stats);
                 }
             }
             bar.inc(1);
@@ -980,17 +995,21 @@ mod tests {
     fn settled_timings_pair_trace_and_reconstruction_repetitions() {
         let reference = Image::new(2, 2);
         let run = run("ilfr", 4, 0.0, 30.0, true);
+        let stats = |gather_s: f64| recon::method::Stats::from([("gather_s".to_string(), gather_s)]);
         let mut measured = Measured {
             run,
             image: reference,
             trace: TraceKey::Samples(4),
             parts: vec![[0.1, 1.0], [0.1, 3.0], [0.1, 2.0]],
+            stats: vec![stats(0.9), stats(2.9), stats(1.9)],
         };
         // Two trace repetitions: the third reconstruction pairs with the last trace time.
         measured.settle_timings(&[0.5, 0.7]);
         assert_eq!(measured.run.timings, vec![1.6, 3.8, 2.8]);
         assert_eq!((measured.run.trace_s, measured.run.recon_s, measured.run.total_s), (0.7, 2.0, 2.8));
         assert!((measured.run.timing_spread - 2.2 / 2.8).abs() < 1e-12);
+        // The statistics (stage times) are the median repetition's too.
+        assert_eq!(measured.run.stats["gather_s"], 1.9);
     }
 
     #[test]
