@@ -1,26 +1,16 @@
 //! The `lfr` command end to end: every scene file renders, and bad input gives a clear error
 //! naming the file and field, a non-zero exit, no panic and no output file.
 
+#[path = "common/cli.rs"]
+mod cli;
 #[path = "../tracer/tests/common/mod.rs"]
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
+use cli::{lfr, stderr};
 use common::{exr_channel, project_root, shared_scenes};
-
-fn lfr(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_lfr"))
-        .args(args)
-        .current_dir(project_root())
-        .env("LFR_SCENES", shared_scenes())
-        .output()
-        .expect("lfr runs")
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
 
 /// Runs `lfr render` on `scene` expecting failure; checks the message and that nothing was written.
 fn expect_render_error(scene: &Path, extra: &[&str], must_mention: &[&str]) {

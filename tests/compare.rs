@@ -4,23 +4,17 @@
 //! reproduces every number, an all-black reference scores as documented, and bad input fails
 //! cleanly.
 
+#[path = "common/cli.rs"]
+mod cli;
 #[path = "../tracer/tests/common/mod.rs"]
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
-use common::{project_root, shared_scenes};
+use cli::lfr;
+use common::project_root;
 use serde_json::Value;
-
-fn lfr(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_lfr"))
-        .args(args)
-        .current_dir(project_root())
-        .env("LFR_SCENES", shared_scenes())
-        .output()
-        .expect("lfr runs")
-}
 
 /// A tiny compare of the embedded Cornell box; returns results.json.
 fn tiny_compare(out: &Path, cache: &Path, extra: &[&str]) -> Value {

@@ -2,26 +2,16 @@
 //! documented default lighting with a notice; `--environment`, `--sun` and `--sun-irradiance`
 //! light any scene, `--camera N` picks among a glTF file's cameras, and bad values are refused.
 
+#[path = "common/cli.rs"]
+mod cli;
 #[path = "../tracer/tests/common/mod.rs"]
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
-use common::{exr_channel, project_root, shared_scenes};
-
-fn lfr(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_lfr"))
-        .args(args)
-        .current_dir(project_root())
-        .env("LFR_SCENES", shared_scenes())
-        .output()
-        .expect("lfr runs")
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
+use cli::{lfr, stderr};
+use common::exr_channel;
 
 /// A bare glTF file: the square [-1, 1]² in z = 0 facing +z, no material, no light, and two
 /// cameras at (0, 0, 3): camera 0 looks down −z at the square (aspect 1), camera 1 is turned

@@ -2,21 +2,12 @@
 //! field before the scene is read, and a small run on the embedded Cornell box reports a
 //! placement whose numbers agree with each other.
 
+#[path = "common/cli.rs"]
+mod cli;
 #[path = "../tracer/tests/common/mod.rs"]
 mod common;
 
-use std::process::{Command, Output};
-
-use common::{project_root, shared_scenes};
-
-fn lfr(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_lfr"))
-        .args(args)
-        .current_dir(project_root())
-        .env("LFR_SCENES", shared_scenes())
-        .output()
-        .expect("lfr runs")
-}
+use cli::lfr;
 
 #[test]
 fn bad_parameters_are_refused_before_any_work() {
