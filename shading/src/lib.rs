@@ -1,7 +1,7 @@
 //! Shading and sampling numerics shared by the tracer and the reconstructions: the
 //! metallic-roughness BSDF (`bsdf.rs`), the shading frame (`frame.rs`), the square-to-disk and
-//! hemisphere maps (`warp.rs`), and hashing, Owen scrambling, Sobol' and Halton points
-//! (`sampling.rs`).
+//! hemisphere maps (`warp.rs`), scale-free normals, areas and unit vectors (`scale_free.rs`), and
+//! hashing, Owen scrambling, Sobol' and Halton points (`sampling.rs`).
 //!
 //! The tracer draws secondary rays with it; ILFR's final gather (paper Eq. 3) draws its
 //! reconstruction rays from the primary hit's BSDF and weights them with the same code, so the
@@ -14,10 +14,12 @@
 mod bsdf;
 mod frame;
 pub mod sampling;
+mod scale_free;
 mod warp;
 
 pub use bsdf::*;
 pub use frame::Frame;
+pub use scale_free::{normalize_any_scale, scaled_cross, triangle_normal_and_area};
 pub use warp::{concentric_disk, sample_cosine_hemisphere};
 
 #[cfg(test)]

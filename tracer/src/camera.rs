@@ -52,9 +52,14 @@ impl Default for Camera {
 
 impl Camera {
     pub fn look_at(position: Vec3, target: Vec3, up: Vec3, fov_deg: f32, fov_axis: FovAxis) -> Camera {
-        let forward = (target - position).normalize_or_zero();
-        let right = forward.cross(up).normalize_or_zero();
+        // Scale-free: a camera 3e19 from its target still has a direction.
+        let forward = shading::normalize_any_scale(target - position);
+        let right = shading::normalize_any_scale(forward.cross(up));
         let up = right.cross(forward);
+        // The length overflows past about 1.8e19; the projection on `forward` does not.
+        let focus_distance = Some((target - position).length())
+            .filter(|d| d.is_finite())
+            .unwrap_or_else(|| (target - position).dot(forward));
         Camera {
             position,
             forward,
@@ -63,7 +68,7 @@ impl Camera {
             fov_deg,
             fov_axis,
             aperture_radius: 0.0,
-            focus_distance: (target - position).length().max(1e-3),
+            focus_distance: focus_distance.max(f32::MIN_POSITIVE),
             shutter: [0.0, 1.0],
         }
     }
@@ -73,7 +78,9 @@ impl Camera {
     pub fn framing(bounds: &(Vec3, Vec3), _aspect: f32) -> Camera {
         let (lo, hi) = *bounds;
         let centre = 0.5 * (lo + hi);
-        let radius = (0.5 * (hi - lo).length()).max(1e-3);
+        // Any positive size frames (a scene 1e-6 across included); an empty or point scene
+        // gets a unit radius.
+        let radius = Some(0.5 * (hi - lo).length()).filter(|r| *r > 0.0 && r.is_finite()).unwrap_or(1.0);
         let fov: f32 = 40.0;
         let distance = radius / (0.5 * fov.to_radians()).sin();
         Camera::look_at(centre + Vec3::new(0.0, 0.0, distance), centre, Vec3::Y, fov, FovAxis::Smaller)

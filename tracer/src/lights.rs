@@ -227,8 +227,7 @@ impl EmissiveTriangle {
         let [a, b, c] = triangle_at(scene, mesh, triangle, 0.0);
         let m = &scene.meshes[mesh as usize];
         let material = &scene.materials[m.material as usize];
-        let cross = (b - a).cross(c - a);
-        let area = 0.5 * cross.length();
+        let (normal, area) = shading::triangle_normal_and_area(a, b, c);
         let textured = material.emission_texture.is_some() && m.uvs.is_some();
         EmissiveTriangle {
             mesh,
@@ -237,7 +236,7 @@ impl EmissiveTriangle {
             edge_b: b - a,
             edge_c: c - a,
             motion: m.motion,
-            normal: if area > 0.0 { cross / (2.0 * area) } else { Vec3::ZERO },
+            normal,
             area,
             constant_emission: (!textured).then_some(material.emission),
             two_sided: material.two_sided_emission,
@@ -449,23 +448,23 @@ impl LightSampler {
         // The table's intensity-weighted centre and spread (its emitters' own size included).
         let (mut sum, mut center) = (0.0f64, glam::DVec3::ZERO);
         for &(j, c, _) in &intensity {
-            let j = (j as f64).max(1e-12);
+            let j = (j as f64).max(f64::MIN_POSITIVE);
             sum += j;
             center += c.as_dvec3() * j;
         }
         let table_center = if sum > 0.0 { (center / sum).as_vec3() } else { Vec3::ZERO };
         let mut spread = 0.0f64;
         for &(j, c, size2) in &intensity {
-            spread += (j as f64).max(1e-12) * ((c - table_center).length_squared() + size2) as f64;
+            spread += (j as f64).max(f64::MIN_POSITIVE) * ((c - table_center).length_squared() + size2) as f64;
         }
-        let table_spread2 = if sum > 0.0 { ((spread / sum) as f32).max(1e-8) } else { 1.0 };
+        let table_spread2 = if sum > 0.0 { ((spread / sum) as f32).max(f32::MIN_POSITIVE) } else { 1.0 };
         LightSampler {
             strategy,
             emitters,
             table_len,
             cdf,
             probability,
-            table_intensity: (sum as f32).max(1e-12),
+            table_intensity: (sum as f32).max(f32::MIN_POSITIVE),
             table_center,
             table_spread2,
             mesh_entry,
@@ -503,7 +502,7 @@ impl LightSampler {
         let w = match &self.emitters[k] {
             Emitter::Punctual(PunctualLight::Point { position, intensity })
             | Emitter::Punctual(PunctualLight::Spot { position, intensity, .. }) => {
-                luminance(*intensity) / (*position - point).length_squared().max(1e-12)
+                luminance(*intensity) / (*position - point).length_squared().max(f32::MIN_POSITIVE)
             }
             Emitter::Punctual(PunctualLight::Directional { irradiance, .. }) => luminance(*irradiance),
             Emitter::Environment => PI * self.environment_luminance,

@@ -70,7 +70,7 @@ impl PlanarLight {
             })?;
         let mesh = &scene.meshes[mesh_index];
         let [a, b, c] = triangle_at(scene, mesh_index as u32, 0, 0.0);
-        let normal = (b - a).cross(c - a).normalize();
+        let normal = shading::triangle_normal_and_area(a, b, c).0;
         let edge = (b - a).normalize();
         let other = normal.cross(edge);
         let (mut lo, mut hi) = (Vec2::splat(f32::INFINITY), Vec2::splat(f32::NEG_INFINITY));
@@ -293,8 +293,8 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &RenderSettings, path: &Path
 fn point_on_mesh(scene: &Scene, mesh: &crate::scene::Mesh, mesh_index: u32, point: Vec3, time: f32) -> bool {
     (0..mesh.indices.len()).any(|t| {
         let [a, b, c] = triangle_at(scene, mesh_index, t as u32, time);
-        let n = (b - a).cross(c - a);
-        let inside = |p0: Vec3, p1: Vec3| (p1 - p0).cross(point - p0).dot(n) >= -1e-6 * n.length_squared();
+        let (normal, area) = shading::triangle_normal_and_area(a, b, c);
+        let inside = |p0: Vec3, p1: Vec3| (p1 - p0).cross(point - p0).dot(normal) >= -2e-6 * area;
         inside(a, b) && inside(b, c) && inside(c, a)
     })
 }

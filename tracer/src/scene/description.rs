@@ -659,7 +659,7 @@ pub fn parse_with_access(text: &str, path: &Path, access: FileAccess) -> Result<
             let target = Vec3::from(c.look_at);
             let mut camera = Camera::look_at(position, target, Vec3::from(c.up), c.fov, c.fov_axis);
             camera.aperture_radius = c.aperture_radius;
-            camera.focus_distance = c.focus_distance.unwrap_or((target - position).length());
+            camera.focus_distance = c.focus_distance.unwrap_or(camera.focus_distance);
             camera.shutter = c.shutter.get();
             camera
         }

@@ -62,7 +62,7 @@ impl Mesh {
     pub fn triangle_area(&self, i: usize) -> f32 {
         let [a, b, c] = self.indices[i];
         let (a, b, c) = (self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]);
-        0.5 * (b - a).cross(c - a).length()
+        shading::triangle_normal_and_area(a, b, c).1
     }
 }
 
@@ -490,8 +490,7 @@ impl Scene {
             let positions = &mesh.positions;
             mesh.indices.retain(|&[a, b, c]| {
                 let (a, b, c) = (positions[a as usize], positions[b as usize], positions[c as usize]);
-                let cross = (b - a).cross(c - a);
-                cross.length_squared() > 0.0 && cross.is_finite()
+                shading::triangle_normal_and_area(a, b, c).1 > 0.0
             });
             degenerate += before - mesh.indices.len();
         }

@@ -132,12 +132,19 @@ pub fn compute_normals(mesh: &mut Mesh, crease_degrees: f32) {
         return;
     }
     let cos_crease = crease_degrees.to_radians().cos();
+    let corners = |&[a, b, c]: &[u32; 3]| [a, b, c].map(|i| mesh.positions[i as usize]);
+    // One power-of-two scale for the whole mesh keeps the area weights and keeps the crosses
+    // finite at any scene scale (shading::scaled_cross).
+    let longest_edge = mesh.indices.iter().fold(0.0f32, |m, t| {
+        let [a, b, c] = corners(t);
+        m.max((b - a).abs().max_element()).max((c - a).abs().max_element())
+    });
     let face_normals: Vec<Vec3> = mesh
         .indices
         .iter()
-        .map(|&[a, b, c]| {
-            let (a, b, c) = (mesh.positions[a as usize], mesh.positions[b as usize], mesh.positions[c as usize]);
-            (b - a).cross(c - a) // length = 2 × area: area weighting for free
+        .map(|t| {
+            let [a, b, c] = corners(t);
+            shading::scaled_cross(a, b, c, longest_edge) // length ∝ area: area weighting for free
         })
         .collect();
     let mut faces_of_vertex: Vec<Vec<u32>> = vec![Vec::new(); mesh.positions.len()];
