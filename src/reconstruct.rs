@@ -60,6 +60,14 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     }
     let settings =
         TlfrSettings { locations: args.locations, refocus, seed: args.run.seed_or(0), bandwidth_scale: args.bandwidth };
+    // Memory before any work (issue 22, class 5): the sample count from the file's header
+    // (the full check of its chunks follows in `reconstruct_file`).
+    let samples =
+        sampleio::SampleFile::open_unchecked(&args.samples).map_err(|e| anyhow::anyhow!("{}", e))?.len() as u64;
+    tracer::memory::check(
+        &format!("reconstructing the {samples} samples of {}", args.samples.display()),
+        samples * recon::tlfr::method::BYTES_PER_SAMPLE,
+    )?;
     let pool = args.run.worker_pool()?;
     let output = pool.install(|| reconstruct_file(&args.samples, &settings)).map_err(|e| {
         // Errors about the file name it first; prefix the others (settings) with it, once.

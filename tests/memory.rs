@@ -51,3 +51,28 @@ fn sizes_beyond_the_machine_are_refused_before_any_work() {
         lfr(&["render", "--width", "16", "--height", "16", "--spp", "1", "--quiet", "--out", out], Some("100000000"));
     assert!(fits.status.success(), "{}", String::from_utf8_lossy(&fits.stderr));
 }
+
+#[test]
+fn a_reconstruction_beyond_the_machine_is_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let samples = dir.path().join("s.lfrs");
+    let samples = samples.to_str().unwrap();
+    let dumped = lfr(
+        &["dump", "--scene", "scenes/monkeys-defocus-motion.toml", "--kind", "lens-time", "--width", "8"]
+            .into_iter()
+            .chain(["--height", "8", "--spp", "4", "--quiet", "--out", samples])
+            .collect::<Vec<_>>(),
+        None,
+    );
+    assert!(dumped.status.success(), "{}", String::from_utf8_lossy(&dumped.stderr));
+    let out = dir.path().join("r.exr");
+    let out = out.to_str().unwrap();
+    // 256 samples at recon::tlfr::method::BYTES_PER_SAMPLE each: about 96 KiB.
+    let refused = lfr(&["reconstruct", "--samples", samples, "--locations", "4", "--out", out], Some("50000"));
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success(), "{stderr}");
+    assert!(stderr.contains(&format!("reconstructing the 256 samples of {samples} needs about 96.0 KiB")), "{stderr}");
+    assert!(!std::path::Path::new(out).exists() && !std::path::Path::new(out).with_extension("png").exists());
+    let fits = lfr(&["reconstruct", "--samples", samples, "--locations", "4", "--out", out], Some("100000000"));
+    assert!(fits.status.success(), "{}", String::from_utf8_lossy(&fits.stderr));
+}
