@@ -1,5 +1,6 @@
 //! `lfr render`: path traces a scene into a multi-layer EXR and a PNG preview beside it, whole or
-//! as one of N disjoint tile sets (`--shard I/N`) that `lfr merge` assembles (docs/scale-out.md).
+//! as one of N disjoint tile sets (`--shard I/N`) or sample ranges (`--shard I/N --shard-by
+//! samples`) that `lfr merge` assembles (docs/scale-out.md).
 //! Every EXR records how it was made in its header (`lfr.render`, a [`RenderRecord`]).
 
 use std::path::PathBuf;
@@ -7,7 +8,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
-use tracer::render::Shard;
+use tracer::render::{Shard, ShardBy};
 use tracer::{Accel, Frame, RenderSettings};
 
 use crate::common::{check_outputs, scene_inputs, TraceArgs};
@@ -19,9 +20,14 @@ pub struct RenderArgs {
     /// Samples per pixel (default: the scene's).
     #[arg(long)]
     spp: Option<u32>,
-    /// Render only shard I of N disjoint tile sets (counted from 0), for `lfr merge`.
+    /// Render only shard I of N (counted from 0), for `lfr merge`: one of N disjoint tile sets,
+    /// or with `--shard-by samples` every pixel at one of N disjoint ranges of its samples.
     #[arg(long, value_parser = Shard::parse)]
     shard: Option<Shard>,
+    /// What `--shard` splits: `tiles` (bit for bit when merged) or `samples` (equal within float
+    /// rounding when merged; for references that need many samples everywhere).
+    #[arg(long, value_parser = ShardBy::parse, default_value = "tiles", requires = "shard")]
+    shard_by: ShardBy,
     /// Output EXR; the PNG preview goes beside it.
     #[arg(long)]
     out: PathBuf,
@@ -46,6 +52,13 @@ pub struct RenderRecord {
     pub max_bounces: u32,
     /// [index, count]; [0, 1] for a whole image.
     pub shard: [u32; 2],
+    /// What the shard splits: `tiles` or `samples` (absent in records of lfr before 0.1's
+    /// sample shards: tiles).
+    #[serde(default = "tiles")]
+    pub shard_by: String,
+    /// The sample indices traced of each pixel: 0..spp except for a shard by samples.
+    #[serde(default)]
+    pub samples: Option<[u32; 2]>,
     pub rays: u64,
     pub invalid_samples: u64,
     pub clamped_variances: u64,
@@ -55,6 +68,10 @@ pub struct RenderRecord {
 }
 
 pub const RECORD_SCHEMA: &str = "lfr-render/1";
+
+fn tiles() -> String {
+    ShardBy::Tiles.name().into()
+}
 
 impl RenderRecord {
     fn new(scene_sha256: String, settings: &RenderSettings, shard: Shard, frame: &Frame) -> RenderRecord {
@@ -68,6 +85,8 @@ impl RenderRecord {
             seed: settings.seed,
             max_bounces: settings.max_bounces,
             shard: [shard.index, shard.count],
+            shard_by: shard.by.name().into(),
+            samples: Some(shard.sample_range(settings.spp)).map(|r| [r.start, r.end]),
             rays: frame.rays,
             invalid_samples: frame.invalid_samples,
             clamped_variances: frame.clamped_variances,
@@ -122,7 +141,16 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let scene = trace.load_scene()?;
     let scene_text = crate::fingerprint::scene_text(trace.scene.as_deref())?;
     let settings = trace.settings(&scene, args.spp.unwrap_or(scene.spp))?;
-    let shard = args.shard.unwrap_or(Shard::WHOLE);
+    let shard = args.shard.unwrap_or(Shard::WHOLE).by(args.shard_by);
+    if shard.by == ShardBy::Samples && shard.count > settings.spp {
+        anyhow::bail!(
+            "--shard {}/{} --shard-by samples: a {}-spp render splits into at most {} sample shards",
+            shard.index,
+            shard.count,
+            settings.spp,
+            settings.spp
+        );
+    }
     let (width, height) = (settings.width, settings.height);
     tracer::memory::check(&format!("a {width}x{height} render"), tracer::memory::render_bytes(width, height))?;
     let accel = Accel::build(&scene)?;
@@ -133,7 +161,11 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     println!(
         "rendered {}{} ({} triangles) at {}x{}, {} spp in {:.3} s (scene and BVH {:.3} s): {} rays, {:.2} Mrays/s",
         scene.source.display(),
-        if shard == Shard::WHOLE { String::new() } else { format!(", shard {}/{}", shard.index, shard.count) },
+        if shard == Shard::WHOLE {
+            String::new()
+        } else {
+            format!(", shard {}/{} by {}", shard.index, shard.count, shard.by.name())
+        },
         accel.triangle_count,
         frame.width,
         frame.height,

@@ -1,6 +1,7 @@
 //! Scale-out (issue 27): `lfr render --shard I/N` in separate processes and `lfr merge` give the
 //! image one process renders, bit for bit in every channel; shards of different renders,
-//! missing or repeated shards are refused before anything is written.
+//! missing or repeated shards are refused before anything is written. Shards by sample ranges
+//! (`--shard-by samples`) merge into it within float rounding.
 
 #[path = "../tracer/tests/common/mod.rs"]
 mod common;
@@ -21,7 +22,10 @@ fn ok(output: Output) -> Output {
 
 /// 40x24 is 3x2 tiles of 16, the last column and row partial.
 fn render(out: &Path, extra: &[&str]) -> Output {
-    let mut args = vec!["render", "--width", "40", "--height", "24", "--spp", "3", "--quiet"];
+    let mut args = vec!["render", "--width", "40", "--height", "24", "--quiet"];
+    if !extra.contains(&"--spp") {
+        args.extend_from_slice(&["--spp", "3"]);
+    }
     args.extend_from_slice(extra);
     if !extra.contains(&"--seed") {
         args.extend_from_slice(&["--seed", "5"]);
@@ -67,6 +71,64 @@ fn shards_in_separate_processes_merge_into_the_single_process_image() {
     for key in ["scene_sha256", "width", "height", "spp", "seed", "max_bounces", "rays", "shard"] {
         assert_eq!(whole_record[key], merged_record[key], "{key}");
     }
+}
+
+#[test]
+fn sample_shards_in_separate_processes_merge_into_the_single_process_image_within_rounding() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let spp = ["--spp", "7"];
+    ok(render(Path::new(&path("whole.exr")), &spp));
+    // 7 samples in 3 shards: 0..2, 2..4, 4..7, with other thread counts.
+    let mut args = vec!["merge".to_string(), "--out".into(), path("merged.exr")];
+    for i in 0..3 {
+        let threads = if i == 1 { "1" } else { "2" };
+        let shard = format!("{i}/3");
+        let extra = ["--spp", "7", "--shard", &shard, "--shard-by", "samples", "--threads", threads];
+        ok(render(Path::new(&path(&format!("s{i}.exr"))), &extra));
+        args.push(path(&format!("s{i}.exr")));
+    }
+    ok(lfr(&args.iter().map(String::as_str).collect::<Vec<_>>()));
+    let read = |name: &str| tracer::output::read_exr(Path::new(&path(name))).unwrap().2;
+    let (whole, merged) = (read("whole.exr"), read("merged.exr"));
+    assert_eq!(whole.iter().map(|c| &c.0).collect::<Vec<_>>(), merged.iter().map(|c| &c.0).collect::<Vec<_>>());
+    for ((name, a), (_, b)) in whole.iter().zip(&merged) {
+        let tolerance = if name.starts_with("variance") { 1e-4 } else { 1e-5 };
+        let within = |x: f32, y: f32| (x - y).abs() <= tolerance * x.abs().max(y.abs()) + 1e-7;
+        if ["albedo", "normal", "position", "depth"].iter().any(|guide| name.starts_with(guide)) {
+            // Guide layers are weighted by the shards' sample counts, not their hits (and normals
+            // add the shards' unit normals): exact where all of a pixel's samples hit one surface.
+            let exact = a.iter().zip(b).filter(|(x, y)| within(**x, **y) || (**x - **y).abs() < 1e-4).count();
+            // At 40x24, pixels on the box's and blocks' edges are about a tenth of the image.
+            assert!(exact as f32 >= 0.8 * a.len() as f32, "{name}: {exact} of {} pixels", a.len());
+        } else {
+            for (p, (x, y)) in a.iter().zip(b).enumerate() {
+                assert!(within(*x, *y), "{name} at pixel {p}: whole {x}, merged {y}");
+            }
+        }
+    }
+    // A shard alone holds fewer samples: a different image.
+    assert_ne!(channels(Path::new(&path("s0.exr"))), channels(Path::new(&path("whole.exr"))));
+    let attribute = |name: &str| {
+        let attributes = tracer::output::read_exr_attributes(Path::new(&path(name))).unwrap();
+        let json = &attributes.iter().find(|(n, _)| n == "lfr.render").expect("a record").1;
+        serde_json::from_str::<serde_json::Value>(json).unwrap()
+    };
+    let (whole_record, merged_record) = (attribute("whole.exr"), attribute("merged.exr"));
+    for key in ["scene_sha256", "spp", "rays", "shard", "shard_by", "samples"] {
+        assert_eq!(whole_record[key], merged_record[key], "{key}");
+    }
+    assert_eq!(attribute("s2.exr")["samples"], serde_json::json!([4, 7]));
+
+    // More shards than samples, and tile shards mixed with sample shards, are refused.
+    let output = render(Path::new(&path("bad.exr")), &["--spp", "7", "--shard", "7/8", "--shard-by", "samples"]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && stderr.contains("at most 7 sample shards"), "{stderr}");
+    assert!(!Path::new(&path("bad.exr")).exists());
+    ok(render(Path::new(&path("t1.exr")), &["--spp", "7", "--shard", "1/3"]));
+    let output = lfr(&["merge", "--out", &path("mixed.exr"), &path("s0.exr"), &path("t1.exr"), &path("s2.exr")]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && stderr.contains("not shards of one render"), "{stderr}");
 }
 
 #[test]

@@ -191,6 +191,7 @@ struct TileResult {
 fn render_tile<R: RayRecorder>(
     integrator: &Integrator,
     settings: &RenderSettings,
+    samples: std::ops::Range<u32>,
     x0: u32,
     y0: u32,
     recorder: &mut R,
@@ -204,7 +205,7 @@ fn render_tile<R: RayRecorder>(
     let mut live: Vec<(usize, RecordedRay)> = Vec::with_capacity(pixel_count);
     let mut hits: Vec<Option<Hit>> = Vec::with_capacity(pixel_count);
     let mut shadows: Vec<(usize, ShadowTest)> = Vec::with_capacity(pixel_count);
-    for index in 0..settings.spp {
+    for index in samples {
         paths.clear();
         for py in y0..y1 {
             for px in x0..x1 {
@@ -287,15 +288,47 @@ fn progress_bar(settings: &RenderSettings, len: u64, message: &str) -> ProgressB
     bar
 }
 
-/// One of `count` disjoint sets of tiles (`lfr render --shard I/N`): tile t, counted row by
-/// row, belongs to shard t mod `count`, so every shard gets tiles from the whole image (equal
-/// work on any scene) and the shards together cover it once. A pixel's value depends only on
-/// the seed, the pixel and its sample indices, so the pixels of a shard are bit for bit those
-/// of the whole render.
+/// One of `count` disjoint parts of a render (`lfr render --shard I/N [--shard-by samples]`).
+///
+/// By tiles: tile t, counted row by row, belongs to shard t mod `count`, so every shard gets
+/// tiles from the whole image (equal work on any scene) and the shards together cover it once.
+/// A pixel's value depends only on the seed, the pixel and its sample indices, so the pixels of
+/// a shard are bit for bit those of the whole render.
+///
+/// By samples: every shard covers every pixel with its own contiguous range of sample indices
+/// ([`Shard::sample_range`]), the ranges together 0..spp once; each sample is the one the whole
+/// render draws, so the merged means differ from one process's only by the order of the sums
+/// (float rounding). For references: N machines each trace all pixels at spp/N.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Shard {
     pub index: u32,
     pub count: u32,
+    pub by: ShardBy,
+}
+
+/// What a [`Shard`] splits: the image's tiles or each pixel's samples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum ShardBy {
+    #[default]
+    Tiles,
+    Samples,
+}
+
+impl ShardBy {
+    pub fn name(self) -> &'static str {
+        match self {
+            ShardBy::Tiles => "tiles",
+            ShardBy::Samples => "samples",
+        }
+    }
+
+    /// `tiles` or `samples`.
+    pub fn parse(text: &str) -> Result<ShardBy, String> {
+        [ShardBy::Tiles, ShardBy::Samples]
+            .into_iter()
+            .find(|by| by.name() == text)
+            .ok_or_else(|| format!("expected `tiles` or `samples`, got `{text}`"))
+    }
 }
 
 /// The most shards a render may be split into.
@@ -303,9 +336,9 @@ pub const MAX_SHARDS: u32 = 1 << 20;
 
 impl Shard {
     /// The whole image.
-    pub const WHOLE: Shard = Shard { index: 0, count: 1 };
+    pub const WHOLE: Shard = Shard { index: 0, count: 1, by: ShardBy::Tiles };
 
-    /// `I/N` with 0 ≤ I < N ≤ [`MAX_SHARDS`].
+    /// `I/N` with 0 ≤ I < N ≤ [`MAX_SHARDS`], by tiles (see [`Shard::by`] for samples).
     pub fn parse(text: &str) -> Result<Shard, String> {
         let (index, count) = text.split_once('/').ok_or_else(|| format!("expected I/N (e.g. 0/4), got `{text}`"))?;
         let number = |part: &str, what: &str| {
@@ -318,14 +351,35 @@ impl Shard {
         if index >= count {
             return Err(format!("the shard index must be in 0..{count} (counted from 0), got {index}"));
         }
-        Ok(Shard { index, count })
+        Ok(Shard { index, count, by: ShardBy::Tiles })
     }
 
-    /// Whether pixel (x, y) of an image `width` pixels wide belongs to this shard.
+    /// The same shard, splitting `by`.
+    pub fn by(self, by: ShardBy) -> Shard {
+        Shard { by, ..self }
+    }
+
+    /// Whether pixel (x, y) of an image `width` pixels wide belongs to this shard (every pixel
+    /// does when splitting by samples).
     pub fn covers(self, width: u32, x: u32, y: u32) -> bool {
+        if self.by == ShardBy::Samples {
+            return true;
+        }
         let tiles_across = width.div_ceil(TILE);
         let tile = (y / TILE) as u64 * tiles_across as u64 + (x / TILE) as u64;
         tile % self.count as u64 == self.index as u64
+    }
+
+    /// The sample indices this shard traces of each pixel of an `spp` render: all of them by
+    /// tiles; by samples, shard i of n gets ⌊i·spp/n⌋..⌊(i+1)·spp/n⌋ (empty where n > spp).
+    pub fn sample_range(self, spp: u32) -> std::ops::Range<u32> {
+        match self.by {
+            ShardBy::Tiles => 0..spp,
+            ShardBy::Samples => {
+                let at = |i: u32| (i as u64 * spp as u64 / self.count as u64) as u32;
+                at(self.index)..at(self.index + 1)
+            }
+        }
     }
 }
 
@@ -365,6 +419,13 @@ pub fn render_shard_with_lights(
 ) -> Result<Frame, RenderError> {
     settings.validate()?;
     let (width, height) = (settings.width, settings.height);
+    let samples = shard.sample_range(settings.spp);
+    if shard.by == ShardBy::Samples && shard.count > settings.spp {
+        return Err(RenderError::Settings(format!(
+            "shard {}/{} by samples of a {}-spp render: use at most {} shards (one sample each)",
+            shard.index, shard.count, settings.spp, settings.spp
+        )));
+    }
     crate::memory::check(&format!("a {width}x{height} render"), crate::memory::render_bytes(width, height))?;
     let integrator = Integrator::new(scene, accel, lights, settings.max_bounces, settings.width, settings.height);
     let tile_list: Vec<(u32, u32)> =
@@ -376,7 +437,7 @@ pub fn render_shard_with_lights(
         tile_list
             .par_iter()
             .map(|&(x, y)| {
-                let tile = render_tile(&integrator, settings, x, y, &mut NoRecording);
+                let tile = render_tile(&integrator, settings, samples.clone(), x, y, &mut NoRecording);
                 bar.inc(1);
                 tile
             })
@@ -384,7 +445,7 @@ pub fn render_shard_with_lights(
     });
     let seconds = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
-    let mut frame = assemble(settings, results, seconds);
+    let mut frame = assemble(settings, samples.len() as u32, results, seconds);
     frame.dropped_contributions = integrator.dropped_contributions();
     Ok(frame)
 }
@@ -401,7 +462,7 @@ pub fn record_rays(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> R
             .par_iter()
             .map(|&(x, y)| {
                 let mut rays = Vec::new();
-                render_tile(&integrator, settings, x, y, &mut rays);
+                render_tile(&integrator, settings, 0..settings.spp, x, y, &mut rays);
                 rays
             })
             .collect()
@@ -409,12 +470,13 @@ pub fn record_rays(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> R
     Ok(per_tile.into_iter().flatten().collect())
 }
 
-fn assemble(settings: &RenderSettings, results: Vec<TileResult>, seconds: f64) -> Frame {
+/// The frame of `results`, each pixel the mean of its `spp` samples (those of its shard).
+fn assemble(settings: &RenderSettings, spp: u32, results: Vec<TileResult>, seconds: f64) -> Frame {
     let n = settings.width as usize * settings.height as usize;
     let mut frame = Frame {
         width: settings.width,
         height: settings.height,
-        spp: settings.spp,
+        spp,
         beauty: vec![Vec3::ZERO; n],
         direct: vec![Vec3::ZERO; n],
         indirect: vec![Vec3::ZERO; n],
@@ -436,7 +498,7 @@ fn assemble(settings: &RenderSettings, results: Vec<TileResult>, seconds: f64) -
             let y = tile.y0 + i as u32 / tile.width;
             let p = (y * settings.width + x) as usize;
             frame.invalid_samples += acc.invalid as u64;
-            let valid = (settings.spp - acc.invalid) as f64;
+            let valid = (spp - acc.invalid) as f64;
             if valid > 0.0 {
                 let mut mean = [0.0f32; 3];
                 let mut variance = [0.0f32; 3];
@@ -475,4 +537,29 @@ fn assemble(settings: &RenderSettings, results: Vec<TileResult>, seconds: f64) -
         }
     }
     frame
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sample_shards_partition_every_pixels_samples() {
+        for spp in 1..40u32 {
+            for count in 1..=spp + 2 {
+                let mut next = 0;
+                for index in 0..count {
+                    let range = Shard { index, count, by: ShardBy::Samples }.sample_range(spp);
+                    assert_eq!(range.start, next, "spp {spp}, shard {index}/{count}");
+                    assert!(count > spp || !range.is_empty(), "spp {spp}, shard {index}/{count} is empty");
+                    next = range.end;
+                }
+                assert_eq!(next, spp, "spp {spp}, {count} shards");
+                let tiles = Shard { index: count - 1, count, by: ShardBy::Tiles };
+                assert_eq!(tiles.sample_range(spp), 0..spp);
+            }
+        }
+        assert_eq!(ShardBy::parse("samples"), Ok(ShardBy::Samples));
+        assert!(ShardBy::parse("pixels").unwrap_err().contains("`tiles` or `samples`"));
+    }
 }
