@@ -316,3 +316,45 @@ pub fn load_scene(path: Option<&Path>, access: FileAccess, lighting: &LightingAr
     lighting.apply(&mut scene)?;
     Ok(scene)
 }
+
+/// Runs `work` (a reconstruction) while a second thread adds its stage's progress
+/// (`recon::progress`: rows done and time left) to the bar's `message` five times a second.
+pub fn with_stage_progress<T>(bar: &indicatif::ProgressBar, message: &str, work: impl FnOnce() -> T) -> T {
+    let finished = std::sync::atomic::AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        let ticker = scope.spawn(|| {
+            while !finished.load(std::sync::atomic::Ordering::Relaxed) {
+                let stage = recon::progress::describe();
+                bar.set_message(if stage.is_empty() { message.to_string() } else { format!("{message}: {stage}") });
+                std::thread::park_timeout(std::time::Duration::from_millis(200));
+            }
+        });
+        let result = work();
+        finished.store(true, std::sync::atomic::Ordering::Relaxed);
+        ticker.thread().unpark();
+        result
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_reconstruction_stage_shows_in_the_bar_while_it_runs() {
+        let bar = indicatif::ProgressBar::hidden();
+        let seen = with_stage_progress(&bar, "ilfr, 4 spp", || {
+            recon::progress::begin("gather", 4);
+            recon::progress::advance(1);
+            // The ticker updates five times a second.
+            let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+            while !bar.message().contains("gather") && std::time::Instant::now() < deadline {
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            let seen = bar.message();
+            recon::progress::end();
+            seen
+        });
+        assert!(seen.starts_with("ilfr, 4 spp: gather 1/4 rows"), "{seen}");
+    }
+}

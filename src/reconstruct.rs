@@ -35,6 +35,9 @@ pub struct ReconstructArgs {
     bandwidth: Option<f32>,
     #[command(flatten)]
     run: RunArgs,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
     /// Output EXR; the PNG preview goes beside it.
     #[arg(long)]
     out: PathBuf,
@@ -69,7 +72,18 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
         samples * recon::tlfr::method::BYTES_PER_SAMPLE,
     )?;
     let pool = args.run.worker_pool()?;
-    let output = pool.install(|| reconstruct_file(&args.samples, &settings)).map_err(|e| {
+    let bar = if args.quiet { indicatif::ProgressBar::hidden() } else { indicatif::ProgressBar::new_spinner() };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+    );
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let message = format!("tlfr, {} locations per pixel", args.locations);
+    let output = crate::common::with_stage_progress(&bar, &message, || {
+        pool.install(|| reconstruct_file(&args.samples, &settings))
+    });
+    bar.finish_and_clear();
+    let output = output.map_err(|e| {
         // Errors about the file name it first; prefix the others (settings) with it, once.
         let (message, path) = (e.to_string(), args.samples.display().to_string());
         if message.starts_with(&path) {

@@ -5,7 +5,7 @@
 //! light field reconstruction), `gif/` (filtered path tracing with the guided image filter),
 //! `baselines/` (box average, cross-bilateral, À-Trous, Intel Open Image Denoise) and
 //! `metrics/` (PSNR, relative MSE, SSIM, error maps, HDR-FLIP). `method` is the interface the
-//! comparison harness runs them through, `registry` the one list of the methods with their
+//! comparison harness runs them through, `progress` how far the running one is, `registry` the one list of the methods with their
 //! effects and options (parsed by `options`). `image`, `octahedral`, `python` and `lcg` are the
 //! shared pieces below them (`lcg` generates test data only).
 
@@ -22,6 +22,7 @@ pub mod metrics;
 pub mod needs;
 pub mod octahedral;
 pub mod options;
+pub mod progress;
 pub mod python;
 pub mod registry;
 pub mod tlfr;

@@ -683,19 +683,21 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         for &spp in &args.spp {
             let (inputs, key) = inputs_of(method, spp);
             for recon_rays in rays_of(method) {
-                bar.set_message(format!("{}, {spp} spp{}", method.name(), rays_label(recon_rays)));
+                let message = format!("{}, {spp} spp{}", method.name(), rays_label(recon_rays));
+                bar.set_message(message.clone());
                 memory::reset_peak();
-                let output = match method.run(&inputs, recon_rays) {
-                    Ok(output) => output,
-                    Err(MethodError::Unavailable(reason)) => {
-                        bar.suspend(|| eprintln!("skipping {}: {reason}", method.name()));
-                        skipped.push(Skipped { method: method.name().to_string(), reason: reason.to_string() });
-                        measured.retain(|m| m.run.method != method.name());
-                        jobs.retain(|job| !matches!(job, Job::Method { method, .. } if *method == index));
-                        continue 'methods;
-                    }
-                    Err(error) => bail!("{} at {spp} spp: {error}", method.name()),
-                };
+                let output =
+                    match crate::common::with_stage_progress(&bar, &message, || method.run(&inputs, recon_rays)) {
+                        Ok(output) => output,
+                        Err(MethodError::Unavailable(reason)) => {
+                            bar.suspend(|| eprintln!("skipping {}: {reason}", method.name()));
+                            skipped.push(Skipped { method: method.name().to_string(), reason: reason.to_string() });
+                            measured.retain(|m| m.run.method != method.name());
+                            jobs.retain(|job| !matches!(job, Job::Method { method, .. } if *method == index));
+                            continue 'methods;
+                        }
+                        Err(error) => bail!("{} at {spp} spp: {error}", method.name()),
+                    };
                 let own_peak = memory::peak_rss_mb();
                 let peak = match (own_peak, output.external_peak_rss_mb) {
                     (Some(a), Some(b)) => Some(a.max(b)),
@@ -753,15 +755,11 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                 }
                 &Job::Method { method, spp, recon_rays, measured: m } => {
                     let method = available[method];
-                    bar.set_message(format!(
-                        "repetition {}: {}, {spp} spp{}",
-                        pass + 1,
-                        method.name(),
-                        rays_label(recon_rays)
-                    ));
+                    let message =
+                        format!("repetition {}: {}, {spp} spp{}", pass + 1, method.name(), rays_label(recon_rays));
+                    bar.set_message(message.clone());
                     let (inputs, _) = inputs_of(method, spp);
-                    let output = method
-                        .run(&inputs, recon_rays)
+                    let output = crate::common::with_stage_progress(&bar, &message, || method.run(&inputs, recon_rays))
                         .map_err(|e| anyhow::anyhow!("{} at {spp} spp: {e}", method.name()))?;
                     if output.image != measured[m].image {
                         measured[m].run.notes.push(not_deterministic(pass));

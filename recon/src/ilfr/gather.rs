@@ -129,6 +129,7 @@ pub fn gather(
         return Err(Error::sample_content(&samples.path, message));
     }
     let per_hit = rays_per_hit(settings.rays_per_pixel, spp);
+    crate::progress::begin("gather", height as u64);
     let rows: Vec<(Vec<[f32; 3]>, GatherStats)> = (0..height)
         .into_par_iter()
         .map(|y| {
@@ -176,9 +177,11 @@ pub fn gather(
                     sum.map(|s| (s / spp as f64) as f32)
                 })
                 .collect();
+            crate::progress::advance(1);
             (row, stats)
         })
         .collect();
+    crate::progress::end();
     Ok(assemble_rows(width, height, rows))
 }
 

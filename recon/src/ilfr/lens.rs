@@ -256,6 +256,7 @@ pub fn gather_lens(
     }
     let n = settings.rays_per_pixel.max(1);
     let moving = samples.time.is_some();
+    crate::progress::begin("gather", height as u64);
     let rows: Vec<(Vec<[f32; 3]>, GatherStats)> = (0..height)
         .into_par_iter()
         .map(|y| {
@@ -307,9 +308,11 @@ pub fn gather_lens(
                     own.map(|s| s as f32)
                 })
                 .collect();
+            crate::progress::advance(1);
             (row, stats)
         })
         .collect();
+    crate::progress::end();
     Ok(assemble_rows(width, height, rows))
 }
 

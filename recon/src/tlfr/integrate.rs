@@ -110,6 +110,7 @@ pub fn integrate_locations<Sc: Default + Send, St: Counters>(
     value: impl Fn((u32, u32, u32), Point, LensTime, &mut Sc, &mut St) -> Option<[f32; 3]> + Sync,
     fallback: impl Fn(u32, u32) -> [f32; 3] + Sync,
 ) -> (Image, St) {
+    crate::progress::begin("locations", height as u64);
     let rows: Vec<(Vec<[f32; 3]>, St)> = (0..height)
         .into_par_iter()
         .map_init(Sc::default, |scratch, y| {
@@ -133,9 +134,11 @@ pub fn integrate_locations<Sc: Default + Send, St: Counters>(
                     }
                 })
                 .collect();
+            crate::progress::advance(1);
             (row, stats)
         })
         .collect();
+    crate::progress::end();
     let mut stats = St::default();
     let mut pixels = Vec::with_capacity((width * height) as usize);
     for (row, row_stats) in rows {
