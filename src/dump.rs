@@ -71,11 +71,13 @@ pub fn run(args: &DumpArgs) -> Result<()> {
         }
     };
     println!(
-        "wrote {} samples of {} to {} in {:.3} s: {} bytes per record, {:.1} bytes per sample with header and checksums; fields: {}",
+        "wrote {} samples of {} to {} in {:.3} s ({:.3} s tracing, {:.3} s writing): {} bytes per record, {:.1} bytes per sample with header and checksums; fields: {}",
         report.samples,
         scene.source.display(),
         args.out.display(),
         report.seconds,
+        report.trace_seconds,
+        report.seconds - report.trace_seconds,
         report.record_size,
         report.bytes_per_sample(),
         report.fields.join(", "),

@@ -278,6 +278,7 @@ pub fn guide_buffers(scene: &Scene, accel: &Accel, settings: &RenderSettings) ->
 pub fn dump(scene: &Scene, accel: &Accel, settings: &RenderSettings, path: &Path) -> Result<DumpReport, RenderError> {
     let start = Instant::now();
     let buffers = guide_buffers(scene, accel, settings)?;
+    let trace_seconds = start.elapsed().as_secs_f64();
     let split = |name: &'static str, data: &[Vec3], labels: [&'static str; 3]| Layer {
         name,
         channels: (0..3).map(|c| (labels[c], data.iter().map(|v| v[c]).collect())).collect(),
@@ -301,6 +302,7 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &RenderSettings, path: &Path
         record_size: 19 * 4,
         fields: layers.iter().map(|l| l.name.to_string()).collect(),
         seconds: start.elapsed().as_secs_f64(),
+        trace_seconds,
         dropped_contributions: 0,
     })
 }

@@ -44,6 +44,9 @@ pub struct DumpReport {
     pub record_size: usize,
     pub fields: Vec<String>,
     pub seconds: f64,
+    /// Of `seconds`, the time spent tracing (the parallel batches); the rest went to encoding,
+    /// writing and syncing the file.
+    pub trace_seconds: f64,
     /// Path contributions that were NaN or infinite and were dropped (`TracedRay::dropped`).
     pub dropped_contributions: u64,
 }
@@ -190,6 +193,7 @@ where
         ProgressBar::hidden()
     };
     let start = Instant::now();
+    let mut trace_seconds = 0.0;
     let width = settings.width as u64;
     let trace = |piece: &Piece| {
         let size = piece.pixels as usize * piece.samples.len() * values_per_sample;
@@ -213,7 +217,9 @@ where
             batch_values += size;
             batch.push(all.next().expect("peeked"));
         }
+        let tracing = Instant::now();
         let traced: Vec<Vec<f32>> = pool.install(|| batch.par_iter().map(trace).collect());
+        trace_seconds += tracing.elapsed().as_secs_f64();
         for (piece, values) in batch.iter().zip(traced) {
             for sample in values.chunks_exact(values_per_sample) {
                 writer.push(sample).map_err(output_error)?;
@@ -226,7 +232,7 @@ where
     bar.finish_and_clear();
     let bytes = std::fs::metadata(&final_path).map(|m| m.len()).unwrap_or(0);
     let seconds = start.elapsed().as_secs_f64();
-    Ok(DumpReport { samples, bytes, record_size, fields, seconds, dropped_contributions: 0 })
+    Ok(DumpReport { samples, bytes, record_size, fields, seconds, trace_seconds, dropped_contributions: 0 })
 }
 
 #[cfg(test)]
