@@ -63,6 +63,7 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     }
     let settings =
         TlfrSettings { locations: args.locations, refocus, seed: args.run.seed_or(0), bandwidth_scale: args.bandwidth };
+    let pool = args.run.worker_pool()?;
     // Memory before any work (issue 22, class 5): the sample count from the file's header
     // (the full check of its chunks follows in `reconstruct_file`).
     let samples =
@@ -71,7 +72,6 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
         &format!("reconstructing the {samples} samples of {}", args.samples.display()),
         samples * recon::tlfr::method::BYTES_PER_SAMPLE,
     )?;
-    let pool = args.run.worker_pool()?;
     let bar = if args.quiet { indicatif::ProgressBar::hidden() } else { indicatif::ProgressBar::new_spinner() };
     bar.set_style(
         indicatif::ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
