@@ -220,6 +220,52 @@ fn a_gltf_normal_map_tilts_the_shading_normal_along_u_and_image_up() {
     assert_shading(&lit(&red, low_sun), decode(encode(Vec3::new(tilt.sin(), 0.0, tilt.cos())), 1.0), low_sun, "away");
 }
 
+/// The sample outputs build their surfaces the same way: the guide buffers of the filtered path
+/// tracer (and every `lfr dump` kind, through `SurfacePoint::new`) hold the mapped normal.
+#[test]
+fn the_guide_buffers_hold_the_mapped_normal() {
+    let dir = tempfile::tempdir().unwrap();
+    let tilt = 30f32.to_radians();
+    let texel = encode(Vec3::new(tilt.sin(), 0.0, tilt.cos()));
+    let red = quad_gltf(dir.path(), "red.gltf", Some(&Map { texel, scale: None }), None, [1.0; 3]);
+    let scene = lit(&red, sun());
+    let accel = tracer::Accel::build(&scene).unwrap();
+    let mut settings = tracer::RenderSettings::from_scene(&scene);
+    (settings.width, settings.height, settings.spp) = (4, 4, 2);
+    let buffers = tracer::samples::guide::guide_buffers(&scene, &accel, &settings).unwrap();
+    let expected = decode(texel, 1.0);
+    for n in &buffers.normal {
+        assert!((*n - expected).length() < 1e-3, "{n} against {expected}");
+    }
+}
+
+/// A malformed normal texture is an error naming the file and the field, not a panic.
+#[test]
+fn bad_normal_texture_fields_are_errors_naming_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let map = Map { texel: [128, 128, 255], scale: None };
+    let path = quad_gltf(dir.path(), "bad.gltf", Some(&map), None, [1.0; 3]);
+    let json = std::fs::read_to_string(&path).unwrap();
+    let bad = json.replace(
+        r#""normalTexture": {"index": 0"#,
+        r#""normalTexture": {"index": 0, "extensions": {"KHR_texture_transform": {"offset": [1]}}"#,
+    );
+    assert_ne!(bad, json);
+    std::fs::write(&path, bad).unwrap();
+    let error = Scene::load(&path).unwrap_err().to_string();
+    assert!(
+        error.contains("bad.gltf")
+            && error.contains("materials[0].normalTexture.extensions.KHR_texture_transform.offset"),
+        "{error}"
+    );
+    // A tangent accessor of the wrong type names the attribute.
+    let path = quad_gltf(dir.path(), "tangent.gltf", Some(&map), Some([1.0, 0.0, 0.0, 1.0]), [1.0; 3]);
+    let json = std::fs::read_to_string(&path).unwrap();
+    std::fs::write(&path, json.replace(r#""count": 4, "type": "VEC4""#, r#""count": 4, "type": "VEC3""#)).unwrap();
+    let error = Scene::load(&path).unwrap_err().to_string();
+    assert!(error.contains("attributes.TANGENT"), "{error}");
+}
+
 #[test]
 fn file_tangents_are_used_and_mirroring_keeps_the_map_on_the_surface() {
     let dir = tempfile::tempdir().unwrap();
