@@ -3,13 +3,15 @@
 //! One Embree triangle geometry per mesh, attached in mesh order so that Embree's geometry id
 //! is the mesh index. Moving meshes get two time steps (shutter open and close) and Embree
 //! interpolates linearly at the ray's time. Materials with an alpha mask get intersection and
-//! occlusion filter callbacks that reject hits where the mask's coverage is below the cutoff.
+//! occlusion filter callbacks that reject hits where the mask's coverage is below the cutoff;
+//! single-sided materials (glTF `doubleSided: false`) get callbacks that reject hits on back
+//! faces, for every kind of ray: such a surface is not there seen from behind.
 //! All `unsafe` lives inside the `embree3` crate; this module uses its safe API only.
 
 use std::sync::Arc;
 
 use embree3::{
-    BufferUsage, BuildQuality, Device, Format, Geometry, GeometryKind, IntersectContext, Ray, RayHit, SoAHit,
+    BufferUsage, BuildQuality, Device, Format, Geometry, GeometryKind, IntersectContext, Ray, RayHit, SoAHit, SoARay,
     INVALID_ID,
 };
 use glam::{Vec2, Vec3};
@@ -46,6 +48,26 @@ impl AlphaTester {
         let uv = self.uvs[a as usize] * (1.0 - u - v) + self.uvs[b as usize] * u + self.uvs[c as usize] * v;
         let coverage = self.texture.sample(self.mask.texture.apply(uv))[self.mask.channel.min(3)] * self.mask.factor;
         coverage >= self.mask.cutoff
+    }
+}
+
+/// The filter callbacks of one mesh: its alpha mask, and whether back faces are culled (a
+/// single-sided material, glTF `doubleSided: false`).
+struct HitFilter {
+    alpha: Option<AlphaTester>,
+    cull_back_faces: bool,
+}
+
+impl HitFilter {
+    /// Whether a hit of a ray along `direction` on `triangle` at (u, v), whose Embree geometric
+    /// normal is `ng`, counts. Embree's `Ng` points to the counter-clockwise front side (as
+    /// (v1 − v0) × (v2 − v0); `tracer/tests/surfaces.rs` checks the convention), so a ray meets a
+    /// back face when it travels along `Ng`.
+    fn keeps(&self, direction: [f32; 3], ng: [f32; 3], triangle: u32, u: f32, v: f32) -> bool {
+        if self.cull_back_faces && Vec3::from(direction).dot(Vec3::from(ng)) > 0.0 {
+            return false;
+        }
+        self.alpha.as_ref().map_or(true, |alpha| alpha.keeps(triangle, u, v))
     }
 }
 
@@ -91,24 +113,32 @@ impl Accel {
                 .map_err(|e| embree_error(&format!("index buffer of mesh '{}'", mesh.name), e))?
                 .copy_from_slice(&mesh.indices);
             let material = &scene.materials[mesh.material as usize];
-            if let (Some(mask), Some(uvs)) = (&material.alpha, &mesh.uvs) {
-                let tester = Arc::new(AlphaTester {
+            let alpha = match (&material.alpha, &mesh.uvs) {
+                (Some(mask), Some(uvs)) => Some(AlphaTester {
                     indices: mesh.indices.clone(),
                     uvs: uvs.clone(),
                     texture: scene.textures[mask.texture.index as usize].clone(),
                     mask: mask.clone(),
-                });
-                let for_occlusion = tester.clone();
-                geometry.set_intersect_filter_function::<_, ()>(move |_rays, hits, mut valid, _ctx, _| {
+                }),
+                _ => None,
+            };
+            if alpha.is_some() || !material.double_sided {
+                let filter = Arc::new(HitFilter { alpha, cull_back_faces: !material.double_sided });
+                let for_occlusion = filter.clone();
+                geometry.set_intersect_filter_function::<_, ()>(move |rays, hits, mut valid, _ctx, _| {
                     for i in 0..hits.len() {
-                        if valid[i] != 0 && !tester.keeps(hits.prim_id(i), hits.u(i), hits.v(i)) {
+                        if valid[i] != 0
+                            && !filter.keeps(rays.dir(i), hits.normal(i), hits.prim_id(i), hits.u(i), hits.v(i))
+                        {
                             valid[i] = 0;
                         }
                     }
                 });
-                geometry.set_occluded_filter_function::<_, ()>(move |_rays, hits, mut valid, _ctx, _| {
+                geometry.set_occluded_filter_function::<_, ()>(move |rays, hits, mut valid, _ctx, _| {
                     for i in 0..hits.len() {
-                        if valid[i] != 0 && !for_occlusion.keeps(hits.prim_id(i), hits.u(i), hits.v(i)) {
+                        if valid[i] != 0
+                            && !for_occlusion.keeps(rays.dir(i), hits.normal(i), hits.prim_id(i), hits.u(i), hits.v(i))
+                        {
                             valid[i] = 0;
                         }
                     }

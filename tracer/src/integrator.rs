@@ -197,26 +197,30 @@ impl SurfacePoint {
         let front_face = winding_normal.dot(wo) >= 0.0;
         let geometric_normal = if front_face { winding_normal } else { -winding_normal };
         let [ia, ib, ic] = mesh.indices[hit.triangle as usize];
-        let mut shading_normal = match &mesh.normals {
+        // The interpolated vertex normal as the mesh gives it, and the sign that turns it to
+        // the side of wo (that of the geometric normal).
+        let (vertex_normal, side) = match &mesh.normals {
             Some(n) => {
-                let interpolated = n[ia as usize] * w + n[ib as usize] * u + n[ic as usize] * v;
-                let interpolated = interpolated.normalize_or_zero();
+                let interpolated = (n[ia as usize] * w + n[ib as usize] * u + n[ic as usize] * v).normalize_or_zero();
                 if interpolated == Vec3::ZERO {
-                    geometric_normal
+                    (geometric_normal, 1.0)
                 } else if interpolated.dot(geometric_normal) < 0.0 {
-                    -interpolated
+                    (interpolated, -1.0)
                 } else {
-                    interpolated
+                    (interpolated, 1.0)
                 }
             }
-            None => geometric_normal,
+            None => (geometric_normal, 1.0),
         };
+        let mut shading_normal = vertex_normal * side;
         // A shading normal that hides wo would make the surface black; fall back.
         if shading_normal.dot(wo) <= 1e-4 {
             shading_normal = geometric_normal;
         }
         let material = &scene.materials[mesh.material as usize];
-        let textured = material.base_color_texture.is_some() || material.metallic_roughness_texture.is_some();
+        let textured = material.base_color_texture.is_some()
+            || material.metallic_roughness_texture.is_some()
+            || material.normal_map.is_some();
         let (uv, uv_lod) = match &mesh.uvs {
             Some(uvs) => {
                 let [uv_a, uv_b, uv_c] = [uvs[ia as usize], uvs[ib as usize], uvs[ic as usize]];
@@ -235,6 +239,15 @@ impl SurfacePoint {
             let texture = &scene.textures[t.index as usize];
             texture.sample_filtered(t.apply(uv), uv_lod + t.half_log2_scale() + texture.half_log2_texels())
         };
+        if let (Some(map), Some(tangents), Some(_)) = (&material.normal_map, &mesh.tangents, &mesh.uvs) {
+            let tangent = tangents[ia as usize] * w + tangents[ib as usize] * u + tangents[ic as usize] * v;
+            let texel = lookup(&map.texture);
+            let mapped = normal_mapped(vertex_normal, tangent, texel.truncate(), map.scale) * side;
+            // A mapped normal that hides wo falls back to the unmapped one (as above).
+            if mapped.dot(wo) > 1e-4 {
+                shading_normal = mapped;
+            }
+        }
         let mut base_color = material.base_color;
         if let Some(t) = &material.base_color_texture {
             base_color *= lookup(t).truncate();
@@ -276,6 +289,28 @@ impl SurfacePoint {
     pub fn spawn_origin(&self, direction: Vec3) -> Vec3 {
         let side = if direction.dot(self.geometric_normal) >= 0.0 { 1.0 } else { -1.0 };
         self.position + self.geometric_normal * (self.epsilon * side)
+    }
+}
+
+/// The normal a tangent-space normal map's `texel` (r, g, b in [0, 1]) gives at a point whose
+/// unit vertex normal is `normal` and whose interpolated tangent is `tangent` (glTF: `xyz`
+/// along increasing u, bitangent = `w` · normal × tangent): (2·texel − 1) with x and y scaled
+/// by `scale`, in the frame (tangent made orthogonal to the normal, bitangent, normal),
+/// normalised. Returns `normal` where the frame or the result degenerates (a zero tangent, a
+/// texel of zero length).
+pub fn normal_mapped(normal: Vec3, tangent: glam::Vec4, texel: Vec3, scale: f32) -> Vec3 {
+    let t = (tangent.truncate() - normal * normal.dot(tangent.truncate())).normalize_or_zero();
+    if t == Vec3::ZERO {
+        return normal;
+    }
+    let handedness = if tangent.w < 0.0 { -1.0 } else { 1.0 };
+    let b = normal.cross(t) * handedness;
+    let local = (texel * 2.0 - Vec3::ONE) * Vec3::new(scale, scale, 1.0);
+    let mapped = (t * local.x + b * local.y + normal * local.z).normalize_or_zero();
+    if mapped == Vec3::ZERO || !mapped.is_finite() {
+        normal
+    } else {
+        mapped
     }
 }
 

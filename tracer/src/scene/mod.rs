@@ -11,10 +11,11 @@ pub mod input;
 pub mod obj;
 pub mod ply;
 pub mod shapes;
+pub mod tangents;
 
 use std::path::{Path, PathBuf};
 
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4};
 
 use crate::camera::Camera;
 use crate::error::SceneError;
@@ -31,6 +32,12 @@ pub struct Mesh {
     pub normals: Option<Vec<Vec3>>,
     /// Per-vertex texture coordinates.
     pub uvs: Option<Vec<Vec2>>,
+    /// Per-vertex tangents for normal mapping (world space): `xyz` the unit direction of
+    /// increasing u, `w` = ±1 the handedness, glTF's convention (bitangent = w · normal × xyz,
+    /// pointing towards decreasing v, "up" in the normal map). From the file (glTF `TANGENT`)
+    /// or generated with MikkTSpace by [`Scene::validate`] for meshes whose material has a
+    /// normal map ([`tangents`]).
+    pub tangents: Option<Vec<Vec4>>,
     /// Triangles as indices into the vertex arrays.
     pub indices: Vec<[u32; 3]>,
     /// Index into [`Scene::materials`].
@@ -79,6 +86,16 @@ pub struct AlphaMask {
     pub cutoff: f32,
 }
 
+/// A tangent-space normal map (glTF `normalTexture`, OBJ `map_Bump`/`bump`/`norm`): texels
+/// (r, g, b) in [0, 1] encode the normal (2r − 1, 2g − 1, 2b − 1) in the frame (tangent,
+/// bitangent, normal) of [`Mesh::tangents`], x and y multiplied by `scale`.
+#[derive(Clone, Debug)]
+pub struct NormalMap {
+    /// Linear (not sRGB) texture.
+    pub texture: TextureRef,
+    pub scale: f32,
+}
+
 /// The metallic-roughness material model (glTF 2.0), used for every source format.
 #[derive(Clone, Debug)]
 pub struct Material {
@@ -103,6 +120,12 @@ pub struct Material {
     /// Emit from both faces; otherwise only from the front face (counter-clockwise winding).
     pub two_sided_emission: bool,
     pub alpha: Option<AlphaMask>,
+    /// Perturbs the shading normal where the mesh has texture coordinates.
+    pub normal_map: Option<NormalMap>,
+    /// Seen from both sides (the default). A single-sided material (glTF `doubleSided: false`)
+    /// is invisible from behind: every ray (camera, bounce, shadow) passes through its back
+    /// faces ([`crate::accel`]), as glTF's back-face culling says.
+    pub double_sided: bool,
 }
 
 impl Default for Material {
@@ -120,6 +143,8 @@ impl Default for Material {
             emission_texture: None,
             two_sided_emission: false,
             alpha: None,
+            normal_map: None,
+            double_sided: true,
         }
     }
 }
@@ -375,10 +400,16 @@ impl Scene {
             if !m.emission.is_finite() || m.emission.min_element() < 0.0 {
                 return Err(SceneError::new(&source, field("emission"), "must be finite and non-negative"));
             }
+            if let Some(map) = &m.normal_map {
+                if !map.scale.is_finite() {
+                    return Err(SceneError::new(&source, field("normalTexture.scale"), "must be finite"));
+                }
+            }
             for t in [&m.base_color_texture, &m.metallic_roughness_texture, &m.emission_texture]
                 .into_iter()
                 .flatten()
                 .chain(m.alpha.as_ref().map(|a| &a.texture))
+                .chain(m.normal_map.as_ref().map(|n| &n.texture))
             {
                 if t.index as usize >= self.textures.len() {
                     return Err(SceneError::new(&source, field("texture"), "texture index out of range"));
@@ -486,6 +517,24 @@ impl Scene {
                     }
                 }
             }
+            if let Some(tangents) = &mut mesh.tangents {
+                if tangents.len() != mesh.positions.len() {
+                    return Err(SceneError::new(
+                        &source,
+                        format!("mesh '{}'.tangents", mesh.name),
+                        "count differs from positions",
+                    ));
+                }
+                // Unusable tangents are zero: the shading point then keeps its unmapped normal.
+                for t in tangents.iter_mut() {
+                    let len = t.truncate().length();
+                    *t = if len.is_finite() && len > 0.0 && t.w.is_finite() {
+                        (t.truncate() / len).extend(if t.w < 0.0 { -1.0 } else { 1.0 })
+                    } else {
+                        Vec4::ZERO
+                    };
+                }
+            }
             let before = mesh.indices.len();
             let positions = &mesh.positions;
             mesh.indices.retain(|&[a, b, c]| {
@@ -495,12 +544,48 @@ impl Scene {
             degenerate += before - mesh.indices.len();
         }
         self.meshes.retain(|m| !m.indices.is_empty());
+        self.prepare_normal_maps();
         // After the meshes: a camera framed around NaN geometry is a symptom, not the cause.
         self.camera.validate(&source)?;
         if degenerate > 0 {
             self.warnings.push(format!("removed {degenerate} degenerate (zero-area) triangles"));
         }
         Ok(())
+    }
+}
+
+impl Scene {
+    /// Gives every mesh whose material has a normal map what the map needs: normals (from the
+    /// faces, creased at 60°, where the file has none) and tangents (MikkTSpace where the file
+    /// has none). A mesh without texture coordinates cannot use its map: a warning, and the
+    /// tracer shades it with its unmapped normals.
+    fn prepare_normal_maps(&mut self) {
+        let source = self.source.display().to_string();
+        for mesh in &mut self.meshes {
+            let material = &self.materials[mesh.material as usize];
+            if material.normal_map.is_none() {
+                continue;
+            }
+            if mesh.uvs.is_none() {
+                self.warnings.push(format!(
+                    "{source}: mesh '{}': material '{}' has a normal map but the mesh has no texture coordinates; \
+                     the map is not used there",
+                    mesh.name, material.name
+                ));
+                continue;
+            }
+            if mesh.normals.is_none() {
+                // Tangents given without normals belong to no frame; generated again below.
+                mesh.tangents = None;
+                shapes::compute_normals(mesh, 60.0);
+            }
+            if mesh.tangents.is_none() && !tangents::generate(mesh) {
+                self.warnings.push(format!(
+                    "{source}: mesh '{}': MikkTSpace could not generate tangents; its normal map is not used",
+                    mesh.name
+                ));
+            }
+        }
     }
 }
 

@@ -21,7 +21,7 @@ use glam::{Mat4, Vec2, Vec3};
 
 use super::input::{confine, read_input};
 use super::shapes::compute_normals;
-use super::{AlphaMask, Material, Mesh, Scene};
+use super::{AlphaMask, Material, Mesh, NormalMap, Scene};
 use crate::error::SceneError;
 use crate::limits::MAX_MODEL_BYTES;
 use crate::texture::{Texture, TextureRef};
@@ -125,12 +125,89 @@ fn convert_material(
             cutoff: 0.5,
         });
     }
-    for key in ["map_Ks", "map_Ns", "map_bump", "bump", "norm"] {
+    // `norm` is a tangent-space normal map; `map_Bump`/`bump` (tobj's `normal_texture`) too when
+    // its image has colour, since exporters write normal maps there: a grey image is the
+    // classic height (bump) map, which the tracer does not use (a warning).
+    let normal_maps = [("norm", m.unknown_param.get("norm")), ("map_Bump", m.normal_texture.as_ref())];
+    for (key, value) in normal_maps {
+        let Some(value) = value.filter(|v| !v.trim().is_empty()) else { continue };
+        if material.normal_map.is_some() {
+            cache.scene.warnings.push(format!(
+                "{}: {} ignored: the material already has a normal map (`norm`)",
+                mtl_path.display(),
+                field(key)
+            ));
+            continue;
+        }
+        let (name, scale) = map_options(value).map_err(|message| SceneError::new(mtl_path, field(key), message))?;
+        let file = dir.join(name.replace('\\', "/"));
+        confine(&file, &name, obj, &field(key), access)?;
+        let index = cache.get(&file, false, mtl_path, &field(key))?;
+        let texture = &cache.scene.textures[index as usize];
+        if key != "norm" && texture.texels.iter().all(|t| t[0] == t[1] && t[1] == t[2]) {
+            cache.scene.warnings.push(format!(
+                "{}: {}: a grey image, read as a height (bump) map, which is not supported; ignored",
+                mtl_path.display(),
+                field(key)
+            ));
+            continue;
+        }
+        material.normal_map = Some(NormalMap { texture: TextureRef::new(index), scale });
+    }
+    for key in ["map_Ks", "map_Ns"] {
         if m.unknown_param.contains_key(key) {
             cache.scene.warnings.push(format!("{}: {} ignored (not supported)", mtl_path.display(), field(key)));
         }
     }
     Ok(material)
+}
+
+/// The file name and `-bm` multiplier of a texture map statement's value (what follows the
+/// keyword): options come first, each with its number of arguments as in the MTL
+/// specification (`-o`, `-s`, `-t` take one to three numbers); the rest is the file name.
+pub fn map_options(value: &str) -> Result<(String, f32), String> {
+    let words: Vec<&str> = value.split_whitespace().collect();
+    let mut scale = 1.0;
+    let mut i = 0;
+    while i < words.len() && words[i].starts_with('-') && words[i].parse::<f32>().is_err() {
+        let option = words[i];
+        let number = |j: usize| words.get(j).and_then(|w| w.parse::<f32>().ok());
+        i += 1;
+        match option {
+            "-bm" => {
+                scale = number(i)
+                    .filter(|s| s.is_finite())
+                    .ok_or_else(|| format!("`-bm` needs a finite number in {value:?}"))?;
+                i += 1;
+            }
+            "-blendu" | "-blendv" | "-boost" | "-cc" | "-clamp" | "-imfchan" | "-texres" | "-type" => {
+                if i >= words.len() {
+                    return Err(format!("`{option}` needs a value in {value:?}"));
+                }
+                i += 1;
+            }
+            "-mm" => {
+                if number(i).is_none() || number(i + 1).is_none() {
+                    return Err(format!("`-mm` needs two numbers in {value:?}"));
+                }
+                i += 2;
+            }
+            "-o" | "-s" | "-t" => {
+                let start = i;
+                while i < start + 3 && number(i).is_some() {
+                    i += 1;
+                }
+                if i == start {
+                    return Err(format!("`{option}` needs one to three numbers in {value:?}"));
+                }
+            }
+            other => return Err(format!("unknown option `{other}` in {value:?}")),
+        }
+    }
+    if i >= words.len() {
+        return Err(format!("no file name in {value:?}"));
+    }
+    Ok((words[i..].join(" "), scale))
 }
 
 /// The first line of an MTL text that tobj would refuse, as (line number from 1, what is
@@ -295,6 +372,7 @@ pub fn load_from_bytes(
             positions,
             normals,
             uvs,
+            tangents: None,
             indices,
             material,
             motion: options.motion,

@@ -180,6 +180,7 @@ pub fn parse(path: &Path, bytes: &[u8], options: &PlyOptions, warnings: &mut Vec
         positions,
         normals,
         uvs,
+        tangents: None,
         indices,
         material: options.material,
         motion: options.motion,

@@ -116,6 +116,7 @@ pub fn sphere(name: &str, center: Vec3, radius: f32, subdivisions: u32, material
         positions: unit.iter().map(|&n| center + n * radius).collect(),
         normals: Some(unit),
         uvs: None,
+        tangents: None,
         indices,
         material,
         motion: Vec3::ZERO,
