@@ -132,7 +132,7 @@ impl RectangleEmitter {
             && (own + edge_x + edge_y - other).length() <= 1e-5 * size
             && lx > 0.0
             && ly > 0.0;
-        let normal_of = |[a, b, c]: [Vec3; 3]| (b - a).cross(c - a).normalize_or_zero();
+        let normal_of = |[a, b, c]: [Vec3; 3]| shading::triangle_normal_and_area(a, b, c).0;
         let normal = normal_of(first);
         if !rectangular || normal == Vec3::ZERO || normal.dot(normal_of(second)) < 0.999 {
             return None;
