@@ -171,21 +171,23 @@ fn rectangle_over_floor(height: f32) -> Scene {
 fn rectangle_lights_by_solid_angle_keep_the_mean_and_lower_the_variance() {
     let root = common::project_root();
     let scenes = [
-        ("rectangle 0.25 over a floor", rectangle_over_floor(0.25), 0.5),
-        ("rectangle 2 over a floor", rectangle_over_floor(2.0), 1.0),
+        ("rectangle 0.25 over a floor", rectangle_over_floor(0.25), 0.7),
+        ("rectangle 2 over a floor", rectangle_over_floor(2.0), 0.95),
         // The Cornell boxes' light is small and far from most of what the camera sees, and
-        // their noise is mostly indirect light: about 2 % less (a paired, seeded comparison).
+        // their noise is mostly indirect light: under 2 % less (a paired, seeded comparison).
         ("cornell.toml", Scene::load(&root.join("scenes/cornell.toml")).unwrap(), 1.0),
         ("cbox-mitsuba.toml", Scene::load(&root.join("scenes/cbox-mitsuba.toml")).unwrap(), 1.0),
         // The soft-shadow scene's lamp is a small rectangle close to the bunny; with its sky the
         // legacy strategy also differs in how it chooses between lamp and sky.
         ("soft-shadow.toml", Scene::load(&root.join("scenes/soft-shadow.toml")).unwrap(), 1.0),
-        // Alone, the small lamp gains nothing: 1.03, within this measurement's noise (the two
-        // strategies map the same random numbers to different light points).
+        // Alone, the small lamp gains nothing, and this measurement's noise is large there (the
+        // two strategies map the same random numbers to different light points, and the
+        // penumbrae's dark pixels dominate the mean relative variance): 1.03 with solid angles
+        // everywhere, 1.13 with the reach of two diagonals.
         (
             "soft-shadow.toml without its sky",
             without_sky(Scene::load(&root.join("scenes/soft-shadow.toml")).unwrap()),
-            1.1,
+            1.2,
         ),
     ];
     for (name, scene, bound) in scenes {
