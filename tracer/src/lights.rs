@@ -15,8 +15,9 @@
 //! seen from outside is sampled uniformly in the cone of directions its inscribed sphere
 //! subtends (every such direction hits the tessellation's near side), from inside by area; the
 //! environment uniformly over the sphere. A rectangle light (a static quad of constant emission)
-//! is sampled uniformly in the solid angle it subtends (Ureña et al. 2013, [`RectangleEmitter`]). `pdf_*` functions give the densities the integrator
-//! needs for multiple importance sampling when a BSDF-sampled ray hits an emitter. The sampling
+//! is sampled uniformly in the solid angle it subtends from nearby points (Ureña et al. 2013,
+//! [`RectangleEmitter`]), by area from far away. `pdf_*` functions give the densities the
+//! integrator needs for multiple importance sampling when a BSDF-sampled ray hits an emitter. The sampling
 //! before issue 26 stays available as [`LightStrategy::Legacy`], the oracle of the tests.
 
 use std::f32::consts::PI;
