@@ -15,8 +15,9 @@
 //! seen from outside is sampled uniformly in the cone of directions its inscribed sphere
 //! subtends (every such direction hits the tessellation's near side), from inside by area; the
 //! environment uniformly over the sphere. A rectangle light (a static quad of constant emission)
-//! is sampled uniformly in the solid angle it subtends (Ureña et al. 2013, [`RectangleEmitter`]). `pdf_*` functions give the densities the integrator
-//! needs for multiple importance sampling when a BSDF-sampled ray hits an emitter. The sampling
+//! is sampled uniformly in the solid angle it subtends from nearby points (Ureña et al. 2013,
+//! [`RectangleEmitter`]), by area from far away. `pdf_*` functions give the densities the
+//! integrator needs for multiple importance sampling when a BSDF-sampled ray hits an emitter. The sampling
 //! before issue 26 stays available as [`LightStrategy::Legacy`], the oracle of the tests.
 
 use std::f32::consts::PI;
@@ -66,12 +67,19 @@ enum MeshEntry {
 const RECTANGLE_MIN_SOLID_ANGLE: f64 = 1e-4;
 const RECTANGLE_MAX_SOLID_ANGLE: f64 = 6.0;
 
+/// Farther from a rectangle light's centre than this many of its diagonals, it is sampled by
+/// area: cos/r² then varies little over the rectangle, so solid-angle sampling gains almost
+/// nothing there, and it costs (f64 angles, four `acos` per sample and again per MIS pdf) about
+/// a quarter of a Cornell box render's time when used everywhere (docs/performance.md).
+const RECTANGLE_SOLID_ANGLE_REACH: f32 = 2.0;
+
 /// A static rectangle light with constant emission: a mesh of two triangles that share a
 /// diagonal and whose four corners form a rectangle (a TOML polygon of four points, an OBJ or
 /// glTF quad). Sampled uniformly in the solid angle it subtends (Ureña, Fajardo and King 2013,
 /// "An area-preserving parametrization for spherical rectangles"), so that the sample density
 /// follows the light's apparent size instead of its area: no 1/r² spikes near the light and
-/// no samples wasted on its far, foreshortened part. Outside the solid angles
+/// no samples wasted on its far, foreshortened part. Beyond [`RECTANGLE_SOLID_ANGLE_REACH`]
+/// diagonals from its centre (where that gains little) and outside the solid angles
 /// [`RECTANGLE_MIN_SOLID_ANGLE`]..[`RECTANGLE_MAX_SOLID_ANGLE`] it is sampled by area.
 #[derive(Clone, Debug)]
 struct RectangleEmitter {
@@ -83,6 +91,9 @@ struct RectangleEmitter {
     /// Unit front normal (counter-clockwise winding of the triangles).
     normal: Vec3,
     area: f32,
+    /// Centre, and the squared distance from it within which it is sampled by solid angle.
+    center: Vec3,
+    reach2: f32,
     emission: Vec3,
     two_sided: bool,
 }
@@ -144,6 +155,8 @@ impl RectangleEmitter {
             edge_y,
             normal,
             area: lx * ly,
+            center: own + 0.5 * (edge_x + edge_y),
+            reach2: RECTANGLE_SOLID_ANGLE_REACH * RECTANGLE_SOLID_ANGLE_REACH * (lx * lx + ly * ly),
             emission: material.emission,
             two_sided: material.two_sided_emission,
         })
@@ -155,10 +168,13 @@ impl RectangleEmitter {
         height > 0.0 || (self.two_sided && height < 0.0)
     }
 
-    /// The spherical rectangle seen from `point`, when its solid angle is in the range sampled
-    /// by solid angle.
+    /// The spherical rectangle seen from `point`, when the point is within reach and the solid
+    /// angle in the range sampled by solid angle.
     fn spherical(&self, point: Vec3) -> Option<SphericalRectangle> {
         use glam::DVec3;
+        if !((point - self.center).length_squared() <= self.reach2) {
+            return None;
+        }
         let (lx, ly) = (self.edge_x.as_dvec3().length(), self.edge_y.as_dvec3().length());
         let x_axis = self.edge_x.as_dvec3() / lx;
         let y_axis = self.edge_y.as_dvec3() / ly;
@@ -605,8 +621,7 @@ impl LightSampler {
                 if let Some(rectangle) = RectangleEmitter::new(scene, mi as u32) {
                     mesh_entry[mi] = Some(MeshEntry::Rectangle(emitters.len() as u32));
                     power.push(lum * rectangle.area * PI * sides);
-                    let center = rectangle.corner + 0.5 * (rectangle.edge_x + rectangle.edge_y);
-                    intensity.push((lum * rectangle.area, center, rectangle.area / PI));
+                    intensity.push((lum * rectangle.area, rectangle.center, rectangle.area / PI));
                     emitters.push(Emitter::Rectangle(rectangle));
                     continue;
                 }
@@ -999,7 +1014,7 @@ mod tests {
     }
 
     /// Rectangle lights are sampled by solid angle (constant pdf 1/Ω) with Lambert's irradiance
-    /// as the expected value, near, oblique, far (area sampling below 10⁻⁴ sr) and from behind (nothing for a one-sided light, Lambert for a two-sided
+    /// as the expected value, near, oblique, far (area sampling beyond two diagonals) and from behind (nothing for a one-sided light, Lambert for a two-sided
     /// one), and with much less variance than area sampling close to the light.
     #[test]
     fn rectangle_lights_are_sampled_by_solid_angle_with_the_analytic_irradiance() {

@@ -24,6 +24,33 @@ fn white_furnace_radiance_equals_the_environment() {
     assert_eq!(frame.invalid_samples, 0);
 }
 
+/// The emissive furnace: inside a closed cube whose six faces are rectangle lights (sampled by
+/// solid angle, two-sided radiance L_e = 1) that also reflect diffusely with albedo ρ = 0.5,
+/// the radiance is L_e / (1 − ρ) = 2 everywhere, however the light and BSDF samples share the
+/// work (a wrong rectangle pdf in either strategy's MIS weight would break the balance).
+#[test]
+fn a_box_of_rectangle_lights_is_a_furnace_of_radiance_le_over_one_minus_albedo() {
+    let faces: [[[f32; 3]; 4]; 6] = [
+        [[-1.0, -1.0, -1.0], [1.0, -1.0, -1.0], [1.0, 1.0, -1.0], [-1.0, 1.0, -1.0]],
+        [[-1.0, -1.0, 1.0], [1.0, -1.0, 1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 1.0]],
+        [[-1.0, -1.0, -1.0], [1.0, -1.0, -1.0], [1.0, -1.0, 1.0], [-1.0, -1.0, 1.0]],
+        [[-1.0, 1.0, -1.0], [1.0, 1.0, -1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 1.0]],
+        [[-1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, 1.0, 1.0], [-1.0, -1.0, 1.0]],
+        [[1.0, -1.0, -1.0], [1.0, 1.0, -1.0], [1.0, 1.0, 1.0], [1.0, -1.0, 1.0]],
+    ];
+    let mut toml = SceneToml::new(1000, None).camera([0.2, -0.1, 0.3], [1.0, 0.5, -0.4], 90.0, "").raw(
+        "[[material]]\nname = \"glow\"\nbase_color = [0.5, 0.5, 0.5]\nspecular = 0\nemission = [1, 1, 1]\n\
+         two_sided_emission = true",
+    );
+    for face in &faces {
+        toml = toml.polygon("glow", face, "");
+    }
+    let frame = render(&toml.scene(), 16, 16, 64, 4);
+    let m = mean(&frame.beauty);
+    assert!((m - Vec3::splat(2.0)).abs().max_element() < 0.01, "furnace mean {m}, expected 2");
+    assert_eq!(frame.invalid_samples, 0);
+}
+
 /// Lambertian plane (albedo ρ) under a point light of intensity I at height h:
 /// L(p) = ρ/π · I · h / d³ with d the distance from p to the light.
 #[test]

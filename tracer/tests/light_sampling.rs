@@ -165,18 +165,30 @@ fn rectangle_over_floor(height: f32) -> Scene {
 
 /// Rectangle lights by solid angle (issue 26, item 1, "rectangles by solid angle where it
 /// pays"): against `LightStrategy::Legacy`, which samples them by area, the same image mean
-/// within noise and no more variance on any scene, and much less where the light is close to
-/// what it lights. The ratios go to docs/performance.md.
+/// within noise and no more variance than noise allows on any scene, and much less where the
+/// light is close to what it lights. The ratios go to docs/performance.md.
 #[test]
 fn rectangle_lights_by_solid_angle_keep_the_mean_and_lower_the_variance() {
     let root = common::project_root();
     let scenes = [
-        ("rectangle 0.25 over a floor", rectangle_over_floor(0.25), 0.5),
-        ("rectangle 2 over a floor", rectangle_over_floor(2.0), 1.0),
+        ("rectangle 0.25 over a floor", rectangle_over_floor(0.25), 0.7),
+        ("rectangle 2 over a floor", rectangle_over_floor(2.0), 0.95),
         // The Cornell boxes' light is small and far from most of what the camera sees, and
-        // their noise is mostly indirect light: about 2 % less (a paired, seeded comparison).
+        // their noise is mostly indirect light: under 2 % less (a paired, seeded comparison).
         ("cornell.toml", Scene::load(&root.join("scenes/cornell.toml")).unwrap(), 1.0),
         ("cbox-mitsuba.toml", Scene::load(&root.join("scenes/cbox-mitsuba.toml")).unwrap(), 1.0),
+        // The soft-shadow scene's lamp is a small rectangle close to the bunny; with its sky the
+        // legacy strategy also differs in how it chooses between lamp and sky.
+        ("soft-shadow.toml", Scene::load(&root.join("scenes/soft-shadow.toml")).unwrap(), 1.0),
+        // Alone, the small lamp gains nothing, and this measurement's noise is large there (the
+        // two strategies map the same random numbers to different light points, and the
+        // penumbrae's dark pixels dominate the mean relative variance): 1.03 with solid angles
+        // everywhere, 1.13 with the reach of two diagonals.
+        (
+            "soft-shadow.toml without its sky",
+            without_sky(Scene::load(&root.join("scenes/soft-shadow.toml")).unwrap()),
+            1.2,
+        ),
     ];
     for (name, scene, bound) in scenes {
         let (old, old_mean, old_error) = lit_statistics(&render(&scene, LightStrategy::Legacy));
@@ -193,4 +205,9 @@ fn rectangle_lights_by_solid_angle_keep_the_mean_and_lower_the_variance() {
             "{name}: means differ by {difference}"
         );
     }
+}
+
+fn without_sky(mut scene: Scene) -> Scene {
+    scene.environment = Vec3::ZERO;
+    scene
 }
