@@ -15,8 +15,9 @@ use tracer::output::{read_exr, write_atomically, write_exr, Layer};
 use super::effect::Tracing;
 use crate::convert::rgb_channels;
 
-/// Bumped whenever the tracer's estimators change what a reference contains.
-const ESTIMATOR_VERSION: &str = "lfr-reference/3";
+/// Bumped whenever the tracer's estimators change what a reference contains (4: normal maps,
+/// single-sided materials, rectangle lights by solid angle, scale-free offsets; session 16).
+const ESTIMATOR_VERSION: &str = "lfr-reference/4";
 
 /// A reference: the mean of two halves, and the halves (none for an external reference given as
 /// one image).
