@@ -42,19 +42,71 @@ pub fn surfel_albedo(scene: &Scene, surfels: &Surfels) -> Vec<Vec3> {
         .collect()
 }
 
+/// What maps probe coefficients λ to every receiver's irradiance: the dense transports of
+/// Eq. 7 or their CPCA compression.
+pub trait ReceiverTransport: Sync {
+    /// The number of receivers (surfels).
+    fn receiver_count(&self) -> usize;
+    /// Every receiver's irradiance, unclamped, for `lambda` (probe-major RGB, `coefficients`
+    /// per probe).
+    fn gather(&self, lambda: &[Vec3], coefficients: usize) -> Vec<Vec3>;
+}
+
+impl ReceiverTransport for [Transport] {
+    fn receiver_count(&self) -> usize {
+        self.len()
+    }
+    fn gather(&self, lambda: &[Vec3], coefficients: usize) -> Vec<Vec3> {
+        self.par_iter().map(|t| t.irradiance_rgb(lambda, coefficients)).collect()
+    }
+}
+
+impl ReceiverTransport for Vec<Transport> {
+    fn receiver_count(&self) -> usize {
+        self.len()
+    }
+    fn gather(&self, lambda: &[Vec3], coefficients: usize) -> Vec<Vec3> {
+        self.as_slice().gather(lambda, coefficients)
+    }
+}
+
+impl ReceiverTransport for crate::cpca::Cpca {
+    fn receiver_count(&self) -> usize {
+        self.receivers
+    }
+    fn gather(&self, lambda: &[Vec3], _coefficients: usize) -> Vec<Vec3> {
+        self.irradiance(lambda)
+    }
+}
+
 /// Iterates the feedback loop at most `max_iterations` times, stopping early when the largest
 /// change of a receiver's irradiance falls below `tolerance` times the largest irradiance
 /// (0 to run every iteration). `albedo` and `direct` have one value per surfel (the receivers
 /// and senders are the same surfels, in the same order as `transports`).
-pub fn indirect(
-    transports: &[Transport],
+pub fn indirect<T: ReceiverTransport + ?Sized>(
+    transports: &T,
     table: &RelightTable,
     albedo: &[Vec3],
     direct: &[Vec3],
     max_iterations: usize,
     tolerance: f32,
 ) -> Result<Indirect, ProbesError> {
-    let n = transports.len();
+    indirect_from(transports, table, albedo, direct, None, max_iterations, tolerance)
+}
+
+/// [`indirect`] starting from the indirect irradiance `start` (one value per receiver; zero
+/// when `None`): the paper's per-frame feedback, one iteration a frame, starts from the last
+/// frame's result.
+pub fn indirect_from<T: ReceiverTransport + ?Sized>(
+    transports: &T,
+    table: &RelightTable,
+    albedo: &[Vec3],
+    direct: &[Vec3],
+    start: Option<&[Vec3]>,
+    max_iterations: usize,
+    tolerance: f32,
+) -> Result<Indirect, ProbesError> {
+    let n = transports.receiver_count();
     if albedo.len() != n || direct.len() != n {
         return Err(ProbesError::parameter(
             "senders",
@@ -64,17 +116,28 @@ pub fn indirect(
     if let Some(i) = albedo.iter().chain(direct).position(|v| !v.is_finite() || v.min_element() < 0.0) {
         return Err(ProbesError::parameter("senders", format!("value {i} is negative or not finite")));
     }
+    if let Some(start) = start {
+        if start.len() != n {
+            return Err(ProbesError::parameter(
+                "start",
+                format!("{} values for {n} receivers: one per surfel", start.len()),
+            ));
+        }
+        if let Some(i) = start.iter().position(|v| !v.is_finite() || v.min_element() < 0.0) {
+            return Err(ProbesError::parameter("start", format!("value {i} is negative or not finite")));
+        }
+    }
     let nc = table.coefficients;
-    let mut e = vec![Vec3::ZERO; n];
+    let mut e = start.map_or_else(|| vec![Vec3::ZERO; n], |s| s.to_vec());
     let mut out = Indirect { irradiance: Vec::new(), iterations: 0, clamped: 0, change: f32::INFINITY };
     for _ in 0..max_iterations {
         let radiance: Vec<Vec3> =
             albedo.iter().zip(direct).zip(&e).map(|((a, d), e)| *a * (*d + *e) / std::f32::consts::PI).collect();
         let lambda = table.project(&radiance);
         let next: Vec<(Vec3, u64)> = transports
-            .par_iter()
-            .map(|t| {
-                let v = t.irradiance_rgb(&lambda, nc);
+            .gather(&lambda, nc)
+            .into_iter()
+            .map(|v| {
                 let clamped = v.to_array().iter().filter(|&&c| c < 0.0).count() as u64;
                 (v.max(Vec3::ZERO), clamped)
             })
@@ -200,5 +263,21 @@ mod tests {
         let mut bad = a.clone();
         bad[3] = Vec3::splat(f32::NAN);
         assert!(indirect(&s.transports, &s.table, &albedo, &bad, 1, 0.0).is_err());
+    }
+
+    #[test]
+    fn one_bounce_per_frame_with_feedback_equals_the_bounces_at_once() {
+        let s = sphere_setup();
+        let n = s.surfels.surfels.len();
+        let albedo = vec![Vec3::new(0.7, 0.5, 0.3); n];
+        let direct: Vec<Vec3> = s.surfels.surfels.iter().map(|x| Vec3::splat(1.0 + x.position.z)).collect();
+        let at_once = indirect(&s.transports, &s.table, &albedo, &direct, 4, 0.0).unwrap();
+        let mut e: Option<Vec<Vec3>> = None;
+        for _ in 0..4 {
+            e = Some(indirect_from(&s.transports, &s.table, &albedo, &direct, e.as_deref(), 1, 0.0).unwrap().irradiance);
+        }
+        assert_eq!(e.unwrap(), at_once.irradiance);
+        let err = indirect_from(&s.transports, &s.table, &albedo, &direct, Some(&direct[1..]), 1, 0.0).unwrap_err();
+        assert!(err.to_string().starts_with("start:"), "{err}");
     }
 }

@@ -29,14 +29,18 @@
 #![forbid(unsafe_code)]
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod cache;
+pub mod cpca;
 pub mod direct;
 pub mod error;
 pub mod frame;
 pub mod geometry;
+pub mod image;
 pub mod kernel;
 pub mod layout;
 pub mod lookup;
 pub mod placement;
+pub mod precompute;
 pub mod relight;
 pub mod sh;
 pub mod surfels;
