@@ -162,7 +162,8 @@ impl Cpca {
                 format!("receiver {i} has {} values, not {coefficients} per probe", transports[i].alpha.len()),
             ));
         }
-        let all: Vec<u32> = (0..transports.len() as u32).filter(|&i| !transports[i as usize].probes.is_empty()).collect();
+        let all: Vec<u32> =
+            (0..transports.len() as u32).filter(|&i| !transports[i as usize].probes.is_empty()).collect();
         let clusters = compress(transports, positions, coefficients, settings, all, 1);
         Ok(Cpca { clusters, receivers: transports.len(), coefficients, settings: *settings })
     }
@@ -268,9 +269,7 @@ fn compress(
         } else {
             2
         };
-        members.sort_by(|&a, &b| {
-            positions[a as usize][axis].total_cmp(&positions[b as usize][axis]).then(a.cmp(&b))
-        });
+        members.sort_by(|&a, &b| positions[a as usize][axis].total_cmp(&positions[b as usize][axis]).then(a.cmp(&b)));
         let right = members.split_off(members.len() / 2);
         let mut left = members;
         left.sort_unstable();
@@ -346,9 +345,8 @@ fn leading_basis(t: &[f64], n: usize, m: usize, limit: usize, seed: u64) -> Basi
     let l = (limit + 8).min(n).min(m);
     let seed32 = hash_u32((seed as u32) ^ hash_u32((seed >> 32) as u32 ^ 0x5bd1_e995));
     // Y = T Ω (n × l), Ω uniform in [−1, 1].
-    let omega: Vec<f64> = (0..m * l)
-        .map(|k| 2.0 * to_unit_float(hash_combine(seed32, k as u32)) as f64 - 1.0)
-        .collect();
+    let omega: Vec<f64> =
+        (0..m * l).map(|k| 2.0 * to_unit_float(hash_combine(seed32, k as u32)) as f64 - 1.0).collect();
     let times = |a: &[f64], b: &[f64], cols: usize| -> Vec<Vec<f64>> {
         // T (n × m) times B (m × cols, row-major) → columns of length n.
         let mut out = vec![vec![0.0; n]; cols];
@@ -448,7 +446,10 @@ fn symmetric_eigen(a: &[f64], l: usize) -> (Vec<f64>, Vec<f64>) {
     (0..l).for_each(|i| v[i * l + i] = 1.0);
     let norm: f64 = a.iter().map(|x| x * x).sum::<f64>().sqrt();
     for _ in 0..100 {
-        let off: f64 = (0..l).flat_map(|p| (0..l).filter(move |&q| q != p).map(move |q| (p, q))).map(|(p, q)| a[p * l + q].powi(2)).sum();
+        let off: f64 = (0..l)
+            .flat_map(|p| (0..l).filter(move |&q| q != p).map(move |q| (p, q)))
+            .map(|(p, q)| a[p * l + q].powi(2))
+            .sum();
         if off.sqrt() <= 1e-15 * norm || norm == 0.0 {
             break;
         }
@@ -496,12 +497,12 @@ fn symmetric_eigen(a: &[f64], l: usize) -> (Vec<f64>, Vec<f64>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::frame::ReceiverTransport;
     use crate::placement::PlacementSettings;
     use crate::precompute::{Precompute, PrecomputeSettings};
     use crate::surfels::SurfelSettings;
     use crate::test_scenes::{room, scene_of};
     use crate::transport::TransportSettings;
-    use crate::frame::ReceiverTransport;
 
     fn precompute(budget: usize, order: usize) -> Precompute {
         let block = tracer::scene::shapes::axis_aligned_box("block", Vec3::splat(0.3), Vec3::splat(0.6), 0);
@@ -593,7 +594,12 @@ mod tests {
             for (c, e) in cpca.clusters.iter().zip(&errors) {
                 assert!(c.receivers.len() < 256 && c.rank <= 8);
                 assert!(c.error <= tau, "claimed {}", c.error);
-                assert!(*e <= tau + slack, "{precision:?}: cluster of {} at rank {}: error {e}", c.receivers.len(), c.rank);
+                assert!(
+                    *e <= tau + slack,
+                    "{precision:?}: cluster of {} at rank {}: error {e}",
+                    c.receivers.len(),
+                    c.rank
+                );
             }
             // Every visible receiver in exactly one cluster.
             let mut seen = vec![0u8; pre.transports.len()];
@@ -625,7 +631,11 @@ mod tests {
         let settings = CpcaSettings { cluster_limit: 128, tolerance: 1e-9, ..Default::default() };
         let cpca = Cpca::build(&transports, &positions, nc, &settings).unwrap();
         assert!(cpca.clusters.len() >= 3);
-        assert!(cpca.clusters.iter().all(|c| c.rank == 3), "{:?}", cpca.clusters.iter().map(|c| c.rank).collect::<Vec<_>>());
+        assert!(
+            cpca.clusters.iter().all(|c| c.rank == 3),
+            "{:?}",
+            cpca.clusters.iter().map(|c| c.rank).collect::<Vec<_>>()
+        );
         assert!(measured_errors(&cpca, &transports).iter().all(|&e| e < 1e-9));
         // The same clusters and values for any thread count.
         let one = rayon::ThreadPoolBuilder::new()

@@ -274,7 +274,9 @@ mod tests {
         let at_once = indirect(&s.transports, &s.table, &albedo, &direct, 4, 0.0).unwrap();
         let mut e: Option<Vec<Vec3>> = None;
         for _ in 0..4 {
-            e = Some(indirect_from(&s.transports, &s.table, &albedo, &direct, e.as_deref(), 1, 0.0).unwrap().irradiance);
+            e = Some(
+                indirect_from(&s.transports, &s.table, &albedo, &direct, e.as_deref(), 1, 0.0).unwrap().irradiance,
+            );
         }
         assert_eq!(e.unwrap(), at_once.irradiance);
         let err = indirect_from(&s.transports, &s.table, &albedo, &direct, Some(&direct[1..]), 1, 0.0).unwrap_err();

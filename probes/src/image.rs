@@ -290,7 +290,8 @@ mod tests {
             };
             let x = o + d * hit.distance;
             let to = light - x;
-            let expected = Vec3::splat(0.5) / std::f32::consts::PI * intensity * (to.z / to.length()) / to.length_squared();
+            let expected =
+                Vec3::splat(0.5) / std::f32::consts::PI * intensity * (to.z / to.length()) / to.length_squared();
             let got = image.direct[i as usize];
             assert!(((got - expected) / expected).abs().max_element() < 1e-3, "pixel {i}: {got} against {expected}");
             assert_eq!(image.indirect[i as usize], Vec3::ZERO);

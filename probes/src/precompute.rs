@@ -102,9 +102,8 @@ impl Precompute {
     ) -> Result<Precompute, ProbesError> {
         settings.validate()?;
         let t = Instant::now();
-        let layout = Layout::build(scene, &settings.surfels, &settings.placement, &mut |step| {
-            progress(Stage::Layout(step))
-        })?;
+        let layout =
+            Layout::build(scene, &settings.surfels, &settings.placement, &mut |step| progress(Stage::Layout(step)))?;
         let layout_s = t.elapsed().as_secs_f64();
         let accel = Accel::build(scene).map_err(|e| ProbesError::Tracer(e.to_string()))?;
         let scale = layout.scale as f32;
