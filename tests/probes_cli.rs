@@ -282,11 +282,11 @@ fn animate_moves_a_light_over_frames_from_one_cache() {
     let report = json(&frames.join("timings.json"));
     let list = report["frames"].as_array().unwrap();
     assert_eq!(list.len(), 3);
-    for f in 0..3 {
+    for (f, frame) in list.iter().enumerate() {
         assert!(
             frames.join(format!("frame_{f:04}.exr")).is_file() && frames.join(format!("frame_{f:04}.png")).is_file()
         );
-        assert!(list[f]["frame_s"].as_f64().unwrap().is_finite());
+        assert!(frame["frame_s"].as_f64().unwrap().is_finite());
     }
     assert_eq!(list[2]["light_position"][0].as_f64().unwrap(), 450.0);
     assert_ne!(list[0]["mean_indirect"], list[2]["mean_indirect"]);
