@@ -282,4 +282,131 @@ mod tests {
         let err = indirect_from(&s.transports, &s.table, &albedo, &direct, Some(&direct[1..]), 1, 0.0).unwrap_err();
         assert!(err.to_string().starts_with("start:"), "{err}");
     }
+
+    /// Diagnostic (run by hand, `--ignored --nocapture`): on the Cornell box, the probes'
+    /// one-bounce gather (Eq. 7 with λ from the relight rays) against a brute-force gather of
+    /// the same sender radiance along 1024 cosine rays per receiver.
+    #[test]
+    #[ignore]
+    fn cornell_probe_gather_against_a_brute_force_gather() {
+        use crate::direct::direct_irradiance;
+        use crate::lookup::lookup;
+        use crate::precompute::{Precompute, PrecomputeSettings};
+        use crate::visibility::offset;
+        use shading::{sample_cosine_hemisphere, Frame};
+        use tracer::sampler::Sampler;
+        let scene = crate::test_scenes::cornell();
+        let mut settings = PrecomputeSettings::default();
+        settings.surfels.budget = 5000;
+        settings.placement.probes = 27;
+        settings.transport.directions = 256;
+        let pre = Precompute::build(&scene, &settings, &mut |_| {}).unwrap();
+        let accel = Accel::build(&scene).unwrap();
+        let scale = pre.scale as f32;
+        let albedo = surfel_albedo(&scene, &pre.surfels);
+        let direct = direct_irradiance(&scene, &accel, &pre.surfels, 64, 0, scale).unwrap();
+        let out = indirect(&pre.transports, &pre.table, &albedo, &direct, 30, 1e-4).unwrap();
+        let radiance: Vec<Vec3> = albedo
+            .iter()
+            .zip(&direct)
+            .zip(&out.irradiance)
+            .map(|((a, d), e)| *a * (*d + *e) / std::f32::consts::PI)
+            .collect();
+        let lambda = pre.table.project(&radiance);
+        let nc = pre.coefficients();
+        let (mut sum_p, mut sum_b, mut sum_l) = (glam::DVec3::ZERO, glam::DVec3::ZERO, glam::DVec3::ZERO);
+        let mut found = Vec::new();
+        for (i, (s, t)) in pre.surfels.surfels.iter().zip(&pre.transports).enumerate().step_by(23) {
+            if t.probes.is_empty() {
+                continue;
+            }
+            sum_p += t.irradiance_rgb(&lambda, nc).as_dvec3();
+            let frame = Frame::new(s.normal);
+            let origin = s.position + s.normal * offset(s.position, scale);
+            let (mut b, mut l) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
+            for k in 0..1024 {
+                let u = Sampler::new(3, i as u32, 7, k).next_2d();
+                let dir = frame.to_world(sample_cosine_hemisphere(u)).normalize();
+                let Some(hit) = accel.intersect(origin, dir, 0.0, f32::INFINITY, 0.0) else { continue };
+                let ng = hit.geometric_normal.normalize_or_zero();
+                let side = if ng.dot(dir) > 0.0 { -ng } else { ng };
+                let y = origin + dir * hit.distance;
+                lookup(&pre.surfels, y, side, &mut found);
+                for &(s, w) in &found {
+                    b += (radiance[s as usize] * w).as_dvec3();
+                }
+                // The probe nearest the hit that sees it, read in its own direction.
+                let mut best: Option<(f32, usize)> = None;
+                for (pi, p) in pre.probes.iter().enumerate() {
+                    let p = p.as_vec3();
+                    let d = p.distance(y);
+                    if crate::visibility::probe_sees(&accel, y, side, p, scale) && best.map_or(true, |(bd, _)| d < bd) {
+                        best = Some((d, pi));
+                    }
+                }
+                if let Some((_, pi)) = best {
+                    let psi = (y - pre.probes[pi].as_vec3()).normalize();
+                    let basis = crate::sh::Basis::new(settings.transport.order);
+                    let mut yv = vec![0.0f32; nc];
+                    basis.eval_into(psi, &mut yv);
+                    let mut v = Vec3::ZERO;
+                    for j in 0..nc {
+                        v += lambda[pi * nc + j] * yv[j];
+                    }
+                    l += v.as_dvec3();
+                }
+            }
+            sum_b += b * std::f64::consts::PI / 1024.0;
+            sum_l += l * std::f64::consts::PI / 1024.0;
+        }
+        println!("probes / brute force: {}", sum_p / sum_b);
+        println!("nearest seeing probe's SH / brute force: {}", sum_l / sum_b);
+        println!(
+            "relight escaped {} holes {} of {}",
+            pre.table.escaped,
+            pre.table.holes,
+            pre.table.rays as usize * pre.probes.len()
+        );
+        // A brute-force surfel radiosity: 256 cosine rays per valid receiver, each hit read
+        // through the lookup, iterated to convergence; both solutions rendered at 128².
+        let rays = 256u32;
+        let gathers: Vec<Vec<(u32, f32)>> = pre
+            .surfels
+            .surfels
+            .par_iter()
+            .zip(&pre.transports)
+            .enumerate()
+            .map(|(i, (s, t))| {
+                let mut row: Vec<(u32, f32)> = Vec::new();
+                if t.probes.is_empty() {
+                    return row;
+                }
+                let frame = Frame::new(s.normal);
+                let origin = s.position + s.normal * offset(s.position, scale);
+                let mut found = Vec::new();
+                for k in 0..rays {
+                    let u = Sampler::new(5, i as u32, 9, k).next_2d();
+                    let dir = frame.to_world(sample_cosine_hemisphere(u)).normalize();
+                    let Some(hit) = accel.intersect(origin, dir, 0.0, f32::INFINITY, 0.0) else { continue };
+                    let ng = hit.geometric_normal.normalize_or_zero();
+                    let side = if ng.dot(dir) > 0.0 { -ng } else { ng };
+                    lookup(&pre.surfels, origin + dir * hit.distance, side, &mut found);
+                    row.extend(found.iter().map(|&(s, w)| (s, w * std::f32::consts::PI / rays as f32)));
+                }
+                row
+            })
+            .collect();
+        let mut e = vec![Vec3::ZERO; radiance.len()];
+        for _ in 0..60 {
+            let b: Vec<Vec3> =
+                albedo.iter().zip(&direct).zip(&e).map(|((a, d), e)| *a * (*d + *e) / std::f32::consts::PI).collect();
+            e = gathers.iter().map(|row| row.iter().fold(Vec3::ZERO, |acc, &(s, w)| acc + b[s as usize] * w)).collect();
+        }
+        let image = crate::image::ImageSettings { width: 128, height: 128, light_samples: 16, seed: 0 };
+        for (name, values) in [("probes", &out.irradiance), ("brute force", &e)] {
+            let img = crate::image::render_image(&scene, &accel, &pre, values, &image).unwrap();
+            let mean = img.indirect.iter().fold(Vec3::ZERO, |a, v| a + *v) / img.indirect.len() as f32;
+            println!("{name}: mean indirect at 128x128 {mean}");
+        }
+    }
 }
