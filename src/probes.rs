@@ -565,9 +565,12 @@ pub struct FrameOptions {
     /// (extent / 2)², which gives an irradiance of 1 at half the scene's largest extent.
     #[arg(long, value_delimiter = ',', num_args = 1, value_name = "V|R,G,B", allow_negative_numbers = true)]
     light_intensity: Option<Vec<f32>>,
-    /// Light samples per sender and per pixel for the direct light.
+    /// Light samples per sender and per primary ray for the direct light.
     #[arg(long, default_value_t = 16)]
     light_samples: u32,
+    /// Primary rays per pixel (1: through the centre; more: stratified, averaged).
+    #[arg(long, default_value_t = 1)]
+    pixel_samples: u32,
     /// Compress the transport with CPCA before relighting.
     #[arg(long)]
     cpca: bool,
@@ -609,6 +612,13 @@ impl FrameOptions {
                 Some(c)
             }
         };
+        if !(1..=probes::image::MAX_PIXEL_SAMPLES).contains(&self.pixel_samples) {
+            anyhow::bail!(
+                "pixel-samples: must be between 1 and {}, got {}",
+                probes::image::MAX_PIXEL_SAMPLES,
+                self.pixel_samples
+            );
+        }
         if self.fp16 && !self.cpca {
             anyhow::bail!("fp16: stores the CPCA-compressed transport; add --cpca");
         }
@@ -1076,11 +1086,12 @@ fn description(
     .collect()
 }
 
-fn image_settings(trace: &TraceArgs, scene: &tracer::Scene, light_samples: u32) -> Result<ImageSettings> {
+fn image_settings(trace: &TraceArgs, scene: &tracer::Scene, frame: &FrameOptions) -> Result<ImageSettings> {
     let image = ImageSettings {
         width: trace.size.width.unwrap_or(scene.width),
         height: trace.size.height.unwrap_or(scene.height),
-        light_samples,
+        light_samples: frame.light_samples,
+        pixel_samples: frame.pixel_samples,
         seed: trace.seed(),
     };
     image.validate()?;
@@ -1106,7 +1117,7 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
     outputs.extend(args.json.iter().map(|p| p.as_path()));
     let settings = check_common(&args.trace, &args.pre, &outputs)?;
     let scene = args.trace.load_scene()?;
-    let image = image_settings(&args.trace, &scene, args.frame.light_samples)?;
+    let image = image_settings(&args.trace, &scene, &args.frame)?;
     let threads = args.trace.run.thread_count()?;
     let pool = tracer::render::thread_pool(threads)?;
     let bar = spinner(args.trace.quiet, "relight");
@@ -1229,7 +1240,7 @@ fn run_animate(args: &AnimateArgs) -> Result<()> {
     outputs.push(&timings);
     let settings = check_common(&args.trace, &args.pre, &outputs)?;
     let scene = args.trace.load_scene()?;
-    let image = image_settings(&args.trace, &scene, args.frame.light_samples)?;
+    let image = image_settings(&args.trace, &scene, &args.frame)?;
     let pool = tracer::render::thread_pool(args.trace.run.thread_count()?)?;
     let bar = spinner(args.trace.quiet, "animate");
     let (pre, from_cache, s) = obtain(&scene, &settings, &args.pre.cache, Stale::Refuse, &pool, &bar)?;

@@ -402,7 +402,8 @@ mod tests {
                 albedo.iter().zip(&direct).zip(&e).map(|((a, d), e)| *a * (*d + *e) / std::f32::consts::PI).collect();
             e = gathers.iter().map(|row| row.iter().fold(Vec3::ZERO, |acc, &(s, w)| acc + b[s as usize] * w)).collect();
         }
-        let image = crate::image::ImageSettings { width: 128, height: 128, light_samples: 16, seed: 0 };
+        let image =
+            crate::image::ImageSettings { width: 128, height: 128, light_samples: 16, pixel_samples: 1, seed: 0 };
         for (name, values) in [("probes", &out.irradiance), ("brute force", &e)] {
             let img = crate::image::render_image(&scene, &accel, &pre, values, &image).unwrap();
             let mean = img.indirect.iter().fold(Vec3::ZERO, |a, v| a + *v) / img.indirect.len() as f32;

@@ -1,7 +1,8 @@
 //! The image from the receivers at the camera's hits (Section 4.2, "the final image"; the
 //! paper reads its light map, we read the surfels through `lookup`).
 //!
-//! One primary ray through each pixel's centre (lens centre, shutter open). At its hit, with the
+//! One primary ray through each pixel's centre, or `pixel_samples` stratified ones averaged
+//! (lens centre, shutter open). At each hit, with the
 //! surface's diffuse albedo ρ = base colour × (1 − metallic) (textured) and the shading normal
 //! facing the camera:
 //! - `indirect = ρ / π · E`, E the receivers' indirect irradiance interpolated at the hit;
@@ -18,6 +19,7 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use tracer::integrator::SurfacePoint;
 use tracer::lights::LightSampler;
+use tracer::sampler::Sampler;
 use tracer::{Accel, Scene};
 
 use crate::direct::{direct_at, MAX_SAMPLES};
@@ -27,14 +29,19 @@ use crate::ProbesError;
 
 /// The largest image side.
 pub const MAX_SIDE: u32 = 16384;
+/// The most primary rays per pixel.
+pub const MAX_PIXEL_SAMPLES: u32 = 1024;
 
 /// How the image is made.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ImageSettings {
     pub width: u32,
     pub height: u32,
-    /// Light samples per pixel for its direct light.
+    /// Light samples per primary ray for its direct light.
     pub light_samples: u32,
+    /// Primary rays per pixel: 1 through the centre, more at stratified (Owen-scrambled
+    /// Sobol') positions inside the pixel, every layer averaged (a box filter, as `lfr render`).
+    pub pixel_samples: u32,
     pub seed: u32,
 }
 
@@ -44,6 +51,12 @@ impl ImageSettings {
             if v == 0 || v > MAX_SIDE {
                 return Err(ProbesError::parameter(field, format!("must be between 1 and {MAX_SIDE}, got {v}")));
             }
+        }
+        if self.pixel_samples == 0 || self.pixel_samples > MAX_PIXEL_SAMPLES {
+            return Err(ProbesError::parameter(
+                "pixel-samples",
+                format!("must be between 1 and {MAX_PIXEL_SAMPLES}, got {}", self.pixel_samples),
+            ));
         }
         if self.light_samples == 0 || self.light_samples > MAX_SAMPLES {
             return Err(ProbesError::parameter(
@@ -71,11 +84,11 @@ pub struct ProbeImage {
     pub unseen: Vec<f32>,
     /// The interpolated number of probes covering the receivers.
     pub probes: Vec<f32>,
-    /// 1 where the lookup found no receiver.
+    /// The share of the pixel's rays whose lookup found no receiver.
     pub hole: Vec<f32>,
-    /// Lookup outcomes over the hits.
+    /// Lookup outcomes over the primary hits.
     pub lookups: LookupStats,
-    /// Pixels whose ray hit nothing.
+    /// Primary rays that hit nothing.
     pub misses: u64,
 }
 
@@ -86,7 +99,10 @@ struct Pixel {
     albedo: Vec3,
     unseen: f32,
     probes: f32,
-    found: Option<Found>,
+    found: Found,
+    miss: bool,
+    /// The share of the pixel's rays whose lookup was a hole (after averaging).
+    hole_share: f32,
 }
 
 /// The image of `scene` lit by the receivers' indirect irradiance `irradiance` (one value per
@@ -118,64 +134,110 @@ pub fn render_image(
         .iter()
         .map(|t| (if t.hits > 0 { t.unseen as f32 / t.hits as f32 } else { 0.0 }, t.probes.len() as f32))
         .collect();
-    let pixels: Vec<Pixel> = (0..w * h)
+    let one = |found: &mut Vec<(u32, f32)>, film: Vec2, pattern: u32| -> Pixel {
+        let (origin, dir) = scene.camera.generate_ray_with_tan(tan, film, Vec2::ZERO, w, h);
+        let Some(hit) = accel.intersect(origin, dir, 0.0, f32::INFINITY, 0.0) else {
+            return Pixel {
+                direct: scene.environment,
+                indirect: Vec3::ZERO,
+                irradiance: Vec3::ZERO,
+                albedo: Vec3::ZERO,
+                unseen: 0.0,
+                probes: 0.0,
+                found: Found::Hole,
+                miss: true,
+                hole_share: 0.0,
+            };
+        };
+        let surface = SurfacePoint::new(scene, &hit, -dir, 0.0, 0.0);
+        let albedo = surface.bsdf.base_color * (1.0 - surface.bsdf.metallic);
+        let normal = surface.shading_normal;
+        let how = lookup(&pre.surfels, surface.position, normal, found);
+        let (mut e, mut unseen, mut probes) = (Vec3::ZERO, 0.0f32, 0.0f32);
+        for &(s, wt) in found.iter() {
+            e += irradiance[s as usize] * wt;
+            let (u, p) = per_receiver[s as usize];
+            unseen += u * wt;
+            probes += p * wt;
+        }
+        let e_direct = direct_at(
+            scene,
+            accel,
+            &lights,
+            surface.position,
+            normal,
+            pattern,
+            settings.light_samples,
+            settings.seed,
+            scale,
+        );
+        let emission = surface.emission(scene, &hit, -dir);
+        Pixel {
+            direct: emission + albedo * e_direct / std::f32::consts::PI,
+            indirect: albedo * e / std::f32::consts::PI,
+            irradiance: e,
+            albedo,
+            unseen,
+            probes,
+            found: how,
+            miss: false,
+            hole_share: 0.0,
+        }
+    };
+    let spp = settings.pixel_samples;
+    let samples: Vec<Vec<Pixel>> = (0..w * h)
         .into_par_iter()
         .map_init(Vec::new, |found, index| {
-            let film = Vec2::new((index % w) as f32 + 0.5, (index / w) as f32 + 0.5);
-            let (origin, dir) = scene.camera.generate_ray_with_tan(tan, film, Vec2::ZERO, w, h);
-            let Some(hit) = accel.intersect(origin, dir, 0.0, f32::INFINITY, 0.0) else {
-                return Pixel {
-                    direct: scene.environment,
-                    indirect: Vec3::ZERO,
-                    irradiance: Vec3::ZERO,
-                    albedo: Vec3::ZERO,
-                    unseen: 0.0,
-                    probes: 0.0,
-                    found: None,
-                };
-            };
-            let surface = SurfacePoint::new(scene, &hit, -dir, 0.0, 0.0);
-            let albedo = surface.bsdf.base_color * (1.0 - surface.bsdf.metallic);
-            let normal = surface.shading_normal;
-            let how = lookup(&pre.surfels, surface.position, normal, found);
-            let (mut e, mut unseen, mut probes) = (Vec3::ZERO, 0.0f32, 0.0f32);
-            for &(s, wt) in found.iter() {
-                e += irradiance[s as usize] * wt;
-                let (u, p) = per_receiver[s as usize];
-                unseen += u * wt;
-                probes += p * wt;
+            let corner = Vec2::new((index % w) as f32, (index / w) as f32);
+            if spp == 1 {
+                return vec![one(found, corner + Vec2::splat(0.5), index)];
             }
-            let e_direct = direct_at(
-                scene,
-                accel,
-                &lights,
-                surface.position,
-                normal,
-                index,
-                settings.light_samples,
-                settings.seed,
-                scale,
-            );
-            let emission = surface.emission(scene, &hit, -dir);
-            Pixel {
-                direct: emission + albedo * e_direct / std::f32::consts::PI,
-                indirect: albedo * e / std::f32::consts::PI,
-                irradiance: e,
-                albedo,
-                unseen,
-                probes,
-                found: Some(how),
-            }
+            (0..spp)
+                .map(|k| {
+                    let u = Sampler::new(settings.seed, index, 0x3fff_ffff, k).next_2d();
+                    one(found, corner + Vec2::from_array(u), index.wrapping_mul(spp).wrapping_add(k))
+                })
+                .collect()
         })
         .collect();
     let mut lookups = LookupStats::default();
     let mut misses = 0;
-    for p in &pixels {
-        match p.found {
-            Some(f) => lookups.add(f),
-            None => misses += 1,
+    for p in samples.iter().flatten() {
+        if p.miss {
+            misses += 1;
+        } else {
+            lookups.add(p.found);
         }
     }
+    let inv = 1.0 / spp as f32;
+    let pixels: Vec<Pixel> = samples
+        .iter()
+        .map(|list| {
+            let mut sum = Pixel {
+                direct: Vec3::ZERO,
+                indirect: Vec3::ZERO,
+                irradiance: Vec3::ZERO,
+                albedo: Vec3::ZERO,
+                unseen: 0.0,
+                probes: 0.0,
+                found: Found::Weighted,
+                miss: false,
+                hole_share: 0.0,
+            };
+            let mut holes = 0.0;
+            for p in list {
+                sum.direct += p.direct * inv;
+                sum.indirect += p.indirect * inv;
+                sum.irradiance += p.irradiance * inv;
+                sum.albedo += p.albedo * inv;
+                sum.unseen += p.unseen * inv;
+                sum.probes += p.probes * inv;
+                holes += f32::from(u8::from(!p.miss && p.found == Found::Hole)) * inv;
+            }
+            sum.hole_share = holes;
+            sum
+        })
+        .collect();
     Ok(ProbeImage {
         width: w,
         height: h,
@@ -186,7 +248,7 @@ pub fn render_image(
         albedo: pixels.iter().map(|p| p.albedo).collect(),
         unseen: pixels.iter().map(|p| p.unseen).collect(),
         probes: pixels.iter().map(|p| p.probes).collect(),
-        hole: pixels.iter().map(|p| f32::from(u8::from(p.found == Some(Found::Hole)))).collect(),
+        hole: pixels.iter().map(|p| p.hole_share).collect(),
         lookups,
         misses,
     })
@@ -213,7 +275,7 @@ mod tests {
     }
 
     fn image_settings() -> ImageSettings {
-        ImageSettings { width: 24, height: 16, light_samples: 4, seed: 0 }
+        ImageSettings { width: 24, height: 16, light_samples: 4, pixel_samples: 1, seed: 0 }
     }
 
     #[test]
@@ -241,6 +303,14 @@ mod tests {
             assert!((*irr - e).abs().max_element() < 1e-5, "pixel {i}: {irr}");
             assert_eq!(image.beauty[i], image.direct[i] + *ind);
         }
+        // Four stratified rays per pixel: the same constant.
+        let four = ImageSettings { pixel_samples: 4, ..image_settings() };
+        let image4 = render_image(&scene, &accel, &pre, &irradiance, &four).unwrap();
+        assert_eq!(image4.lookups.total(), 4 * 24 * 16);
+        assert!(image4.indirect.iter().all(|v| (*v - expected).abs().max_element() < 1e-5));
+        let bad = ImageSettings { pixel_samples: 0, ..image_settings() };
+        let err = render_image(&scene, &accel, &pre, &irradiance, &bad).unwrap_err();
+        assert!(err.to_string().starts_with("pixel-samples:"), "{err}");
         // No lights: no direct light; all layers finite.
         assert!(image.direct.iter().all(|d| *d == Vec3::ZERO));
         assert!(image.probes.iter().all(|p| p.is_finite() && *p >= 0.0));
