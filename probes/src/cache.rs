@@ -39,8 +39,9 @@ use crate::ProbesError;
 
 /// The first bytes of every cache file.
 pub const MAGIC: &[u8; 8] = b"LFRPROBE";
-/// The format version this build writes and reads.
-pub const VERSION: u32 = 1;
+/// The format version this build writes and reads; raised whenever the precompute's results
+/// change (2: receivers next to a concave edge are no longer hidden).
+pub const VERSION: u32 = 2;
 /// Bytes before the payload.
 pub const HEADER_BYTES: usize = 8 + 4 + 32 + 32 + 8 + 32;
 

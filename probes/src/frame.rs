@@ -409,5 +409,38 @@ mod tests {
             let mean = img.indirect.iter().fold(Vec3::ZERO, |a, v| a + *v) / img.indirect.len() as f32;
             println!("{name}: mean indirect at 128x128 {mean}");
         }
+        // One bounce: the gather of the senders' direct-only radiance through the lookup
+        // against the same gather with the direct light evaluated exactly at each hit.
+        let lights = tracer::lights::LightSampler::new(&scene);
+        let direct_only: Vec<Vec3> = albedo.iter().zip(&direct).map(|(a, d)| *a * *d / std::f32::consts::PI).collect();
+        let (mut via_lookup, mut exact) = (glam::DVec3::ZERO, glam::DVec3::ZERO);
+        for (i, (s, t)) in pre.surfels.surfels.iter().zip(&pre.transports).enumerate().step_by(23) {
+            if t.probes.is_empty() {
+                continue;
+            }
+            let frame = Frame::new(s.normal);
+            let origin = s.position + s.normal * offset(s.position, scale);
+            for k in 0..256 {
+                let u = Sampler::new(11, i as u32, 13, k).next_2d();
+                let dir = frame.to_world(sample_cosine_hemisphere(u)).normalize();
+                let Some(hit) = accel.intersect(origin, dir, 0.0, f32::INFINITY, 0.0) else { continue };
+                let ng = hit.geometric_normal.normalize_or_zero();
+                let side = if ng.dot(dir) > 0.0 { -ng } else { ng };
+                let y = origin + dir * hit.distance;
+                lookup(&pre.surfels, y, side, &mut found);
+                for &(s, w) in &found {
+                    via_lookup += (direct_only[s as usize] * w).as_dvec3();
+                }
+                let m = &scene.materials[scene.meshes[hit.mesh as usize].material as usize];
+                let rho = m.base_color * (1.0 - m.metallic);
+                let e = crate::direct::direct_at(&scene, &accel, &lights, y, side, k + 7919 * i as u32, 64, 0, scale);
+                exact += (rho * e / std::f32::consts::PI).as_dvec3();
+            }
+        }
+        println!("one bounce, senders through the lookup / direct light exact at each hit: {}", via_lookup / exact);
+        let one = indirect(&pre.transports, &pre.table, &albedo, &direct, 1, 0.0).unwrap();
+        let img = crate::image::render_image(&scene, &accel, &pre, &one.irradiance, &image).unwrap();
+        let mean = img.indirect.iter().fold(Vec3::ZERO, |a, v| a + *v) / img.indirect.len() as f32;
+        println!("probes, one bounce: mean indirect at 128x128 {mean}");
     }
 }
