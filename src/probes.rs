@@ -898,20 +898,63 @@ struct CpcaReport {
     fp16: bool,
     bytes: usize,
     bytes_per_receiver: f64,
+    /// Seconds to compress, or to read from the cache.
     compress_s: f64,
+    from_cache: bool,
+    cache: String,
 }
 
+/// The compressed transport's cache beside the precompute's: `CACHE.cpca`.
+fn cpca_path(cache: &Path) -> PathBuf {
+    let mut name = cache.as_os_str().to_os_string();
+    name.push(".cpca");
+    PathBuf::from(name)
+}
+
+/// The dense transports, or with `settings` their CPCA compression, read from
+/// [`cpca_path`] when it holds this one (keyed by the precompute's key and the CPCA
+/// settings), else compressed and written there.
 fn operator<'a>(
     pre: &'a Precompute,
     settings: Option<CpcaSettings>,
     pool: &rayon::ThreadPool,
+    cache: &Path,
+    key: &CacheKey,
 ) -> Result<(Operator<'a>, Option<CpcaReport>)> {
     let Some(settings) = settings else {
         return Ok((Operator::Dense(&pre.transports), None));
     };
     let t = Instant::now();
-    let positions: Vec<glam::Vec3> = pre.surfels.surfels.iter().map(|s| s.position).collect();
-    let cpca = pool.install(|| Cpca::build(&pre.transports, &positions, pre.coefficients(), &settings))?;
+    let path = cpca_path(cache);
+    let ckey = probes::cache::cpca_key(key, &settings);
+    // A compressed transport of other settings, geometry or version is replaced (one file per
+    // precompute cache); a damaged one or another file is an error naming it.
+    let cached = match std::fs::symlink_metadata(&path) {
+        Err(_) => None,
+        Ok(_) => match probes::cache::read_cpca(&path, &ckey, &settings, pre) {
+            Ok(cpca) => Some(cpca),
+            Err(ProbesError::Cache { problem, .. })
+                if matches!(
+                    problem,
+                    CacheProblem::OtherSettings | CacheProblem::OtherGeometry | CacheProblem::Version
+                ) =>
+            {
+                eprintln!("note: {} holds another compression ({problem:?}); replacing it", path.display());
+                None
+            }
+            Err(e) => return Err(e.into()),
+        },
+    };
+    let from_cache = cached.is_some();
+    let cpca = match cached {
+        Some(cpca) => cpca,
+        None => {
+            let positions: Vec<glam::Vec3> = pre.surfels.surfels.iter().map(|s| s.position).collect();
+            let cpca = pool.install(|| Cpca::build(&pre.transports, &positions, pre.coefficients(), &settings))?;
+            probes::cache::write_cpca(&path, &ckey, &cpca)?;
+            cpca
+        }
+    };
     let report = CpcaReport {
         clusters: cpca.clusters.len(),
         mean_coefficients: cpca.mean_rank(),
@@ -921,6 +964,8 @@ fn operator<'a>(
         bytes: cpca.bytes(),
         bytes_per_receiver: cpca.bytes() as f64 / pre.surfels.surfels.len().max(1) as f64,
         compress_s: t.elapsed().as_secs_f64(),
+        from_cache,
+        cache: path.display().to_string(),
     };
     Ok((Operator::Cpca(cpca), Some(report)))
 }
@@ -1115,6 +1160,10 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
     let preview = args.out.with_extension("png");
     let mut outputs: Vec<&Path> = vec![&args.out, &preview];
     outputs.extend(args.json.iter().map(|p| p.as_path()));
+    let cpca_cache = cpca_path(&args.pre.cache);
+    if cpca_settings.is_some() {
+        outputs.push(&cpca_cache);
+    }
     let settings = check_common(&args.trace, &args.pre, &outputs)?;
     let scene = args.trace.load_scene()?;
     let image = image_settings(&args.trace, &scene, &args.frame)?;
@@ -1126,7 +1175,8 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
     let lit = lit_scene(&scene, args.frame.no_scene_lights, light);
     let accel = tracer::Accel::build(&lit)?;
     bar.set_message("compressing the transport (CPCA)");
-    let (op, cpca) = operator(&pre, cpca_settings, &pool)?;
+    let key = CacheKey::of(&scene, &settings);
+    let (op, cpca) = operator(&pre, cpca_settings, &pool, &args.pre.cache, &key)?;
     bar.set_message("relighting");
     let max_bounces = args.trace.size.max_bounces.unwrap_or(scene.max_bounces).max(1) as usize;
     let (bounces, tolerance) = if args.bounces == 0 { (max_bounces, 1e-3) } else { (args.bounces as usize, 0.0) };
@@ -1155,13 +1205,14 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
     print_precompute(&report.precompute);
     if let Some(c) = &report.cpca {
         println!(
-            "cpca        {} clusters, {:.1} coefficients per receiver on average, largest cluster error {:.2e} (tolerance {}), {} B per receiver{} in {:.2} s",
+            "cpca        {} clusters, {:.1} coefficients per receiver on average, largest cluster error {:.2e} (tolerance {}), {} B per receiver{} {} {:.2} s",
             c.clusters,
             c.mean_coefficients,
             c.max_cluster_error,
             c.tolerance,
             c.bytes_per_receiver.round(),
             if c.fp16 { " (fp16)" } else { "" },
+            if c.from_cache { "read from the cache in" } else { "compressed in" },
             c.compress_s
         );
     }
@@ -1238,13 +1289,18 @@ fn run_animate(args: &AnimateArgs) -> Result<()> {
     let timings = args.out_dir.join("timings.json");
     let mut outputs: Vec<&Path> = names.iter().flat_map(|(e, p)| [e.as_path(), p.as_path()]).collect();
     outputs.push(&timings);
+    let cpca_cache = cpca_path(&args.pre.cache);
+    if cpca_settings.is_some() {
+        outputs.push(&cpca_cache);
+    }
     let settings = check_common(&args.trace, &args.pre, &outputs)?;
     let scene = args.trace.load_scene()?;
     let image = image_settings(&args.trace, &scene, &args.frame)?;
     let pool = tracer::render::thread_pool(args.trace.run.thread_count()?)?;
     let bar = spinner(args.trace.quiet, "animate");
     let (pre, from_cache, s) = obtain(&scene, &settings, &args.pre.cache, Stale::Refuse, &pool, &bar)?;
-    let (op, cpca) = operator(&pre, cpca_settings, &pool)?;
+    let key = CacheKey::of(&scene, &settings);
+    let (op, cpca) = operator(&pre, cpca_settings, &pool, &args.pre.cache, &key)?;
     let intensity = intensity.unwrap_or(glam::Vec3::splat((0.5 * pre.scale as f32).powi(2)));
     let accel = tracer::Accel::build(&scene)?;
     let mut previous: Option<Vec<glam::Vec3>> = None;

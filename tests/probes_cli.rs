@@ -173,7 +173,25 @@ fn relight_builds_the_cache_once_and_reuses_it_whatever_the_lights() {
     let cpca = &r["cpca"];
     assert!(cpca["max_cluster_error"].as_f64().unwrap() <= 0.005, "{cpca}");
     assert!(cpca["mean_coefficients"].as_f64().unwrap() <= 16.0);
+    assert_eq!(cpca["from_cache"], false);
+    assert!(Path::new(&format!("{}.cpca", cache.display())).is_file());
     let compressed = channels(&b);
+    // Again: the compressed transport from its cache, the same image.
+    let out = relight(&cache, &b, &j, &["--cpca", "--cpca-coefficients", "16"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(json(&j)["cpca"]["from_cache"], true);
+    assert_eq!(channels(&b), compressed);
+    // Other CPCA settings replace it; a damaged one is an error naming it.
+    let out = relight(&cache, &b, &j, &["--cpca", "--cpca-coefficients", "12"]);
+    assert!(out.status.success() && stderr(&out).contains("replacing it"), "{}", stderr(&out));
+    let cpca_file = format!("{}.cpca", cache.display());
+    let mut damaged = std::fs::read(&cpca_file).unwrap();
+    let at = damaged.len() / 2;
+    damaged[at] ^= 8;
+    std::fs::write(&cpca_file, &damaged).unwrap();
+    let out = relight(&cache, &b, &j, &["--cpca", "--cpca-coefficients", "12"]);
+    let message = stderr(&out);
+    assert!(!out.status.success() && message.contains(&cpca_file) && message.contains("checksum"), "{message}");
     for ch in ["indirect.R", "indirect.G", "indirect.B"] {
         let diff: f32 = compressed[ch].iter().zip(&c[ch]).map(|(x, y)| (x - y).abs()).sum();
         let total: f32 = c[ch].iter().sum();

@@ -28,6 +28,7 @@ use sha2::{Digest, Sha256};
 use tracer::scene::PunctualLight;
 use tracer::Scene;
 
+use crate::cpca::{Cluster, Cpca, CpcaSettings, Precision, Values};
 use crate::error::CacheProblem;
 use crate::geometry::seed_points;
 use crate::placement::CandidateRule;
@@ -216,15 +217,7 @@ pub fn encode(key: &CacheKey, pre: &Precompute) -> Vec<u8> {
     put_u64(&mut w, table.back_face_fraction.len() as u64);
     table.back_face_fraction.iter().for_each(|&v| put_f32(&mut w, v));
 
-    let mut out = Vec::with_capacity(HEADER_BYTES + w.len());
-    out.extend_from_slice(MAGIC);
-    out.extend_from_slice(&VERSION.to_le_bytes());
-    out.extend_from_slice(&key.geometry);
-    out.extend_from_slice(&key.settings);
-    out.extend_from_slice(&(w.len() as u64).to_le_bytes());
-    out.extend_from_slice(&Sha256::digest(&w));
-    out.extend_from_slice(&w);
-    out
+    frame(MAGIC, key, &w)
 }
 
 /// Writes `pre` to `path` under `key`, atomically.
@@ -248,8 +241,28 @@ pub fn decode(
     key: &CacheKey,
     settings: &PrecomputeSettings,
 ) -> Result<Precompute, ProbesError> {
-    if bytes.len() < MAGIC.len() || &bytes[..MAGIC.len()] != MAGIC {
-        return Err(cache_error(path, CacheProblem::NotACache, "not a probes cache (no LFRPROBE magic bytes)"));
+    let payload = unframe(path, bytes, MAGIC, key)?;
+    parse(payload, settings).map_err(|why| cache_error(path, CacheProblem::Corrupt, format!("corrupt: {why}")))
+}
+
+/// Header and `payload` under `magic` and `key`.
+fn frame(magic: &[u8; 8], key: &CacheKey, payload: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(HEADER_BYTES + payload.len());
+    out.extend_from_slice(magic);
+    out.extend_from_slice(&VERSION.to_le_bytes());
+    out.extend_from_slice(&key.geometry);
+    out.extend_from_slice(&key.settings);
+    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    out.extend_from_slice(&Sha256::digest(payload));
+    out.extend_from_slice(payload);
+    out
+}
+
+/// The payload of `bytes` after checking magic, version, length, checksum and key.
+fn unframe<'a>(path: &Path, bytes: &'a [u8], magic: &[u8; 8], key: &CacheKey) -> Result<&'a [u8], ProbesError> {
+    let name = String::from_utf8_lossy(magic);
+    if bytes.len() < magic.len() || &bytes[..magic.len()] != magic {
+        return Err(cache_error(path, CacheProblem::NotACache, format!("not a probes cache (no {name} magic bytes)")));
     }
     if bytes.len() < HEADER_BYTES {
         return Err(cache_error(
@@ -297,10 +310,11 @@ pub fn decode(
             path,
             CacheProblem::OtherSettings,
             "built with other settings (receivers, probes, overlap, candidates, order, directions, relight rays, \
-             seed, or the camera and point-light positions that seed the flood fill); run `lfr probes precompute` again",
+             seed, CPCA settings, or the camera and point-light positions that seed the flood fill); run \
+             `lfr probes precompute` again",
         ));
     }
-    parse(payload, settings).map_err(|why| cache_error(path, CacheProblem::Corrupt, format!("corrupt: {why}")))
+    Ok(payload)
 }
 
 fn parse(payload: &[u8], settings: &PrecomputeSettings) -> Result<Precompute, String> {
@@ -465,6 +479,125 @@ fn parse(payload: &[u8], settings: &PrecomputeSettings) -> Result<Precompute, St
     })
 }
 
+/// The first bytes of a compressed-transport (CPCA) cache file.
+pub const CPCA_MAGIC: &[u8; 8] = b"LFRPCPCA";
+
+/// The key of the compressed transport of the precompute under `key` with `settings`.
+pub fn cpca_key(key: &CacheKey, settings: &CpcaSettings) -> CacheKey {
+    let mut s = Sha256::new();
+    s.update(b"cpca");
+    s.update(key.settings);
+    s.update((settings.cluster_limit as u64).to_le_bytes());
+    s.update(settings.tolerance.to_le_bytes());
+    s.update((settings.max_coefficients as u64).to_le_bytes());
+    s.update([u8::from(settings.precision == Precision::F16)]);
+    CacheKey { geometry: key.geometry, settings: s.finalize().into() }
+}
+
+fn put_values(w: &mut Vec<u8>, v: &Values) {
+    put_u64(w, v.len() as u64);
+    match v {
+        Values::F32(list) => list.iter().for_each(|&x| put_f32(w, x)),
+        Values::F16(list) => list.iter().for_each(|x| w.extend_from_slice(&x.to_le_bytes())),
+    }
+}
+
+/// The bytes of a CPCA cache file for `cpca` under `key` (from [`cpca_key`]).
+pub fn encode_cpca(key: &CacheKey, cpca: &Cpca) -> Vec<u8> {
+    let mut w = Vec::new();
+    put_u64(&mut w, cpca.receivers as u64);
+    put_u64(&mut w, cpca.coefficients as u64);
+    put_u64(&mut w, cpca.clusters.len() as u64);
+    for c in &cpca.clusters {
+        put_u64(&mut w, c.receivers.len() as u64);
+        c.receivers.iter().for_each(|&r| put_u32(&mut w, r));
+        put_u64(&mut w, c.probes.len() as u64);
+        c.probes.iter().for_each(|&p| put_u32(&mut w, p));
+        put_u64(&mut w, c.rank as u64);
+        put_f64(&mut w, c.error);
+        put_values(&mut w, &c.u);
+        put_values(&mut w, &c.w);
+    }
+    frame(CPCA_MAGIC, key, &w)
+}
+
+/// Writes `cpca` to `path` under `key`, atomically.
+pub fn write_cpca(path: &Path, key: &CacheKey, cpca: &Cpca) -> Result<(), ProbesError> {
+    let bytes = encode_cpca(key, cpca);
+    tracer::output::write_atomically(path, |tmp| std::fs::write(tmp, &bytes).map_err(|e| e.to_string()))
+        .map_err(|e| cache_error(path, CacheProblem::Io, format!("cannot write: {e}")))
+}
+
+/// Reads the compressed transport of `pre` with `settings` from `path`; `key` from
+/// [`cpca_key`]. Every index and size is checked against `pre`.
+pub fn read_cpca(path: &Path, key: &CacheKey, settings: &CpcaSettings, pre: &Precompute) -> Result<Cpca, ProbesError> {
+    let bytes = std::fs::read(path).map_err(|e| cache_error(path, CacheProblem::Io, format!("cannot read: {e}")))?;
+    let payload = unframe(path, &bytes, CPCA_MAGIC, key)?;
+    parse_cpca(payload, settings, pre)
+        .map_err(|why| cache_error(path, CacheProblem::Corrupt, format!("corrupt: {why}")))
+}
+
+fn parse_cpca(payload: &[u8], settings: &CpcaSettings, pre: &Precompute) -> Result<Cpca, String> {
+    let mut r = Reader { bytes: payload, pos: 0 };
+    let receivers = r.u64()? as usize;
+    let coefficients = r.u64()? as usize;
+    if receivers != pre.surfels.surfels.len() || coefficients != pre.coefficients() {
+        return Err(format!("{receivers} receivers of {coefficients} coefficients for this precompute"));
+    }
+    let size = match settings.precision {
+        Precision::F32 => 4,
+        Precision::F16 => 2,
+    };
+    let count = r.count(32, "clusters")?;
+    let mut clusters = Vec::with_capacity(count);
+    let mut seen = vec![false; receivers];
+    for i in 0..count {
+        let n = r.count(4, "cluster receivers")?;
+        let mut list = Vec::with_capacity(n);
+        for _ in 0..n {
+            let x = r.u32()? as usize;
+            if x >= receivers || seen[x] {
+                return Err(format!("cluster {i}: receiver {x} out of range or in two clusters"));
+            }
+            seen[x] = true;
+            list.push(x as u32);
+        }
+        let np = r.count(4, "cluster probes")?;
+        let mut probes = Vec::with_capacity(np);
+        for _ in 0..np {
+            let p = r.u32()?;
+            if p as usize >= pre.probes.len() {
+                return Err(format!("cluster {i}: probe {p} of {}", pre.probes.len()));
+            }
+            probes.push(p);
+        }
+        let rank = r.u64()? as usize;
+        let error = r.f64()?;
+        if rank > settings.max_coefficients || !(error.is_finite() && error >= 0.0) {
+            return Err(format!("cluster {i}: rank {rank}, error {error}"));
+        }
+        let mut values = |expected: usize, what: &str| -> Result<Values, String> {
+            let len = r.count(size, what)?;
+            if len != expected {
+                return Err(format!("cluster {i}: {len} {what} values, expected {expected}"));
+            }
+            Ok(match settings.precision {
+                Precision::F32 => Values::F32((0..len).map(|_| r.f32()).collect::<Result<_, _>>()?),
+                Precision::F16 => Values::F16(
+                    (0..len).map(|_| r.take::<2>().map(half::f16::from_le_bytes)).collect::<Result<_, _>>()?,
+                ),
+            })
+        };
+        let u = values(n * rank, "U")?;
+        let w = values(rank * np * coefficients, "W")?;
+        clusters.push(Cluster { receivers: list, probes, rank, u, w, error });
+    }
+    if r.pos != payload.len() {
+        return Err(format!("{} bytes left over", payload.len() - r.pos));
+    }
+    Ok(Cpca { clusters, receivers, coefficients, settings: *settings })
+}
+
 fn put_u32(w: &mut Vec<u8>, v: u32) {
     w.extend_from_slice(&v.to_le_bytes());
 }
@@ -531,6 +664,7 @@ impl Reader<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cpca::{Cpca, CpcaSettings, Precision};
     use crate::frame::{indirect, surfel_albedo};
     use crate::placement::PlacementSettings;
     use crate::surfels::SurfelSettings;
@@ -664,5 +798,35 @@ mod tests {
         let missing = dir.path().join("missing.probes");
         let message = read(&missing, &key, &settings).err().unwrap().to_string();
         assert!(message.contains("missing.probes") && message.contains("cannot read"), "{message}");
+    }
+
+    #[test]
+    fn a_compressed_transport_reads_back_equal_and_a_damaged_or_other_one_is_refused() {
+        let (scene, settings, pre) = small();
+        let key = CacheKey::of(&scene, &settings);
+        let dir = tempfile::tempdir().unwrap();
+        let positions: Vec<Vec3> = pre.surfels.surfels.iter().map(|s| s.position).collect();
+        for precision in [Precision::F32, Precision::F16] {
+            let cs = CpcaSettings { cluster_limit: 64, max_coefficients: 6, precision, ..Default::default() };
+            let cpca = Cpca::build(&pre.transports, &positions, pre.coefficients(), &cs).unwrap();
+            assert!(cpca.clusters.len() > 1);
+            let ckey = cpca_key(&key, &cs);
+            let path = dir.path().join("c.cpca");
+            write_cpca(&path, &ckey, &cpca).unwrap();
+            assert_eq!(read_cpca(&path, &ckey, &cs, &pre).unwrap(), cpca);
+            // Other CPCA settings, a flipped bit, a precompute cache in its place: refused, named.
+            let other = CpcaSettings { tolerance: 0.01, ..cs };
+            let err = read_cpca(&path, &cpca_key(&key, &other), &other, &pre).unwrap_err().to_string();
+            assert!(err.contains("c.cpca") && err.contains("other settings"), "{err}");
+            let mut bytes = std::fs::read(&path).unwrap();
+            let at = bytes.len() - 3;
+            bytes[at] ^= 4;
+            std::fs::write(&path, &bytes).unwrap();
+            let err = read_cpca(&path, &ckey, &cs, &pre).unwrap_err().to_string();
+            assert!(err.contains("checksum"), "{err}");
+            std::fs::write(&path, encode(&key, &pre)).unwrap();
+            let err = read_cpca(&path, &ckey, &cs, &pre).unwrap_err().to_string();
+            assert!(err.contains("not a probes cache"), "{err}");
+        }
     }
 }
