@@ -28,16 +28,40 @@ pub struct Indirect {
     pub change: f32,
 }
 
-/// The diffuse albedo of every surfel: its material's base colour times (1 − metallic), without
-/// textures for now (Cornell is untextured; textured scenes need the surfel's uv, phase 4 rest).
+/// The diffuse albedo of every surfel: its material's base colour times (1 − metallic), with
+/// the base-colour and metallic-roughness textures read at the surfel's point through the
+/// tracer's own surface model, mip-filtered over a footprint of the surfel's cell size h (the
+/// area it stands for) — the albedo the path tracer sees there, averaged over the surfel.
 pub fn surfel_albedo(scene: &Scene, surfels: &Surfels) -> Vec<Vec3> {
+    let footprint = surfels.h as f32;
     surfels
         .surfels
-        .iter()
+        .par_iter()
         .map(|s| {
             let mesh = &scene.meshes[s.mesh as usize];
             let m = &scene.materials[mesh.material as usize];
-            m.base_color * (1.0 - m.metallic.clamp(0.0, 1.0))
+            if m.base_color_texture.is_none() && m.metallic_roughness_texture.is_none() {
+                return m.base_color * (1.0 - m.metallic.clamp(0.0, 1.0));
+            }
+            let [ia, ib, ic] = mesh.indices[s.triangle as usize];
+            let [a, b, c] = [ia, ib, ic].map(|i| mesh.positions[i as usize].as_dvec3());
+            let (e1, e2, p) = (b - a, c - a, s.position.as_dvec3() - a);
+            let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+            let (p1, p2) = (p.dot(e1), p.dot(e2));
+            let det = d11 * d22 - d12 * d12;
+            let (mut u, mut v) =
+                if det > 0.0 { ((d22 * p1 - d12 * p2) / det, (d11 * p2 - d12 * p1) / det) } else { (0.0, 0.0) };
+            u = u.clamp(0.0, 1.0);
+            v = v.clamp(0.0, 1.0 - u);
+            let hit = tracer::accel::Hit {
+                distance: 0.0,
+                mesh: s.mesh,
+                triangle: s.triangle,
+                barycentric: glam::Vec2::new(u as f32, v as f32),
+                geometric_normal: e1.cross(e2).as_vec3(),
+            };
+            let surface = tracer::integrator::SurfacePoint::new(scene, &hit, s.normal, 0.0, footprint);
+            surface.bsdf.base_color * (1.0 - surface.bsdf.metallic)
         })
         .collect()
 }
@@ -239,6 +263,32 @@ mod tests {
             surfel_albedo(&scene_of(vec![sphere("s", Vec3::ZERO, 1.0, 4, 0)], Vec3::ZERO), &s.surfels).len(),
             s.surfels.surfels.len()
         );
+    }
+
+    #[test]
+    fn albedo_reads_the_base_colour_texture_at_the_surfel() {
+        // A unit quad with uv = xy and a 4 × 1 linear texture: red, red, blue, blue.
+        let mut quad = crate::test_scenes::unit_quad();
+        quad.uvs = Some(quad.positions.iter().map(|p| glam::Vec2::new(p.x, p.y)).collect());
+        let mut scene = scene_of(vec![quad], Vec3::new(0.5, 0.5, 1.0));
+        let texels = [[255u8, 0, 0, 255], [255, 0, 0, 255], [0, 0, 255, 255], [0, 0, 255, 255]].concat();
+        scene.textures.push(tracer::texture::Texture::from_rgba8("t".into(), 4, 1, false, texels));
+        scene.materials[0].base_color = Vec3::splat(0.5);
+        scene.materials[0].metallic = 0.0;
+        scene.materials[0].base_color_texture = Some(tracer::texture::TextureRef::new(0));
+        let surfels = Surfels::build(&scene, &SurfelSettings { budget: 400, ..Default::default() }).unwrap();
+        let albedo = surfel_albedo(&scene, &surfels);
+        let (mut red, mut blue) = (0, 0);
+        for (s, a) in surfels.surfels.iter().zip(&albedo) {
+            if (0.15..0.35).contains(&s.position.x) {
+                red += 1;
+                assert!((*a - Vec3::new(0.5, 0.0, 0.0)).abs().max_element() < 0.05, "{} at {}", a, s.position);
+            } else if (0.65..0.85).contains(&s.position.x) {
+                blue += 1;
+                assert!((*a - Vec3::new(0.0, 0.0, 0.5)).abs().max_element() < 0.05, "{} at {}", a, s.position);
+            }
+        }
+        assert!(red > 10 && blue > 10, "{red} {blue}");
     }
 
     #[test]
