@@ -1148,6 +1148,9 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
         anyhow::bail!("--out {}: the output must be an .exr file", args.out.display());
     }
     let (cpca_settings, intensity) = args.frame.validated()?;
+    if args.bounces > 10_000 {
+        anyhow::bail!("bounces: must be at most 10000 (0: to convergence), got {}", args.bounces);
+    }
     let position = args.light_position.as_deref().map(|v| point_option("light-position", v)).transpose()?;
     if intensity.is_some() && position.is_none() {
         anyhow::bail!("light-intensity: needs --light-position");

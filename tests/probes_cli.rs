@@ -261,6 +261,7 @@ fn relight_and_animate_refuse_bad_parameters_before_any_work() {
         ("relight", vec!["--fp16"], "fp16:"),
         ("relight", vec!["--light-samples", "0"], "light-samples:"),
         ("relight", vec!["--pixel-samples", "0"], "pixel-samples:"),
+        ("relight", vec!["--bounces", "20000"], "bounces:"),
         ("animate", vec!["--frames", "0"], "frames:"),
         ("animate", vec!["--light-to", "1,2"], "light-to:"),
         ("animate", vec!["--bounces-per-frame", "0"], "bounces-per-frame:"),
