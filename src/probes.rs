@@ -1,20 +1,31 @@
 //! `lfr probes`: sparse radiance probes (Silvennoinen & Lehtinen 2017, crate `probes`,
 //! docs/probes-design.md). `lfr probes stats` builds the receivers and places the probes, and
-//! prints the placement, the coverage it gives and the memory the precompute will need.
+//! prints the placement, the coverage it gives and the memory the precompute will need;
+//! `precompute` writes the cache; `relight` renders one relit frame from it (building it first
+//! when there is none), optionally with a light moved; `animate` moves a point light along a
+//! line, one bounce per frame with the paper's feedback, and times every frame.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
+use probes::cache::CacheKey;
+use probes::cpca::{Cpca, CpcaSettings, Precision};
 use probes::direct::direct_irradiance;
-use probes::frame::{indirect, surfel_albedo};
+use probes::error::CacheProblem;
+use probes::frame::{indirect, indirect_from, surfel_albedo, Indirect, ReceiverTransport};
+use probes::image::{render_image, ImageSettings, ProbeImage};
 use probes::layout::{Layout, Step};
 use probes::placement::{CandidateRule, PlacementSettings};
+use probes::precompute::{Precompute, PrecomputeSettings, Stage};
 use probes::relight::RelightTable;
 use probes::surfels::SurfelSettings;
 use probes::transport::{TransportContext, TransportSettings};
 use probes::visibility::{survey_unseen, UnseenSurvey};
+use probes::ProbesError;
 use serde::Serialize;
+use tracer::output::{write_exr_with_attributes, write_png, Layer};
 
 use crate::common::{check_outputs, scene_inputs, write_json, TraceArgs};
 
@@ -28,6 +39,15 @@ pub struct ProbesArgs {
 enum ProbesCommand {
     /// Receivers, probe placement, support radius, coverage and memory of a scene.
     Stats(StatsArgs),
+    /// Build the precompute (receivers, probes, transport, relight rays) and write its cache.
+    Precompute(PrecomputeArgs),
+    /// One relit frame from the cache (built and written first when the file does not exist):
+    /// a multi-layer EXR (beauty, direct, indirect, irradiance, albedo, unseen, probes, hole)
+    /// and a PNG preview.
+    Relight(RelightArgs),
+    /// A point light moved along a line over frames (one bounce per frame, fed back), every
+    /// frame from the same cache: EXR and PNG per frame and a timing table.
+    Animate(AnimateArgs),
 }
 
 /// Which empty voxels may hold a probe.
@@ -84,6 +104,9 @@ pub struct StatsArgs {
 pub fn run(args: &ProbesArgs) -> Result<()> {
     match &args.command {
         ProbesCommand::Stats(stats) => run_stats(stats),
+        ProbesCommand::Precompute(a) => run_precompute(a),
+        ProbesCommand::Relight(a) => run_relight(a),
+        ProbesCommand::Animate(a) => run_animate(a),
     }
 }
 
@@ -470,4 +493,880 @@ fn print_report(r: &Report) {
         "time        surfels {:.2} s, placement {:.2} s, radius {:.2} s, coverage {:.2} s, survey {:.2} s",
         r.surfels_s, r.placement_s, r.radius_s, r.coverage_s, r.survey_s
     );
+}
+
+/// The precompute's settings and its cache, shared by `precompute`, `relight` and `animate`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct PrecomputeOptions {
+    /// The precompute cache file (keyed by geometry and these settings, never by lights or
+    /// albedo).
+    #[arg(long)]
+    cache: PathBuf,
+    /// Number of probes.
+    #[arg(long, default_value_t = 64)]
+    probes: usize,
+    /// Receiver budget (surfels; the count comes close to it).
+    #[arg(long, default_value_t = 100_000)]
+    receivers: usize,
+    /// N_overlap: mean number of probes covering a receiver (sets the support radius).
+    #[arg(long, default_value_t = 10.0)]
+    overlap: f64,
+    /// Candidate rule for probe positions.
+    #[arg(long, value_enum, default_value_t = Candidates::Front)]
+    candidates: Candidates,
+    /// SH order of the probes (0 to 7).
+    #[arg(long, default_value_t = 7)]
+    order: usize,
+    /// Directions per receiver of the transport.
+    #[arg(long, default_value_t = 2048)]
+    directions: u32,
+    /// Relight rays per probe.
+    #[arg(long, default_value_t = 8000)]
+    relight_rays: u32,
+}
+
+impl PrecomputeOptions {
+    fn settings(&self, seed: u32) -> PrecomputeSettings {
+        PrecomputeSettings {
+            surfels: SurfelSettings { budget: self.receivers, seed, ..Default::default() },
+            placement: PlacementSettings {
+                probes: self.probes,
+                overlap: self.overlap,
+                rule: match self.candidates {
+                    Candidates::Front => CandidateRule::FrontFacing,
+                    Candidates::Paper => CandidateRule::Paper,
+                },
+            },
+            transport: TransportSettings { order: self.order, directions: self.directions, seed, ..Default::default() },
+            relight_rays: self.relight_rays,
+        }
+    }
+}
+
+#[derive(clap::Args)]
+pub struct PrecomputeArgs {
+    #[command(flatten)]
+    trace: TraceArgs,
+    #[command(flatten)]
+    pre: PrecomputeOptions,
+    /// Also write the report as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+/// How a frame is lit and computed (`relight`, `animate`).
+#[derive(clap::Args, Clone, Debug)]
+pub struct FrameOptions {
+    /// Remove the scene's own lights (point, spot and directional lights, emission, the
+    /// environment) before adding the point light of --light-position (or the animated one).
+    #[arg(long)]
+    no_scene_lights: bool,
+    /// Radiant intensity of the added point light (W/sr), one value or R,G,B; default
+    /// (extent / 2)², which gives an irradiance of 1 at half the scene's largest extent.
+    #[arg(long, value_delimiter = ',', num_args = 1, value_name = "V|R,G,B", allow_negative_numbers = true)]
+    light_intensity: Option<Vec<f32>>,
+    /// Light samples per sender and per primary ray for the direct light.
+    #[arg(long, default_value_t = 16)]
+    light_samples: u32,
+    /// Primary rays per pixel (1: through the centre; more: stratified, averaged).
+    #[arg(long, default_value_t = 1)]
+    pixel_samples: u32,
+    /// Compress the transport with CPCA before relighting.
+    #[arg(long)]
+    cpca: bool,
+    /// CPCA: the largest relative residual energy per cluster.
+    #[arg(long, default_value_t = 0.005)]
+    cpca_tolerance: f64,
+    /// CPCA: the most coefficients per cluster.
+    #[arg(long, default_value_t = 32)]
+    cpca_coefficients: usize,
+    /// CPCA: clusters hold fewer receivers than this.
+    #[arg(long, default_value_t = 1024)]
+    cpca_cluster_limit: usize,
+    /// CPCA: store the compressed transport in fp16.
+    #[arg(long)]
+    fp16: bool,
+}
+
+impl FrameOptions {
+    /// The CPCA settings (when --cpca) and the added light's intensity, checked.
+    fn validated(&self) -> Result<(Option<CpcaSettings>, Option<glam::Vec3>)> {
+        if self.light_samples == 0 || self.light_samples > probes::direct::MAX_SAMPLES {
+            anyhow::bail!(
+                "light-samples: must be between 1 and {}, got {}",
+                probes::direct::MAX_SAMPLES,
+                self.light_samples
+            );
+        }
+        let intensity = match self.light_intensity.as_deref() {
+            None => None,
+            Some(v) => {
+                let c = match v {
+                    [g] => glam::Vec3::splat(*g),
+                    [r, g, b] => glam::Vec3::new(*r, *g, *b),
+                    _ => anyhow::bail!("light-intensity: takes one value or three (R,G,B), got {}", v.len()),
+                };
+                if !c.is_finite() || c.min_element() < 0.0 {
+                    anyhow::bail!("light-intensity: must be finite and non-negative, got {v:?}");
+                }
+                Some(c)
+            }
+        };
+        if !(1..=probes::image::MAX_PIXEL_SAMPLES).contains(&self.pixel_samples) {
+            anyhow::bail!(
+                "pixel-samples: must be between 1 and {}, got {}",
+                probes::image::MAX_PIXEL_SAMPLES,
+                self.pixel_samples
+            );
+        }
+        if self.fp16 && !self.cpca {
+            anyhow::bail!("fp16: stores the CPCA-compressed transport; add --cpca");
+        }
+        let cpca = CpcaSettings {
+            cluster_limit: self.cpca_cluster_limit,
+            tolerance: self.cpca_tolerance,
+            max_coefficients: self.cpca_coefficients,
+            precision: if self.fp16 { Precision::F16 } else { Precision::F32 },
+        };
+        cpca.validate()?;
+        Ok((self.cpca.then_some(cpca), intensity))
+    }
+}
+
+#[derive(clap::Args)]
+pub struct RelightArgs {
+    #[command(flatten)]
+    trace: TraceArgs,
+    #[command(flatten)]
+    pre: PrecomputeOptions,
+    #[command(flatten)]
+    frame: FrameOptions,
+    /// Add a point light at X,Y,Z (with --light-intensity).
+    #[arg(long, value_delimiter = ',', num_args = 1, value_name = "X,Y,Z", allow_negative_numbers = true)]
+    light_position: Option<Vec<f32>>,
+    /// Bounces of indirect light (0: to convergence, at most --max-bounces or the scene's).
+    #[arg(long, default_value_t = 0)]
+    bounces: u32,
+    /// Output EXR; the PNG preview goes beside it.
+    #[arg(long)]
+    out: PathBuf,
+    /// A path-traced EXR of the same scene, size and lights (`lfr render`): the indirect layer
+    /// is compared with it (PSNR, relative MSE, mean ratio).
+    #[arg(long)]
+    reference: Option<PathBuf>,
+    /// Also write the report as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+pub struct AnimateArgs {
+    #[command(flatten)]
+    trace: TraceArgs,
+    #[command(flatten)]
+    pre: PrecomputeOptions,
+    #[command(flatten)]
+    frame: FrameOptions,
+    /// The point light's position in the first frame.
+    #[arg(long, value_delimiter = ',', num_args = 1, value_name = "X,Y,Z", allow_negative_numbers = true)]
+    light_from: Vec<f32>,
+    /// The point light's position in the last frame (straight line between).
+    #[arg(long, value_delimiter = ',', num_args = 1, value_name = "X,Y,Z", allow_negative_numbers = true)]
+    light_to: Vec<f32>,
+    /// Number of frames.
+    #[arg(long, default_value_t = 8)]
+    frames: u32,
+    /// Bounces per frame, each frame starting from the last one's indirect light (the paper's
+    /// feedback).
+    #[arg(long, default_value_t = 1)]
+    bounces_per_frame: u32,
+    /// Folder for frame_NNNN.exr, frame_NNNN.png and timings.json.
+    #[arg(long)]
+    out_dir: PathBuf,
+}
+
+/// A point option: three finite numbers.
+fn point_option(name: &str, values: &[f32]) -> Result<glam::Vec3> {
+    match values {
+        [x, y, z] if [x, y, z].iter().all(|v| v.is_finite()) => Ok(glam::Vec3::new(*x, *y, *z)),
+        _ => anyhow::bail!("{name}: takes a finite point X,Y,Z, got {values:?}"),
+    }
+}
+
+/// The progress bar of the long steps.
+fn spinner(quiet: bool, what: &'static str) -> ProgressBar {
+    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new_spinner() };
+    bar.set_style(
+        ProgressStyle::with_template(&format!("{{spinner}} probes {what}: {{msg}} [{{elapsed_precise}}]"))
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+    );
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    bar
+}
+
+/// Whether `precompute` may replace a cache that cannot be used, or the error stands.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Stale {
+    Replace,
+    Refuse,
+}
+
+/// The precompute of `scene` from `cache` when it holds this scene's, else built (with
+/// progress) and written there; with `Stale::Refuse` a cache that cannot be used is an error.
+/// Returns it, whether it came from the cache, and the seconds it took.
+fn obtain(
+    scene: &tracer::Scene,
+    settings: &PrecomputeSettings,
+    cache: &Path,
+    stale: Stale,
+    pool: &rayon::ThreadPool,
+    bar: &ProgressBar,
+) -> Result<(Precompute, bool, f64)> {
+    let key = CacheKey::of(scene, settings);
+    let t = Instant::now();
+    if std::fs::symlink_metadata(cache).is_ok() {
+        bar.set_message("reading the cache");
+        match probes::cache::read(cache, &key, settings) {
+            Ok(pre) => return Ok((pre, true, t.elapsed().as_secs_f64())),
+            Err(ProbesError::Cache { problem, .. })
+                if stale == Stale::Replace && !matches!(problem, CacheProblem::NotACache | CacheProblem::Io) =>
+            {
+                bar.suspend(|| eprintln!("note: {} cannot be used ({problem:?}); building it again", cache.display()));
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+    let pre = pool
+        .install(|| {
+            Precompute::build(scene, settings, &mut |stage| {
+                bar.set_message(match stage {
+                    Stage::Layout(Step::Surfels) => "receivers (surfels)",
+                    Stage::Layout(Step::Placement) => "voxels, flood fill and probe placement",
+                    Stage::Layout(Step::Radius) => "support radius",
+                    Stage::Layout(Step::Coverage) => "coverage",
+                    Stage::Transport => "transport of every receiver (the long step)",
+                    Stage::Relight => "relight rays",
+                })
+            })
+        })
+        .with_context(|| format!("precompute on {}", scene.source.display()))?;
+    bar.set_message("writing the cache");
+    probes::cache::write(cache, &key, &pre)?;
+    Ok((pre, false, t.elapsed().as_secs_f64()))
+}
+
+#[derive(Serialize)]
+struct PrecomputeReport {
+    scene: String,
+    cache: String,
+    cache_bytes: u64,
+    precompute_from_cache: bool,
+    precompute_s: f64,
+    layout_s: f64,
+    transport_s: f64,
+    relight_rays_s: f64,
+    receivers: usize,
+    hidden_receivers: usize,
+    probes: usize,
+    support_radius: f64,
+    dense_transport_bytes: usize,
+    dense_transport_bytes_per_receiver: f64,
+}
+
+fn precompute_report(
+    scene: &tracer::Scene,
+    cache: &Path,
+    pre: &Precompute,
+    from_cache: bool,
+    s: f64,
+) -> PrecomputeReport {
+    let n = pre.surfels.surfels.len();
+    PrecomputeReport {
+        scene: scene.source.display().to_string(),
+        cache: cache.display().to_string(),
+        cache_bytes: std::fs::metadata(cache).map(|m| m.len()).unwrap_or(0),
+        precompute_from_cache: from_cache,
+        precompute_s: s,
+        layout_s: pre.timings.layout_s,
+        transport_s: pre.timings.transport_s,
+        relight_rays_s: pre.timings.relight_s,
+        receivers: n,
+        hidden_receivers: pre.hidden,
+        probes: pre.probes.len(),
+        support_radius: pre.radius,
+        dense_transport_bytes: pre.dense_transport_bytes(),
+        dense_transport_bytes_per_receiver: pre.dense_transport_bytes() as f64 / n.max(1) as f64,
+    }
+}
+
+fn print_precompute(r: &PrecomputeReport) {
+    if r.precompute_from_cache {
+        println!(
+            "precompute  from the cache {} ({:.1} MB) in {:.2} s",
+            r.cache,
+            r.cache_bytes as f64 / 1e6,
+            r.precompute_s
+        );
+    } else {
+        println!(
+            "precompute  {:.1} s (layout {:.1} s, transport {:.1} s, relight rays {:.1} s); cache {} ({:.1} MB)",
+            r.precompute_s,
+            r.layout_s,
+            r.transport_s,
+            r.relight_rays_s,
+            r.cache,
+            r.cache_bytes as f64 / 1e6
+        );
+    }
+    println!(
+        "            {} receivers ({} hidden), {} probes, radius {:.4e}; dense transport {:.1} MB = {:.0} B per receiver",
+        r.receivers,
+        r.hidden_receivers,
+        r.probes,
+        r.support_radius,
+        r.dense_transport_bytes as f64 / 1e6,
+        r.dense_transport_bytes_per_receiver
+    );
+}
+
+/// Checks the precompute settings and the outputs, all before the scene is read.
+fn check_common(trace: &TraceArgs, pre: &PrecomputeOptions, outputs: &[&Path]) -> Result<PrecomputeSettings> {
+    let settings = pre.settings(trace.seed());
+    settings.validate()?;
+    trace.run.thread_count()?;
+    let mut all: Vec<&Path> = outputs.to_vec();
+    all.push(&pre.cache);
+    check_outputs(&all, &scene_inputs(trace.scene.as_deref()))?;
+    Ok(settings)
+}
+
+fn run_precompute(args: &PrecomputeArgs) -> Result<()> {
+    let outputs: Vec<&Path> = args.json.iter().map(|p| p.as_path()).collect();
+    let settings = check_common(&args.trace, &args.pre, &outputs)?;
+    let scene = args.trace.load_scene()?;
+    let pool = tracer::render::thread_pool(args.trace.run.thread_count()?)?;
+    let bar = spinner(args.trace.quiet, "precompute");
+    let (pre, from_cache, s) = obtain(&scene, &settings, &args.pre.cache, Stale::Replace, &pool, &bar)?;
+    bar.finish_and_clear();
+    let report = precompute_report(&scene, &args.pre.cache, &pre, from_cache, s);
+    print_precompute(&report);
+    if let Some(json) = &args.json {
+        write_json(json, &report)?;
+    }
+    Ok(())
+}
+
+/// `scene` lit for a frame: its own lights unless --no-scene-lights, plus a point light at
+/// `light` when given.
+fn lit_scene(scene: &tracer::Scene, no_scene_lights: bool, light: Option<(glam::Vec3, glam::Vec3)>) -> tracer::Scene {
+    let mut lit = scene.clone();
+    if no_scene_lights {
+        lit.lights.clear();
+        lit.environment = glam::Vec3::ZERO;
+        for m in &mut lit.materials {
+            m.emission = glam::Vec3::ZERO;
+            m.emission_texture = None;
+        }
+    }
+    if let Some((position, intensity)) = light {
+        lit.lights.push(tracer::scene::PunctualLight::Point { position, intensity });
+    }
+    lit
+}
+
+/// The dense transports or their CPCA compression.
+enum Operator<'a> {
+    Dense(&'a Vec<probes::transport::Transport>),
+    Cpca(Cpca),
+}
+
+impl Operator<'_> {
+    fn transport(&self) -> &dyn ReceiverTransport {
+        match self {
+            Operator::Dense(t) => *t,
+            Operator::Cpca(c) => c,
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct CpcaReport {
+    clusters: usize,
+    mean_coefficients: f64,
+    max_cluster_error: f64,
+    tolerance: f64,
+    fp16: bool,
+    bytes: usize,
+    bytes_per_receiver: f64,
+    /// Seconds to compress, or to read from the cache.
+    compress_s: f64,
+    from_cache: bool,
+    cache: String,
+}
+
+/// The compressed transport's cache beside the precompute's: `CACHE.cpca`.
+fn cpca_path(cache: &Path) -> PathBuf {
+    let mut name = cache.as_os_str().to_os_string();
+    name.push(".cpca");
+    PathBuf::from(name)
+}
+
+/// The dense transports, or with `settings` their CPCA compression, read from
+/// [`cpca_path`] when it holds this one (keyed by the precompute's key and the CPCA
+/// settings), else compressed and written there.
+fn operator<'a>(
+    pre: &'a Precompute,
+    settings: Option<CpcaSettings>,
+    pool: &rayon::ThreadPool,
+    cache: &Path,
+    key: &CacheKey,
+) -> Result<(Operator<'a>, Option<CpcaReport>)> {
+    let Some(settings) = settings else {
+        return Ok((Operator::Dense(&pre.transports), None));
+    };
+    let t = Instant::now();
+    let path = cpca_path(cache);
+    let ckey = probes::cache::cpca_key(key, &settings);
+    // A compressed transport of other settings, geometry or version is replaced (one file per
+    // precompute cache); a damaged one or another file is an error naming it.
+    let cached = match std::fs::symlink_metadata(&path) {
+        Err(_) => None,
+        Ok(_) => match probes::cache::read_cpca(&path, &ckey, &settings, pre) {
+            Ok(cpca) => Some(cpca),
+            Err(ProbesError::Cache { problem, .. })
+                if matches!(
+                    problem,
+                    CacheProblem::OtherSettings | CacheProblem::OtherGeometry | CacheProblem::Version
+                ) =>
+            {
+                eprintln!("note: {} holds another compression ({problem:?}); replacing it", path.display());
+                None
+            }
+            Err(e) => return Err(e.into()),
+        },
+    };
+    let from_cache = cached.is_some();
+    let cpca = match cached {
+        Some(cpca) => cpca,
+        None => {
+            let positions: Vec<glam::Vec3> = pre.surfels.surfels.iter().map(|s| s.position).collect();
+            let cpca = pool.install(|| Cpca::build(&pre.transports, &positions, pre.coefficients(), &settings))?;
+            probes::cache::write_cpca(&path, &ckey, &cpca)?;
+            cpca
+        }
+    };
+    let report = CpcaReport {
+        clusters: cpca.clusters.len(),
+        mean_coefficients: cpca.mean_rank(),
+        max_cluster_error: cpca.clusters.iter().map(|c| c.error).fold(0.0, f64::max),
+        tolerance: settings.tolerance,
+        fp16: settings.precision == Precision::F16,
+        bytes: cpca.bytes(),
+        bytes_per_receiver: cpca.bytes() as f64 / pre.surfels.surfels.len().max(1) as f64,
+        compress_s: t.elapsed().as_secs_f64(),
+        from_cache,
+        cache: path.display().to_string(),
+    };
+    Ok((Operator::Cpca(cpca), Some(report)))
+}
+
+#[derive(Serialize)]
+struct FrameTimes {
+    direct_s: f64,
+    bounces_s: f64,
+    iterations: usize,
+    image_s: f64,
+    /// Direct light at the senders and the bounces: the relit frame without the image.
+    frame_s: f64,
+}
+
+#[derive(Serialize)]
+struct RelightReport {
+    precompute: PrecomputeReport,
+    cpca: Option<CpcaReport>,
+    width: u32,
+    height: u32,
+    light_position: Option<[f32; 3]>,
+    light_intensity: Option<[f32; 3]>,
+    times: FrameTimes,
+    clamped_channels: u64,
+    lookup_holes: u64,
+    lookup_nearest: u64,
+    misses: u64,
+    mean_indirect: [f32; 3],
+    reference: Option<ReferenceReport>,
+}
+
+#[derive(Serialize)]
+struct ReferenceReport {
+    path: String,
+    /// PSNR of the indirect layer under the display transform of `lfr compare` (exposure from
+    /// the reference's 99th percentile).
+    indirect_psnr_db: f64,
+    indirect_relative_mse: f64,
+    /// Mean indirect radiance of this image over the reference's, per channel.
+    indirect_mean_ratio: [f64; 3],
+}
+
+/// The `indirect.R,G,B` layer of a path-traced EXR, `width` × `height`.
+fn read_indirect(path: &Path, width: u32, height: u32) -> Result<recon::Image> {
+    let (w, h, channels) = tracer::output::read_exr(path).with_context(|| format!("reading {}", path.display()))?;
+    if (w, h) != (width, height) {
+        anyhow::bail!("reference {}: {w}x{h}, the image is {width}x{height}", path.display());
+    }
+    let find = |name: &str| -> Result<&Vec<f32>> {
+        channels
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v)
+            .ok_or_else(|| anyhow::anyhow!("reference {}: no channel {name}", path.display()))
+    };
+    let (r, g, b) = (find("indirect.R")?, find("indirect.G")?, find("indirect.B")?);
+    Ok(recon::Image { width, height, pixels: (0..r.len()).map(|i| [r[i], g[i], b[i]]).collect() })
+}
+
+fn compare_indirect(path: &Path, img: &ProbeImage) -> Result<ReferenceReport> {
+    let reference = read_indirect(path, img.width, img.height)?;
+    let test = recon::Image {
+        width: img.width,
+        height: img.height,
+        pixels: img.indirect.iter().map(|v| v.to_array()).collect(),
+    };
+    let tone = recon::metrics::ToneMap::auto(&reference);
+    let psnr = recon::metrics::psnr_db(&reference, &test, &tone).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let rel = recon::metrics::relative_mse(&reference, &test).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let mut ratio = [0.0; 3];
+    for (c, r) in ratio.iter_mut().enumerate() {
+        let a: f64 = test.pixels.iter().map(|p| p[c] as f64).sum();
+        let b: f64 = reference.pixels.iter().map(|p| p[c] as f64).sum();
+        *r = if b > 0.0 { a / b } else { f64::NAN };
+    }
+    Ok(ReferenceReport {
+        path: path.display().to_string(),
+        indirect_psnr_db: psnr,
+        indirect_relative_mse: rel,
+        indirect_mean_ratio: ratio,
+    })
+}
+
+/// One relit frame: direct light at the senders, bounces (from `start`), the image.
+#[allow(clippy::too_many_arguments)]
+fn relit_frame(
+    lit: &tracer::Scene,
+    accel: &tracer::Accel,
+    pre: &Precompute,
+    op: &dyn ReceiverTransport,
+    start: Option<&[glam::Vec3]>,
+    bounces: usize,
+    tolerance: f32,
+    image: &ImageSettings,
+    pool: &rayon::ThreadPool,
+) -> Result<(Indirect, ProbeImage, FrameTimes)> {
+    pool.install(|| {
+        let albedo = surfel_albedo(lit, &pre.surfels);
+        let scale = pre.scale as f32;
+        let t = Instant::now();
+        let direct = direct_irradiance(lit, accel, &pre.surfels, image.light_samples, image.seed, scale)?;
+        let direct_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let out = indirect_from(op, &pre.table, &albedo, &direct, start, bounces, tolerance)?;
+        let bounces_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let img = render_image(lit, accel, pre, &out.irradiance, image)?;
+        let image_s = t.elapsed().as_secs_f64();
+        let times =
+            FrameTimes { direct_s, bounces_s, iterations: out.iterations, image_s, frame_s: direct_s + bounces_s };
+        Ok((out, img, times))
+    })
+}
+
+/// Writes the image's layers and its PNG preview.
+fn write_image(path: &Path, img: &ProbeImage, description: String) -> Result<PathBuf> {
+    let rgb = |v: &[glam::Vec3]| -> Vec<(&'static str, Vec<f32>)> {
+        vec![
+            ("R", v.iter().map(|p| p.x).collect()),
+            ("G", v.iter().map(|p| p.y).collect()),
+            ("B", v.iter().map(|p| p.z).collect()),
+        ]
+    };
+    let layers = vec![
+        Layer { name: "", channels: rgb(&img.beauty) },
+        Layer { name: "direct", channels: rgb(&img.direct) },
+        Layer { name: "indirect", channels: rgb(&img.indirect) },
+        Layer { name: "irradiance", channels: rgb(&img.irradiance) },
+        Layer { name: "albedo", channels: rgb(&img.albedo) },
+        Layer { name: "unseen", channels: vec![("Y", img.unseen.clone())] },
+        Layer { name: "probes", channels: vec![("Y", img.probes.clone())] },
+        Layer { name: "hole", channels: vec![("Y", img.hole.clone())] },
+    ];
+    write_exr_with_attributes(path, img.width, img.height, &layers, &[("lfr.probes", description)])
+        .with_context(|| format!("writing {}", path.display()))?;
+    let preview = path.with_extension("png");
+    write_png(&preview, img.width, img.height, &img.beauty, 1.0)
+        .with_context(|| format!("writing {}", preview.display()))?;
+    Ok(preview)
+}
+
+fn description(
+    settings: &PrecomputeSettings,
+    scene: &tracer::Scene,
+    transport: &str,
+    light: Option<glam::Vec3>,
+) -> String {
+    format!(
+        "scene={} probes={} receivers={} overlap={} order={} directions={} relight_rays={} seed={} transport={} light={}",
+        scene.source.display(),
+        settings.placement.probes,
+        settings.surfels.budget,
+        settings.placement.overlap,
+        settings.transport.order,
+        settings.transport.directions,
+        settings.relight_rays,
+        settings.surfels.seed,
+        transport,
+        light.map_or("scene".to_string(), |p| format!("point {},{},{}", p.x, p.y, p.z))
+    )
+    .chars()
+    .filter(|c| (*c as u32) < 256)
+    .collect()
+}
+
+fn image_settings(trace: &TraceArgs, scene: &tracer::Scene, frame: &FrameOptions) -> Result<ImageSettings> {
+    let image = ImageSettings {
+        width: trace.size.width.unwrap_or(scene.width),
+        height: trace.size.height.unwrap_or(scene.height),
+        light_samples: frame.light_samples,
+        pixel_samples: frame.pixel_samples,
+        seed: trace.seed(),
+    };
+    image.validate()?;
+    Ok(image)
+}
+
+fn run_relight(args: &RelightArgs) -> Result<()> {
+    if args.out.extension().and_then(|e| e.to_str()).map(|e| e.eq_ignore_ascii_case("exr")) != Some(true) {
+        anyhow::bail!("--out {}: the output must be an .exr file", args.out.display());
+    }
+    let (cpca_settings, intensity) = args.frame.validated()?;
+    if args.bounces > 10_000 {
+        anyhow::bail!("bounces: must be at most 10000 (0: to convergence), got {}", args.bounces);
+    }
+    let position = args.light_position.as_deref().map(|v| point_option("light-position", v)).transpose()?;
+    if intensity.is_some() && position.is_none() {
+        anyhow::bail!("light-intensity: needs --light-position");
+    }
+    if let Some(reference) = &args.reference {
+        if !reference.is_file() {
+            anyhow::bail!("reference: {} is not a file", reference.display());
+        }
+    }
+    let preview = args.out.with_extension("png");
+    let mut outputs: Vec<&Path> = vec![&args.out, &preview];
+    outputs.extend(args.json.iter().map(|p| p.as_path()));
+    let cpca_cache = cpca_path(&args.pre.cache);
+    if cpca_settings.is_some() {
+        outputs.push(&cpca_cache);
+    }
+    let settings = check_common(&args.trace, &args.pre, &outputs)?;
+    let scene = args.trace.load_scene()?;
+    let image = image_settings(&args.trace, &scene, &args.frame)?;
+    let threads = args.trace.run.thread_count()?;
+    let pool = tracer::render::thread_pool(threads)?;
+    let bar = spinner(args.trace.quiet, "relight");
+    let (pre, from_cache, s) = obtain(&scene, &settings, &args.pre.cache, Stale::Refuse, &pool, &bar)?;
+    let light = position.map(|p| (p, intensity.unwrap_or(glam::Vec3::splat((0.5 * pre.scale as f32).powi(2)))));
+    let lit = lit_scene(&scene, args.frame.no_scene_lights, light);
+    let accel = tracer::Accel::build(&lit)?;
+    bar.set_message("compressing the transport (CPCA)");
+    let key = CacheKey::of(&scene, &settings);
+    let (op, cpca) = operator(&pre, cpca_settings, &pool, &args.pre.cache, &key)?;
+    bar.set_message("relighting");
+    let max_bounces = args.trace.size.max_bounces.unwrap_or(scene.max_bounces).max(1) as usize;
+    let (bounces, tolerance) = if args.bounces == 0 { (max_bounces, 1e-3) } else { (args.bounces as usize, 0.0) };
+    let (out, img, times) = relit_frame(&lit, &accel, &pre, op.transport(), None, bounces, tolerance, &image, &pool)?;
+    let reference = args.reference.as_deref().map(|p| compare_indirect(p, &img)).transpose()?;
+    bar.set_message("writing the image");
+    let transport = if cpca.is_some() { "cpca" } else { "dense" };
+    write_image(&args.out, &img, description(&settings, &scene, transport, position))?;
+    bar.finish_and_clear();
+    let n = img.indirect.len().max(1) as f32;
+    let report = RelightReport {
+        precompute: precompute_report(&scene, &args.pre.cache, &pre, from_cache, s),
+        cpca,
+        width: img.width,
+        height: img.height,
+        light_position: position.map(|p| p.to_array()),
+        light_intensity: light.map(|l| l.1.to_array()),
+        times,
+        clamped_channels: out.clamped,
+        lookup_holes: img.lookups.holes,
+        lookup_nearest: img.lookups.nearest,
+        misses: img.misses,
+        mean_indirect: (img.indirect.iter().fold(glam::Vec3::ZERO, |a, v| a + *v) / n).to_array(),
+        reference,
+    };
+    print_precompute(&report.precompute);
+    if let Some(c) = &report.cpca {
+        println!(
+            "cpca        {} clusters, {:.1} coefficients per receiver on average, largest cluster error {:.2e} (tolerance {}), {} B per receiver{} {} {:.2} s",
+            c.clusters,
+            c.mean_coefficients,
+            c.max_cluster_error,
+            c.tolerance,
+            c.bytes_per_receiver.round(),
+            if c.fp16 { " (fp16)" } else { "" },
+            if c.from_cache { "read from the cache in" } else { "compressed in" },
+            c.compress_s
+        );
+    }
+    let t = &report.times;
+    println!(
+        "frame       {:.4} s: direct light at the senders {:.4} s, {} bounces {:.4} s ({} channels clamped); image {}x{} {:.4} s ({} lookup holes, {} misses)",
+        t.frame_s,
+        t.direct_s,
+        t.iterations,
+        t.bounces_s,
+        report.clamped_channels,
+        img.width,
+        img.height,
+        t.image_s,
+        report.lookup_holes,
+        report.misses
+    );
+    if let Some(r) = &report.reference {
+        println!(
+            "reference   indirect layer against {}: PSNR {:.2} dB, relative MSE {:.4e}, mean ratio {:.3} {:.3} {:.3}",
+            r.path,
+            r.indirect_psnr_db,
+            r.indirect_relative_mse,
+            r.indirect_mean_ratio[0],
+            r.indirect_mean_ratio[1],
+            r.indirect_mean_ratio[2]
+        );
+    }
+    println!("wrote {} and {}", args.out.display(), preview.display());
+    if let Some(json) = &args.json {
+        write_json(json, &report)?;
+    }
+    Ok(())
+}
+
+#[derive(Serialize)]
+struct AnimateFrame {
+    frame: u32,
+    light_position: [f32; 3],
+    direct_s: f64,
+    bounces_s: f64,
+    image_s: f64,
+    frame_s: f64,
+    mean_indirect: [f32; 3],
+}
+
+#[derive(Serialize)]
+struct AnimateReport {
+    precompute: PrecomputeReport,
+    cpca: Option<CpcaReport>,
+    bounces_per_frame: u32,
+    frames: Vec<AnimateFrame>,
+    mean_frame_s: f64,
+    worst_frame_s: f64,
+}
+
+fn run_animate(args: &AnimateArgs) -> Result<()> {
+    let (cpca_settings, intensity) = args.frame.validated()?;
+    let from = point_option("light-from", &args.light_from)?;
+    let to = point_option("light-to", &args.light_to)?;
+    if !(1..=100_000).contains(&args.frames) {
+        anyhow::bail!("frames: must be between 1 and 100000, got {}", args.frames);
+    }
+    if !(1..=1000).contains(&args.bounces_per_frame) {
+        anyhow::bail!("bounces-per-frame: must be between 1 and 1000, got {}", args.bounces_per_frame);
+    }
+    let names: Vec<(PathBuf, PathBuf)> = (0..args.frames)
+        .map(|f| {
+            let exr = args.out_dir.join(format!("frame_{f:04}.exr"));
+            let png = exr.with_extension("png");
+            (exr, png)
+        })
+        .collect();
+    let timings = args.out_dir.join("timings.json");
+    let mut outputs: Vec<&Path> = names.iter().flat_map(|(e, p)| [e.as_path(), p.as_path()]).collect();
+    outputs.push(&timings);
+    let cpca_cache = cpca_path(&args.pre.cache);
+    if cpca_settings.is_some() {
+        outputs.push(&cpca_cache);
+    }
+    let settings = check_common(&args.trace, &args.pre, &outputs)?;
+    let scene = args.trace.load_scene()?;
+    let image = image_settings(&args.trace, &scene, &args.frame)?;
+    let pool = tracer::render::thread_pool(args.trace.run.thread_count()?)?;
+    let bar = spinner(args.trace.quiet, "animate");
+    let (pre, from_cache, s) = obtain(&scene, &settings, &args.pre.cache, Stale::Refuse, &pool, &bar)?;
+    let key = CacheKey::of(&scene, &settings);
+    let (op, cpca) = operator(&pre, cpca_settings, &pool, &args.pre.cache, &key)?;
+    let intensity = intensity.unwrap_or(glam::Vec3::splat((0.5 * pre.scale as f32).powi(2)));
+    let accel = tracer::Accel::build(&scene)?;
+    let mut previous: Option<Vec<glam::Vec3>> = None;
+    let mut frames = Vec::new();
+    for (f, (exr, _)) in names.iter().enumerate() {
+        bar.set_message(format!("frame {} of {}", f + 1, args.frames));
+        let t = if args.frames > 1 { f as f32 / (args.frames - 1) as f32 } else { 0.0 };
+        let position = from.lerp(to, t);
+        let lit = lit_scene(&scene, args.frame.no_scene_lights, Some((position, intensity)));
+        let (out, img, times) = relit_frame(
+            &lit,
+            &accel,
+            &pre,
+            op.transport(),
+            previous.as_deref(),
+            args.bounces_per_frame as usize,
+            0.0,
+            &image,
+            &pool,
+        )?;
+        write_image(
+            exr,
+            &img,
+            description(&settings, &scene, if cpca.is_some() { "cpca" } else { "dense" }, Some(position)),
+        )?;
+        let n = img.indirect.len().max(1) as f32;
+        frames.push(AnimateFrame {
+            frame: f as u32,
+            light_position: position.to_array(),
+            direct_s: times.direct_s,
+            bounces_s: times.bounces_s,
+            image_s: times.image_s,
+            frame_s: times.frame_s,
+            mean_indirect: (img.indirect.iter().fold(glam::Vec3::ZERO, |a, v| a + *v) / n).to_array(),
+        });
+        previous = Some(out.irradiance);
+    }
+    bar.finish_and_clear();
+    let mean = frames.iter().map(|f| f.frame_s).sum::<f64>() / frames.len() as f64;
+    let worst = frames.iter().map(|f| f.frame_s).fold(0.0, f64::max);
+    let report = AnimateReport {
+        precompute: precompute_report(&scene, &args.pre.cache, &pre, from_cache, s),
+        cpca,
+        bounces_per_frame: args.bounces_per_frame,
+        frames,
+        mean_frame_s: mean,
+        worst_frame_s: worst,
+    };
+    print_precompute(&report.precompute);
+    println!("| frame | light | direct s | bounces s | frame s | image s |");
+    println!("|---|---|---|---|---|---|");
+    for f in &report.frames {
+        let p = f.light_position;
+        println!(
+            "| {} | {:.4e}, {:.4e}, {:.4e} | {:.4} | {:.4} | {:.4} | {:.4} |",
+            f.frame, p[0], p[1], p[2], f.direct_s, f.bounces_s, f.frame_s, f.image_s
+        );
+    }
+    println!(
+        "frames      mean {:.4} s, worst {:.4} s (direct light and {} bounce(s) each, image excluded)",
+        mean, worst, args.bounces_per_frame
+    );
+    write_json(&timings, &report)?;
+    println!("wrote {} frames and {}", report.frames.len(), timings.display());
+    Ok(())
 }

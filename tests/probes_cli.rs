@@ -1,13 +1,17 @@
-//! `lfr probes stats` (issue 25, phase 3): bad parameters are refused with an error naming the
-//! field before the scene is read, and a small run on the embedded Cornell box reports a
-//! placement whose numbers agree with each other.
+//! `lfr probes` (issue 25): bad parameters are refused with an error naming the field before the
+//! scene is read; a small `stats` run on the embedded Cornell box reports a placement whose
+//! numbers agree with each other; `relight` builds the cache once and reuses it bit for bit
+//! whatever the lights, writes the image's named layers consistently, refuses corrupt,
+//! truncated, foreign and stale caches by file name; `animate` and CPCA end to end.
 
 #[path = "common/cli.rs"]
 mod cli;
 #[path = "../tracer/tests/common/mod.rs"]
 mod common;
 
-use cli::lfr;
+use std::path::Path;
+
+use cli::{lfr, stderr};
 
 #[test]
 fn bad_parameters_are_refused_before_any_work() {
@@ -83,4 +87,228 @@ fn stats_on_the_cornell_box_are_consistent() {
     assert!(indirect.iter().all(|v| v.as_f64().unwrap() > 0.0 && v.as_f64().unwrap().is_finite()), "{indirect:?}");
     let dense = report["dense_transport_bytes"].as_f64().unwrap();
     assert!((dense / (receivers * mean * 256.0) - 1.0).abs() < 1e-9);
+}
+
+/// Small precompute settings on the embedded Cornell box.
+const SMALL: [&str; 10] =
+    ["--probes", "8", "--receivers", "1500", "--directions", "32", "--order", "2", "--relight-rays", "200"];
+
+fn relight(cache: &Path, out: &Path, json: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec!["probes", "relight", "--quiet", "--width", "24", "--height", "20", "--light-samples", "4"];
+    args.extend_from_slice(&SMALL);
+    args.extend_from_slice(&["--cache", cache.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    args.extend_from_slice(&["--json", json.to_str().unwrap()]);
+    args.extend_from_slice(extra);
+    lfr(&args)
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
+}
+
+fn channels(path: &Path) -> std::collections::HashMap<String, Vec<f32>> {
+    let (w, h, list) = tracer::output::read_exr(path).unwrap();
+    assert_eq!((w, h), (24, 20));
+    list.into_iter().collect()
+}
+
+#[test]
+fn relight_builds_the_cache_once_and_reuses_it_whatever_the_lights() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cache, a, b, j) =
+        (dir.path().join("c.probes"), dir.path().join("a.exr"), dir.path().join("b.exr"), dir.path().join("r.json"));
+    let out = relight(&cache, &a, &j, &[]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let report = json(&j);
+    assert_eq!(report["precompute"]["precompute_from_cache"], false);
+    assert!(a.with_extension("png").is_file());
+    let bytes = std::fs::read(&cache).unwrap();
+
+    // The layers agree with each other: beauty = direct + indirect, indirect = albedo E / π.
+    let c = channels(&a);
+    for name in ["R", "direct.R", "indirect.G", "irradiance.B", "albedo.R", "unseen.Y", "probes.Y", "hole.Y"] {
+        assert!(c.contains_key(name), "no channel {name}: {:?}", c.keys().collect::<Vec<_>>());
+    }
+    let pi = std::f32::consts::PI;
+    let mut lit = 0;
+    for ch in ["R", "G", "B"] {
+        let (beauty, direct, indirect) = (&c[ch], &c[&format!("direct.{ch}")], &c[&format!("indirect.{ch}")]);
+        let (albedo, e) = (&c[&format!("albedo.{ch}")], &c[&format!("irradiance.{ch}")]);
+        for i in 0..beauty.len() {
+            assert!(beauty[i].is_finite() && indirect[i] >= 0.0 && direct[i] >= 0.0);
+            assert_eq!(beauty[i], direct[i] + indirect[i]);
+            assert!((indirect[i] - albedo[i] * e[i] / pi).abs() <= 1e-5 * indirect[i].max(1e-3));
+            lit += usize::from(indirect[i] > 0.0);
+        }
+    }
+    assert!(lit > 24 * 20, "the Cornell box has indirect light almost everywhere: {lit}");
+    assert!(c["unseen.Y"].iter().all(|u| (0.0..=1.0).contains(u)));
+    assert!(c["probes.Y"].iter().any(|p| *p > 0.0));
+
+    // Again: from the cache, the same image bit for bit, the cache untouched.
+    let out = relight(&cache, &b, &j, &[]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(json(&j)["precompute"]["precompute_from_cache"], true);
+    assert_eq!(channels(&b), c);
+    assert_eq!(std::fs::read(&cache).unwrap(), bytes);
+
+    // Another light (the scene's removed, a point light added): still the same cache, another image.
+    let out = relight(
+        &cache,
+        &b,
+        &j,
+        &["--no-scene-lights", "--light-position", "150,300,250", "--light-intensity", "40000"],
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(json(&j)["precompute"]["precompute_from_cache"], true);
+    assert_eq!(std::fs::read(&cache).unwrap(), bytes);
+    let moved = channels(&b);
+    assert_ne!(moved["indirect.R"], c["indirect.R"]);
+    assert!(moved["indirect.R"].iter().any(|v| *v > 0.0));
+
+    // CPCA at the default tolerance: close to the dense image, smaller per receiver.
+    let out = relight(&cache, &b, &j, &["--cpca", "--cpca-coefficients", "16"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let r = json(&j);
+    let cpca = &r["cpca"];
+    assert!(cpca["max_cluster_error"].as_f64().unwrap() <= 0.005, "{cpca}");
+    assert!(cpca["mean_coefficients"].as_f64().unwrap() <= 16.0);
+    assert_eq!(cpca["from_cache"], false);
+    assert!(Path::new(&format!("{}.cpca", cache.display())).is_file());
+    let compressed = channels(&b);
+    // Again: the compressed transport from its cache, the same image.
+    let out = relight(&cache, &b, &j, &["--cpca", "--cpca-coefficients", "16"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(json(&j)["cpca"]["from_cache"], true);
+    assert_eq!(channels(&b), compressed);
+    // Other CPCA settings replace it; a damaged one is an error naming it.
+    let out = relight(&cache, &b, &j, &["--cpca", "--cpca-coefficients", "12"]);
+    assert!(out.status.success() && stderr(&out).contains("replacing it"), "{}", stderr(&out));
+    let cpca_file = format!("{}.cpca", cache.display());
+    let mut damaged = std::fs::read(&cpca_file).unwrap();
+    let at = damaged.len() / 2;
+    damaged[at] ^= 8;
+    std::fs::write(&cpca_file, &damaged).unwrap();
+    let out = relight(&cache, &b, &j, &["--cpca", "--cpca-coefficients", "12"]);
+    let message = stderr(&out);
+    assert!(!out.status.success() && message.contains(&cpca_file) && message.contains("checksum"), "{message}");
+    for ch in ["indirect.R", "indirect.G", "indirect.B"] {
+        let diff: f32 = compressed[ch].iter().zip(&c[ch]).map(|(x, y)| (x - y).abs()).sum();
+        let total: f32 = c[ch].iter().sum();
+        assert!(diff < 0.05 * total, "{ch}: CPCA differs by {diff} of {total}");
+    }
+}
+
+#[test]
+fn corrupt_truncated_foreign_and_stale_caches_are_errors_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cache, out_exr, j) = (dir.path().join("c.probes"), dir.path().join("a.exr"), dir.path().join("r.json"));
+    // Not a cache: relight and precompute both refuse it, naming it, and leave it alone.
+    std::fs::write(&cache, b"some other file").unwrap();
+    let out = relight(&cache, &out_exr, &j, &[]);
+    let message = stderr(&out);
+    assert!(!out.status.success() && !message.contains("panicked"), "{message}");
+    assert!(message.contains(cache.to_str().unwrap()) && message.contains("not a probes cache"), "{message}");
+    assert!(!out_exr.exists());
+    let mut args = vec!["probes", "precompute", "--quiet", "--cache", cache.to_str().unwrap()];
+    args.extend_from_slice(&SMALL);
+    let out = lfr(&args);
+    assert!(!out.status.success() && stderr(&out).contains("not a probes cache"), "{}", stderr(&out));
+    assert_eq!(std::fs::read(&cache).unwrap(), b"some other file");
+
+    // A real cache, then damaged: relight refuses it; precompute rebuilds it.
+    std::fs::remove_file(&cache).unwrap();
+    let out = lfr(&args);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let good = std::fs::read(&cache).unwrap();
+    let mut flipped = good.clone();
+    let at = good.len() / 2;
+    flipped[at] ^= 1;
+    let mut future = good.clone();
+    future[8] = future[8].wrapping_add(1);
+    for (bytes, needle) in [(good[..good.len() - 7].to_vec(), "truncated"), (flipped, "checksum"), (future, "version")]
+    {
+        std::fs::write(&cache, &bytes).unwrap();
+        let out = relight(&cache, &out_exr, &j, &[]);
+        let message = stderr(&out);
+        assert!(!out.status.success() && !message.contains("panicked"), "{message}");
+        assert!(message.contains(cache.to_str().unwrap()) && message.contains(needle), "{needle}: {message}");
+        assert!(!out_exr.exists());
+    }
+    let out = lfr(&args);
+    assert!(out.status.success() && stderr(&out).contains("building it again"), "{}", stderr(&out));
+    assert_eq!(std::fs::read(&cache).unwrap(), good, "the rebuilt cache differs");
+
+    // Other settings against this cache: refused by relight, naming the file.
+    let out = relight(&cache, &out_exr, &j, &["--overlap", "5"]);
+    let message = stderr(&out);
+    assert!(!out.status.success() && message.contains("c.probes") && message.contains("other settings"), "{message}");
+}
+
+#[test]
+fn relight_and_animate_refuse_bad_parameters_before_any_work() {
+    for (command, extra, needle) in [
+        ("relight", vec!["--light-position", "1,2"], "light-position:"),
+        ("relight", vec!["--light-position", "1,2,NaN"], "light-position:"),
+        ("relight", vec!["--light-position", "1,2,3", "--light-intensity", "-1"], "light-intensity:"),
+        ("relight", vec!["--light-intensity", "5"], "light-intensity:"),
+        ("relight", vec!["--order", "9"], "order:"),
+        ("relight", vec!["--relight-rays", "10"], "relight-rays:"),
+        ("relight", vec!["--directions", "0"], "directions:"),
+        ("relight", vec!["--probes", "0"], "probes:"),
+        ("relight", vec!["--cpca", "--cpca-tolerance", "2"], "tolerance:"),
+        ("relight", vec!["--cpca", "--cpca-coefficients", "0"], "coefficients:"),
+        ("relight", vec!["--fp16"], "fp16:"),
+        ("relight", vec!["--light-samples", "0"], "light-samples:"),
+        ("relight", vec!["--pixel-samples", "0"], "pixel-samples:"),
+        ("relight", vec!["--bounces", "20000"], "bounces:"),
+        ("animate", vec!["--frames", "0"], "frames:"),
+        ("animate", vec!["--light-to", "1,2"], "light-to:"),
+        ("animate", vec!["--bounces-per-frame", "0"], "bounces-per-frame:"),
+    ] {
+        let mut args = vec!["probes", command, "--quiet", "--scene", "does-not-exist.toml", "--cache", "x.probes"];
+        if command == "relight" {
+            args.extend_from_slice(&["--out", "x.exr"]);
+        } else {
+            args.extend_from_slice(&["--out-dir", "xdir", "--light-from", "0,0,0"]);
+            if !extra.contains(&"--light-to") {
+                args.extend_from_slice(&["--light-to", "1,1,1"]);
+            }
+        }
+        args.extend_from_slice(&extra);
+        let out = lfr(&args);
+        let message = stderr(&out);
+        assert!(!out.status.success(), "{extra:?} must fail");
+        assert!(!message.contains("panicked"), "{message}");
+        assert!(message.contains(needle), "{extra:?}: expected {needle:?} in {message}");
+        assert!(!message.contains("does-not-exist"), "{extra:?}: the scene was read first: {message}");
+    }
+    let out = lfr(&["probes", "relight", "--quiet", "--cache", "x.probes", "--out", "x.png"]);
+    assert!(!out.status.success() && stderr(&out).contains(".exr"), "{}", stderr(&out));
+}
+
+#[test]
+fn animate_moves_a_light_over_frames_from_one_cache() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("c.probes");
+    let frames = dir.path().join("frames");
+    let mut args = vec!["probes", "animate", "--quiet", "--width", "24", "--height", "20", "--light-samples", "4"];
+    args.extend_from_slice(&SMALL);
+    args.extend_from_slice(&["--cache", cache.to_str().unwrap(), "--out-dir", frames.to_str().unwrap()]);
+    args.extend_from_slice(&["--frames", "3", "--no-scene-lights", "--light-intensity", "40000"]);
+    args.extend_from_slice(&["--light-from", "100,400,200", "--light-to", "450,400,400"]);
+    let out = lfr(&args);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let report = json(&frames.join("timings.json"));
+    let list = report["frames"].as_array().unwrap();
+    assert_eq!(list.len(), 3);
+    for (f, frame) in list.iter().enumerate() {
+        assert!(
+            frames.join(format!("frame_{f:04}.exr")).is_file() && frames.join(format!("frame_{f:04}.png")).is_file()
+        );
+        assert!(frame["frame_s"].as_f64().unwrap().is_finite());
+    }
+    assert_eq!(list[2]["light_position"][0].as_f64().unwrap(), 450.0);
+    assert_ne!(list[0]["mean_indirect"], list[2]["mean_indirect"]);
+    assert!(list.iter().all(|f| f["mean_indirect"].as_array().unwrap().iter().all(|v| v.as_f64().unwrap() > 0.0)));
 }

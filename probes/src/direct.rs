@@ -44,28 +44,46 @@ pub fn direct_irradiance(
         .surfels
         .par_iter()
         .enumerate()
-        .map(|(i, s)| {
-            let origin = s.position + s.normal * offset(s.position, scale);
-            let mut sum = Vec3::ZERO;
-            for k in 0..samples {
-                let mut sampler = Sampler::new(seed, i as u32, 0x2fff_ffff, k);
-                let select = sampler.next_1d();
-                let u = sampler.next_2d();
-                let Some(light) = lights.sample(scene, origin, 0.0, select, u) else {
-                    continue;
-                };
-                let cos = s.normal.dot(light.wi);
-                if !(cos > 0.0) {
-                    continue;
-                }
-                let t_max = if light.distance.is_finite() { light.distance * (1.0 - 1e-4) } else { f32::INFINITY };
-                if !accel.occluded(origin, light.wi, 0.0, t_max, 0.0) {
-                    sum += light.weighted_radiance * cos;
-                }
-            }
-            sum / samples as f32
-        })
+        .map(|(i, s)| direct_at(scene, accel, &lights, s.position, s.normal, i as u32, samples, seed, scale))
         .collect())
+}
+
+/// Direct irradiance at the point `x` on the side of unit normal `n` from `samples` light
+/// samples of the pattern numbered `index` (a surfel's index, or a pixel's in the image).
+#[allow(clippy::too_many_arguments)]
+pub fn direct_at(
+    scene: &Scene,
+    accel: &Accel,
+    lights: &LightSampler,
+    x: Vec3,
+    n: Vec3,
+    index: u32,
+    samples: u32,
+    seed: u32,
+    scale: f32,
+) -> Vec3 {
+    if lights.is_empty() || samples == 0 {
+        return Vec3::ZERO;
+    }
+    let origin = x + n * offset(x, scale);
+    let mut sum = Vec3::ZERO;
+    for k in 0..samples {
+        let mut sampler = Sampler::new(seed, index, 0x2fff_ffff, k);
+        let select = sampler.next_1d();
+        let u = sampler.next_2d();
+        let Some(light) = lights.sample(scene, origin, 0.0, select, u) else {
+            continue;
+        };
+        let cos = n.dot(light.wi);
+        if !(cos > 0.0) {
+            continue;
+        }
+        let t_max = if light.distance.is_finite() { light.distance * (1.0 - 1e-4) } else { f32::INFINITY };
+        if !accel.occluded(origin, light.wi, 0.0, t_max, 0.0) {
+            sum += light.weighted_radiance * cos;
+        }
+    }
+    sum / samples as f32
 }
 
 #[cfg(test)]

@@ -1,5 +1,26 @@
 //! The crate's one error type: every variant names the field or input at fault.
 
+use std::path::PathBuf;
+
+/// What is wrong with a precompute cache file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CacheProblem {
+    /// It cannot be read (missing, unreadable).
+    Io,
+    /// It does not start with the cache's magic bytes: some other file.
+    NotACache,
+    /// A cache of another format version.
+    Version,
+    /// Shorter than its header says.
+    Truncated,
+    /// Its checksum or contents do not add up.
+    Corrupt,
+    /// Built for other geometry.
+    OtherGeometry,
+    /// Built with other settings.
+    OtherSettings,
+}
+
 /// What can go wrong while building surfels or placing probes.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum ProbesError {
@@ -24,6 +45,9 @@ pub enum ProbesError {
     /// The tracer failed (building the accelerator).
     #[error("tracer: {0}")]
     Tracer(String),
+    /// A precompute cache that cannot be used: the file and why.
+    #[error("probes cache {}: {message}", path.display())]
+    Cache { path: PathBuf, problem: CacheProblem, message: String },
     /// A size the machine cannot hold, refused before the work.
     #[error("{what}: an estimated {estimate} exceeds the limit of {limit}")]
     TooLarge { what: &'static str, estimate: String, limit: String },

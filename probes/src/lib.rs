@@ -23,20 +23,26 @@
 //!   bounces: `frame`.
 //! - ✓ Section 4.2, "Scene relight": direct irradiance at the senders through the tracer's light
 //!   model: `direct`.
-//! - ✗ Eq. 11, CPCA compression and the cluster projection (phase 5); the image from the
-//!   receivers, `lfr compare` (phase 4 rest, 6).
+//! - ✓ Eq. 11, CPCA compression and the per-frame cluster projection (f32 or fp16): `cpca`.
+//! - ✓ The image from the receivers at the camera's hits: `image`; the whole precompute as one
+//!   value, `precompute`, and its cache keyed by geometry and settings, `cache`.
+//! - ✗ `lfr compare` method `probes` (phase 6).
 
 #![forbid(unsafe_code)]
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod cache;
+pub mod cpca;
 pub mod direct;
 pub mod error;
 pub mod frame;
 pub mod geometry;
+pub mod image;
 pub mod kernel;
 pub mod layout;
 pub mod lookup;
 pub mod placement;
+pub mod precompute;
 pub mod relight;
 pub mod sh;
 pub mod surfels;

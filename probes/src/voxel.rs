@@ -216,6 +216,20 @@ impl VoxelGrid {
         }
     }
 
+    /// Whether the voxel one voxel in front of `p` (unit normal `n`) is empty space the flood
+    /// fill never reached: the receiver faces the inside of closed geometry. A solid front voxel
+    /// (another surface within a voxel: a concave edge, a narrow gap) decides nothing; the
+    /// transport's own rays do (`TransportContext::hidden`).
+    pub fn front_enclosed(&self, p: DVec3, n: DVec3) -> bool {
+        match self.voxel_of(p + n * self.size) {
+            Some(c) => {
+                let i = self.index(c);
+                !self.solid[i] && !self.reached[i]
+            }
+            None => false,
+        }
+    }
+
     pub fn solid_count(&self) -> usize {
         self.solid.iter().filter(|&&s| s).count()
     }

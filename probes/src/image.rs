@@ -1,0 +1,372 @@
+//! The image from the receivers at the camera's hits (Section 4.2, "the final image"; the
+//! paper reads its light map, we read the surfels through `lookup`).
+//!
+//! One primary ray through each pixel's centre, or `pixel_samples` stratified ones averaged
+//! (lens centre, shutter open). At each hit, with the
+//! surface's diffuse albedo ρ = base colour × (1 − metallic) (textured) and the shading normal
+//! facing the camera:
+//! - `indirect = ρ / π · E`, E the receivers' indirect irradiance interpolated at the hit;
+//! - `direct = emission + ρ / π · E_direct`, E_direct from the same deterministic light samples
+//!   as the senders (`direct::direct_at`), numbered by pixel;
+//! - a miss sees the environment (direct) and no indirect light.
+//!
+//! Diffuse only: a glossy surface's specular reflection of indirect light is not in the image
+//! (the paper's order-1 glossy transport, Eq. 8–9, is not planned). Also per pixel: the
+//! interpolated irradiance, the albedo, the receivers' unseen-direction fraction and covering
+//! probe count, and whether the lookup found no receiver (a hole: E = 0, counted).
+
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+use tracer::integrator::SurfacePoint;
+use tracer::lights::LightSampler;
+use tracer::sampler::Sampler;
+use tracer::{Accel, Scene};
+
+use crate::direct::{direct_at, MAX_SAMPLES};
+use crate::lookup::{lookup, Found, LookupStats};
+use crate::precompute::Precompute;
+use crate::ProbesError;
+
+/// The largest image side.
+pub const MAX_SIDE: u32 = 16384;
+/// The most primary rays per pixel.
+pub const MAX_PIXEL_SAMPLES: u32 = 1024;
+
+/// How the image is made.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImageSettings {
+    pub width: u32,
+    pub height: u32,
+    /// Light samples per primary ray for its direct light.
+    pub light_samples: u32,
+    /// Primary rays per pixel: 1 through the centre, more at stratified (Owen-scrambled
+    /// Sobol') positions inside the pixel, every layer averaged (a box filter, as `lfr render`).
+    pub pixel_samples: u32,
+    pub seed: u32,
+}
+
+impl ImageSettings {
+    pub fn validate(&self) -> Result<(), ProbesError> {
+        for (field, v) in [("width", self.width), ("height", self.height)] {
+            if v == 0 || v > MAX_SIDE {
+                return Err(ProbesError::parameter(field, format!("must be between 1 and {MAX_SIDE}, got {v}")));
+            }
+        }
+        if self.pixel_samples == 0 || self.pixel_samples > MAX_PIXEL_SAMPLES {
+            return Err(ProbesError::parameter(
+                "pixel-samples",
+                format!("must be between 1 and {MAX_PIXEL_SAMPLES}, got {}", self.pixel_samples),
+            ));
+        }
+        if self.light_samples == 0 || self.light_samples > MAX_SAMPLES {
+            return Err(ProbesError::parameter(
+                "light-samples",
+                format!("must be between 1 and {MAX_SAMPLES}, got {}", self.light_samples),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The image's layers, row-major from the top-left pixel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ProbeImage {
+    pub width: u32,
+    pub height: u32,
+    /// `direct + indirect`.
+    pub beauty: Vec<Vec3>,
+    pub direct: Vec<Vec3>,
+    pub indirect: Vec<Vec3>,
+    /// Indirect irradiance E at the hit (0 for a miss or a hole).
+    pub irradiance: Vec<Vec3>,
+    pub albedo: Vec<Vec3>,
+    /// The interpolated fraction of the receivers' hit directions no covering probe sees.
+    pub unseen: Vec<f32>,
+    /// The interpolated number of probes covering the receivers.
+    pub probes: Vec<f32>,
+    /// The share of the pixel's rays whose lookup found no receiver.
+    pub hole: Vec<f32>,
+    /// Lookup outcomes over the primary hits.
+    pub lookups: LookupStats,
+    /// Primary rays that hit nothing.
+    pub misses: u64,
+}
+
+struct Pixel {
+    direct: Vec3,
+    indirect: Vec3,
+    irradiance: Vec3,
+    albedo: Vec3,
+    unseen: f32,
+    probes: f32,
+    found: Found,
+    miss: bool,
+    /// The share of the pixel's rays whose lookup was a hole (after averaging).
+    hole_share: f32,
+}
+
+/// The image of `scene` lit by the receivers' indirect irradiance `irradiance` (one value per
+/// surfel of `pre`) and the scene's lights directly.
+pub fn render_image(
+    scene: &Scene,
+    accel: &Accel,
+    pre: &Precompute,
+    irradiance: &[Vec3],
+    settings: &ImageSettings,
+) -> Result<ProbeImage, ProbesError> {
+    settings.validate()?;
+    let n = pre.surfels.surfels.len();
+    if irradiance.len() != n {
+        return Err(ProbesError::parameter(
+            "irradiance",
+            format!("{} values for {n} receivers: one per surfel", irradiance.len()),
+        ));
+    }
+    if let Some(i) = irradiance.iter().position(|e| !e.is_finite()) {
+        return Err(ProbesError::parameter("irradiance", format!("value {i} is not finite")));
+    }
+    let (w, h) = (settings.width, settings.height);
+    let lights = LightSampler::new(scene);
+    let scale = pre.scale as f32;
+    let tan = scene.camera.tan_half_fov(w, h);
+    let per_receiver: Vec<(f32, f32)> = pre
+        .transports
+        .iter()
+        .map(|t| (if t.hits > 0 { t.unseen as f32 / t.hits as f32 } else { 0.0 }, t.probes.len() as f32))
+        .collect();
+    let one = |found: &mut Vec<(u32, f32)>, film: Vec2, pattern: u32| -> Pixel {
+        let (origin, dir) = scene.camera.generate_ray_with_tan(tan, film, Vec2::ZERO, w, h);
+        let Some(hit) = accel.intersect(origin, dir, 0.0, f32::INFINITY, 0.0) else {
+            return Pixel {
+                direct: scene.environment,
+                indirect: Vec3::ZERO,
+                irradiance: Vec3::ZERO,
+                albedo: Vec3::ZERO,
+                unseen: 0.0,
+                probes: 0.0,
+                found: Found::Hole,
+                miss: true,
+                hole_share: 0.0,
+            };
+        };
+        let surface = SurfacePoint::new(scene, &hit, -dir, 0.0, 0.0);
+        let albedo = surface.bsdf.base_color * (1.0 - surface.bsdf.metallic);
+        let normal = surface.shading_normal;
+        let how = lookup(&pre.surfels, surface.position, normal, found);
+        let (mut e, mut unseen, mut probes) = (Vec3::ZERO, 0.0f32, 0.0f32);
+        for &(s, wt) in found.iter() {
+            e += irradiance[s as usize] * wt;
+            let (u, p) = per_receiver[s as usize];
+            unseen += u * wt;
+            probes += p * wt;
+        }
+        let e_direct = direct_at(
+            scene,
+            accel,
+            &lights,
+            surface.position,
+            normal,
+            pattern,
+            settings.light_samples,
+            settings.seed,
+            scale,
+        );
+        let emission = surface.emission(scene, &hit, -dir);
+        Pixel {
+            direct: emission + albedo * e_direct / std::f32::consts::PI,
+            indirect: albedo * e / std::f32::consts::PI,
+            irradiance: e,
+            albedo,
+            unseen,
+            probes,
+            found: how,
+            miss: false,
+            hole_share: 0.0,
+        }
+    };
+    let spp = settings.pixel_samples;
+    let samples: Vec<Vec<Pixel>> = (0..w * h)
+        .into_par_iter()
+        .map_init(Vec::new, |found, index| {
+            let corner = Vec2::new((index % w) as f32, (index / w) as f32);
+            if spp == 1 {
+                return vec![one(found, corner + Vec2::splat(0.5), index)];
+            }
+            (0..spp)
+                .map(|k| {
+                    let u = Sampler::new(settings.seed, index, 0x3fff_ffff, k).next_2d();
+                    one(found, corner + Vec2::from_array(u), index.wrapping_mul(spp).wrapping_add(k))
+                })
+                .collect()
+        })
+        .collect();
+    let mut lookups = LookupStats::default();
+    let mut misses = 0;
+    for p in samples.iter().flatten() {
+        if p.miss {
+            misses += 1;
+        } else {
+            lookups.add(p.found);
+        }
+    }
+    let inv = 1.0 / spp as f32;
+    let pixels: Vec<Pixel> = samples
+        .iter()
+        .map(|list| {
+            let mut sum = Pixel {
+                direct: Vec3::ZERO,
+                indirect: Vec3::ZERO,
+                irradiance: Vec3::ZERO,
+                albedo: Vec3::ZERO,
+                unseen: 0.0,
+                probes: 0.0,
+                found: Found::Weighted,
+                miss: false,
+                hole_share: 0.0,
+            };
+            let mut holes = 0.0;
+            for p in list {
+                sum.direct += p.direct * inv;
+                sum.indirect += p.indirect * inv;
+                sum.irradiance += p.irradiance * inv;
+                sum.albedo += p.albedo * inv;
+                sum.unseen += p.unseen * inv;
+                sum.probes += p.probes * inv;
+                holes += f32::from(u8::from(!p.miss && p.found == Found::Hole)) * inv;
+            }
+            sum.hole_share = holes;
+            sum
+        })
+        .collect();
+    Ok(ProbeImage {
+        width: w,
+        height: h,
+        beauty: pixels.iter().map(|p| p.direct + p.indirect).collect(),
+        direct: pixels.iter().map(|p| p.direct).collect(),
+        indirect: pixels.iter().map(|p| p.indirect).collect(),
+        irradiance: pixels.iter().map(|p| p.irradiance).collect(),
+        albedo: pixels.iter().map(|p| p.albedo).collect(),
+        unseen: pixels.iter().map(|p| p.unseen).collect(),
+        probes: pixels.iter().map(|p| p.probes).collect(),
+        hole: pixels.iter().map(|p| p.hole_share).collect(),
+        lookups,
+        misses,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::placement::PlacementSettings;
+    use crate::precompute::PrecomputeSettings;
+    use crate::surfels::SurfelSettings;
+    use crate::test_scenes::{room, scene_of, unit_quad};
+    use crate::transport::TransportSettings;
+    use tracer::scene::PunctualLight;
+    use tracer::Camera;
+
+    fn settings() -> PrecomputeSettings {
+        PrecomputeSettings {
+            surfels: SurfelSettings { budget: 600, ..Default::default() },
+            placement: PlacementSettings { probes: 2, overlap: 2.0, ..Default::default() },
+            transport: TransportSettings { order: 1, directions: 16, ..Default::default() },
+            relight_rays: 64,
+        }
+    }
+
+    fn image_settings() -> ImageSettings {
+        ImageSettings { width: 24, height: 16, light_samples: 4, pixel_samples: 1, seed: 0 }
+    }
+
+    #[test]
+    fn constant_receiver_irradiance_gives_albedo_over_pi_at_every_hit() {
+        let mut scene = scene_of(vec![room(Vec3::ZERO, Vec3::ONE)], Vec3::new(0.5, 0.5, 0.1));
+        scene.camera = Camera::look_at(
+            Vec3::new(0.5, 0.5, 0.05),
+            Vec3::new(0.5, 0.5, 1.0),
+            Vec3::Y,
+            70.0,
+            tracer::camera::FovAxis::Smaller,
+        );
+        scene.materials[0].base_color = Vec3::new(0.6, 0.4, 0.2);
+        scene.materials[0].metallic = 0.0;
+        let pre = Precompute::build(&scene, &settings(), &mut |_| {}).unwrap();
+        let accel = Accel::build(&scene).unwrap();
+        let e = Vec3::new(2.0, 1.0, 0.5);
+        let irradiance = vec![e; pre.surfels.surfels.len()];
+        let image = render_image(&scene, &accel, &pre, &irradiance, &image_settings()).unwrap();
+        assert_eq!(image.misses, 0);
+        assert_eq!(image.lookups.holes, 0);
+        let expected = Vec3::new(0.6, 0.4, 0.2) * e / std::f32::consts::PI;
+        for (i, (ind, irr)) in image.indirect.iter().zip(&image.irradiance).enumerate() {
+            assert!((*ind - expected).abs().max_element() < 1e-5, "pixel {i}: {ind} against {expected}");
+            assert!((*irr - e).abs().max_element() < 1e-5, "pixel {i}: {irr}");
+            assert_eq!(image.beauty[i], image.direct[i] + *ind);
+        }
+        // Four stratified rays per pixel: the same constant.
+        let four = ImageSettings { pixel_samples: 4, ..image_settings() };
+        let image4 = render_image(&scene, &accel, &pre, &irradiance, &four).unwrap();
+        assert_eq!(image4.lookups.total(), 4 * 24 * 16);
+        assert!(image4.indirect.iter().all(|v| (*v - expected).abs().max_element() < 1e-5));
+        let bad = ImageSettings { pixel_samples: 0, ..image_settings() };
+        let err = render_image(&scene, &accel, &pre, &irradiance, &bad).unwrap_err();
+        assert!(err.to_string().starts_with("pixel-samples:"), "{err}");
+        // No lights: no direct light; all layers finite.
+        assert!(image.direct.iter().all(|d| *d == Vec3::ZERO));
+        assert!(image.probes.iter().all(|p| p.is_finite() && *p >= 0.0));
+        assert!(image.unseen.iter().all(|u| (0.0..=1.0).contains(u)));
+        // Mismatched or non-finite irradiance is refused by name.
+        let err = render_image(&scene, &accel, &pre, &irradiance[1..], &image_settings()).unwrap_err();
+        assert!(err.to_string().starts_with("irradiance:"), "{err}");
+        let bad = ImageSettings { width: 0, ..image_settings() };
+        assert!(render_image(&scene, &accel, &pre, &irradiance, &bad).unwrap_err().to_string().starts_with("width:"));
+    }
+
+    #[test]
+    fn a_point_light_gives_the_inverse_square_cosine_law_and_any_thread_count_the_same_image() {
+        let mut scene = scene_of(vec![unit_quad()], Vec3::new(0.5, 0.5, 2.0));
+        scene.camera = Camera::look_at(
+            Vec3::new(0.5, 0.5, 2.0),
+            Vec3::new(0.5, 0.5, 0.0),
+            Vec3::Y,
+            20.0,
+            tracer::camera::FovAxis::Smaller,
+        );
+        scene.materials[0].base_color = Vec3::splat(0.5);
+        let light = Vec3::new(0.3, 0.6, 0.8);
+        let intensity = Vec3::new(1.0, 2.0, 3.0);
+        scene.lights.push(PunctualLight::Point { position: light, intensity });
+        let pre = Precompute::build(&scene, &settings(), &mut |_| {}).unwrap();
+        let accel = Accel::build(&scene).unwrap();
+        let zero = vec![Vec3::ZERO; pre.surfels.surfels.len()];
+        let s = image_settings();
+        let run = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| render_image(&scene, &accel, &pre, &zero, &s).unwrap())
+        };
+        let image = run(2);
+        assert_eq!(image, run(1));
+        let tan = scene.camera.tan_half_fov(s.width, s.height);
+        let mut checked = 0;
+        for i in 0..s.width * s.height {
+            let film = Vec2::new((i % s.width) as f32 + 0.5, (i / s.width) as f32 + 0.5);
+            let (o, d) = scene.camera.generate_ray_with_tan(tan, film, Vec2::ZERO, s.width, s.height);
+            let Some(hit) = accel.intersect(o, d, 0.0, f32::INFINITY, 0.0) else {
+                assert_eq!(image.direct[i as usize], scene.environment);
+                continue;
+            };
+            let x = o + d * hit.distance;
+            let to = light - x;
+            let expected =
+                Vec3::splat(0.5) / std::f32::consts::PI * intensity * (to.z / to.length()) / to.length_squared();
+            let got = image.direct[i as usize];
+            assert!(((got - expected) / expected).abs().max_element() < 1e-3, "pixel {i}: {got} against {expected}");
+            assert_eq!(image.indirect[i as usize], Vec3::ZERO);
+            checked += 1;
+        }
+        assert!(checked > 100, "{checked}");
+    }
+}
