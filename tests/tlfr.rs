@@ -273,12 +273,33 @@ fn lamp_and_blocker(lamp_motion: [f32; 3]) -> Scene {
 /// Reconstructs the soft shadows of `scene` from 4 spp at 32² and returns the image with the
 /// RMSE of it and of the box filter of its input against 4096 spp.
 fn soft_shadow_errors(scene: &Scene) -> (recon::method::Output, f64, f64) {
-    let (size, spp) = (32u32, 4u32);
+    let reference = common::render(scene, 32, 32, 4096, 11);
+    let run = soft_shadow_run(scene, (32, 32), 4, &reference.beauty, &vec![true; 32 * 32]);
+    (run.output, run.tlfr_error, run.box_error)
+}
+
+/// One soft-shadow reconstruction (32 locations per pixel) against a converged image.
+struct SoftShadowRun {
+    output: recon::method::Output,
+    tlfr_error: f64,
+    box_error: f64,
+    /// Mean over pixels and channels of the reconstruction and of the box filter.
+    tlfr_mean: f64,
+    box_mean: f64,
+}
+
+/// Errors and means are taken over the pixels where `keep` is true.
+fn soft_shadow_run(
+    scene: &Scene,
+    (width, height): (u32, u32),
+    spp: u32,
+    reference: &[Vec3],
+    keep: &[bool],
+) -> SoftShadowRun {
     let dir = tempfile::tempdir().unwrap();
     let (camera_path, light_path) = (dir.path().join("lens-time.lfrs"), dir.path().join("light.lfrs"));
     let accel = Accel::build(scene).unwrap();
-    let settings =
-        RenderSettings { width: size, height: size, spp, seed: 5, max_bounces: 1, threads: 0, progress: false };
+    let settings = RenderSettings { width, height, spp, seed: 5, max_bounces: 1, threads: 0, progress: false };
     lens_time::dump_for_soft_shadows(scene, &accel, &settings, &camera_path).unwrap();
     tracer::samples::light::dump(scene, &accel, &settings, &light_path).unwrap();
     let tlfr_settings = recon::tlfr::settings::TlfrSettings { locations: 32, ..Default::default() };
@@ -286,18 +307,86 @@ fn soft_shadow_errors(scene: &Scene) -> (recon::method::Output, f64, f64) {
     let (box_image, _) =
         recon::baselines::box_filter::average(&SampleFile::open(&camera_path).unwrap(), recon::Effect::SoftShadow, 0.0)
             .unwrap();
-    let reference = common::render(scene, size, size, 4096, 11);
+    let kept = keep.iter().filter(|&&k| k).count() as f64;
     let rmse = |pixels: &[[f32; 3]]| {
-        let sum: f64 = pixels
-            .iter()
-            .zip(&reference.beauty)
-            .map(|(p, r)| (0..3).map(|c| (p[c] as f64 - r[c] as f64).powi(2)).sum::<f64>())
+        let sum: f64 = (pixels.iter().zip(reference).zip(keep))
+            .filter(|(_, &k)| k)
+            .map(|((p, r), _)| (0..3).map(|c| (p[c] as f64 - r[c] as f64).powi(2)).sum::<f64>())
             .sum();
-        (sum / (3 * pixels.len()) as f64).sqrt()
+        (sum / (3.0 * kept)).sqrt()
+    };
+    let mean = |pixels: &[[f32; 3]]| {
+        let sum: f64 =
+            pixels.iter().zip(keep).filter(|(_, &k)| k).map(|(p, _)| p.iter().map(|&v| v as f64).sum::<f64>()).sum();
+        sum / (3.0 * kept)
     };
     assert!(output.image.pixels.iter().flatten().all(|v| v.is_finite()));
-    let (tlfr_error, box_error) = (rmse(&output.image.pixels), rmse(&box_image.pixels));
-    (output, tlfr_error, box_error)
+    SoftShadowRun {
+        tlfr_error: rmse(&output.image.pixels),
+        box_error: rmse(&box_image.pixels),
+        tlfr_mean: mean(&output.image.pixels),
+        box_mean: mean(&box_image.pixels),
+        output,
+    }
+}
+
+fn image_mean(pixels: &[Vec3], keep: &[bool]) -> f64 {
+    let kept = keep.iter().filter(|&&k| k).count() as f64;
+    pixels.iter().zip(keep).filter(|(_, &k)| k).map(|(p, _)| (p.x + p.y + p.z) as f64).sum::<f64>() / (3.0 * kept)
+}
+
+/// Issue 24: on the Cornell box, whose ceiling light (130 × 105 mm, 0.5 mm below the ceiling)
+/// lights the whole room from close by, the reconstruction was biased dark, and more so with
+/// more input samples (29.98 / 31.81 dB at 4 / 16 spp against the box filter's 30.95 / 33.10 at
+/// 64×48): rays to the walls' tops cross the light's plane Π far away, the light-space offset
+/// became 1e7 units and every f32 position was rounded to a whole unit, ten times the filter
+/// radius on the walls; and a receiver seen steeply from the light was shadowed by its own
+/// surface's light samples. Direct light against 1024 spp, over the pixels away from the
+/// emitter: the mean within 1 % at 4 and 16 spp (measured +0.20 / +0.55 %), the error below 0.75×
+/// the box filter's at 4 spp (0.63×) and falling by more than a fifth from 4 to 16 spp (0.72×).
+#[test]
+fn the_cornell_ceiling_light_is_not_biased_dark() {
+    let scene = Scene::load(&common::project_root().join("scenes/cornell.toml")).unwrap();
+    let (width, height) = (64, 48);
+    let accel = Accel::build(&scene).unwrap();
+    let settings = RenderSettings { width, height, spp: 1024, seed: 11, max_bounces: 1, threads: 0, progress: false };
+    let reference = tracer::render(&scene, &accel, &settings).unwrap();
+    // The receivers: pixels with no part of the emitter (radiance 18 / 11 / 2.8) within one pixel.
+    let bright: Vec<bool> = reference.beauty.iter().map(|p| p.max_element() > 3.0).collect();
+    let keep: Vec<bool> = (0..(width * height) as i64)
+        .map(|i| {
+            let (x, y) = (i % width as i64, i / width as i64);
+            !(-1..=1).any(|dy| {
+                (-1..=1).any(|dx| {
+                    let (nx, ny) = (x + dx, y + dy);
+                    (0..width as i64).contains(&nx)
+                        && (0..height as i64).contains(&ny)
+                        && bright[(ny * width as i64 + nx) as usize]
+                })
+            })
+        })
+        .collect();
+    let truth = image_mean(&reference.beauty, &keep);
+    let mut errors = Vec::new();
+    for spp in [4, 16] {
+        let run = soft_shadow_run(&scene, (width, height), spp, &reference.beauty, &keep);
+        let bias = run.tlfr_mean / truth - 1.0;
+        eprintln!(
+            "cornell {spp} spp: tlfr mean {:+.2} % (box {:+.2} %), RMSE {:.5} (box {:.5}); {:?}",
+            100.0 * bias,
+            100.0 * (run.box_mean / truth - 1.0),
+            run.tlfr_error,
+            run.box_error,
+            run.output.notes
+        );
+        assert!(bias.abs() < 0.01, "{spp} spp: mean {:+.2} % off the reference", 100.0 * bias);
+        // At 16 spp the bright bias the lamp test shows (+0.5 %) holds the error near the box
+        // filter's (measured 1.07×), hence the looser bound there.
+        let bound = if spp == 4 { 0.75 } else { 1.15 };
+        assert!(run.tlfr_error < bound * run.box_error, "{spp} spp: RMSE {} vs box {}", run.tlfr_error, run.box_error);
+        errors.push(run.tlfr_error);
+    }
+    assert!(errors[1] < 0.8 * errors[0], "more input samples, lower error: {errors:?}");
 }
 
 /// Soft shadows (Section 5): a 1 × 1 lamp 2 above a grey floor and a 0.4 × 0.4 blocker at
@@ -313,6 +402,54 @@ fn soft_shadows_from_4_spp_approach_the_converged_image() {
     let (dark, bright) = luminance.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), &v| (lo.min(v), hi.max(v)));
     let between = luminance.iter().filter(|&&v| v > dark + 0.2 * (bright - dark) && v < bright - 0.2 * (bright - dark));
     assert!(between.count() > 40, "a soft penumbra, not a hard edge");
+}
+
+/// The soft-shadow reconstruction gives the same bits on 1 and 3 threads (Cornell, 32×24,
+/// 2 spp, 8 locations per pixel).
+#[test]
+fn soft_shadows_do_not_depend_on_the_thread_count() {
+    let scene = Scene::load(&common::project_root().join("scenes/cornell.toml")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (camera_path, light_path) = (dir.path().join("lens-time.lfrs"), dir.path().join("light.lfrs"));
+    let accel = Accel::build(&scene).unwrap();
+    let settings =
+        RenderSettings { width: 32, height: 24, spp: 2, seed: 3, max_bounces: 1, threads: 0, progress: false };
+    lens_time::dump_for_soft_shadows(&scene, &accel, &settings, &camera_path).unwrap();
+    tracer::samples::light::dump(&scene, &accel, &settings, &light_path).unwrap();
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let tlfr = recon::tlfr::settings::TlfrSettings { locations: 8, ..Default::default() };
+        let output =
+            pool.install(|| recon::tlfr::shadows::reconstruct_soft_shadow(&camera_path, &light_path, &tlfr).unwrap());
+        output.image.pixels.iter().flatten().map(|v| v.to_bits()).collect::<Vec<u32>>()
+    };
+    let one = run(1);
+    assert!(one.iter().all(|&b| f32::from_bits(b).is_finite()));
+    assert_eq!(one, run(3));
+}
+
+/// Issue 24: the lamp-and-blocker image's mean within 0.2 % of the converged image's, at 4 and
+/// 16 spp. Not met yet: +0.78 % at 4 spp (the box filter of the same samples −0.17 %), before and
+/// after the Cornell fix; see docs/tlfr.md.
+#[test]
+#[ignore = "issue 24: the lamp's +0.78 % bias is not fixed yet"]
+fn the_lamp_images_mean_matches_the_reference() {
+    let scene = lamp_and_blocker([0.0; 3]);
+    let reference = common::render(&scene, 32, 32, 4096, 11);
+    let keep = vec![true; 32 * 32];
+    let truth = image_mean(&reference.beauty, &keep);
+    for spp in [4, 16] {
+        let run = soft_shadow_run(&scene, (32, 32), spp, &reference.beauty, &keep);
+        let bias = run.tlfr_mean / truth - 1.0;
+        eprintln!(
+            "lamp {spp} spp: tlfr mean {:+.3} %, box {:+.3} %; RMSE {:.5} (box {:.5})",
+            100.0 * bias,
+            100.0 * (run.box_mean / truth - 1.0),
+            run.tlfr_error,
+            run.box_error
+        );
+        assert!(bias.abs() < 0.002, "{spp} spp: mean {:+.3} % off the reference", 100.0 * bias);
+    }
 }
 
 /// A lamp sliding by 0.6 (more than half its width) over the shutter: the light samples

@@ -26,6 +26,11 @@ use crate::error::Error;
 
 type Vec3 = [f32; 3];
 
+/// The light-space domain (`LightSpace::is_grazing`): directions within atan(1/20) ≈ 2.9° of the
+/// light's plane are outside it. The Lambertian term of a receiver there is below 5 % of its
+/// value at normal incidence (cos θ_light = z/r < 1/20).
+pub const GRAZING_LIMIT: f32 = 20.0;
+
 fn sub(a: Vec3, b: Vec3) -> Vec3 {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
@@ -164,6 +169,29 @@ impl LightSpace {
         ]
     }
 
+    /// Whether a point at light-space `position` (`to_light`) lies outside the light-space
+    /// domain: seen from the light's centre within atan(1/`GRAZING_LIMIT`) of the light's plane
+    /// (|Q_u| or |Q_v| above `GRAZING_LIMIT`·z), or so close to the plane that the light's
+    /// circle of confusion there exceeds `GRAZING_LIMIT` half-widths (z below
+    /// d/(`GRAZING_LIMIT` + 1)), or not below the light at all. Screen positions grow like 1/z
+    /// towards the plane; bounding them keeps the f32 positions of the samples that matter
+    /// exact to far below a filter radius.
+    pub fn is_grazing(&self, position: Vec3) -> bool {
+        let z = position[2];
+        !(z >= self.plane_distance / (GRAZING_LIMIT + 1.0)
+            && position[0].abs() <= GRAZING_LIMIT * z
+            && position[1].abs() <= GRAZING_LIMIT * z)
+    }
+
+    /// The light-space position of the end of the ray that leaves the light at (ũ, ṽ) ∈
+    /// [−1, 1]², crosses Π at the file's (l_x, l_y) and ends at light-space depth `z`, in scene
+    /// units (not through the screen units, so it is as exact as the file's values).
+    pub fn ray_end(&self, u: f32, v: f32, lx: f32, ly: f32, z: f32) -> Vec3 {
+        let (half_u, half_v) = (0.5 * self.width_u, 0.5 * self.width_v);
+        let along = z / self.plane_distance;
+        [(lx - half_u) * along + u * half_u * (1.0 - along), (ly - half_v) * along + v * half_v * (1.0 - along), z]
+    }
+
     /// The lens-centre screen position of a receiver at light-space `position` (`to_light`):
     /// where the ray from the light's centre crosses Π, in this space's units; `None` for a
     /// receiver that is not below the light.
@@ -267,6 +295,27 @@ mod tests {
         }
         // A receiver on Π is "in focus": every light point sees it at the same place.
         assert!(model.coc(light.plane_distance).abs() < 1e-6);
+    }
+
+    #[test]
+    fn ray_ends_and_the_grazing_domain() {
+        // `ray_end` of the file's values for a ray from a light point through a receiver gives
+        // the receiver's light-space position, as `to_light` does.
+        let light = light();
+        for receiver in [[0.3, 0.0, 0.1], [-0.9, 1.7, 0.05], [3.0, 1.9, -0.4]] {
+            for (u, v) in [(-1.0, -1.0), (0.3, -0.7), (1.0, 0.5)] {
+                let [lx, ly] = crossing(light.light_point(u, v, 0.0), receiver);
+                let expected = light.to_light(receiver, 0.0);
+                let end = light.ray_end(u, v, lx, ly, expected[2]);
+                assert!(length(sub(end, expected)) < 1e-5 * (1.0 + length(expected)), "{end:?} vs {expected:?}");
+            }
+        }
+        // Within atan(1/20) of the light's plane, or closer to it than d/21, or above it.
+        let d = light.plane_distance;
+        assert!(!light.is_grazing([10.0, -10.0, 1.0]) && !light.is_grazing([0.0, 0.0, d / 20.0]));
+        assert!(light.is_grazing([25.0, 0.0, 1.0]) && light.is_grazing([0.0, -21.0, 1.0]));
+        assert!(light.is_grazing([0.0, 0.0, d / 22.0]) && light.is_grazing([0.0, 0.0, -1.0]));
+        assert!(light.is_grazing([0.0, 0.0, f32::NAN]));
     }
 
     #[test]

@@ -20,10 +20,14 @@
 //!
 //! Choices the paper leaves open (docs/tlfr-design.md §3 #15): the receiver is shaded with its
 //! albedo as a Lambertian surface (the tracer's soft-shadow effect is direct light only; glossy
-//! receivers are not handled); the lit test allows p to be `SHADOW_BIAS_RELATIVE`·z_p plus
-//! `SHADOW_BIAS_FOOTPRINTS` filter radii (R·ρ, scene units) behind the light sample's end, in
-//! place of the light-space depth gradient the authors' code uses (format gap G2), so tilted
-//! receivers do not shadow themselves where p lies a footprint away from the light sample's hit.
+//! receivers are not handled); p lies on the tangent plane of the covering surface's nearest
+//! sample (`visible_point`); the lit test compares each light sample's end with the depth at
+//! which its ray from (ũ, ṽ) meets that plane (`ReceiverPlane`), less `SHADOW_BIAS_RELATIVE` of
+//! it and `SHADOW_BIAS_FOOTPRINTS` filter radii (R·ρ), where the authors' code extrapolates
+//! each light sample's own depth with its light-space depth gradient (format gap G2): either way
+//! a receiver seen steeply from the light does not shadow itself. Receivers within
+//! atan(1/`light_space::GRAZING_LIMIT`) of the light's plane, outside the light-space domain,
+//! are lit without a shadow test (issue 24; their light is below 5 % of normal incidence).
 
 use sampleio::SampleFile;
 
@@ -91,6 +95,12 @@ pub struct LightSamples {
     pub median_density: f32,
     /// Records without a visible point or with unusable values.
     pub skipped: usize,
+    /// Usable records whose ray ends outside the light-space domain (`LightSpace::is_grazing`),
+    /// left out of the reconstruction.
+    pub grazing: usize,
+    /// The largest radiance among the usable samples: the emitter's, for receivers outside the
+    /// light-space domain.
+    pub emission: [f32; 3],
     /// The samples' screen positions span [0, extent] (light-space units).
     pub extent: [f32; 2],
 }
@@ -150,6 +160,15 @@ pub fn read_light(file: &SampleFile, camera_records: usize) -> Result<LightSampl
     sorted.sort_by(f32::total_cmp);
     let median_density = sorted.get(sorted.len() / 2).copied().unwrap_or(1.0);
     space.scale = 0.5 * (space.width_u * space.width_v).sqrt() / median_density;
+    let emission = raw.iter().fold([0.0f32; 3], |m, (_, c)| [0, 1, 2].map(|k| m[k].max(c[k])));
+    // Rays that end just below the light's plane cross Π far away (l_x ∝ 1/z): one such sample
+    // made the offset below 1e7 units at 64×48 on the Cornell box, where f32 positions are
+    // 1 unit apart, far coarser than the filter radius R·ρ (0.1 unit on the walls), and the lit
+    // test then compared samples reprojected to the wrong places (issue 24). Only the domain of
+    // `LightSpace::is_grazing` is reconstructed.
+    let before = raw.len();
+    raw.retain(|(s, _)| !space.is_grazing(space.ray_end(s.u, s.v, s.x, s.y, s.z)));
+    let grazing = before - raw.len();
     let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
     for (s, _) in &raw {
         let p = space.screen_of_crossing(s.x, s.y);
@@ -170,7 +189,17 @@ pub fn read_light(file: &SampleFile, camera_records: usize) -> Result<LightSampl
             (LensTimeSample { x, y, ..s }, colour)
         })
         .unzip();
-    Ok(LightSamples { space, samples, radiance, density: densities, median_density, skipped, extent })
+    Ok(LightSamples {
+        space,
+        samples,
+        radiance,
+        density: densities,
+        median_density,
+        skipped,
+        grazing,
+        emission,
+        extent,
+    })
 }
 
 /// Camera-space to world: the header's pose.
@@ -211,6 +240,9 @@ pub struct ShadowStats {
     pub shaded: u64,
     /// ... of which the light reconstruction found the light blocked.
     pub blocked: u64,
+    /// Locations whose visible point lies outside the light-space domain
+    /// (`LightSpace::is_grazing`), lit without a shadow test.
+    pub grazing: u64,
 }
 
 impl super::integrate::Counters for ShadowStats {
@@ -219,6 +251,7 @@ impl super::integrate::Counters for ShadowStats {
         self.light.add(&other.light);
         self.shaded += other.shaded;
         self.blocked += other.blocked;
+        self.grazing += other.grazing;
     }
 }
 
@@ -277,17 +310,26 @@ pub fn reconstruct_with_shadow(
     if !depth.is_finite() || scene.shading.normal[nearest] == [0.0; 3] {
         return Some(value); // a miss: nothing to shade
     }
-    let lens = scene.camera.lens;
-    let coc = if at.u == 0.0 && at.v == 0.0 { 0.0 } else { lens.coc(depth) };
-    let centre = [screen[0] - at.u * coc, screen[1] - at.v * coc];
-    let receiver =
-        scene.pose.to_world([(centre[0] - lens.cx) / lens.fx * depth, (centre[1] - lens.cy) / lens.fy * depth, depth]);
+    let normal = scene.shading.normal[nearest];
+    let receiver = visible_point(scene.camera.lens, &scene.pose, screen, at, [moved.x, moved.y, depth], normal);
     let space = &scene.light_samples.space;
     let in_light = space.to_light(receiver, at.t);
-    let Some(light_centre) = space.centre_screen(in_light) else {
-        return Some(value); // above the light's plane: it cannot light p
-    };
     let (light_u, light_v) = light_uv;
+    if in_light[2].is_nan() || in_light[2] <= 0.0 {
+        return Some(value); // above the light's plane: it cannot light p
+    }
+    if space.is_grazing(in_light) {
+        // Outside the light-space domain: no shadow test, the emitter's radiance.
+        stats.grazing += 1;
+        let light_point = space.light_point(light_u, light_v, at.t);
+        let albedo = scene.shading.albedo[nearest];
+        let emission = scene.light_samples.emission;
+        let direct = lambertian_direct(albedo, normal, receiver, light_point, space.normal, scene.area, emission);
+        return Some([0, 1, 2].map(|c| value[c] + direct[c]));
+    }
+    let Some(light_centre) = space.centre_screen(in_light) else {
+        return Some(value);
+    };
     let light_lens = scene.light.lens;
     let light_coc = light_lens.coc(in_light[2]);
     let light_screen = [light_centre[0] + light_u * light_coc, light_centre[1] + light_v * light_coc];
@@ -306,13 +348,15 @@ pub fn reconstruct_with_shadow(
         return Some(value); // no light sample within 16R: no light (counted as blocked)
     };
     let footprint = light_radius * scene.light_samples.median_density;
-    let bias = SHADOW_BIAS_RELATIVE * in_light[2] + SHADOW_BIAS_FOOTPRINTS * footprint;
+    let plane = ReceiverPlane::new(space, in_light, normal, light_u, light_v);
     scratch.values.clear();
     let mut any_lit = false;
     for &i in &scratch.light.covering {
         let light_sample = &scene.light_samples.samples[i as usize];
-        let reaches = reproject(light_sample, light_lens, light_at, scene.light.z_near)
-            .is_some_and(|end| end.z >= in_light[2] - bias);
+        let reaches = reproject(light_sample, light_lens, light_at, scene.light.z_near).is_some_and(|end| {
+            let depth = plane.depth_at([end.x, end.y], in_light[2]);
+            end.z >= depth - SHADOW_BIAS_RELATIVE * depth - SHADOW_BIAS_FOOTPRINTS * footprint
+        });
         any_lit |= reaches;
         scratch.values.push(if reaches { scene.light_samples.radiance[i as usize] } else { [0.0; 3] });
     }
@@ -327,7 +371,7 @@ pub fn reconstruct_with_shadow(
     let light_point = space.light_point(light_u, light_v, at.t);
     let direct = lambertian_direct(
         scene.shading.albedo[nearest],
-        scene.shading.normal[nearest],
+        normal,
         receiver,
         light_point,
         space.normal,
@@ -338,6 +382,97 @@ pub fn reconstruct_with_shadow(
         value[c] += direct[c];
     }
     Some(value)
+}
+
+/// The visible point p of a location: where the location's camera ray (through (x̂, ŷ) =
+/// `screen` from the lens point (û, v̂)) meets the tangent plane of the covering surface's nearest
+/// sample, which lies at `nearest` = (x′, y′, z′) reprojected to the location's (û, v̂, t̂) with
+/// the world `normal`. The nearest sample lies up to 2R away on the screen, so its own depth
+/// would put p off a surface seen at a slant (behind it half of the time, where the surface's
+/// own light samples then shadow it). Falls back to that depth where the ray runs (nearly)
+/// parallel to the plane.
+pub fn visible_point(
+    lens: &super::lens::LensModel,
+    pose: &CameraPose,
+    screen: [f32; 2],
+    at: LensTime,
+    nearest: [f32; 3],
+    normal: [f32; 3],
+) -> [f32; 3] {
+    // Camera-space points seen at screen x̂ through lens point û: x̂ = fx·X/Z + cx + û·C(Z),
+    // so X = ((x̂ − cx − û·c2)·Z − û·c1)/fx: the ray A + Z·B.
+    let unproject = |x: f32, y: f32, z: f32| {
+        let a = [-at.u * lens.c1 / lens.fx, -at.v * lens.c1 / lens.fy, 0.0];
+        let b = [(x - lens.cx - at.u * lens.c2) / lens.fx, (y - lens.cy - at.v * lens.c2) / lens.fy, 1.0];
+        [a[0] + z * b[0], a[1] + z * b[1], z]
+    };
+    let [x, y, z] = nearest;
+    let on_surface = pose.to_world(unproject(x, y, z));
+    let origin = pose.to_world(unproject(screen[0], screen[1], 0.0));
+    let fallback = pose.to_world(unproject(screen[0], screen[1], z));
+    let direction = [0, 1, 2].map(|k| fallback[k] - origin[k]); // B·z in world space
+    let along = super::light_space::dot(normal, direction);
+    let offset = super::light_space::dot(normal, [0, 1, 2].map(|k| on_surface[k] - origin[k]));
+    let scale = offset / along;
+    // Within a factor of 2 of the nearest sample's depth, else the slant is too steep to trust.
+    if along.abs() > 1e-6 * super::light_space::dot(direction, direction).sqrt() && (0.5..=2.0).contains(&scale) {
+        [0, 1, 2].map(|k| origin[k] + scale * direction[k])
+    } else {
+        fallback
+    }
+}
+
+/// The receiver's tangent plane in light space, for the lit test: the light-space depth at
+/// which the ray from the location's light point through a screen position meets it. A light
+/// sample on the receiver's own surface then ends exactly there, however steeply the surface
+/// is seen from the light (the role of the light-space depth gradient in the authors' test).
+pub struct ReceiverPlane {
+    /// The receiver's light-space normal and its offset n·p.
+    normal: [f32; 3],
+    offset: f32,
+    /// The light point (ũ, ṽ) in light space (depth 0).
+    from: [f32; 3],
+    /// Light-space lateral units per screen unit along u and v, the screen offset, Π's depth.
+    per_unit: [f32; 2],
+    screen_offset: [f32; 2],
+    plane_distance: f32,
+}
+
+impl ReceiverPlane {
+    pub fn new(space: &LightSpace, position: [f32; 3], world_normal: [f32; 3], u: f32, v: f32) -> ReceiverPlane {
+        use super::light_space::dot;
+        let normal =
+            [dot(world_normal, space.axis_u), dot(world_normal, space.axis_v), dot(world_normal, space.normal)];
+        let (half_u, half_v) = (0.5 * space.width_u, 0.5 * space.width_v);
+        ReceiverPlane {
+            normal,
+            offset: dot(normal, position),
+            from: [u * half_u, v * half_v, 0.0],
+            per_unit: [half_u / space.scale, half_v / space.scale],
+            screen_offset: space.offset,
+            plane_distance: space.plane_distance,
+        }
+    }
+
+    /// The depth at which the ray through `screen` (seen from the light point) meets the
+    /// plane; `fallback` where the ray runs (nearly) parallel to it or meets it behind the light.
+    pub fn depth_at(&self, screen: [f32; 2], fallback: f32) -> f32 {
+        use super::light_space::dot;
+        let on_pi = [
+            (screen[0] + self.screen_offset[0]) * self.per_unit[0],
+            (screen[1] + self.screen_offset[1]) * self.per_unit[1],
+            self.plane_distance,
+        ];
+        let direction = [0, 1, 2].map(|k| on_pi[k] - self.from[k]);
+        let along = dot(self.normal, direction);
+        let t = (self.offset - dot(self.normal, self.from)) / along;
+        let depth = t * self.plane_distance;
+        if depth.is_finite() && depth > 0.0 && along.abs() > 1e-6 * dot(direction, direction).sqrt() {
+            depth
+        } else {
+            fallback
+        }
+    }
 }
 
 /// Light coordinates (ũ, ṽ) ∈ [−1, 1]² of location `j` of pixel (x, y): Halton bases 13 and 17
@@ -466,11 +601,14 @@ pub fn reconstruct_soft_shadow(
             light.median_density
         ),
         format!(
-            "{} locations, {} shaded by the light reconstruction, {:.1}% of those blocked; {} light samples without a visible point",
+            "{} locations, {} shaded by the light reconstruction, {:.1}% of those blocked, {} outside the light-space domain \
+             (lit without a shadow test); {} light samples without a visible point, {} outside the domain",
             stats.camera.locations,
             stats.shaded,
             100.0 * stats.blocked as f64 / stats.shaded.max(1) as f64,
-            light.skipped
+            stats.grazing,
+            light.skipped,
+            light.grazing
         ),
         format!(
             "preprocess: reading {read_s:.3} s, R {radius_s:.3} s, camera hierarchy {camera_build_s:.3} s ({} leaves), \
@@ -484,4 +622,103 @@ pub fn reconstruct_soft_shadow(
         notes.push(super::method::dropped_warning(camera_path, camera.dropped, total));
     }
     Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes, stats: Stats::new() })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tlfr::lens::LensModel;
+
+    /// A 1 × 0.5 light at y = 2 facing down, Π at depth 1, 7 units per half-width.
+    fn light() -> LightSpace {
+        LightSpace {
+            corner: [-0.5, 2.0, -0.25],
+            axis_u: [1.0, 0.0, 0.0],
+            axis_v: [0.0, 0.0, 1.0],
+            width_u: 1.0,
+            width_v: 0.5,
+            normal: [0.0, -1.0, 0.0],
+            plane_distance: 1.0,
+            motion: [0.0; 3],
+            scale: 7.0,
+            offset: [-3.0, 5.0],
+        }
+    }
+
+    #[test]
+    fn points_of_the_receivers_plane_pass_the_lit_test_however_steep() {
+        // A wall x = 1.5 (seen almost edge-on from the light) and a tilted plane: every point of
+        // the plane, seen from the light point (ũ, ṽ) at its screen position, ends exactly at the
+        // depth `ReceiverPlane` gives there, while the receiver's own depth differs by up to 40 %.
+        let space = light();
+        let lens = space.lens_model();
+        let planes = [([1.5, 0.2, 0.0], [-1.0, 0.0, 0.0]), ([0.2, 0.0, 0.1], [0.3, 0.9, 0.3])];
+        for (point, normal) in planes {
+            let length = super::super::light_space::dot(normal, normal).sqrt();
+            let normal = normal.map(|c| c / length);
+            let receiver = space.to_light(point, 0.0);
+            for (u, v) in [(0.0, 0.0), (-0.8, 0.6), (1.0, -1.0)] {
+                let plane = ReceiverPlane::new(&space, receiver, normal, u, v);
+                // Points of the plane around the receiver: two tangent directions.
+                let a = if normal[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 0.0, 1.0] };
+                let t1 = [
+                    normal[1] * a[2] - normal[2] * a[1],
+                    normal[2] * a[0] - normal[0] * a[2],
+                    normal[0] * a[1] - normal[1] * a[0],
+                ];
+                let t2 = [
+                    normal[1] * t1[2] - normal[2] * t1[1],
+                    normal[2] * t1[0] - normal[0] * t1[2],
+                    normal[0] * t1[1] - normal[1] * t1[0],
+                ];
+                for (s, t) in [(0.3, 0.0), (-0.25, 0.1), (0.0, -0.3), (0.0, 0.0)] {
+                    let world: [f32; 3] = [0, 1, 2].map(|k| point[k] + s * t1[k] + t * t2[k]);
+                    let q = space.to_light(world, 0.0);
+                    let centre = space.centre_screen(q).unwrap();
+                    let coc = lens.coc(q[2]);
+                    let screen = [centre[0] + u * coc, centre[1] + v * coc];
+                    let depth = plane.depth_at(screen, f32::NAN);
+                    assert!((depth - q[2]).abs() < 1e-4 * q[2], "({u}, {v}) {world:?}: {depth} vs {}", q[2]);
+                }
+            }
+        }
+        // A ray parallel to the plane takes the fallback.
+        let plane = ReceiverPlane::new(&space, [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], 0.0, 0.0);
+        let screen = [0.0 - space.offset[0], 0.0 - space.offset[1]];
+        assert_eq!(plane.depth_at(screen, 1.0), 1.0);
+    }
+
+    #[test]
+    fn the_visible_point_lies_on_the_location_ray_and_the_nearest_samples_plane() {
+        // A lens camera (c1 = −fx·a with a = 0.1, focused at 2) at the origin looking along +z,
+        // a floor y = 1 (camera Y points down) seen at a slant.
+        let (fx, a, focus) = (40.0f32, 0.1f32, 2.0f32);
+        let lens = LensModel { c1: -fx * a, c2: fx * a / focus, fx, fy: fx, cx: 32.0, cy: 24.0 };
+        let pose = CameraPose { position: [0.0; 3], axes: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]] };
+        let normal = [0.0, -1.0, 0.0];
+        let project = |p: [f32; 3], at: LensTime| {
+            let c = lens.coc(p[2]);
+            [lens.fx * p[0] / p[2] + lens.cx + at.u * c, lens.fy * p[1] / p[2] + lens.cy + at.v * c, p[2]]
+        };
+        for at in [LensTime { u: 0.0, v: 0.0, t: 0.5 }, LensTime { u: 0.7, v: -0.4, t: 0.5 }] {
+            let sample = [0.3, 1.0, 3.0]; // on the floor
+            let nearest = project(sample, at);
+            let screen = [nearest[0] + 1.3, nearest[1] + 0.9]; // over a pixel away
+            let p = visible_point(&lens, &pose, screen, at, nearest, normal);
+            assert!((p[1] - 1.0).abs() < 1e-4, "on the floor: {p:?}");
+            let seen = project(p, at);
+            assert!((seen[0] - screen[0]).abs() < 1e-3 && (seen[1] - screen[1]).abs() < 1e-3, "{seen:?} vs {screen:?}");
+            // The nearest sample's own depth would have put p off the floor.
+            let depth_only = [
+                (screen[0] - lens.cx - at.u * lens.coc(3.0)) / fx * 3.0,
+                (screen[1] - lens.cy - at.v * lens.coc(3.0)) / fx * 3.0,
+                3.0,
+            ];
+            assert!((depth_only[1] - 1.0).abs() > 0.01);
+        }
+        // A plane seen edge-on: the nearest sample's depth.
+        let at = LensTime { u: 0.0, v: 0.0, t: 0.5 };
+        let p = visible_point(&lens, &pose, [40.0, 30.0], at, [38.0, 30.0, 3.0], [0.0, 0.0, 0.0]);
+        assert!((p[2] - 3.0).abs() < 1e-5, "{p:?}");
+    }
 }
