@@ -53,6 +53,7 @@ pub mod method;
 pub mod neighbours;
 pub mod reconstruct;
 pub mod recursive;
+pub mod robust;
 pub mod samples;
 pub mod shrink;
 pub mod splats;
