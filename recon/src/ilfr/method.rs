@@ -303,8 +303,10 @@ pub struct Reconstructed {
     pub gather: GatherStats,
     /// One entry per recursive pass.
     pub recursive: Vec<RecursiveStats>,
-    /// Robust radiance ([`super::robust`]) of the final gather's splats.
+    /// Robust radiance ([`super::robust`]) of the final gather's splats, and the mode that
+    /// applied (off for the lens mode and ambient occlusion).
     pub robust: RobustStats,
+    pub robust_mode: RobustMode,
     /// The gather's settings (offset in scene units included), so that a benchmark can trace
     /// its very rays elsewhere ([`super::gather::reconstruction_rays`]).
     pub gather_settings: GatherSettings,
@@ -394,7 +396,7 @@ impl Reconstructed {
             ),
             format!(
                 "robust radiance ({}): {} of {} splats judged, {} outliers, their excess {:.3}% of the splats' power",
-                settings.robust.mode.name(),
+                self.robust_mode.name(),
                 self.robust.judged,
                 self.splats,
                 self.robust.outliers,
@@ -533,6 +535,7 @@ pub fn reconstruct_samples(
         gather: gathered,
         recursive,
         robust: robust_stats,
+        robust_mode: robust.mode,
         gather_settings,
     })
 }
