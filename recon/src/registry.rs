@@ -386,6 +386,12 @@ mod tests {
             "the options reach the reconstruction's settings"
         );
         let settings = choices.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Indirect);
+        assert_eq!(settings.robust.mode, RobustMode::Spread, "the default");
+        for (option, mode) in [("robust=clamp", RobustMode::Clamp), ("robust=off", RobustMode::Off)] {
+            let choices = ilfr_choices(&spec("ilfr-recursive").unwrap().parse_options(option).unwrap());
+            let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Glossy);
+            assert_eq!(applied.robust.mode, mode, "{option}");
+        }
         assert_eq!(
             (settings.surfaces.conflict_test, settings.shrink.escaped_rays),
             (ConflictTest::FacingOrCoplanar, false)
