@@ -8,6 +8,7 @@ use crate::baselines::oidn::Oidn;
 use crate::error::Error;
 use crate::gif::filtered_indirect::{FilterOptions, FilteredIndirect};
 use crate::ilfr::method::{Ilfr, IlfrChoices, IlfrDof, IlfrRecursive};
+use crate::ilfr::robust::RobustMode;
 use crate::ilfr::surfaces::ConflictTest;
 use crate::method::{Effect, Method};
 use crate::options::{OptionKind, OptionSpec, Options};
@@ -109,6 +110,13 @@ const SHRINK: OptionSpec = OptionSpec {
     kind: OptionKind::Choice(&["all-rays", "hit-rays"]),
     default: "all-rays",
     help: "which input rays shrink the splats they cross (§2.3.1): all, or only those that hit (the authors' code)",
+};
+const ROBUST: OptionSpec = OptionSpec {
+    key: "robust",
+    kind: OptionKind::Choice(&["spread", "clamp", "off"]),
+    default: "spread",
+    help: "splats far brighter than their neighbours: their excess shared with the neighbours (energy kept), \
+           dropped, or left alone (the paper)",
 };
 const QUALITY: OptionSpec = OptionSpec {
     key: "quality",
@@ -217,14 +225,14 @@ pub const METHODS: &[MethodSpec] = &[
     MethodSpec {
         name: "ilfr",
         effects: INDIRECT_AND_AO,
-        options: &[CONFLICT, SHRINK],
+        options: &[CONFLICT, SHRINK, ROBUST],
         description: "indirect light field reconstruction (Lehtinen et al. 2012)",
         build: |options| Ok(Box::new(Ilfr { choices: ilfr_choices(options) })),
     },
     MethodSpec {
         name: "ilfr-recursive",
         effects: INDIRECT,
-        options: &[PASSES, CONFLICT, SHRINK],
+        options: &[PASSES, CONFLICT, SHRINK, ROBUST],
         description: "indirect light field reconstruction with recursive filtering at the secondary hits (Lehtinen \
                       et al. 2012 §4)",
         build: |options| {
@@ -255,6 +263,12 @@ fn ilfr_choices(options: &Options) -> IlfrChoices {
         shrink_with_escaped_rays: options
             .choice("shrink")
             .map_or(defaults.shrink_with_escaped_rays, |c| c == "all-rays"),
+        robust: match options.choice("robust") {
+            Some("clamp") => RobustMode::Clamp,
+            Some("off") => RobustMode::Off,
+            Some("spread") => RobustMode::Spread,
+            _ => defaults.robust,
+        },
     }
 }
 
@@ -372,6 +386,12 @@ mod tests {
             "the options reach the reconstruction's settings"
         );
         let settings = choices.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Indirect);
+        assert_eq!(settings.robust.mode, RobustMode::Spread, "the default");
+        for (option, mode) in [("robust=clamp", RobustMode::Clamp), ("robust=off", RobustMode::Off)] {
+            let choices = ilfr_choices(&spec("ilfr-recursive").unwrap().parse_options(option).unwrap());
+            let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Glossy);
+            assert_eq!(applied.robust.mode, mode, "{option}");
+        }
         assert_eq!(
             (settings.surfaces.conflict_test, settings.shrink.escaped_rays),
             (ConflictTest::FacingOrCoplanar, false)

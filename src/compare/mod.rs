@@ -27,7 +27,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use recon::method::{FrameInput, Input, Inputs, MethodError};
-use recon::metrics::{evaluate, psnr_db, ToneMap, PSNR_CEILING_DB};
+use recon::metrics::{evaluate, ToneMap};
 use recon::registry::{self, Registered};
 
 use tracer::limits::{MAX_COMPARE_SIDE, MAX_COMPARE_SPP, MAX_RECON_RAYS, MAX_SPP};
@@ -567,9 +567,8 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         _ => "beauty",
     };
     images::write_image(&dir.join("images"), "reference", layer, &reference.image, &tone)?;
-    // The mean of two halves has a quarter of the squared difference of the halves as error.
     let estimated_psnr_db = match &reference.halves {
-        Some((a, b)) => Some((psnr_db(a, b, &tone)? + 10.0 * 4f64.log10()).min(PSNR_CEILING_DB)),
+        Some((a, b)) => Some(reference::estimated_psnr_db(a, b, &tone)?),
         None => None,
     };
 

@@ -12,19 +12,21 @@ use shading::{sample_cosine_hemisphere, Frame};
 use super::disc::Ray;
 
 /// `count` rays from `hit` lifted by `offset` along the unit `normal`, cosine-distributed about
-/// it: point j of the 2D Sobol' sequence Owen-scrambled by `scramble`, mapped to the
-/// hemisphere.
+/// it: points `first`, …, `first + count − 1` of the 2D Sobol' sequence Owen-scrambled by
+/// `scramble`, mapped to the hemisphere (an aligned block of 2^m points of the scrambled
+/// sequence is itself a (0, m, 2)-net, so hits that take consecutive blocks of one sequence
+/// share one stratification).
 pub(super) fn cosine_rays(
     hit: [f32; 3],
     normal: [f32; 3],
     offset: f32,
-    count: u32,
+    (first, count): (u32, u32),
     scramble: u32,
 ) -> impl Iterator<Item = Ray> {
     let origin = [0, 1, 2].map(|a| hit[a] + offset * normal[a]);
     let frame = Frame::new(Vec3::from(normal));
     let (tangent, bitangent) = (frame.tangent.to_array(), frame.bitangent.to_array());
-    (0..count).map(move |j| {
+    (first..first.saturating_add(count)).map(move |j| {
         let (u, v) = sobol_2d_scrambled(j, scramble);
         let local = sample_cosine_hemisphere([u, v]).to_array();
         let direction = [0, 1, 2].map(|a| local[0] * tangent[a] + local[1] * bitangent[a] + local[2] * normal[a]);
@@ -53,7 +55,7 @@ mod tests {
         for normal in [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [0.6, 0.0, 0.8], [-0.48, 0.6, -0.64]] {
             let n = 4096;
             let (mut c1, mut c2, mut mean) = (0.0f64, 0.0f64, [0.0f64; 3]);
-            for ray in cosine_rays([1.0, 2.0, 3.0], normal, 0.5, n, 7) {
+            for ray in cosine_rays([1.0, 2.0, 3.0], normal, 0.5, (0, n), 7) {
                 let d = ray.direction;
                 assert!(((d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - 1.0).abs() < 1e-5);
                 assert_eq!(ray.origin, [0, 1, 2].map(|a| [1.0, 2.0, 3.0][a] + 0.5 * normal[a]));

@@ -51,11 +51,21 @@ pub struct GatherSettings {
     pub sky_pixel_radius: u32,
     /// A sky sample counts within this many angular spacings of the ray.
     pub sky_spacing_factor: f32,
+    /// Cosine rays of a pixel's primary hits as consecutive blocks of one scrambled sequence
+    /// per pixel (one stratification over the pixel), instead of one sequence per hit.
+    pub pixel_stratified: bool,
 }
 
 impl Default for GatherSettings {
     fn default() -> Self {
-        GatherSettings { rays_per_pixel: 256, seed: 0, offset: 1e-4, sky_pixel_radius: 2, sky_spacing_factor: 2.0 }
+        GatherSettings {
+            rays_per_pixel: 256,
+            seed: 0,
+            offset: 1e-4,
+            sky_pixel_radius: 2,
+            sky_spacing_factor: 2.0,
+            pixel_stratified: true,
+        }
     }
 }
 
@@ -255,7 +265,15 @@ pub(super) fn sky_samples(
 /// The reconstruction rays of primary hit `i`: origin lifted along the normal, directions
 /// cosine-distributed about it.
 fn hit_rays(samples: &IndirectSamples, i: usize, per_hit: u32, settings: &GatherSettings) -> impl Iterator<Item = Ray> {
-    cosine_rays(samples.primary_hit[i], samples.primary_normal[i], settings.offset, per_hit, hit_scramble(i, settings))
+    let (block, scramble) = if settings.pixel_stratified {
+        // Hit k of pixel p takes block k of the pixel's sequence.
+        let spp = samples.spp.max(1) as usize;
+        let (pixel, k) = (i / spp, (i % spp) as u32);
+        (k.saturating_mul(per_hit), hash_u32(settings.seed ^ hash_u32(pixel as u32 ^ 0x243f_6a88)))
+    } else {
+        (0, hit_scramble(i, settings))
+    };
+    cosine_rays(samples.primary_hit[i], samples.primary_normal[i], settings.offset, (block, per_hit), scramble)
 }
 
 /// The seed of primary hit i's directions.

@@ -25,6 +25,7 @@ use super::lens::gather_lens;
 use super::lens::read_primary_rays;
 use super::reconstruct::Reconstructor;
 use super::recursive::{recursive_pass, RecursiveSettings, RecursiveStats};
+use super::robust::{robust_radiance, RobustMode, RobustParams, RobustStats};
 use super::samples::{read_indirect, IndirectSamples};
 use super::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams, ShrinkStats};
 use super::splats::{size_splats, GatheredPoints, SplatParams, SplatStats};
@@ -47,11 +48,17 @@ pub struct IlfrChoices {
     pub conflict_test: Option<ConflictTest>,
     /// Whether escaped input rays shrink splats ([`ShrinkParams::escaped_rays`]).
     pub shrink_with_escaped_rays: bool,
+    /// What is done with outliers of the splat radiance ([`super::robust`]).
+    pub robust: RobustMode,
 }
 
 impl Default for IlfrChoices {
     fn default() -> Self {
-        IlfrChoices { conflict_test: None, shrink_with_escaped_rays: ShrinkParams::default().escaped_rays }
+        IlfrChoices {
+            conflict_test: None,
+            shrink_with_escaped_rays: ShrinkParams::default().escaped_rays,
+            robust: RobustParams::default().mode,
+        }
     }
 }
 
@@ -73,6 +80,7 @@ impl IlfrChoices {
         IlfrSettings {
             surfaces: SurfaceParams { conflict_test, ..settings.surfaces },
             shrink: ShrinkParams { escaped_rays: self.shrink_with_escaped_rays, ..settings.shrink },
+            robust: RobustParams { mode: self.robust, ..settings.robust },
             ..settings
         }
     }
@@ -234,6 +242,12 @@ pub struct IlfrSettings {
     pub splats: SplatParams,
     pub shrink: ShrinkParams,
     pub surfaces: SurfaceParams,
+    /// Outliers of the splat radiance ([`super::robust`]; indirect and glossy light only, not
+    /// the lens mode).
+    pub robust: RobustParams,
+    /// The final gather's cosine rays of a pixel's primary hits as one stratified set
+    /// ([`GatherSettings::pixel_stratified`]); false: one set per hit (before issue 23).
+    pub pixel_stratified: bool,
     /// Reconstruction rays start this fraction of the scene diagonal above their primary (and,
     /// recursing, secondary) hit.
     pub relative_offset: f32,
@@ -251,6 +265,8 @@ impl Default for IlfrSettings {
             splats: SplatParams::default(),
             shrink: ShrinkParams::default(),
             surfaces: SurfaceParams::default(),
+            robust: RobustParams::default(),
+            pixel_stratified: true,
             relative_offset: 1e-4,
             recursive_passes: 0,
             recursive_rays: 16,
@@ -287,6 +303,10 @@ pub struct Reconstructed {
     pub gather: GatherStats,
     /// One entry per recursive pass.
     pub recursive: Vec<RecursiveStats>,
+    /// Robust radiance ([`super::robust`]) of the final gather's splats, and the mode that
+    /// applied (off for the lens mode and ambient occlusion).
+    pub robust: RobustStats,
+    pub robust_mode: RobustMode,
     /// The gather's settings (offset in scene units included), so that a benchmark can trace
     /// its very rays elsewhere ([`super::gather::reconstruction_rays`]).
     pub gather_settings: GatherSettings,
@@ -316,6 +336,8 @@ impl Reconstructed {
             ("surface_members_per_ray", ratio(r.surface_members, r.surfaces)),
             ("no_surface_fraction", ratio(r.no_surface, r.rays)),
             ("glossy_fraction", ratio(r.glossy, r.rays)),
+            ("outlier_fraction", ratio(self.robust.outliers as u64, self.splats as u64)),
+            ("outlier_excess_fraction", self.robust.excess_fraction),
             ("sizing_s", t.sizing_s),
             ("hierarchy_s", t.hierarchy_s),
             ("shrinking_s", t.shrinking_s),
@@ -371,6 +393,14 @@ impl Reconstructed {
                 percent(r.merged_small_surfaces),
                 percent(r.glossy),
                 self.gather.unsupported_hits
+            ),
+            format!(
+                "robust radiance ({}): {} of {} splats judged, {} outliers, their excess {:.3}% of the splats' power",
+                self.robust_mode.name(),
+                self.robust.judged,
+                self.splats,
+                self.robust.outliers,
+                100.0 * self.robust.excess_fraction
             ),
         ];
         for (pass, r) in self.recursive.iter().enumerate() {
@@ -431,8 +461,17 @@ pub fn reconstruct_samples(
     let shrinking_s = start.elapsed().as_secs_f64();
 
     let offset = if diagonal > 0.0 { settings.relative_offset * diagonal } else { settings.relative_offset };
-    let splat_radiance = |per_sample: &[[f32; 3]]| -> Vec<[f32; 3]> {
-        storage.sample_index.iter().map(|&i| per_sample[i as usize]).collect()
+    // Outliers are judged for indirect light (and in every recursive pass), not in the lens
+    // mode (camera rays' radiance) or for ambient occlusion (no radiance).
+    let robust = if target == GatherTarget::Indirect {
+        RobustParams { alpha: settings.splats.alpha, lobe_threshold: settings.splats.lobe_threshold, ..settings.robust }
+    } else {
+        RobustParams { mode: RobustMode::Off, ..settings.robust }
+    };
+    let radii = bvh.radii();
+    let splat_radiance = |per_sample: &[[f32; 3]]| -> Result<(Vec<[f32; 3]>, RobustStats), MethodError> {
+        let raw: Vec<[f32; 3]> = storage.sample_index.iter().map(|&i| per_sample[i as usize]).collect();
+        robust_radiance(&points, &radii, &raw, &robust).map_err(failed)
     };
 
     // §4: each pass reconstructs at the Lambertian secondary hits from the previous radiances.
@@ -453,7 +492,7 @@ pub fn reconstruct_samples(
             ..RecursiveSettings::default()
         };
         for _ in 0..settings.recursive_passes {
-            let radiance = splat_radiance(&current);
+            let (radiance, _) = splat_radiance(&current)?;
             let shading =
                 SplatShading { radiance: &radiance, direction: &storage.direction, kappa: storage.kappa.as_deref() };
             let reconstructor = Reconstructor { bvh: &bvh, shading, surfaces: settings.surfaces };
@@ -467,9 +506,9 @@ pub fn reconstruct_samples(
     let recursive_s = start.elapsed().as_secs_f64();
 
     let start = Instant::now();
-    let radiance: Vec<[f32; 3]> = match &samples.radiance {
-        Some(r) => splat_radiance(r),
-        None => vec![[0.0; 3]; storage.sample_index.len()],
+    let (radiance, robust_stats) = match &samples.radiance {
+        Some(r) => splat_radiance(r)?,
+        None => (vec![[0.0; 3]; storage.sample_index.len()], RobustStats::default()),
     };
     let shading = SplatShading { radiance: &radiance, direction: &storage.direction, kappa: storage.kappa.as_deref() };
     let reconstructor = Reconstructor { bvh: &bvh, shading, surfaces: settings.surfaces };
@@ -477,6 +516,7 @@ pub fn reconstruct_samples(
         rays_per_pixel: settings.recon_rays,
         seed: settings.seed,
         offset,
+        pixel_stratified: settings.pixel_stratified,
         ..GatherSettings::default()
     };
     let gathered = match target {
@@ -494,6 +534,8 @@ pub fn reconstruct_samples(
         shrinking,
         gather: gathered,
         recursive,
+        robust: robust_stats,
+        robust_mode: robust.mode,
         gather_settings,
     })
 }
@@ -640,6 +682,29 @@ pub(crate) mod tests {
         // Pixels average hits spread over the pixel (1.8/8 wide), so their expectation is not
         // the centre's; the floor ramp is smooth, so a few percent of the mean value 0.5.
         assert!(mean_error < 0.02 && worst < 0.06, "mean {mean_error}, worst {worst}");
+    }
+
+    #[test]
+    fn one_stratified_set_per_pixel_beats_one_per_hit_at_many_spp() {
+        // 16 hits per pixel and 64 rays per pixel: 4 rays per hit. The height ramp of the box
+        // walls varies over the hemisphere, so the gather's error is its sampling noise; against
+        // the same splats gathered with 4096 rays per pixel, one scrambled Sobol' set split over
+        // the pixel's hits (each hit a consecutive block) must be clearly better than 16
+        // independent 4-ray sets (issue 23: the error grew with the input spp at fixed rays).
+        let samples = box_samples(8, 16, SampleKind::Indirect, None, |h| [h[2]; 3]);
+        let reference = reconstruct_samples(&samples, GatherTarget::Indirect, &settings(4096)).unwrap().image;
+        let error = |pixel_stratified: bool| {
+            let settings = IlfrSettings { pixel_stratified, ..settings(64) };
+            let image = reconstruct_samples(&samples, GatherTarget::Indirect, &settings).unwrap().image;
+            let mut sum = 0.0f64;
+            for (a, b) in image.pixels.iter().zip(&reference.pixels) {
+                assert!(a[0].is_finite());
+                sum += ((a[0] - b[0]) as f64).powi(2);
+            }
+            sum / image.pixels.len() as f64
+        };
+        let (per_pixel, per_hit) = (error(true), error(false));
+        assert!(per_pixel < 0.5 * per_hit, "MSE one set per pixel {per_pixel:.3e}, one per hit {per_hit:.3e}");
     }
 
     /// Gives the box's floor the BSDF `bsdf`, seen from `eye`, as a glossy file carries it.

@@ -30,6 +30,10 @@
 //!   ambient occlusion (Section 3.3): `gather`; at glossy primary hits, directions and weights
 //!   f·cos/p from o's own BSDF (read from the file, the tracer's `shading::Bsdf`), split between
 //!   the lobes with multi-sample MIS: `bsdf_rays`.
+//! - Beyond the paper (issue 23): splats far brighter than their neighbours in the lobe keep a
+//!   bounded radiance and share the excess with them, power kept (`robust`); the final gather's
+//!   cosine rays of a pixel's primary hits are consecutive blocks of one scrambled Sobol'
+//!   sequence per pixel (`gather`, `directions`).
 //! - ✓ Section 4, recursive filtering: at every secondary hit 16 rays reconstruct the incident
 //!   light, and the sample's radiance becomes `secondary_direct` + the reflected mean before the
 //!   final gather (cosine rays × `secondary_albedo` in diffuse files; h's own BSDF through
@@ -53,6 +57,7 @@ pub mod method;
 pub mod neighbours;
 pub mod reconstruct;
 pub mod recursive;
+pub mod robust;
 pub mod samples;
 pub mod shrink;
 pub mod splats;

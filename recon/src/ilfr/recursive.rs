@@ -230,7 +230,13 @@ pub fn recursive_pass(
 /// cosine-distributed about it.
 fn secondary_rays(samples: &IndirectSamples, i: usize, settings: &RecursiveSettings) -> impl Iterator<Item = Ray> {
     let scramble = hit_scramble(i, settings);
-    cosine_rays(samples.secondary_hit[i], samples.secondary_normal[i], settings.offset, settings.rays_per_hit, scramble)
+    cosine_rays(
+        samples.secondary_hit[i],
+        samples.secondary_normal[i],
+        settings.offset,
+        (0, settings.rays_per_hit),
+        scramble,
+    )
 }
 
 /// The seed of secondary hit i's directions: a constant apart from the gather's, so that the
