@@ -59,10 +59,9 @@ enum Candidates {
     Paper,
 }
 
-#[derive(clap::Args)]
-pub struct StatsArgs {
-    #[command(flatten)]
-    trace: TraceArgs,
+/// Receivers and probe placement, shared by `stats` and `precompute`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct PlacementArgs {
     /// Number of probes.
     #[arg(long, default_value_t = 64)]
     probes: usize,
@@ -75,6 +74,28 @@ pub struct StatsArgs {
     /// Candidate rule for probe positions.
     #[arg(long, value_enum, default_value_t = Candidates::Front)]
     candidates: Candidates,
+}
+
+impl PlacementArgs {
+    /// The receivers' and the placement's settings.
+    fn settings(&self, seed: u32) -> (SurfelSettings, PlacementSettings) {
+        let rule = match self.candidates {
+            Candidates::Front => CandidateRule::FrontFacing,
+            Candidates::Paper => CandidateRule::Paper,
+        };
+        (
+            SurfelSettings { budget: self.receivers, seed, ..Default::default() },
+            PlacementSettings { probes: self.probes, overlap: self.overlap, rule },
+        )
+    }
+}
+
+#[derive(clap::Args)]
+pub struct StatsArgs {
+    #[command(flatten)]
+    trace: TraceArgs,
+    #[command(flatten)]
+    placement: PlacementArgs,
     /// Receivers to survey for hit points no covering probe sees (0: no survey).
     #[arg(long, default_value_t = 2000)]
     survey: usize,
@@ -182,12 +203,7 @@ struct FrameReport {
 }
 
 fn run_stats(args: &StatsArgs) -> Result<()> {
-    let surfel_settings = SurfelSettings { budget: args.receivers, seed: args.trace.seed(), ..Default::default() };
-    let rule = match args.candidates {
-        Candidates::Front => CandidateRule::FrontFacing,
-        Candidates::Paper => CandidateRule::Paper,
-    };
-    let placement_settings = PlacementSettings { probes: args.probes, overlap: args.overlap, rule };
+    let (surfel_settings, placement_settings) = args.placement.settings(args.trace.seed());
     // Every setting and output is checked before the scene is read.
     surfel_settings.validate()?;
     placement_settings.validate()?;
@@ -293,15 +309,15 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
         triangles: s.triangles,
         scene_extent: layout.scale,
         threads,
-        receivers_budget: args.receivers,
+        receivers_budget: args.placement.receivers,
         receivers: s.surfels,
         receiver_cell: s.h,
         receiver_area: s.area,
         area_samples: s.samples,
         degenerate_triangles: s.degenerate_triangles,
-        probes_target: args.probes,
+        probes_target: args.placement.probes,
         probes: p.probes.len(),
-        candidate_rule: format!("{:?}", args.candidates).to_lowercase(),
+        candidate_rule: format!("{:?}", args.placement.candidates).to_lowercase(),
         spacing: p.spacing,
         voxel: p.voxel,
         voxel_grid: p.dims,
@@ -310,7 +326,7 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
         candidates: p.candidates,
         flood_fill_seeds: p.seeds_used,
         probes_inside_geometry_dropped: layout.probes_inside,
-        overlap_target: args.overlap,
+        overlap_target: args.placement.overlap,
         support_radius: layout.radius,
         probes_per_receiver_min: c.min,
         probes_per_receiver_mean: c.mean,
@@ -502,18 +518,8 @@ pub struct PrecomputeOptions {
     /// albedo).
     #[arg(long)]
     cache: PathBuf,
-    /// Number of probes.
-    #[arg(long, default_value_t = 64)]
-    probes: usize,
-    /// Receiver budget (surfels; the count comes close to it).
-    #[arg(long, default_value_t = 100_000)]
-    receivers: usize,
-    /// N_overlap: mean number of probes covering a receiver (sets the support radius).
-    #[arg(long, default_value_t = 10.0)]
-    overlap: f64,
-    /// Candidate rule for probe positions.
-    #[arg(long, value_enum, default_value_t = Candidates::Front)]
-    candidates: Candidates,
+    #[command(flatten)]
+    placement: PlacementArgs,
     /// SH order of the probes (0 to 7).
     #[arg(long, default_value_t = 7)]
     order: usize,
@@ -527,16 +533,10 @@ pub struct PrecomputeOptions {
 
 impl PrecomputeOptions {
     fn settings(&self, seed: u32) -> PrecomputeSettings {
+        let (surfels, placement) = self.placement.settings(seed);
         PrecomputeSettings {
-            surfels: SurfelSettings { budget: self.receivers, seed, ..Default::default() },
-            placement: PlacementSettings {
-                probes: self.probes,
-                overlap: self.overlap,
-                rule: match self.candidates {
-                    Candidates::Front => CandidateRule::FrontFacing,
-                    Candidates::Paper => CandidateRule::Paper,
-                },
-            },
+            surfels,
+            placement,
             transport: TransportSettings { order: self.order, directions: self.directions, seed, ..Default::default() },
             relight_rays: self.relight_rays,
         }

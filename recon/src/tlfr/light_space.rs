@@ -243,11 +243,11 @@ pub fn lambertian_direct(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// A 1 × 0.5 light at y = 2 facing down, Π at depth 1.
-    fn light() -> LightSpace {
+    pub(crate) fn light() -> LightSpace {
         LightSpace {
             corner: [-0.5, 2.0, -0.25],
             axis_u: [1.0, 0.0, 0.0],

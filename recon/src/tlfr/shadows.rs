@@ -629,20 +629,9 @@ mod tests {
     use super::*;
     use crate::tlfr::lens::LensModel;
 
-    /// A 1 × 0.5 light at y = 2 facing down, Π at depth 1, 7 units per half-width.
+    /// A 1 × 0.5 light at y = 2 facing down, Π at depth 1, 7 units per half-width, offset.
     fn light() -> LightSpace {
-        LightSpace {
-            corner: [-0.5, 2.0, -0.25],
-            axis_u: [1.0, 0.0, 0.0],
-            axis_v: [0.0, 0.0, 1.0],
-            width_u: 1.0,
-            width_v: 0.5,
-            normal: [0.0, -1.0, 0.0],
-            plane_distance: 1.0,
-            motion: [0.0; 3],
-            scale: 7.0,
-            offset: [-3.0, 5.0],
-        }
+        LightSpace { offset: [-3.0, 5.0], ..crate::tlfr::light_space::tests::light() }
     }
 
     #[test]
