@@ -206,6 +206,10 @@ pub trait Method: Send + Sync + std::fmt::Debug {
     fn default_recon_rays(&self) -> Vec<u32> {
         vec![0]
     }
+    /// Whether it reads `Inputs::light_samples` for `effect` (their tracing counts in its time).
+    fn reads_light_samples(&self, _effect: Effect) -> bool {
+        false
+    }
     /// `Err(reason)` when a dependency is missing; checked once before any run.
     fn available(&self) -> Result<(), Error> {
         Ok(())

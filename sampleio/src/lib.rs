@@ -66,4 +66,4 @@ pub use header::{
 pub use needs::{FieldNeed, Needs, OCTAHEDRAL, REAL};
 pub use output::check_output_target;
 pub use reader::SampleFile;
-pub use writer::SampleWriter;
+pub use writer::{encode_record, SampleWriter, UnencodableValue};

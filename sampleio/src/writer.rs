@@ -7,6 +7,7 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use crate::error::{Result, SampleError};
+use crate::field::FieldType;
 use crate::header::{Header, HeaderSpec, FORMAT_VERSION, MAGIC, MAX_HEADER_LEN, TRAILER_MAGIC};
 
 /// Buffer between the writer and the file.
@@ -44,6 +45,44 @@ fn temporary_path(path: &Path) -> Option<PathBuf> {
     let mut name: OsString = path.file_name()?.to_owned();
     name.push(format!(".{}.tmp", std::process::id()));
     Some(path.with_file_name(name))
+}
+
+/// A value a field's type cannot hold: NaN, an infinity or a value out of an integer type's
+/// range (`encode_record`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct UnencodableValue {
+    pub field: String,
+    pub component: u32,
+    pub value: f32,
+    pub ty: FieldType,
+}
+
+impl UnencodableValue {
+    /// The error naming the file and the sample.
+    pub fn at(self, path: &Path, sample: u64) -> SampleError {
+        let UnencodableValue { field, component, value, ty } = self;
+        SampleError::ValueOutOfRange { path: path.to_path_buf(), sample, field, component, value, ty }
+    }
+}
+
+/// Encodes one sample's values (one per component, fields in header order) into `record`
+/// (`header.record_size` bytes, little-endian at the fields' offsets): f16 by rounding to
+/// nearest, integers by rounding to the nearest integer (ties away from zero) with a range
+/// check; float fields store NaN and infinities as given. Bytes no field covers are left as
+/// they are. `values` must hold `header.values_per_sample()` values and `record` the record
+/// size (the caller checks; extra values are ignored).
+pub fn encode_record(header: &Header, values: &[f32], record: &mut [u8]) -> std::result::Result<(), UnencodableValue> {
+    let mut values = values.iter();
+    for field in &header.fields {
+        for component in 0..field.components {
+            let Some(&value) = values.next() else { return Ok(()) };
+            let range = field.component_range(component as usize);
+            if !field.ty.encode(value, &mut record[range]) {
+                return Err(UnencodableValue { field: field.name.clone(), component, value, ty: field.ty });
+            }
+        }
+    }
+    Ok(())
 }
 
 impl SampleWriter {
@@ -148,25 +187,10 @@ impl SampleWriter {
             return Err(self.fail(e));
         }
         let mut record = std::mem::take(&mut self.record);
-        let mut values = values.iter();
-        for field in &self.header.fields {
-            for component in 0..field.components {
-                // The length was checked above.
-                let &value = values.next().expect("one value per component");
-                let range = field.component_range(component as usize);
-                if !field.ty.encode(value, &mut record[range]) {
-                    let e = SampleError::ValueOutOfRange {
-                        path: self.path.clone(),
-                        sample: self.pushed,
-                        field: field.name.clone(),
-                        component,
-                        value,
-                        ty: field.ty,
-                    };
-                    self.record = record;
-                    return Err(self.fail(e));
-                }
-            }
+        if let Err(bad) = encode_record(&self.header, values, &mut record) {
+            self.record = record;
+            let e = bad.at(&self.path, self.pushed);
+            return Err(self.fail(e));
         }
         let result = self.push_checked_record(&record);
         self.record = record;
@@ -188,6 +212,45 @@ impl SampleWriter {
             return Err(self.fail(e));
         }
         self.push_checked_record(record)
+    }
+
+    /// Pushes the next `records.len() / record_size` samples as raw records, back to back, as
+    /// [`encode_record`] lays them out: what `push_record` does for each, in one call, so that
+    /// records encoded on several threads cost the writing thread only the copy and the checksum.
+    pub fn push_records(&mut self, records: &[u8]) -> Result<()> {
+        self.check_open()?;
+        let size = self.record.len();
+        if size == 0 || records.len() % size != 0 {
+            let e = SampleError::WrongLength {
+                path: self.path.clone(),
+                sample: self.pushed,
+                what: "record bytes (a whole number of records)",
+                expected: size * (records.len() / size.max(1) + 1),
+                actual: records.len(),
+            };
+            return Err(self.fail(e));
+        }
+        let count = (records.len() / size) as u64;
+        if count > self.header.sample_count - self.pushed {
+            let e = SampleError::TooManySamples { path: self.path.clone(), expected: self.header.sample_count };
+            return Err(self.fail(e));
+        }
+        self.write(records)?;
+        // Each chunk's checksum covers exactly its records.
+        let mut rest = records;
+        while !rest.is_empty() {
+            let in_this_chunk = (self.header.chunk_samples - self.in_chunk) as usize;
+            let take = (rest.len() / size).min(in_this_chunk);
+            let (now, later) = rest.split_at(take * size);
+            self.chunk_hasher.update(now);
+            self.pushed += take as u64;
+            self.in_chunk += take as u32;
+            if self.in_chunk == self.header.chunk_samples {
+                self.end_chunk();
+            }
+            rest = later;
+        }
+        Ok(())
     }
 
     fn push_checked_record(&mut self, record: &[u8]) -> Result<()> {

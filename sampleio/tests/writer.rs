@@ -6,7 +6,7 @@ mod common;
 use std::path::Path;
 
 use common::{small_spec, small_values, write_small};
-use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleError, SampleFile, SampleKind, SampleWriter};
+use sampleio::{encode_record, FieldSpec, FieldType, HeaderSpec, SampleError, SampleFile, SampleKind, SampleWriter};
 
 fn files_in(dir: &Path) -> Vec<String> {
     let mut names: Vec<String> =
@@ -246,4 +246,47 @@ fn camera_light_and_extra_round_trip() {
     assert_eq!(h.coordinates, spec.coordinates);
     assert_eq!(h.extra, spec.extra);
     assert_eq!(h.camera.as_ref().unwrap().coc.at(2.0), -12.5 / 2.0 + 2.75);
+}
+
+/// Records encoded apart (`encode_record`) and pushed in runs of any length, across chunk
+/// boundaries, give the very file `push` gives sample by sample.
+#[test]
+fn records_pushed_in_runs_give_the_same_file_as_samples_pushed_one_by_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, expected) = write_small(dir.path(), "one-by-one.lfrs");
+    for runs in [vec![12], vec![1; 12], vec![5, 5, 2], vec![4, 7, 1], vec![0, 3, 9]] {
+        let path = dir.path().join("runs.lfrs");
+        let mut w = SampleWriter::create(&path, small_spec()).unwrap();
+        let size = w.header().record_size as usize;
+        let mut next = 0;
+        for run in runs.iter().copied() {
+            let mut records = vec![0u8; run * size];
+            for (i, record) in records.chunks_exact_mut(size).enumerate() {
+                encode_record(w.header(), &small_values(next + i), record).unwrap();
+            }
+            w.push_records(&records).unwrap();
+            next += run;
+        }
+        w.finish().unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), expected, "runs {runs:?}");
+        SampleFile::open(&path).unwrap();
+    }
+    // A partial record, or more records than the header declares, abort the writer.
+    let path = dir.path().join("bad.lfrs");
+    let mut w = SampleWriter::create(&path, small_spec()).unwrap();
+    let size = w.header().record_size as usize;
+    assert!(matches!(w.push_records(&vec![0; size + 1]), Err(SampleError::WrongLength { .. })));
+    assert!(matches!(w.push_records(&vec![0; size]), Err(SampleError::Aborted { .. })));
+    let mut w = SampleWriter::create(&path, small_spec()).unwrap();
+    assert!(matches!(w.push_records(&vec![0; 13 * size]), Err(SampleError::TooManySamples { expected: 12, .. })));
+    drop(w);
+    assert!(files_in(dir.path()).iter().all(|name| name != "bad.lfrs"));
+    // A value a field cannot hold names the field and component.
+    let header = SampleWriter::create(&path, small_spec()).unwrap().header().clone();
+    let mut values = small_values(0);
+    values[6] = -1.0;
+    let mut record = vec![0; size];
+    let bad = encode_record(&header, &values, &mut record).unwrap_err();
+    assert_eq!((bad.field.as_str(), bad.component, bad.ty), ("count", 1, FieldType::U16));
+    assert!(bad.at(&path, 9).to_string().contains("bad.lfrs"));
 }

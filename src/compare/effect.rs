@@ -99,6 +99,10 @@ pub struct Dumped {
     pub samples: std::path::PathBuf,
     /// Soft shadows: the `light` samples that pair with `samples`.
     pub light_samples: Option<std::path::PathBuf>,
+    /// Wall time of tracing and writing `samples`.
+    pub samples_s: f64,
+    /// Wall time of tracing and writing `light_samples`: only the methods that read them pay it.
+    pub light_samples_s: Option<f64>,
 }
 
 /// A traced image of the effect with the denoiser's auxiliary buffers and its wall time.
@@ -171,18 +175,20 @@ impl Tracing<'_> {
 
     /// Writes the effect's samples at `spp` into the folder `dir` (`<kind>-<spp>spp.lfrs`; for
     /// soft shadows the lens-time file with its shading fields and `light-<spp>spp.lfrs`);
-    /// returns the files and the wall time of tracing them all.
-    pub fn dump(&self, spp: u32, seed: u32, dir: &Path) -> Result<(Dumped, f64)> {
+    /// returns the files and the wall time of tracing each.
+    pub fn dump(&self, spp: u32, seed: u32, dir: &Path) -> Result<Dumped> {
         let settings = self.dump_settings(spp, seed);
         let start = Instant::now();
         let (scene, accel) = (self.scene, self.accel);
         let path = dir.join(format!("{}-{spp}spp.lfrs", self.effect.sample_kind().name()));
         if self.effect == Effect::SoftShadow {
             tracer::samples::lens_time::dump_for_soft_shadows(scene, accel, &settings, &path)?;
+            let samples_s = start.elapsed().as_secs_f64();
+            let light_start = Instant::now();
             let light_path = dir.join(format!("{}-{spp}spp.lfrs", sampleio::SampleKind::Light.name()));
             tracer::samples::light::dump(scene, accel, &settings, &light_path)?;
-            let dumped = Dumped { samples: path, light_samples: Some(light_path) };
-            return Ok((dumped, start.elapsed().as_secs_f64()));
+            let light_samples_s = Some(light_start.elapsed().as_secs_f64());
+            return Ok(Dumped { samples: path, light_samples: Some(light_path), samples_s, light_samples_s });
         }
         let path = path.as_path();
         match self.effect.sample_kind() {
@@ -195,7 +201,7 @@ impl Tracing<'_> {
             sampleio::SampleKind::LensTime => tracer::samples::lens_time::dump(scene, accel, &settings, path)?,
             sampleio::SampleKind::Light => tracer::samples::light::dump(scene, accel, &settings, path)?,
         };
-        let dumped = Dumped { samples: path.to_path_buf(), light_samples: None };
-        Ok((dumped, start.elapsed().as_secs_f64()))
+        let samples_s = start.elapsed().as_secs_f64();
+        Ok(Dumped { samples: path.to_path_buf(), light_samples: None, samples_s, light_samples_s: None })
     }
 }

@@ -156,6 +156,9 @@ struct Measured {
     image: Image,
     /// The trace whose timings are this run's trace times.
     trace: TraceKey,
+    /// A second trace whose timings add to them (soft shadows' light samples, for the methods
+    /// that read them).
+    light_trace: Option<TraceKey>,
     /// (preprocess, reconstruct) seconds of each repetition; empty for path tracing.
     parts: Vec<[f64; 2]>,
     /// The method's statistics of each repetition (they hold stage times): the run reports the
@@ -192,7 +195,21 @@ impl Measured {
 enum TraceKey {
     Pt(u32),
     Samples(u32),
+    /// The light samples that soft shadows' samples pair with (traced with `Samples`).
+    LightSamples(u32),
     Guide(u32),
+}
+
+/// The trace times of a run that reads `key` and, when given, `light` too: repetition by
+/// repetition (both are traced in the same repetitions), the sum.
+fn trace_times(traces: &BTreeMap<TraceKey, Vec<f64>>, key: TraceKey, light: Option<TraceKey>) -> Vec<f64> {
+    let mut times = traces[&key].clone();
+    if let Some(extra) = light.and_then(|light| traces.get(&light)) {
+        for (time, extra) in times.iter_mut().zip(extra) {
+            *time += extra;
+        }
+    }
+    times
 }
 
 impl TraceKey {
@@ -200,6 +217,7 @@ impl TraceKey {
         match self {
             TraceKey::Pt(spp) => format!("path tracing, {spp} spp"),
             TraceKey::Samples(spp) => format!("input samples, {spp} spp"),
+            TraceKey::LightSamples(spp) => format!("light samples, {spp} spp"),
             TraceKey::Guide(spp) => format!("guide buffers, {spp} spp"),
         }
     }
@@ -329,6 +347,7 @@ impl Scoring<'_> {
             },
             image,
             trace: TraceKey::Pt(input_spp),
+            light_trace: None,
             parts: Vec::new(),
             stats: Vec::new(),
         })
@@ -637,9 +656,12 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         if needs(Input::Samples) {
             bar.set_message(format!("tracing the input samples, {spp} spp"));
             std::fs::create_dir_all(&inputs_dir).with_context(|| format!("creating {}", inputs_dir.display()))?;
-            let (dumped, seconds) = tracing.dump(spp, seed, &inputs_dir)?;
+            let dumped = tracing.dump(spp, seed, &inputs_dir)?;
+            traces.insert(TraceKey::Samples(spp), vec![dumped.samples_s]);
+            if let Some(seconds) = dumped.light_samples_s {
+                traces.insert(TraceKey::LightSamples(spp), vec![seconds]);
+            }
             samples.insert(spp, dumped);
-            traces.insert(TraceKey::Samples(spp), vec![seconds]);
             jobs.push(Job::Trace(TraceKey::Samples(spp), usize::MAX));
             bar.inc(1);
         }
@@ -702,7 +724,10 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                     (Some(a), Some(b)) => Some(a.max(b)),
                     (a, b) => a.or(b),
                 };
-                let trace_s = traces[&key][0];
+                let light_trace = (key == TraceKey::Samples(spp) && method.reads_light_samples(effect))
+                    .then_some(TraceKey::LightSamples(spp))
+                    .filter(|light| traces.contains_key(light));
+                let trace_s = trace_times(&traces, key, light_trace)[0];
                 let run = context.measure(
                     method.name(),
                     spp,
@@ -715,6 +740,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                 let stats = vec![run.run.stats.clone()];
                 measured.push(Measured {
                     trace: key,
+                    light_trace,
                     parts: vec![[output.preprocess_s, output.recon_s]],
                     stats,
                     ..run
@@ -747,7 +773,14 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                             }
                             traced.seconds
                         }
-                        TraceKey::Samples(spp) => tracing.dump(spp, seed, &inputs_dir)?.1,
+                        TraceKey::Samples(spp) => {
+                            let dumped = tracing.dump(spp, seed, &inputs_dir)?;
+                            if let Some(seconds) = dumped.light_samples_s {
+                                traces.get_mut(&TraceKey::LightSamples(spp)).expect("traced in pass 1").push(seconds);
+                            }
+                            dumped.samples_s
+                        }
+                        TraceKey::LightSamples(_) => unreachable!("traced with the samples"),
                         TraceKey::Guide(spp) => tracing.guide(spp, seed)?.1,
                     };
                     traces.get_mut(key).expect("traced in pass 1").push(seconds);
@@ -772,7 +805,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     }
     bar.finish_and_clear();
     for m in &mut measured {
-        m.settle_timings(&traces[&m.trace]);
+        m.settle_timings(&trace_times(&traces, m.trace, m.light_trace));
     }
     if args.repeats > 1 {
         eprintln!("  timings: the median of up to {} repetitions per run (results.json `timings`)", args.repeats);
@@ -997,6 +1030,7 @@ mod tests {
             run,
             image: reference,
             trace: TraceKey::Samples(4),
+            light_trace: None,
             parts: vec![[0.1, 1.0], [0.1, 3.0], [0.1, 2.0]],
             stats: vec![stats(0.9), stats(2.9), stats(1.9)],
         };
@@ -1007,6 +1041,24 @@ mod tests {
         assert!((measured.run.timing_spread - 2.2 / 2.8).abs() < 1e-12);
         // The statistics (stage times) are the median repetition's too.
         assert_eq!(measured.run.stats["gather_s"], 1.9);
+    }
+
+    /// Soft shadows' light samples count only for the runs that read them, repetition by
+    /// repetition.
+    #[test]
+    fn light_sample_times_add_to_the_runs_that_read_them() {
+        let traces = BTreeMap::from([
+            (TraceKey::Samples(4), vec![1.0, 2.0, 3.0]),
+            (TraceKey::LightSamples(4), vec![0.25, 0.5, 0.75]),
+        ]);
+        assert_eq!(trace_times(&traces, TraceKey::Samples(4), None), vec![1.0, 2.0, 3.0]);
+        assert_eq!(trace_times(&traces, TraceKey::Samples(4), Some(TraceKey::LightSamples(4))), vec![1.25, 2.5, 3.75]);
+        // Which methods read them: tlfr for soft shadows only; box never.
+        let methods = resolve_methods(&["box".into(), "tlfr".into()], Effect::SoftShadow).unwrap();
+        assert!(!methods[0].reads_light_samples(Effect::SoftShadow));
+        assert!(methods[1].reads_light_samples(Effect::SoftShadow));
+        let methods = resolve_methods(&["tlfr".into()], Effect::Dof).unwrap();
+        assert!(!methods[0].reads_light_samples(Effect::Dof));
     }
 
     #[test]

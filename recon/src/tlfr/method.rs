@@ -66,6 +66,10 @@ impl Method for TlfrMethod {
         vec![32, 128]
     }
 
+    fn reads_light_samples(&self, effect: Effect) -> bool {
+        effect == Effect::SoftShadow
+    }
+
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
         let path = inputs
             .samples

@@ -318,9 +318,9 @@ pub fn dump(
     let mut report = write_samples(path, spec, settings, values, |x, y, samples, out| {
         for index in samples {
             let mut sampler = Sampler::new(settings.seed, x, y, index);
-            let sample = trace_secondary(&integrator, &layout, x, y, &mut sampler);
-            debug_assert_eq!(sample.len(), values);
-            out.extend_from_slice(&sample);
+            let before = out.len();
+            trace_secondary(&integrator, &layout, x, y, &mut sampler, out);
+            debug_assert_eq!(out.len() - before, values);
         }
     })?;
     report.dropped_contributions = integrator.dropped_contributions();
@@ -370,6 +370,7 @@ pub fn ambient_occlusion_frame(
         unreachable!("ao samples always have {name}")
     };
     let (distance_at, normal_at) = (offset_of("distance"), offset_of("origin_normal"));
+    let values_per_sample = layout.values_per_sample();
     let lights = LightSampler::new(scene);
     let integrator = super::integrator(scene, accel, &lights, settings);
     let pool = crate::render::thread_pool(settings.threads)?;
@@ -394,9 +395,11 @@ pub fn ambient_occlusion_frame(
                 let row: Vec<(f32, Vec3, Vec3)> = (0..settings.width)
                     .map(|x| {
                         let (mut visible, mut normal, mut hits) = (0u32, Vec3::ZERO, 0u32);
+                        let mut values = Vec::with_capacity(values_per_sample);
                         for index in 0..settings.spp {
                             let mut sampler = Sampler::new(settings.seed, x, y, index);
-                            let values = trace_secondary(&integrator, &layout, x, y, &mut sampler);
+                            values.clear();
+                            trace_secondary(&integrator, &layout, x, y, &mut sampler, &mut values);
                             let has_normal = values[normal_at] != 0.0 || values[normal_at + 1] != 0.0;
                             visible += ao_visible(values[distance_at], has_normal, radius) as u32;
                             if has_normal {
@@ -426,20 +429,20 @@ pub fn ambient_occlusion_frame(
     })
 }
 
-/// One secondary-ray sample as the record's values, in field order.
+/// One secondary-ray sample: appends the record's values, in field order, to `values`.
 fn trace_secondary(
     integrator: &Integrator,
     layout: &SecondaryLayout,
     x: u32,
     y: u32,
     sampler: &mut Sampler,
-) -> Vec<f32> {
+    values: &mut Vec<f32>,
+) {
     let scene = integrator.scene;
     let camera_sample = integrator.camera_sample(x, y, sampler);
     let time = camera_sample.time;
     let (origin, direction) =
         scene.camera.generate_ray(camera_sample.film, camera_sample.lens, integrator.width(), integrator.height());
-    let mut values = Vec::with_capacity(layout.values_per_sample());
     values.extend_from_slice(&[camera_sample.film.x, camera_sample.film.y]);
     if layout.lens {
         values.extend_from_slice(&[camera_sample.lens.x, -camera_sample.lens.y]);
@@ -452,8 +455,8 @@ fn trace_secondary(
     let mut rays = 0;
     let Some(hit) = integrator.accel.intersect(origin, direction, 0.0, f32::INFINITY, time) else {
         // Camera ray escapes: the environment is all there is.
-        push_miss(&mut values, layout, scene.environment);
-        return values;
+        push_miss(values, layout, scene.environment);
+        return;
     };
     let wo = -direction;
     let footprint_width = integrator.camera_cone().width_at(hit.distance);
@@ -536,7 +539,7 @@ fn trace_secondary(
             values.extend_from_slice(&clamp_f16(weight).to_array());
         }
         if layout.origin_bsdf {
-            push_bsdf(&mut values, &surface.bsdf);
+            push_bsdf(values, &surface.bsdf);
             values.extend_from_slice(&encode_octahedral(surface.geometric_normal));
         }
         values.extend_from_slice(&finite_or_zero(direct).to_array());
@@ -544,12 +547,11 @@ fn trace_secondary(
         values.extend_from_slice(&clamp_f16(secondary.direct).to_array());
         if layout.origin_bsdf {
             match &secondary_hit {
-                Some(h) => push_bsdf(&mut values, &h.bsdf),
+                Some(h) => push_bsdf(values, &h.bsdf),
                 None => values.extend_from_slice(&[0.0; 7]),
             }
         }
     }
-    values
 }
 
 /// Non-finite → 0, then clamped to the finite f16 range: every f16 field the dumps write goes
