@@ -176,3 +176,40 @@ fn wrong_shard_sets_are_refused_before_writing() {
         "{stderr}"
     );
 }
+
+/// A 1x1 image: one tile, so a second tile shard is empty (and still merges), and two sample
+/// shards of its 4 samples merge into the single-process pixel.
+#[test]
+fn a_one_pixel_image_shards_and_merges() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let one_pixel = |out: &str, extra: &[&str]| {
+        let mut args = vec!["render", "--width", "1", "--height", "1", "--spp", "4", "--seed", "3", "--quiet"];
+        args.extend_from_slice(extra);
+        let out = path(out);
+        args.extend_from_slice(&["--out", &out]);
+        ok(lfr(&args))
+    };
+    one_pixel("whole.exr", &[]);
+    for (by, tolerance) in [("tiles", 0.0f32), ("samples", 1e-5)] {
+        for i in 0..2 {
+            one_pixel(&format!("{by}{i}.exr"), &["--shard", &format!("{i}/2"), "--shard-by", by]);
+        }
+        let merged = path(&format!("{by}-merged.exr"));
+        ok(lfr(&["merge", "--out", &merged, &path(&format!("{by}1.exr")), &path(&format!("{by}0.exr"))]));
+        let whole = tracer::output::read_exr(Path::new(&path("whole.exr"))).unwrap().2;
+        let merged = tracer::output::read_exr(Path::new(&merged)).unwrap().2;
+        for ((name, a), (_, b)) in whole.iter().zip(&merged) {
+            if by == "samples" && ["albedo", "normal", "position", "depth"].iter().any(|g| name.starts_with(g)) {
+                continue; // guide layers: weighted by sample counts (the test above)
+            }
+            let tolerance = if name.starts_with("variance") { 10.0 * tolerance } else { tolerance };
+            assert!(
+                (a[0] - b[0]).abs() <= tolerance * a[0].abs().max(b[0].abs()),
+                "{by} {name}: whole {}, merged {}",
+                a[0],
+                b[0]
+            );
+        }
+    }
+}
