@@ -227,6 +227,7 @@ impl RelightTable {
     /// region's energy into the escape region, where nobody reads it: the reconstruction comes
     /// out dark. In a closed scene G_miss = 0 and the fit is the inverse of the quadrature's
     /// Gram matrix, within 2e-3 of the identity.
+    #[allow(clippy::needless_range_loop)]
     pub fn fit(&mut self, miss_weight: f64) -> Result<(), ProbesError> {
         if !(miss_weight > 0.0 && miss_weight <= 1.0) {
             return Err(ProbesError::parameter(
@@ -281,6 +282,7 @@ impl RelightTable {
 
 /// The inverse of a symmetric positive definite `n × n` matrix (row-major) by Cholesky; `None`
 /// when it is not positive definite.
+#[allow(clippy::needless_range_loop)]
 fn spd_inverse(a: &[f64], n: usize) -> Option<Vec<f64>> {
     let mut l = vec![0.0f64; n * n];
     for i in 0..n {
