@@ -586,10 +586,32 @@ pub struct FrameOptions {
     /// CPCA: store the compressed transport in fp16.
     #[arg(long)]
     fp16: bool,
+    /// Weight of the relight rays that escape (or hit a lookup hole) in each probe's SH fit:
+    /// 1 is the paper's projection (radiance zero along them); smaller fits the SH to the hit
+    /// rays only, which are the only directions a receiver reads a probe in (docs/probes.md:
+    /// Cornell's image 0.90 → 0.97 as bright as the path tracer's).
+    #[arg(long, default_value_t = 0.01)]
+    relight_miss_weight: f64,
+    /// Unseen directions (hits no covering probe sees) take the mean of the receiver's seen
+    /// ones instead of zero (the paper's): its transport scaled by hits / seen hits.
+    #[arg(long)]
+    renormalise_unseen: bool,
 }
 
 impl FrameOptions {
     /// The CPCA settings (when --cpca) and the added light's intensity, checked.
+    /// Applies the run-time choices that change the precompute's use, not its cache: the
+    /// relight fit and the unseen directions' fill.
+    fn apply(&self, pre: &mut Precompute, pool: &rayon::ThreadPool) -> Result<()> {
+        if self.relight_miss_weight < 1.0 {
+            pool.install(|| pre.table.fit(self.relight_miss_weight))?;
+        }
+        if self.renormalise_unseen {
+            pre.transports.iter_mut().for_each(|t| t.renormalise_unseen());
+        }
+        Ok(())
+    }
+
     fn validated(&self) -> Result<(Option<CpcaSettings>, Option<glam::Vec3>)> {
         if self.light_samples == 0 || self.light_samples > probes::direct::MAX_SAMPLES {
             anyhow::bail!(
@@ -621,6 +643,15 @@ impl FrameOptions {
         }
         if self.fp16 && !self.cpca {
             anyhow::bail!("fp16: stores the CPCA-compressed transport; add --cpca");
+        }
+        if !(self.relight_miss_weight > 0.0 && self.relight_miss_weight <= 1.0) {
+            anyhow::bail!(
+                "relight-miss-weight: must be in (0, 1] (1: the paper's projection), got {}",
+                self.relight_miss_weight
+            );
+        }
+        if self.renormalise_unseen && self.cpca {
+            anyhow::bail!("renormalise-unseen: applies to the dense transport only (the CPCA cache holds the paper's)");
         }
         let cpca = CpcaSettings {
             cluster_limit: self.cpca_cluster_limit,
@@ -657,6 +688,10 @@ pub struct RelightArgs {
     /// Also write the report as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Diagnosis: also solve the same receivers and senders by brute-force surfel radiosity
+    /// (this many cosine rays per receiver, no probes) and compare it with --reference.
+    #[arg(long, default_value_t = 0)]
+    brute_force_rays: u32,
 }
 
 #[derive(clap::Args)]
@@ -706,7 +741,7 @@ fn spinner(quiet: bool, what: &'static str) -> ProgressBar {
 
 /// Whether `precompute` may replace a cache that cannot be used, or the error stands.
 #[derive(Clone, Copy, PartialEq, Eq)]
-enum Stale {
+pub(crate) enum Stale {
     Replace,
     Refuse,
 }
@@ -714,7 +749,7 @@ enum Stale {
 /// The precompute of `scene` from `cache` when it holds this scene's, else built (with
 /// progress) and written there; with `Stale::Refuse` a cache that cannot be used is an error.
 /// Returns it, whether it came from the cache, and the seconds it took.
-fn obtain(
+pub(crate) fn obtain(
     scene: &tracer::Scene,
     settings: &PrecomputeSettings,
     cache: &Path,
@@ -875,13 +910,13 @@ fn lit_scene(scene: &tracer::Scene, no_scene_lights: bool, light: Option<(glam::
 }
 
 /// The dense transports or their CPCA compression.
-enum Operator<'a> {
+pub(crate) enum Operator<'a> {
     Dense(&'a Vec<probes::transport::Transport>),
     Cpca(Cpca),
 }
 
 impl Operator<'_> {
-    fn transport(&self) -> &dyn ReceiverTransport {
+    pub(crate) fn transport(&self) -> &dyn ReceiverTransport {
         match self {
             Operator::Dense(t) => *t,
             Operator::Cpca(c) => c,
@@ -890,22 +925,22 @@ impl Operator<'_> {
 }
 
 #[derive(Serialize)]
-struct CpcaReport {
-    clusters: usize,
-    mean_coefficients: f64,
-    max_cluster_error: f64,
-    tolerance: f64,
-    fp16: bool,
-    bytes: usize,
-    bytes_per_receiver: f64,
+pub(crate) struct CpcaReport {
+    pub(crate) clusters: usize,
+    pub(crate) mean_coefficients: f64,
+    pub(crate) max_cluster_error: f64,
+    pub(crate) tolerance: f64,
+    pub(crate) fp16: bool,
+    pub(crate) bytes: usize,
+    pub(crate) bytes_per_receiver: f64,
     /// Seconds to compress, or to read from the cache.
-    compress_s: f64,
-    from_cache: bool,
-    cache: String,
+    pub(crate) compress_s: f64,
+    pub(crate) from_cache: bool,
+    pub(crate) cache: String,
 }
 
 /// The compressed transport's cache beside the precompute's: `CACHE.cpca`.
-fn cpca_path(cache: &Path) -> PathBuf {
+pub(crate) fn cpca_path(cache: &Path) -> PathBuf {
     let mut name = cache.as_os_str().to_os_string();
     name.push(".cpca");
     PathBuf::from(name)
@@ -914,7 +949,7 @@ fn cpca_path(cache: &Path) -> PathBuf {
 /// The dense transports, or with `settings` their CPCA compression, read from
 /// [`cpca_path`] when it holds this one (keyed by the precompute's key and the CPCA
 /// settings), else compressed and written there.
-fn operator<'a>(
+pub(crate) fn operator<'a>(
     pre: &'a Precompute,
     settings: Option<CpcaSettings>,
     pool: &rayon::ThreadPool,
@@ -971,13 +1006,13 @@ fn operator<'a>(
 }
 
 #[derive(Serialize)]
-struct FrameTimes {
-    direct_s: f64,
-    bounces_s: f64,
-    iterations: usize,
-    image_s: f64,
+pub(crate) struct FrameTimes {
+    pub(crate) direct_s: f64,
+    pub(crate) bounces_s: f64,
+    pub(crate) iterations: usize,
+    pub(crate) image_s: f64,
     /// Direct light at the senders and the bounces: the relit frame without the image.
-    frame_s: f64,
+    pub(crate) frame_s: f64,
 }
 
 #[derive(Serialize)]
@@ -1006,6 +1041,12 @@ struct ReferenceReport {
     indirect_relative_mse: f64,
     /// Mean indirect radiance of this image over the reference's, per channel.
     indirect_mean_ratio: [f64; 3],
+    /// Pixels whose receivers have no transport (hidden, or no probe in range: the `probes`
+    /// layer below one half), and the share of the reference's indirect light in them.
+    pixels_without_probes: f64,
+    reference_share_without_probes: f64,
+    /// Mean direct radiance of this image over the reference's (when it has a direct layer).
+    direct_mean_ratio: Option<[f64; 3]>,
 }
 
 /// The `indirect.R,G,B` layer of a path-traced EXR, `width` × `height`.
@@ -1041,17 +1082,43 @@ fn compare_indirect(path: &Path, img: &ProbeImage) -> Result<ReferenceReport> {
         let b: f64 = reference.pixels.iter().map(|p| p[c] as f64).sum();
         *r = if b > 0.0 { a / b } else { f64::NAN };
     }
+    // The direct layer's mean ratio too (the pixels' albedo, normals and lights checked).
+    let direct_mean_ratio = match tracer::output::read_exr(path) {
+        Ok((_, _, channels)) => {
+            let layer = |name: &str| channels.iter().find(|(n, _)| n == name).map(|(_, v)| v);
+            match (layer("direct.R"), layer("direct.G"), layer("direct.B")) {
+                (Some(r), Some(g), Some(b)) => {
+                    let mut out = [0.0; 3];
+                    for (c, values) in [r, g, b].into_iter().enumerate() {
+                        let a: f64 = img.direct.iter().map(|v| v[c] as f64).sum();
+                        let b: f64 = values.iter().map(|&v| v as f64).sum();
+                        out[c] = if b > 0.0 { a / b } else { f64::NAN };
+                    }
+                    Some(out)
+                }
+                _ => None,
+            }
+        }
+        Err(_) => None,
+    };
+    let without: Vec<bool> = img.probes.iter().map(|&p| p < 0.5).collect();
+    let luminance = |p: &[f32; 3]| (p[0] + p[1] + p[2]) as f64;
+    let total: f64 = reference.pixels.iter().map(luminance).sum();
+    let share: f64 = reference.pixels.iter().zip(&without).filter(|(_, &w)| w).map(|(p, _)| luminance(p)).sum();
     Ok(ReferenceReport {
+        pixels_without_probes: without.iter().filter(|&&w| w).count() as f64 / without.len().max(1) as f64,
+        reference_share_without_probes: if total > 0.0 { share / total } else { 0.0 },
         path: path.display().to_string(),
         indirect_psnr_db: psnr,
         indirect_relative_mse: rel,
         indirect_mean_ratio: ratio,
+        direct_mean_ratio,
     })
 }
 
 /// One relit frame: direct light at the senders, bounces (from `start`), the image.
 #[allow(clippy::too_many_arguments)]
-fn relit_frame(
+pub(crate) fn relit_frame(
     lit: &tracer::Scene,
     accel: &tracer::Accel,
     pre: &Precompute,
@@ -1059,6 +1126,7 @@ fn relit_frame(
     start: Option<&[glam::Vec3]>,
     bounces: usize,
     tolerance: f32,
+    light_samples: u32,
     image: &ImageSettings,
     pool: &rayon::ThreadPool,
 ) -> Result<(Indirect, ProbeImage, FrameTimes)> {
@@ -1066,7 +1134,7 @@ fn relit_frame(
         let albedo = surfel_albedo(lit, &pre.surfels);
         let scale = pre.scale as f32;
         let t = Instant::now();
-        let direct = direct_irradiance(lit, accel, &pre.surfels, image.light_samples, image.seed, scale)?;
+        let direct = direct_irradiance(lit, accel, &pre.surfels, light_samples, image.seed, scale)?;
         let direct_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let out = indirect_from(op, &pre.table, &albedo, &direct, start, bounces, tolerance)?;
@@ -1173,7 +1241,8 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
     let threads = args.trace.run.thread_count()?;
     let pool = tracer::render::thread_pool(threads)?;
     let bar = spinner(args.trace.quiet, "relight");
-    let (pre, from_cache, s) = obtain(&scene, &settings, &args.pre.cache, Stale::Refuse, &pool, &bar)?;
+    let (mut pre, from_cache, s) = obtain(&scene, &settings, &args.pre.cache, Stale::Refuse, &pool, &bar)?;
+    args.frame.apply(&mut pre, &pool)?;
     let light = position.map(|p| (p, intensity.unwrap_or(glam::Vec3::splat((0.5 * pre.scale as f32).powi(2)))));
     let lit = lit_scene(&scene, args.frame.no_scene_lights, light);
     let accel = tracer::Accel::build(&lit)?;
@@ -1183,8 +1252,81 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
     bar.set_message("relighting");
     let max_bounces = args.trace.size.max_bounces.unwrap_or(scene.max_bounces).max(1) as usize;
     let (bounces, tolerance) = if args.bounces == 0 { (max_bounces, 1e-3) } else { (args.bounces as usize, 0.0) };
-    let (out, img, times) = relit_frame(&lit, &accel, &pre, op.transport(), None, bounces, tolerance, &image, &pool)?;
+    let (out, img, times) =
+        relit_frame(&lit, &accel, &pre, op.transport(), None, bounces, tolerance, image.light_samples, &image, &pool)?;
     let reference = args.reference.as_deref().map(|p| compare_indirect(p, &img)).transpose()?;
+    if args.brute_force_rays > 0 {
+        let Some(path) = args.reference.as_deref() else {
+            anyhow::bail!("brute-force-rays: needs --reference");
+        };
+        bar.set_message("brute-force surfel radiosity");
+        let t = Instant::now();
+        let (e, img) = pool.install(|| -> Result<_> {
+            let gathers = probes::gather::Gathers::build(
+                &accel,
+                &pre.surfels,
+                &pre.transports,
+                args.brute_force_rays,
+                pre.scale as f32,
+            );
+            let albedo = surfel_albedo(&lit, &pre.surfels);
+            let direct = direct_irradiance(&lit, &accel, &pre.surfels, image.light_samples, image.seed, pre.scale as f32)?;
+            let e = gathers.indirect(&albedo, &direct, bounces, tolerance);
+            let sender: Vec<glam::Vec3> =
+                albedo.iter().zip(&direct).map(|(a, d)| *a * *d / std::f32::consts::PI).collect();
+            let (via, exact) = probes::gather::one_bounce_split(
+                &lit,
+                &accel,
+                &pre.surfels,
+                &pre.transports,
+                &sender,
+                64,
+                17,
+                64,
+                pre.scale as f32,
+            );
+            bar.suspend(|| println!("one bounce: senders through the lookup / direct light exact at each hit {}", via / exact));
+            let at_pixels = probes::gather::pixel_gather(
+                &lit,
+                &accel,
+                &pre.surfels,
+                &sender,
+                (image.width, image.height),
+                256,
+                pre.scale as f32,
+            );
+            let reference = read_indirect(path, image.width, image.height)?;
+            let (a, b): (f64, f64) = at_pixels
+                .iter()
+                .zip(&reference.pixels)
+                .fold((0.0, 0.0), |(a, b), (p, r)| (a + p.x as f64, b + r[0] as f64));
+            let from_receivers: f64 = img.indirect.iter().map(|p| p.x as f64).sum();
+            bar.suspend(|| {
+                println!(
+                    "one bounce gathered at the pixels (256 rays, senders' direct radiance) / reference (R): {:.4}; the probes' image / it {:.4}",
+                    a / b,
+                    from_receivers / a
+                )
+            });
+            let img = render_image(&lit, &accel, &pre, &e, &image)?;
+            Ok((e, img))
+        })?;
+        let r = compare_indirect(path, &img)?;
+        let probes_mean: f64 = out.irradiance.iter().map(|v| v.element_sum() as f64).sum();
+        let brute_mean: f64 = e.iter().map(|v| v.element_sum() as f64).sum();
+        bar.suspend(|| {
+            println!(
+                "brute force {} rays per receiver, {:.1} s: PSNR {:.2} dB, mean ratio {:.3} {:.3} {:.3}; probes' receiver irradiance / brute force's {:.3}",
+                args.brute_force_rays,
+                t.elapsed().as_secs_f64(),
+                r.indirect_psnr_db,
+                r.indirect_mean_ratio[0],
+                r.indirect_mean_ratio[1],
+                r.indirect_mean_ratio[2],
+                probes_mean / brute_mean.max(1e-30)
+            )
+        });
+    }
     bar.set_message("writing the image");
     let transport = if cpca.is_some() { "cpca" } else { "dense" };
     write_image(&args.out, &img, description(&settings, &scene, transport, position))?;
@@ -1243,6 +1385,14 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
             r.indirect_mean_ratio[1],
             r.indirect_mean_ratio[2]
         );
+        println!(
+            "            pixels without a covering probe (hidden receivers) {:.2} %, holding {:.2} % of the reference's indirect light",
+            100.0 * r.pixels_without_probes,
+            100.0 * r.reference_share_without_probes
+        );
+        if let Some([dr, dg, db]) = r.direct_mean_ratio {
+            println!("            direct layer mean ratio {dr:.3} {dg:.3} {db:.3}");
+        }
     }
     println!("wrote {} and {}", args.out.display(), preview.display());
     if let Some(json) = &args.json {
@@ -1301,7 +1451,8 @@ fn run_animate(args: &AnimateArgs) -> Result<()> {
     let image = image_settings(&args.trace, &scene, &args.frame)?;
     let pool = tracer::render::thread_pool(args.trace.run.thread_count()?)?;
     let bar = spinner(args.trace.quiet, "animate");
-    let (pre, from_cache, s) = obtain(&scene, &settings, &args.pre.cache, Stale::Refuse, &pool, &bar)?;
+    let (mut pre, from_cache, s) = obtain(&scene, &settings, &args.pre.cache, Stale::Refuse, &pool, &bar)?;
+    args.frame.apply(&mut pre, &pool)?;
     let key = CacheKey::of(&scene, &settings);
     let (op, cpca) = operator(&pre, cpca_settings, &pool, &args.pre.cache, &key)?;
     let intensity = intensity.unwrap_or(glam::Vec3::splat((0.5 * pre.scale as f32).powi(2)));
@@ -1321,6 +1472,7 @@ fn run_animate(args: &AnimateArgs) -> Result<()> {
             previous.as_deref(),
             args.bounces_per_frame as usize,
             0.0,
+            image.light_samples,
             &image,
             &pool,
         )?;

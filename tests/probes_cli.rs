@@ -312,3 +312,115 @@ fn animate_moves_a_light_over_frames_from_one_cache() {
     assert_ne!(list[0]["mean_indirect"], list[2]["mean_indirect"]);
     assert!(list.iter().all(|f| f["mean_indirect"].as_array().unwrap().iter().all(|v| v.as_f64().unwrap() > 0.0)));
 }
+
+/// `lfr compare --methods probes...` on the embedded Cornell box at 32×32 (tiny precompute).
+fn probes_compare(out: &Path, cache: &Path, methods: &str, effect: &str) -> std::process::Output {
+    lfr(&[
+        "compare",
+        "--effect",
+        effect,
+        "--width",
+        "32",
+        "--height",
+        "32",
+        "--spp",
+        "1",
+        "--reference-spp",
+        "256",
+        "--pt-max-spp",
+        "64",
+        "--repeats",
+        "2",
+        "--quiet",
+        "--seed",
+        "3",
+        "--methods",
+        methods,
+        "--out",
+        out.to_str().unwrap(),
+        "--cache-dir",
+        cache.to_str().unwrap(),
+    ])
+}
+
+#[test]
+fn compare_runs_probes_with_its_precompute_times_and_per_frame_verdicts() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let tiny = "probes:probes=4:receivers=1500:directions=32:relight_rays=1024:order=3:pixel_samples=1";
+    let spatial = format!("{tiny}:cpca=off:reconstruction=spatial:miss_weight=1");
+    let methods = format!("{tiny},{spatial}");
+    let first = dir.path().join("first");
+    let out = probes_compare(&first, &cache, &methods, "indirect");
+    assert!(out.status.success(), "{}", stderr(&out));
+    let results = json(&first.join("results.json"));
+    let schema: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(common::project_root().join("docs/compare.schema.json")).unwrap())
+            .unwrap();
+    let validator = jsonschema::validator_for(&schema).unwrap();
+    let errors: Vec<String> = validator.iter_errors(&results).map(|e| format!("{e} at {}", e.instance_path)).collect();
+    assert!(errors.is_empty(), "{errors:?}");
+    let runs = results["runs"].as_array().unwrap();
+    let pt: Vec<&serde_json::Value> = runs.iter().filter(|r| r["method"] == "pt").collect();
+    assert!(pt.iter().all(|r| r["precompute_from_cache"].is_null() && r["per_frame_speedup"].is_null()));
+    let mine: Vec<&serde_json::Value> =
+        runs.iter().filter(|r| r["method"].as_str().unwrap().starts_with("probes")).collect();
+    assert_eq!(mine.len(), 2);
+    for run in &mine {
+        assert_eq!(run["input_spp"], 0);
+        assert_eq!(run["recon_rays"], 1);
+        assert_eq!(run["precompute_from_cache"], false, "{run}");
+        let (pre, recon, total) =
+            (run["preprocess_s"].as_f64().unwrap(), run["recon_s"].as_f64().unwrap(), run["total_s"].as_f64().unwrap());
+        assert!(pre > 0.0 && recon > 0.0 && (total - pre - recon).abs() < 1e-9, "{run}");
+        assert_eq!(run["timings"].as_array().unwrap().len(), 2);
+        assert!(run["stats"]["probes"].as_f64().unwrap() >= 1.0 && run["stats"]["receivers"].as_f64().unwrap() > 100.0);
+        // The per-frame verdicts follow from the run's own numbers: speedup = PT time / recon_s
+        // and break-even = preprocess_s / (PT time − recon_s).
+        let speedup = run["per_frame_speedup"].as_f64().expect("a PT curve to read");
+        let pt_time = speedup * recon;
+        assert!((run["speedup"].as_f64().unwrap() * total - pt_time).abs() < 1e-6 * pt_time, "{run}");
+        match run["break_even_frames"].as_f64() {
+            Some(n) => assert!(pt_time > recon && (n * (pt_time - recon) - pre).abs() < 1e-6 * pre.max(1e-9), "{run}"),
+            None => assert!(pt_time <= recon, "{run}"),
+        }
+        assert!(!run["notes"].as_array().unwrap().iter().any(|n| n.as_str().unwrap().contains("not deterministic")));
+    }
+    assert!(mine[0]["stats"]["cpca_clusters"].as_f64().unwrap() >= 1.0);
+    assert!(mine[1]["stats"].get("cpca_clusters").is_none());
+    let verdicts = results["verdicts"].as_array().unwrap();
+    for (verdict, run) in verdicts.iter().zip(&mine) {
+        assert_eq!(verdict["method"], run["method"]);
+        assert_eq!(verdict["best_per_frame_speedup"], run["per_frame_speedup"]);
+        assert_eq!(verdict["break_even_frames"], run["break_even_frames"]);
+        assert!(verdict["summary"].as_str().unwrap().contains("one frame takes"), "{verdict}");
+    }
+    // A rerun reads both precomputes from the cache: the same image, the build time kept.
+    let second = dir.path().join("second");
+    let out = probes_compare(&second, &cache, &methods, "indirect");
+    assert!(out.status.success(), "{}", stderr(&out));
+    let again = json(&second.join("results.json"));
+    let rerun: Vec<&serde_json::Value> = again["runs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| r["method"].as_str().unwrap().starts_with("probes"))
+        .collect();
+    for (a, b) in mine.iter().zip(&rerun) {
+        assert_eq!(b["precompute_from_cache"], true);
+        assert_eq!(a["psnr_db"], b["psnr_db"]);
+        assert_eq!(a["preprocess_s"], b["preprocess_s"], "the build time is kept beside the cache");
+    }
+    // Another effect, and bad options, are refused before anything is traced.
+    for (methods, effect, needle) in [
+        (tiny.to_string(), "ao", "indirect only"),
+        ("probes:order=9".to_string(), "indirect", "order"),
+        ("probes:cpca=perhaps".to_string(), "indirect", "cpca"),
+    ] {
+        let bad = dir.path().join("bad");
+        let out = probes_compare(&bad, &cache, &methods, effect);
+        let message = stderr(&out);
+        assert!(!out.status.success() && message.contains(needle) && !message.contains("panicked"), "{message}");
+        assert!(!bad.join("results.json").exists());
+    }
+}

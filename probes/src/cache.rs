@@ -474,6 +474,7 @@ fn parse(payload: &[u8], settings: &PrecomputeSettings) -> Result<Precompute, St
             escaped,
             holes,
             back_face_fraction,
+            fit: None,
         },
         timings: PrecomputeTimings::default(),
     })

@@ -18,7 +18,10 @@
 //!   sees: `visibility`.
 //! - ✓ Eq. 2 and 4–7, the visibility-aware local transport and the irradiance transport vector
 //!   α_x per receiver, and Eq. 1's spatial-only baseline: `transport` (phase 4, dense).
-//! - ✓ Section 4.2, "Probe Transport": relight rays and the per-frame probe SH λ: `relight`.
+//! - ✓ Section 4.2, "Probe Transport": relight rays and the per-frame probe SH λ: `relight`;
+//!   our extension, the SH fitted to the rays that hit a surface instead of projected with the
+//!   escaped ones read as zero (the paper's projection darkens every probe that sees the sky):
+//!   `relight::RelightTable::fit` (docs/probes.md, "Brightness").
 //! - ✓ Section 4.2, receiver irradiance (dense, Eq. 7 per receiver) and the feedback loop of
 //!   bounces: `frame`.
 //! - ✓ Section 4.2, "Scene relight": direct irradiance at the senders through the tracer's light
@@ -26,7 +29,9 @@
 //! - ✓ Eq. 11, CPCA compression and the per-frame cluster projection (f32 or fp16): `cpca`.
 //! - ✓ The image from the receivers at the camera's hits: `image`; the whole precompute as one
 //!   value, `precompute`, and its cache keyed by geometry and settings, `cache`.
-//! - ✗ `lfr compare` method `probes` (phase 6).
+//! - — Brute-force surfel radiosity, the oracle of the probes' reconstruction (same receivers
+//!   and senders, no probes): `gather`.
+//! - ✓ `lfr compare` method `probes` (phase 6): in the root crate, `src/compare/probes_method.rs`.
 
 #![forbid(unsafe_code)]
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -36,6 +41,7 @@ pub mod cpca;
 pub mod direct;
 pub mod error;
 pub mod frame;
+pub mod gather;
 pub mod geometry;
 pub mod image;
 pub mod kernel;

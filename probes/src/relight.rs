@@ -79,6 +79,9 @@ pub struct RelightTable {
     /// Per probe: the fraction of its hits on back faces (a probe inside geometry sees mostly
     /// back faces).
     pub back_face_fraction: Vec<f32>,
+    /// The masked fit of [`RelightTable::fit`], when set: per probe an `nc × nc` row-major
+    /// matrix applied to the projected coefficients (derived from the rays, never cached).
+    pub fit: Option<Vec<f32>>,
 }
 
 impl RelightTable {
@@ -155,6 +158,7 @@ impl RelightTable {
             escaped: 0,
             holes: 0,
             back_face_fraction: Vec::new(),
+            fit: None,
         };
         for (ranges, senders, escaped, holes, back) in per_probe {
             table.ranges.push(ranges);
@@ -195,8 +199,119 @@ impl RelightTable {
                 }
                 (0..nc).map(move |j| Vec3::new(r[j], g[j], b[j]))
             })
+            .collect::<Vec<Vec3>>()
+            .chunks(nc)
+            .zip(0..)
+            .flat_map(|(b, p)| match &self.fit {
+                None => b.to_vec(),
+                Some(fit) => {
+                    let m = &fit[p * nc * nc..(p + 1) * nc * nc];
+                    (0..nc)
+                        .map(|j| m[j * nc..(j + 1) * nc].iter().zip(b).fold(Vec3::ZERO, |acc, (&a, v)| acc + *v * a))
+                        .collect()
+                }
+            })
             .collect()
     }
+
+    /// Fits each probe's SH to the sender radiance along its rays that read senders, instead of
+    /// projecting radiance that is zero along the rays that escape or hit a hole (the paper's
+    /// projection, `miss_weight` = 1): λ_i minimises
+    /// Σ_hit (L_k − Y(ω_k)·λ)² + μ Σ_miss (Y(ω_k)·λ)² with μ = `miss_weight` ∈ (0, 1], so
+    /// λ_i = (G_hit + μ G_miss)⁻¹ b_i with b_i the projection of [`RelightTable::project`] and
+    /// G the quadrature Gram matrices (4π/R) Σ Y Yᵀ over either set of rays.
+    ///
+    /// Why (docs/probes.md): a receiver reads probe i only in directions of surface points the
+    /// probe sees, i.e. along its hit rays. A bandlimited projection of radiance that drops to
+    /// zero where rays escape (Cornell's open side, Sponza's sky) spreads part of the hit
+    /// region's energy into the escape region, where nobody reads it: the reconstruction comes
+    /// out dark. In a closed scene G_miss = 0 and the fit is the inverse of the quadrature's
+    /// Gram matrix, within 2e-3 of the identity.
+    #[allow(clippy::needless_range_loop)]
+    pub fn fit(&mut self, miss_weight: f64) -> Result<(), ProbesError> {
+        if !(miss_weight > 0.0 && miss_weight <= 1.0) {
+            return Err(ProbesError::parameter(
+                "relight-miss-weight",
+                format!("must be in (0, 1] (1: the paper's projection), got {miss_weight}"),
+            ));
+        }
+        let nc = self.coefficients;
+        let rays = self.rays as usize;
+        // (4π/R) Y Yᵀ = sh shᵀ · R / 4π.
+        let back = rays as f64 / (4.0 * std::f64::consts::PI);
+        let gram_of = |rows: &mut dyn Iterator<Item = usize>| {
+            let mut g = vec![0.0f64; nc * nc];
+            for k in rows {
+                let y = &self.sh[k * nc..(k + 1) * nc];
+                for a in 0..nc {
+                    let ya = y[a] as f64 * back;
+                    for b in a..nc {
+                        g[a * nc + b] += ya * y[b] as f64;
+                    }
+                }
+            }
+            for a in 0..nc {
+                for b in 0..a {
+                    g[a * nc + b] = g[b * nc + a];
+                }
+            }
+            g
+        };
+        let full = gram_of(&mut (0..rays));
+        let fits: Vec<Result<Vec<f32>, ProbesError>> = self
+            .ranges
+            .par_iter()
+            .enumerate()
+            .map(|(p, ranges)| {
+                let miss = gram_of(&mut ranges.iter().enumerate().filter(|(_, r)| r.0 == r.1).map(|(k, _)| k));
+                let g: Vec<f64> = full.iter().zip(&miss).map(|(f, m)| f - (1.0 - miss_weight) * m).collect();
+                let inv = spd_inverse(&g, nc).ok_or_else(|| {
+                    ProbesError::parameter("relight-miss-weight", format!("probe {p}: the fit's matrix is singular"))
+                })?;
+                Ok(inv.iter().map(|&v| v as f32).collect())
+            })
+            .collect();
+        let mut fit = Vec::with_capacity(self.ranges.len() * nc * nc);
+        for f in fits {
+            fit.extend(f?);
+        }
+        self.fit = Some(fit);
+        Ok(())
+    }
+}
+
+/// The inverse of a symmetric positive definite `n × n` matrix (row-major) by Cholesky; `None`
+/// when it is not positive definite.
+#[allow(clippy::needless_range_loop)]
+fn spd_inverse(a: &[f64], n: usize) -> Option<Vec<f64>> {
+    let mut l = vec![0.0f64; n * n];
+    for i in 0..n {
+        for j in 0..=i {
+            let s = a[i * n + j] - (0..j).map(|k| l[i * n + k] * l[j * n + k]).sum::<f64>();
+            if i == j {
+                if !(s > 0.0) {
+                    return None;
+                }
+                l[i * n + i] = s.sqrt();
+            } else {
+                l[i * n + j] = s / l[j * n + j];
+            }
+        }
+    }
+    // Solve L Lᵀ X = I column by column.
+    let mut inv = vec![0.0f64; n * n];
+    let mut y = vec![0.0f64; n];
+    for c in 0..n {
+        for i in 0..n {
+            let rhs = if i == c { 1.0 } else { 0.0 };
+            y[i] = (rhs - (0..i).map(|k| l[i * n + k] * y[k]).sum::<f64>()) / l[i * n + i];
+        }
+        for i in (0..n).rev() {
+            let x = (y[i] - (i + 1..n).map(|k| l[k * n + i] * inv[k * n + c]).sum::<f64>()) / l[i * n + i];
+            inv[i * n + c] = x;
+        }
+    }
+    Some(inv)
 }
 
 #[cfg(test)]
@@ -286,5 +401,119 @@ mod tests {
                 assert!((v.x - expected).abs() < 2e-2, "Y_{l},{m}: λ_{j} = {} (expected {expected})", v.x);
             }
         }
+    }
+
+    /// The mean over a probe's hit directions of its SH reconstruction of radiance L on a big
+    /// floor below it (the sky above escapes).
+    fn floor_mean(miss_weight: Option<f64>) -> (f64, f64) {
+        let floor = tracer::scene::shapes::polygon(
+            "floor",
+            &[
+                Vec3::new(-40.0, -40.0, 0.0),
+                Vec3::new(40.0, -40.0, 0.0),
+                Vec3::new(40.0, 40.0, 0.0),
+                Vec3::new(-40.0, 40.0, 0.0),
+            ],
+            0,
+        );
+        let scene = crate::test_scenes::scene_of(vec![floor], Vec3::new(0.0, 0.0, 1.0));
+        let accel = Accel::build(&scene).unwrap();
+        let surfels = Surfels::build(&scene, &SurfelSettings { budget: 3000, ..Default::default() }).unwrap();
+        let probe = DVec3::new(0.0, 0.0, 0.5);
+        let mut table = RelightTable::build(&accel, &surfels, &[probe], 8000, MAX_ORDER, 80.0).unwrap();
+        if let Some(w) = miss_weight {
+            table.fit(w).unwrap();
+        }
+        let lambda = table.project(&vec![Vec3::ONE; surfels.surfels.len()]);
+        let basis = Basis::new(MAX_ORDER);
+        let (mut sum, mut worst, mut n) = (0.0f64, 0.0f64, 0usize);
+        for (k, d) in fibonacci_directions(8000).iter().enumerate() {
+            let (start, end) = table.ranges[0][k];
+            if start == end {
+                continue;
+            }
+            let y = basis.eval(*d);
+            let v: f64 = y.iter().zip(&lambda).map(|(y, l)| *y as f64 * l.x as f64).sum();
+            sum += v;
+            n += 1;
+            // Away from the horizon (more than 30° below it).
+            if d.z < -0.5 {
+                worst = worst.max((v - 1.0).abs());
+            }
+        }
+        assert!(n > 3800 && n < 4000, "{n} hits");
+        (sum / n as f64, worst)
+    }
+
+    #[test]
+    fn the_masked_fit_keeps_the_radiance_the_projection_spreads_into_the_sky() {
+        // Expectation: the order-7 projection of a hemisphere's indicator keeps
+        // Σ_{l ≤ 7} c_l² / 2π of it over the hemisphere, c_l = 2π √((2l+1)/4π) ∫_{-1}^0 P_l,
+        // by Legendre polynomials here (independent of the SH code).
+        let mut kept = 0.0f64;
+        for l in 0..=MAX_ORDER {
+            // ∫_{-1}^0 P_l by Gauss–Legendre-free midpoint quadrature of the recurrence.
+            let m = 20000;
+            let mut integral = 0.0;
+            for i in 0..m {
+                let z = -1.0 + (i as f64 + 0.5) / m as f64;
+                let (mut p0, mut p1) = (1.0f64, z);
+                let p = if l == 0 {
+                    1.0
+                } else {
+                    for k in 1..l {
+                        let p2 = ((2 * k + 1) as f64 * z * p1 - k as f64 * p0) / (k + 1) as f64;
+                        p0 = p1;
+                        p1 = p2;
+                    }
+                    p1
+                };
+                integral += p / m as f64;
+            }
+            let c = 2.0 * std::f64::consts::PI * ((2 * l + 1) as f64 / (4.0 * std::f64::consts::PI)).sqrt() * integral;
+            kept += c * c / (2.0 * std::f64::consts::PI);
+        }
+        assert!((kept - 0.9626).abs() < 1e-3, "{kept}");
+        let (paper, _) = floor_mean(None);
+        assert!((paper - kept).abs() < 0.015, "projection keeps {paper}, expected about {kept}");
+        let (fitted, worst) = floor_mean(Some(0.01));
+        assert!((fitted - 1.0).abs() < 0.01, "the fit keeps {fitted}");
+        assert!(worst < 0.03, "the fit is off by {worst} more than 30° below the horizon");
+        // A weight of 1 is the paper's projection, up to the quadrature's Gram matrix.
+        let (one, _) = floor_mean(Some(1.0));
+        assert!((one - paper).abs() < 3e-3, "{one} against {paper}");
+        // Out of range.
+        let mut table = RelightTable {
+            rays: 0,
+            coefficients: 1,
+            sh: vec![],
+            ranges: vec![],
+            senders: vec![],
+            escaped: 0,
+            holes: 0,
+            back_face_fraction: vec![],
+            fit: None,
+        };
+        for bad in [0.0, -1.0, 1.5, f64::NAN] {
+            let err = table.fit(bad).unwrap_err();
+            assert!(err.to_string().starts_with("relight-miss-weight:"), "{err}");
+        }
+    }
+
+    #[test]
+    fn in_a_closed_room_the_fit_changes_nothing() {
+        let scene = scene_of(vec![room(Vec3::ZERO, Vec3::ONE)], Vec3::splat(0.5));
+        let accel = Accel::build(&scene).unwrap();
+        let surfels = Surfels::build(&scene, &SurfelSettings { budget: 3000, ..Default::default() }).unwrap();
+        let probes = [DVec3::new(0.3, 0.4, 0.5)];
+        let mut table = RelightTable::build(&accel, &surfels, &probes, 8000, MAX_ORDER, 1.0).unwrap();
+        let radiance: Vec<Vec3> =
+            surfels.surfels.iter().map(|s| Vec3::new(1.0 + s.position.x, 0.5, s.position.z)).collect();
+        let plain = table.project(&radiance);
+        table.fit(0.01).unwrap();
+        let fitted = table.project(&radiance);
+        let largest = plain.iter().map(|v| v.abs().max_element()).fold(0.0f32, f32::max);
+        let worst = plain.iter().zip(&fitted).map(|(a, b)| (*a - *b).abs().max_element()).fold(0.0f32, f32::max);
+        assert!(worst < 5e-3 * largest, "{worst} of {largest}");
     }
 }

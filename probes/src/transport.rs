@@ -106,6 +106,16 @@ impl Transport {
         sum as f32
     }
 
+    /// Fills the unseen directions with the mean of the seen ones (an ablation of the paper's
+    /// zero, decision 14): α scaled by hits / (hits − unseen); unchanged when nothing is seen.
+    pub fn renormalise_unseen(&mut self) {
+        let seen = self.hits.saturating_sub(self.unseen);
+        if seen > 0 && self.unseen > 0 {
+            let f = self.hits as f64 / seen as f64;
+            self.alpha.iter_mut().for_each(|a| *a = (*a as f64 * f) as f32);
+        }
+    }
+
     /// [`Transport::irradiance`] for RGB coefficients.
     pub fn irradiance_rgb(&self, lambda: &[Vec3], coefficients: usize) -> Vec3 {
         let mut sum = DVec3::ZERO;

@@ -15,6 +15,7 @@ pub mod images;
 pub mod memory;
 pub mod out_dir;
 pub mod plot;
+pub mod probes_method;
 pub mod reference;
 pub mod report;
 pub mod results;
@@ -339,6 +340,9 @@ impl Scoring<'_> {
                 speedup: None,
                 speedup_range: None,
                 verdict_extrapolated: false,
+                precompute_from_cache: None,
+                per_frame_speedup: None,
+                break_even_frames: None,
                 image: format!("images/{stem}.exr"),
                 preview: format!("images/{stem}.png"),
                 error_map: format!("images/{stem}-error.png"),
@@ -400,6 +404,12 @@ fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
             _ => None,
         };
         run.verdict_extrapolated = at_time.is_some_and(|r| r.extrapolated) || to_psnr.is_some_and(|r| r.extrapolated);
+        if run.precompute_from_cache.is_some() {
+            // One frame without its precompute, and the frames that pay for the precompute.
+            run.per_frame_speedup = to_psnr.filter(|_| run.recon_s > 0.0).map(|r| r.value / run.recon_s);
+            run.break_even_frames =
+                to_psnr.filter(|r| r.value > run.recon_s).map(|r| run.preprocess_s / (r.value - run.recon_s));
+        }
     }
     let mut names: Vec<String> = Vec::new();
     for run in runs.iter().filter(|r| r.method != "pt") {
@@ -415,6 +425,10 @@ fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
             let best = valid.iter().max_by(|a, b| a.speedup.unwrap_or(0.0).total_cmp(&b.speedup.unwrap_or(0.0)));
             let best_gain = valid.iter().filter_map(|r| r.equal_time_psnr_gain_db).max_by(f64::total_cmp);
             let best_psnr = valid.iter().map(|r| r.psnr_db).max_by(f64::total_cmp);
+            let best_frame = valid
+                .iter()
+                .filter(|r| r.per_frame_speedup.is_some())
+                .max_by(|a, b| a.per_frame_speedup.unwrap_or(0.0).total_cmp(&b.per_frame_speedup.unwrap_or(0.0)));
             let difference =
                 best.map(|run| Difference::of(run.speedup.unwrap_or(0.0), run.speedup_range.map(|[lo, hi]| (lo, hi))));
             let summary = match best {
@@ -442,6 +456,19 @@ fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
                 }
                 None => format!("{method}: no verdict (no path-tracing curve)"),
             };
+            let summary = match best_frame.and_then(|r| r.per_frame_speedup.map(|s| (s, r))) {
+                Some((speedup, run)) => format!(
+                    "{summary}; after a precompute of {:.2} s one frame takes {:.4} s: {speedup:.1}× faster than path tracing to {:.2} dB, {}",
+                    run.preprocess_s,
+                    run.recon_s,
+                    run.psnr_db,
+                    match run.break_even_frames {
+                        Some(n) => format!("the precompute pays for itself after {n:.1} frames"),
+                        None => "the precompute never pays for itself".to_string(),
+                    }
+                ),
+                None => summary,
+            };
             Verdict {
                 method,
                 best_speedup: best.and_then(|r| r.speedup),
@@ -451,6 +478,8 @@ fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
                 best_speedup_recon_rays: best.map(|r| r.recon_rays),
                 best_equal_time_psnr_gain_db: best_gain,
                 best_psnr_db: best_psnr,
+                best_per_frame_speedup: best_frame.and_then(|r| r.per_frame_speedup),
+                break_even_frames: best_frame.and_then(|r| r.break_even_frames),
                 summary,
             }
         })
@@ -485,7 +514,24 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         Some(exposure) => Some(ToneMap::with_exposure(exposure).map_err(|e| anyhow::anyhow!("--exposure: {e}"))?),
         None => None,
     };
-    let methods = resolve_methods(&args.methods, effect)?;
+    // `probes` sits on the tracer (the harness's hook, `probes_method`); the rest are the
+    // registry's.
+    let mut probe_methods: Vec<probes_method::ProbesMethod> = Vec::new();
+    let mut names: Vec<String> = Vec::new();
+    for name in &args.methods {
+        match probes_method::ProbesMethod::parse(name, seed)? {
+            Some(method) => {
+                if effect != Effect::Indirect {
+                    bail!("--methods: probes handles --effect indirect only, not {}", effect.name());
+                }
+                if !probe_methods.iter().any(|m| m.name == method.name) {
+                    probe_methods.push(method);
+                }
+            }
+            None => names.push(name.clone()),
+        }
+    }
+    let methods = resolve_methods(&names, effect)?;
 
     let mut scene = args.trace.load_scene()?;
     let scene_text = crate::fingerprint::scene_text(args.trace.scene.as_deref())?;
@@ -626,7 +672,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     let ladder_spp = ladder(args.pt_max_spp, &args.spp);
     let input_count = args.spp.len() * (usize::from(needs(Input::Samples)) + usize::from(needs(Input::Guide)));
     let method_count: usize = available.iter().map(|m| rays_of(m).len() * args.spp.len()).sum();
-    bar.set_length((ladder_spp.len() + input_count + method_count) as u64);
+    bar.set_length((ladder_spp.len() + input_count + method_count + probe_methods.len()) as u64);
 
     // The path-tracing ladder; its frames are the `Frame` inputs of the methods.
     let mut frames: BTreeMap<u32, FrameInput> = BTreeMap::new();
@@ -751,6 +797,41 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         }
     }
 
+    // The methods with a precompute, each run once: its `--repeats` frames are timed inside.
+    let mut precomputed: Vec<Measured> = Vec::new();
+    for method in &probe_methods {
+        bar.set_message(method.name.clone());
+        memory::reset_peak();
+        let out = probes_method::run(
+            method,
+            &scene,
+            &accel,
+            (width, height),
+            max_bounces,
+            seed,
+            args.trace.run.threads,
+            &cache,
+            args.repeats,
+            &bar,
+        )
+        .with_context(|| method.name.clone())?;
+        let peak = memory::peak_rss_mb();
+        let mut m = context.measure(
+            &method.name,
+            0,
+            method.pixel_samples,
+            (0.0, out.preprocess_s, out.recon_s),
+            peak,
+            out.image,
+            (out.notes, out.stats),
+        )?;
+        m.run.precompute_from_cache = Some(out.precompute_from_cache);
+        m.run.timings = out.timings.iter().map(|t| t + out.preprocess_s).collect();
+        m.run.timing_spread = timing::relative_spread(&m.run.timings);
+        precomputed.push(m);
+        bar.inc(1);
+    }
+
     // The repetitions, alternating over every run (module `timing`).
     let first_total = |job: &Job| -> f64 {
         match job {
@@ -807,6 +888,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     for m in &mut measured {
         m.settle_timings(&trace_times(&traces, m.trace, m.light_trace));
     }
+    measured.extend(precomputed);
     if args.repeats > 1 {
         eprintln!("  timings: the median of up to {} repetitions per run (results.json `timings`)", args.repeats);
     }

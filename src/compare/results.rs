@@ -94,6 +94,16 @@ pub struct Run {
     pub speedup_range: Option<[f64; 2]>,
     /// Whether the PT curve had to be extended beyond its measured range for the verdicts.
     pub verdict_extrapolated: bool,
+    /// Methods with a precompute (`probes`): whether it was read from the cache (its
+    /// `preprocess_s` is then the build time kept beside the cache); null for the others.
+    pub precompute_from_cache: Option<bool>,
+    /// Methods with a precompute: PT time to reach `psnr_db` / `recon_s` (one frame without
+    /// the precompute); null for the others or without a PT curve.
+    pub per_frame_speedup: Option<f64>,
+    /// Methods with a precompute: the frames after which precompute + frames costs less than
+    /// path tracing each frame to `psnr_db`, `preprocess_s / (PT time − recon_s)`; null for
+    /// the others, or when a frame is not faster than path tracing.
+    pub break_even_frames: Option<f64>,
     /// Relative paths in the output directory.
     pub image: String,
     pub preview: String,
@@ -124,6 +134,10 @@ pub struct Verdict {
     pub best_speedup_recon_rays: Option<u32>,
     pub best_equal_time_psnr_gain_db: Option<f64>,
     pub best_psnr_db: Option<f64>,
+    /// Methods with a precompute: the best `per_frame_speedup` over the valid runs, and that
+    /// run's `break_even_frames`; null for the others.
+    pub best_per_frame_speedup: Option<f64>,
+    pub break_even_frames: Option<f64>,
     pub summary: String,
 }
 
@@ -152,6 +166,9 @@ impl Run {
             speedup: None,
             speedup_range: None,
             verdict_extrapolated: false,
+            precompute_from_cache: None,
+            per_frame_speedup: None,
+            break_even_frames: None,
             image: String::new(),
             preview: String::new(),
             error_map: String::new(),

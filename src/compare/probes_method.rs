@@ -1,0 +1,345 @@
+//! The tracer-side method `probes` of `lfr compare` (issue 25 item 4): sparse radiance probes
+//! (crate `probes`, docs/probes.md) for `--effect indirect`. The `recon` crate must not use
+//! the tracer, so this method is not in `recon::registry`: the harness recognises its name here
+//! and runs it once, after the registry's methods, on the comparison's scene.
+//!
+//! A run precomputes (or reads the precompute from `CACHE_DIR/probes/`, keyed by geometry and
+//! settings as `lfr probes precompute` does), then relights one frame with the scene's own
+//! lights, bounces to convergence, and renders the image from the receivers. `preprocess_s` is
+//! the precompute's (and CPCA's) build time, also when read from the cache (its build time is
+//! kept beside it; `precompute_from_cache` says which); `recon_s` is one relit frame to the
+//! image (direct light at the senders, the bounces, the image), the median of `--repeats`
+//! frames. The options are the ablations: `probes=N`, `order=0..7`, `cpca=on|off`,
+//! `reconstruction=visibility|spatial` (Eq. 2 or the spatial-only Eq. 1), and the
+//! precompute's sizes.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use probes::cache::CacheKey;
+use probes::cpca::{CpcaSettings, Precision};
+use probes::image::ImageSettings;
+use probes::placement::{CandidateRule, PlacementSettings};
+use probes::precompute::PrecomputeSettings;
+use probes::surfels::SurfelSettings;
+use probes::transport::{Reconstruction, TransportSettings};
+use recon::Image;
+
+/// The method's name on `--methods`.
+pub const NAME: &str = "probes";
+
+/// One `probes[:key=value...]` of `--methods`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ProbesMethod {
+    /// As given (options in the order written): the run's `method`.
+    pub name: String,
+    pub precompute: PrecomputeSettings,
+    pub cpca: Option<CpcaSettings>,
+    /// Weight of missed relight rays in the probes' SH fit (1: the paper's projection).
+    pub miss_weight: f64,
+    pub light_samples: u32,
+    pub pixel_samples: u32,
+}
+
+/// The options with their defaults, for `--list-methods` and errors.
+pub const OPTIONS: &str = "probes=N (64), receivers=N (20000), overlap=X (10), order=0..7 (7), directions=M (512), \
+relight_rays=R (8000), reconstruction=visibility|spatial (visibility: Eq. 2; spatial: Eq. 1), cpca=on|off (on), \
+fp16=on|off (off), miss_weight=(0,1] (0.01; 1 = the paper's projection), light_samples=N (16), pixel_samples=N (4)";
+
+fn on_off(key: &str, value: &str) -> Result<bool> {
+    match value {
+        "on" | "true" | "1" => Ok(true),
+        "off" | "false" | "0" => Ok(false),
+        _ => bail!("--methods: probes: {key} takes on or off, got `{value}`"),
+    }
+}
+
+fn number<T: std::str::FromStr>(key: &str, value: &str) -> Result<T> {
+    value.parse().map_err(|_| anyhow::anyhow!("--methods: probes: {key} takes a number, got `{value}`"))
+}
+
+impl ProbesMethod {
+    /// `spec` parsed when it names this method (`probes` or `probes:...`), else `None`.
+    pub fn parse(spec: &str, seed: u32) -> Result<Option<ProbesMethod>> {
+        let spec = spec.trim();
+        let (name, options) = spec.split_once(':').unwrap_or((spec, ""));
+        if name != NAME {
+            return Ok(None);
+        }
+        let mut precompute = PrecomputeSettings {
+            surfels: SurfelSettings { budget: 20_000, seed, ..Default::default() },
+            placement: PlacementSettings { probes: 64, overlap: 10.0, rule: CandidateRule::FrontFacing },
+            transport: TransportSettings { directions: 512, seed, ..Default::default() },
+            relight_rays: 8000,
+        };
+        let mut cpca = true;
+        let mut fp16 = false;
+        let mut method = ProbesMethod {
+            name: spec.to_string(),
+            precompute,
+            cpca: None,
+            miss_weight: 0.01,
+            light_samples: 16,
+            pixel_samples: 4,
+        };
+        for option in options.split(':').filter(|o| !o.is_empty()) {
+            let Some((key, value)) = option.split_once('=') else {
+                bail!("--methods: probes: option `{option}` is not key=value; options: {OPTIONS}");
+            };
+            match key {
+                "probes" => precompute.placement.probes = number(key, value)?,
+                "receivers" => precompute.surfels.budget = number(key, value)?,
+                "overlap" => precompute.placement.overlap = number(key, value)?,
+                "order" => precompute.transport.order = number(key, value)?,
+                "directions" => precompute.transport.directions = number(key, value)?,
+                "relight_rays" => precompute.relight_rays = number(key, value)?,
+                "reconstruction" => {
+                    precompute.transport.reconstruction = match value {
+                        "visibility" => Reconstruction::VisibilityAware,
+                        "spatial" => Reconstruction::SpatialOnly,
+                        _ => bail!("--methods: probes: reconstruction takes visibility or spatial, got `{value}`"),
+                    }
+                }
+                "cpca" => cpca = on_off(key, value)?,
+                "fp16" => fp16 = on_off(key, value)?,
+                "miss_weight" => method.miss_weight = number(key, value)?,
+                "light_samples" => method.light_samples = number(key, value)?,
+                "pixel_samples" => method.pixel_samples = number(key, value)?,
+                _ => bail!("--methods: probes: unknown option `{key}`; options: {OPTIONS}"),
+            }
+        }
+        precompute.validate().map_err(|e| anyhow::anyhow!("--methods: probes: {e}"))?;
+        if !(method.miss_weight > 0.0 && method.miss_weight <= 1.0) {
+            bail!("--methods: probes: miss_weight must be in (0, 1], got {}", method.miss_weight);
+        }
+        if method.light_samples == 0 || method.light_samples > probes::direct::MAX_SAMPLES {
+            bail!(
+                "--methods: probes: light_samples must be between 1 and {}, got {}",
+                probes::direct::MAX_SAMPLES,
+                method.light_samples
+            );
+        }
+        if method.pixel_samples == 0 || method.pixel_samples > probes::image::MAX_PIXEL_SAMPLES {
+            bail!(
+                "--methods: probes: pixel_samples must be between 1 and {}, got {}",
+                probes::image::MAX_PIXEL_SAMPLES,
+                method.pixel_samples
+            );
+        }
+        if fp16 && !cpca {
+            bail!("--methods: probes: fp16 stores the CPCA-compressed transport; it needs cpca=on");
+        }
+        method.precompute = precompute;
+        method.cpca = cpca.then_some(CpcaSettings {
+            precision: if fp16 { Precision::F16 } else { Precision::F32 },
+            ..Default::default()
+        });
+        if let Some(c) = &method.cpca {
+            c.validate().map_err(|e| anyhow::anyhow!("--methods: probes: {e}"))?;
+        }
+        Ok(Some(method))
+    }
+}
+
+/// What one run gives the harness.
+pub struct ProbesRun {
+    pub image: Image,
+    pub preprocess_s: f64,
+    pub precompute_from_cache: bool,
+    /// The median frame's seconds, and every frame's.
+    pub recon_s: f64,
+    pub timings: Vec<f64>,
+    pub stats: recon::method::Stats,
+    pub notes: Vec<String>,
+}
+
+/// The precompute's cache file in the comparison's cache folder, named by its key.
+pub fn cache_path(cache_dir: &Path, key: &CacheKey) -> PathBuf {
+    // Eight bytes of each digest: other settings of the same scene get other files.
+    let hex: String =
+        key.geometry.iter().take(8).chain(key.settings.iter().take(8)).map(|b| format!("{b:02x}")).collect();
+    cache_dir.join("probes").join(format!("{hex}.lfrprobe"))
+}
+
+/// The build seconds kept beside a cache file (`FILE.seconds`): written when it is built,
+/// read back when it is reused.
+fn seconds_path(file: &Path) -> PathBuf {
+    let mut name = file.as_os_str().to_os_string();
+    name.push(".seconds");
+    PathBuf::from(name)
+}
+
+fn read_seconds(file: &Path) -> Option<f64> {
+    std::fs::read_to_string(seconds_path(file)).ok()?.trim().parse().ok().filter(|s: &f64| s.is_finite() && *s >= 0.0)
+}
+
+fn write_seconds(file: &Path, seconds: f64) -> Result<()> {
+    let path = seconds_path(file);
+    std::fs::write(&path, format!("{seconds}\n")).with_context(|| format!("writing {}", path.display()))
+}
+
+/// Runs `method` on `scene` (set up for `--effect indirect`): the precompute from the cache or
+/// built, then `frames` relit frames (the first one's image; the frames' times).
+#[allow(clippy::too_many_arguments)]
+pub fn run(
+    method: &ProbesMethod,
+    scene: &tracer::Scene,
+    accel: &tracer::Accel,
+    (width, height): (u32, u32),
+    max_bounces: u32,
+    seed: u32,
+    threads: usize,
+    cache_dir: &Path,
+    frames: u32,
+    bar: &indicatif::ProgressBar,
+) -> Result<ProbesRun> {
+    // The senders' direct light takes `light_samples`; the image's pixels none (the indirect
+    // layer alone is scored).
+    let image_settings = ImageSettings { width, height, light_samples: 0, pixel_samples: method.pixel_samples, seed };
+    image_settings.validate()?;
+    let pool = tracer::render::thread_pool(threads)?;
+    let key = CacheKey::of(scene, &method.precompute);
+    let file = cache_path(cache_dir, &key);
+    if let Some(parent) = file.parent() {
+        std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
+    }
+    let mut notes = Vec::new();
+    let (mut pre, from_cache, seconds) =
+        crate::probes::obtain(scene, &method.precompute, &file, crate::probes::Stale::Replace, &pool, bar)?;
+    let mut preprocess_s = if from_cache {
+        read_seconds(&file).unwrap_or_else(|| {
+            notes.push(format!(
+                "the precompute's build time was not kept beside {}: preprocess_s is its read time",
+                file.display()
+            ));
+            seconds
+        })
+    } else {
+        write_seconds(&file, seconds)?;
+        seconds
+    };
+    let mut stats = recon::method::Stats::new();
+    stats.insert("precompute_s".into(), preprocess_s);
+    stats.insert("precompute_read_s".into(), if from_cache { seconds } else { 0.0 });
+    stats.insert("receivers".into(), pre.surfels.surfels.len() as f64);
+    stats.insert("hidden_receivers".into(), pre.hidden as f64);
+    stats.insert("probes".into(), pre.probes.len() as f64);
+    stats.insert(
+        "dense_bytes_per_receiver".into(),
+        pre.dense_transport_bytes() as f64 / pre.surfels.surfels.len().max(1) as f64,
+    );
+    if method.miss_weight < 1.0 {
+        let t = Instant::now();
+        pool.install(|| pre.table.fit(method.miss_weight))?;
+        stats.insert("relight_fit_s".into(), t.elapsed().as_secs_f64());
+    }
+    bar.set_message(format!("{}: compressing the transport", method.name));
+    let (op, cpca) = crate::probes::operator(&pre, method.cpca, &pool, &file, &key)?;
+    if let Some(c) = &cpca {
+        let cpca_file = crate::probes::cpca_path(&file);
+        let compress_s = if c.from_cache {
+            read_seconds(&cpca_file).unwrap_or(c.compress_s)
+        } else {
+            write_seconds(&cpca_file, c.compress_s)?;
+            c.compress_s
+        };
+        preprocess_s += compress_s;
+        stats.insert("cpca_s".into(), compress_s);
+        stats.insert("cpca_clusters".into(), c.clusters as f64);
+        stats.insert("cpca_coefficients".into(), c.mean_coefficients);
+        stats.insert("cpca_bytes_per_receiver".into(), c.bytes_per_receiver);
+    }
+    let bounces = max_bounces.saturating_sub(1).max(1) as usize;
+    let mut timings = Vec::new();
+    let mut first: Option<(Vec<glam::Vec3>, crate::probes::FrameTimes, u64)> = None;
+    for frame in 0..frames.max(1) {
+        bar.set_message(format!("{}: relit frame {}", method.name, frame + 1));
+        let (out, img, times) = crate::probes::relit_frame(
+            scene,
+            accel,
+            &pre,
+            op.transport(),
+            None,
+            bounces,
+            1e-3,
+            method.light_samples,
+            &image_settings,
+            &pool,
+        )?;
+        timings.push(times.frame_s + times.image_s);
+        // The indirect layer needs no direct light at the pixels: the image traces none.
+        match &first {
+            None => first = Some((img.indirect, times, out.clamped)),
+            Some((indirect, _, _)) => {
+                if *indirect != img.indirect {
+                    notes
+                        .push(format!("frame {} gave a different image from the first (not deterministic)", frame + 1));
+                }
+            }
+        }
+    }
+    let (indirect, times, clamped) = first.expect("at least one frame");
+    let mut sorted = timings.clone();
+    sorted.sort_by(f64::total_cmp);
+    let recon_s = sorted[(sorted.len() - 1) / 2];
+    stats.insert("direct_s".into(), times.direct_s);
+    stats.insert("bounces_s".into(), times.bounces_s);
+    stats.insert("bounce_iterations".into(), times.iterations as f64);
+    stats.insert("image_s".into(), times.image_s);
+    stats.insert("clamped_channels".into(), clamped as f64);
+    let image = Image::from_pixels(width, height, indirect.iter().map(|v| v.to_array()).collect());
+    Ok(ProbesRun { image, preprocess_s, precompute_from_cache: from_cache, recon_s, timings, stats, notes })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn other_settings_of_the_same_geometry_get_other_cache_files() {
+        let dir = Path::new("cache");
+        let a = CacheKey { geometry: [1; 32], settings: [2; 32] };
+        let mut b = a;
+        b.settings[0] = 3;
+        let mut c = a;
+        c.geometry[0] = 4;
+        let paths = [cache_path(dir, &a), cache_path(dir, &b), cache_path(dir, &c)];
+        assert!(paths[0] != paths[1] && paths[0] != paths[2] && paths[1] != paths[2], "{paths:?}");
+        assert!(paths.iter().all(|p| p.starts_with("cache/probes")));
+    }
+
+    #[test]
+    fn options_parse_into_the_settings_and_bad_ones_are_refused_by_name() {
+        assert_eq!(ProbesMethod::parse("box", 1).unwrap(), None);
+        assert_eq!(ProbesMethod::parse("probesx", 1).unwrap(), None);
+        let m = ProbesMethod::parse("probes", 3).unwrap().unwrap();
+        assert_eq!(m.precompute.placement.probes, 64);
+        assert_eq!(m.precompute.transport.order, 7);
+        assert_eq!(m.precompute.surfels.seed, 3);
+        assert!(m.cpca.is_some());
+        let m = ProbesMethod::parse("probes:probes=29:order=2:cpca=off:reconstruction=spatial:miss_weight=1", 1)
+            .unwrap()
+            .unwrap();
+        assert_eq!(m.name, "probes:probes=29:order=2:cpca=off:reconstruction=spatial:miss_weight=1");
+        assert_eq!(m.precompute.placement.probes, 29);
+        assert_eq!(m.precompute.transport.order, 2);
+        assert_eq!(m.precompute.transport.reconstruction, Reconstruction::SpatialOnly);
+        assert_eq!(m.cpca, None);
+        assert_eq!(m.miss_weight, 1.0);
+        for (bad, names) in [
+            ("probes:order=8", "order"),
+            ("probes:probes=0", "probes"),
+            ("probes:cpca=maybe", "cpca"),
+            ("probes:fp16=on:cpca=off", "fp16"),
+            ("probes:miss_weight=0", "miss_weight"),
+            ("probes:colour=red", "colour"),
+            ("probes:reconstruction=magic", "reconstruction"),
+            ("probes:order", "order"),
+            ("probes:pixel_samples=0", "pixel_samples"),
+        ] {
+            let error = ProbesMethod::parse(bad, 1).err().unwrap().to_string();
+            assert!(error.contains(names), "{bad}: {error}");
+        }
+    }
+}
