@@ -61,8 +61,13 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
             bail!("--bandwidth must be a positive, finite scale, got {scale}");
         }
     }
-    let settings =
-        TlfrSettings { locations: args.locations, refocus, seed: args.run.seed_or(0), bandwidth_scale: args.bandwidth };
+    let settings = TlfrSettings {
+        locations: args.locations,
+        refocus,
+        seed: args.run.seed_or(0),
+        bandwidth_scale: args.bandwidth,
+        ..TlfrSettings::default()
+    };
     let pool = args.run.worker_pool()?;
     // Memory before any work (issue 22, class 5): the sample count from the file's header
     // (the full check of its chunks follows in `reconstruct_file`).
