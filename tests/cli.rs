@@ -59,7 +59,9 @@ fn default_scene_renders_with_all_layers() {
 
 #[test]
 fn every_scene_file_renders() {
-    for name in ["cornell", "cbox-mitsuba", "sponza", "veach-mis", "roughness-sweep", "monkeys", "bunny"] {
+    for name in
+        ["cornell", "cbox-mitsuba", "sponza", "veach-mis", "roughness-sweep", "monkeys", "monkeys-dof-depths", "bunny"]
+    {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join(format!("{name}.exr"));
         let scene = format!("scenes/{name}.toml");
