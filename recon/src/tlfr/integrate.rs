@@ -236,9 +236,9 @@ pub fn integrate_locations<Sc: Default + Send, St: Counters>(
                         let after = stats.surface_counts();
                         match found {
                             Some(found) if after.0 == before.0 + 1 && after.1 == before.1 => {
-                                for c in 0..3 {
-                                    agreement.low[c] = agreement.low[c].min(found[c]);
-                                    agreement.high[c] = agreement.high[c].max(found[c]);
+                                for (c, &v) in found.iter().enumerate() {
+                                    agreement.low[c] = agreement.low[c].min(v);
+                                    agreement.high[c] = agreement.high[c].max(v);
                                 }
                             }
                             _ => agreement.simple = false,
