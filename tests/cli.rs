@@ -485,6 +485,37 @@ fn bench_tlfr_reports_a_locations_cost_in_traced_samples() {
     }
 }
 
+/// `lfr reconstruct` spends fewer locations where the adaptive rule lets it, and exactly
+/// `--locations` in every pixel with `--fixed-locations`; its notes say how many.
+#[test]
+fn reconstruct_fixed_locations_turns_the_adaptive_rule_off() {
+    let dir = tempfile::tempdir().unwrap();
+    let samples = dir.path().join("s.lfrs");
+    let scene = project_root().join("scenes/monkeys-defocus-motion.toml");
+    let (scene, samples_arg) = (scene.to_str().unwrap(), samples.to_str().unwrap());
+    let dump = ["dump", "--scene", scene, "--kind", "lens-time", "--spp", "2", "--width", "16", "--height", "12"];
+    let mut args = dump.to_vec();
+    args.extend_from_slice(&["--max-bounces", "1", "--out", samples_arg]);
+    let result = lfr(&args);
+    assert!(result.status.success(), "{}", stderr(&result));
+    let per_pixel = |fixed: bool| {
+        let out = dir.path().join(format!("r-{fixed}.exr"));
+        let mut args = vec!["reconstruct", "--samples", samples_arg, "--locations", "32", "--quiet"];
+        args.extend_from_slice(&["--out", out.to_str().unwrap()]);
+        if fixed {
+            args.push("--fixed-locations");
+        }
+        let result = lfr(&args);
+        assert!(result.status.success(), "{}", stderr(&result));
+        let text = format!("{}{}", String::from_utf8_lossy(&result.stdout), stderr(&result));
+        let note = text.split(" per pixel)").next().unwrap();
+        note.rsplit('(').next().unwrap().parse::<f64>().unwrap_or_else(|_| panic!("no locations note: {text}"))
+    };
+    assert_eq!(per_pixel(true), 32.0);
+    let adaptive = per_pixel(false);
+    assert!((16.0..=32.0).contains(&adaptive), "{adaptive}");
+}
+
 /// The shared options (`common::RunArgs`, `SizeArgs`) are one definition flattened into every
 /// command that computes: each lists them and holds them to the same limits, before any work.
 #[test]
