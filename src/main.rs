@@ -7,6 +7,7 @@
 mod bench;
 mod bench_filters;
 mod bench_ilfr;
+mod bench_tlfr;
 mod common;
 mod compare;
 mod convert;
@@ -59,6 +60,9 @@ enum Command {
     /// Indirect light field reconstruction: reconstruction rays per second beside Embree's on the
     /// same rays, the time split, and time against input spp (the paper's scaling study).
     BenchIlfr(bench_ilfr::BenchIlfrArgs),
+    /// Temporal light field reconstruction: locations per second beside the tracer's samples
+    /// per second on the same scene in the same run, and the reconstruction's time split.
+    BenchTlfr(bench_tlfr::BenchTlfrArgs),
     /// Filtered path tracing (Bauszat et al. 2011): guide rays, filtered indirect light,
     /// additional eye rays by the geometry-aware lookup, composite; a multi-layer EXR and PNG.
     Filter(filter::FilterArgs),
@@ -86,6 +90,7 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare::run(args),
         Command::BenchFilters(args) => bench_filters::run(args),
         Command::BenchIlfr(args) => bench_ilfr::run(args),
+        Command::BenchTlfr(args) => bench_tlfr::run(args),
         Command::Filter(args) => filter::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
         Command::Probes(args) => probes::run(args),

@@ -19,9 +19,13 @@ pub struct ReconstructArgs {
     /// A `lens-time` sample file (`lfr dump --kind lens-time`).
     #[arg(long)]
     samples: PathBuf,
-    /// Reconstruction locations per pixel.
+    /// Reconstruction locations per pixel (at most; a pixel whose first 16 locations all see
+    /// one surface and agree stops there, docs/tlfr.md, unless --fixed-locations).
     #[arg(long, default_value_t = 128)]
     locations: u32,
+    /// Every pixel takes all --locations (the adaptive rule off).
+    #[arg(long)]
+    fixed_locations: bool,
     /// Refocus: the new focus distance (scene units); needs --aperture.
     #[arg(long)]
     focus_distance: Option<f32>,
@@ -61,8 +65,13 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
             bail!("--bandwidth must be a positive, finite scale, got {scale}");
         }
     }
-    let settings =
-        TlfrSettings { locations: args.locations, refocus, seed: args.run.seed_or(0), bandwidth_scale: args.bandwidth };
+    let settings = TlfrSettings {
+        locations: args.locations,
+        refocus,
+        seed: args.run.seed_or(0),
+        bandwidth_scale: args.bandwidth,
+        adaptive: if args.fixed_locations { None } else { TlfrSettings::default().adaptive },
+    };
     let pool = args.run.worker_pool()?;
     // Memory before any work (issue 22, class 5): the sample count from the file's header
     // (the full check of its chunks follows in `reconstruct_file`).

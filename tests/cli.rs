@@ -59,7 +59,9 @@ fn default_scene_renders_with_all_layers() {
 
 #[test]
 fn every_scene_file_renders() {
-    for name in ["cornell", "cbox-mitsuba", "sponza", "veach-mis", "roughness-sweep", "monkeys", "bunny"] {
+    for name in
+        ["cornell", "cbox-mitsuba", "sponza", "veach-mis", "roughness-sweep", "monkeys", "monkeys-dof-depths", "bunny"]
+    {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join(format!("{name}.exr"));
         let scene = format!("scenes/{name}.toml");
@@ -384,6 +386,136 @@ fn bench_ilfr_replays_the_gathers_rays_through_embree() {
     assert!(!result.status.success() && stderr(&result).contains("--spp"));
 }
 
+/// `lfr bench-tlfr` times the tracer and the reconstruction on the same scene in one run: a row
+/// per (spp, locations) with direct light by default, every time and rate positive, the rates
+/// the quotients of their counts and times, and `location_in_traced_samples` the quotient of the
+/// two rates.
+#[test]
+fn bench_tlfr_reports_a_locations_cost_in_traced_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("bench.json");
+    let scene = project_root().join("scenes/monkeys-defocus-motion.toml");
+    let result = lfr(&[
+        "bench-tlfr",
+        "--scenes",
+        scene.to_str().unwrap(),
+        "--width",
+        "16",
+        "--height",
+        "12",
+        "--spp",
+        "1,2",
+        "--locations",
+        "4,8",
+        "--repeats",
+        "1",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let rows = rows.as_array().unwrap();
+    let order: Vec<(u64, u64)> =
+        rows.iter().map(|r| (r["spp"].as_u64().unwrap(), r["locations"].as_u64().unwrap())).collect();
+    assert_eq!(order, [(1, 4), (1, 8), (2, 4), (2, 8)]);
+    for row in rows {
+        let number = |key: &str| row[key].as_f64().unwrap_or_else(|| panic!("{key} missing: {row}"));
+        assert_eq!(number("max_bounces"), 1.0, "direct light by default: {row}");
+        for key in [
+            "trace_s",
+            "traced_samples_per_s",
+            "read_s",
+            "radius_s",
+            "hierarchy_s",
+            "reconstruct_s",
+            "locations_per_s",
+            "location_in_traced_samples",
+            "clocked_s",
+            "query_s",
+            "coverage_s",
+            "filter_s",
+            "tlfr_total_s",
+            "mean_locations_per_pixel",
+            "leaves_per_location",
+        ] {
+            let value = number(key);
+            assert!(value.is_finite() && value > 0.0, "{key}: {row}");
+        }
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs());
+        let (spp, locations) = (number("spp"), number("locations"));
+        assert_eq!(number("traced_samples"), 16.0 * 12.0 * spp, "{row}");
+        assert!(close(number("traced_samples_per_s"), number("traced_samples") / number("trace_s")), "{row}");
+        let evaluated = number("evaluated_locations");
+        assert!(evaluated > 0.0 && evaluated <= 16.0 * 12.0 * locations, "{row}");
+        assert!(close(number("mean_locations_per_pixel"), evaluated / (16.0 * 12.0)), "{row}");
+        assert!(close(number("locations_per_s"), evaluated / number("reconstruct_s")), "{row}");
+        assert!(
+            close(number("location_in_traced_samples"), number("traced_samples_per_s") / number("locations_per_s")),
+            "{row}"
+        );
+        assert!(close(number("budget_locations_per_s"), 16.0 * 12.0 * locations / number("reconstruct_s")), "{row}");
+        assert!(
+            close(
+                number("budget_location_in_traced_samples"),
+                number("traced_samples_per_s") / number("budget_locations_per_s")
+            ),
+            "{row}"
+        );
+        assert_eq!(row["adaptive"], true, "{row}");
+        let total = number("read_s") + number("radius_s") + number("hierarchy_s") + number("reconstruct_s");
+        assert!(close(number("tlfr_total_s"), total), "{row}");
+        assert!(close(number("tlfr_total_over_trace"), total / number("trace_s")), "{row}");
+        let percent = number("one_surface_percent");
+        assert!((0.0..=100.0).contains(&percent), "{row}");
+    }
+    // Without the adaptive rule every pixel evaluates all N locations.
+    let fixed = dir.path().join("fixed.json");
+    let size = ["--width", "16", "--height", "12", "--repeats", "1", "--spp", "1", "--locations", "4"];
+    let mut args = vec!["bench-tlfr", "--scenes", scene.to_str().unwrap(), "--fixed-locations", "--json"];
+    args.push(fixed.to_str().unwrap());
+    args.extend_from_slice(&size);
+    let result = lfr(&args);
+    assert!(result.status.success(), "{}", stderr(&result));
+    let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&fixed).unwrap()).unwrap();
+    assert_eq!(rows[0]["adaptive"], false);
+    assert_eq!(rows[0]["evaluated_locations"], 16 * 12 * 4);
+    for bad in [["--spp", "0"], ["--locations", "0"]] {
+        let result = lfr(&["bench-tlfr", bad[0], bad[1]]);
+        assert!(!result.status.success() && stderr(&result).contains(bad[0]), "{bad:?}: {}", stderr(&result));
+    }
+}
+
+/// `lfr reconstruct` spends fewer locations where the adaptive rule lets it, and exactly
+/// `--locations` in every pixel with `--fixed-locations`; its notes say how many.
+#[test]
+fn reconstruct_fixed_locations_turns_the_adaptive_rule_off() {
+    let dir = tempfile::tempdir().unwrap();
+    let samples = dir.path().join("s.lfrs");
+    let scene = project_root().join("scenes/monkeys-defocus-motion.toml");
+    let (scene, samples_arg) = (scene.to_str().unwrap(), samples.to_str().unwrap());
+    let dump = ["dump", "--scene", scene, "--kind", "lens-time", "--spp", "2", "--width", "16", "--height", "12"];
+    let mut args = dump.to_vec();
+    args.extend_from_slice(&["--max-bounces", "1", "--out", samples_arg]);
+    let result = lfr(&args);
+    assert!(result.status.success(), "{}", stderr(&result));
+    let per_pixel = |fixed: bool| {
+        let out = dir.path().join(format!("r-{fixed}.exr"));
+        let mut args = vec!["reconstruct", "--samples", samples_arg, "--locations", "32", "--quiet"];
+        args.extend_from_slice(&["--out", out.to_str().unwrap()]);
+        if fixed {
+            args.push("--fixed-locations");
+        }
+        let result = lfr(&args);
+        assert!(result.status.success(), "{}", stderr(&result));
+        let text = format!("{}{}", String::from_utf8_lossy(&result.stdout), stderr(&result));
+        let note = text.split(" per pixel)").next().unwrap();
+        note.rsplit('(').next().unwrap().parse::<f64>().unwrap_or_else(|_| panic!("no locations note: {text}"))
+    };
+    assert_eq!(per_pixel(true), 32.0);
+    let adaptive = per_pixel(false);
+    assert!((16.0..=32.0).contains(&adaptive), "{adaptive}");
+}
+
 /// The shared options (`common::RunArgs`, `SizeArgs`) are one definition flattened into every
 /// command that computes: each lists them and holds them to the same limits, before any work.
 #[test]
@@ -391,13 +523,14 @@ fn every_computing_command_takes_the_shared_options_with_the_same_limits() {
     let dir = tempfile::tempdir().unwrap();
     let out = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
     let (exr, lfrs, compare) = (out("never.exr"), out("never.lfrs"), out("never"));
-    let commands: [Vec<&str>; 8] = [
+    let commands: [Vec<&str>; 9] = [
         vec!["render", "--out", &exr],
         vec!["dump", "--kind", "indirect", "--spp", "1", "--out", &lfrs],
         vec!["filter", "--out", &exr],
         vec!["compare", "--effect", "indirect", "--out", &compare],
         vec!["bench"],
         vec!["bench-ilfr"],
+        vec!["bench-tlfr"],
         vec!["bench-filters"],
         vec!["reconstruct", "--samples", &lfrs, "--out", &exr],
     ];
@@ -422,7 +555,7 @@ fn every_computing_command_takes_the_shared_options_with_the_same_limits() {
         );
     }
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "a refused command wrote a file");
-    for command in ["bench", "bench-ilfr"] {
+    for command in ["bench", "bench-ilfr", "bench-tlfr"] {
         let result = lfr(&[command, "--width", "0"]);
         assert!(!result.status.success() && stderr(&result).contains("width"), "{command}: {}", stderr(&result));
     }

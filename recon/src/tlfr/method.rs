@@ -11,7 +11,8 @@ use super::bandwidth::ViewBandwidth;
 use super::bounds::ScreenArea;
 use super::dispersion::measure_radius;
 use super::hierarchy::{reorder, Hierarchy};
-use super::integrate::{integrate_with, Reconstruct};
+use super::integrate::{integrate_adaptive, Reconstruct};
+use super::lens::LensModel;
 use super::nearest::reconstruct_nearest;
 use super::query::{max_reach, reconstruct, Scene};
 use super::reprojection::{near_limit, LensTimeSample};
@@ -20,6 +21,7 @@ use super::samples::{read_lens_time, refocus};
 use super::settings::{TlfrSettings, DEFAULT_BANDWIDTH_SCALE, RADIUS_TRIALS};
 use crate::baselines::box_filter::average;
 use crate::error::Error;
+use crate::image::Image;
 use crate::method::{Effect, Input, Inputs, Method, MethodError, Output, Stats};
 
 /// A TLFR method of `lfr compare`: the same reconstruction, finishing each location with
@@ -121,12 +123,53 @@ pub fn reconstruct_file(path: &std::path::Path, settings: &TlfrSettings) -> Resu
     reconstruct_file_with(reconstruct, path, settings)
 }
 
-/// `reconstruct_file` with another value per location (`nearest::reconstruct_nearest`).
-pub fn reconstruct_file_with(
-    value: Reconstruct,
-    path: &std::path::Path,
-    settings: &TlfrSettings,
-) -> Result<Output, MethodError> {
+/// A `lens-time` file made ready for queries (`prepare`): its samples in the hierarchy's order,
+/// the hierarchy, R, and the times of reading, measuring R and building.
+pub struct Prepared {
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    pub samples: Vec<LensTimeSample>,
+    pub radiance: Vec<[f32; 3]>,
+    pub lens: LensModel,
+    pub hierarchy: Hierarchy,
+    pub radius: f32,
+    pub z_near: f32,
+    pub has_lens: bool,
+    pub has_time: bool,
+    pub view_bandwidth: Option<ViewBandwidth>,
+    /// The per-pixel mean of the file's samples (a pixel's value where no location found any).
+    pub box_image: Image,
+    /// Samples read (usable ones) and dropped.
+    pub input_samples: usize,
+    pub dropped: usize,
+    pub notes: Vec<String>,
+    /// Seconds: reading the file (and the box image), measuring R, building the hierarchy and
+    /// putting the samples in its order.
+    pub read_s: f64,
+    pub radius_s: f64,
+    pub hierarchy_s: f64,
+}
+
+impl Prepared {
+    /// The query's view of these samples for `locations` per pixel.
+    pub fn scene(&self, locations: u32) -> Scene<'_> {
+        Scene {
+            samples: &self.samples,
+            radiance: &self.radiance,
+            lens: &self.lens,
+            hierarchy: &self.hierarchy,
+            radius: self.radius,
+            z_near: self.z_near,
+            delta: window_half_width(locations.max(1)),
+            view_bandwidth: self.view_bandwidth.as_ref(),
+        }
+    }
+}
+
+/// Reads the `lens-time` file at `path`, refocuses it when `settings` say so, measures R on its
+/// pattern and builds the hierarchy (everything before the first location).
+pub fn prepare(path: &std::path::Path, settings: &TlfrSettings) -> Result<Prepared, MethodError> {
     let start = Instant::now();
     let file = SampleFile::open(path)?;
     let mut loaded = read_lens_time(&file)?;
@@ -147,10 +190,13 @@ pub fn reconstruct_file_with(
     }
     let has_lens = loaded.has_lens || settings.refocus.is_some_and(|(_, a)| a > 0.0);
     let z_near = near_limit(loaded.samples.iter().map(|s| s.z));
+    let read_s = start.elapsed().as_secs_f64();
+    let start = Instant::now();
     let radius = measure_radius(&loaded.samples, width, height, loaded.spp, RADIUS_TRIALS, settings.seed)
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(1.0);
-    let built = Instant::now();
+    let radius_s = start.elapsed().as_secs_f64();
+    let start = Instant::now();
     let area = ScreenArea { width: width as f32, height: height as f32, max_reach: max_reach(radius) };
     let (hierarchy, order) = Hierarchy::build(&loaded.samples, &loaded.lens, z_near, &area);
     let (samples, radiance) = (reorder(&loaded.samples, &order), reorder(&loaded.radiance, &order));
@@ -174,41 +220,70 @@ pub fn reconstruct_file_with(
             scale,
         }),
     };
-    let (input_samples, lens) = (loaded.samples.len(), loaded.lens);
-    drop(loaded.samples);
-    drop(loaded.radiance);
-    drop(order);
-    let build_s = built.elapsed().as_secs_f64();
-    let preprocess_s = start.elapsed().as_secs_f64();
-    let start = Instant::now();
-    let locations = settings.locations.max(1);
-    let scene = Scene {
-        samples: &samples,
-        radiance: &radiance,
-        lens: &lens,
-        hierarchy: &hierarchy,
+    let hierarchy_s = start.elapsed().as_secs_f64();
+    Ok(Prepared {
+        width,
+        height,
+        spp: loaded.spp,
+        input_samples: loaded.samples.len(),
+        samples,
+        radiance,
+        lens: loaded.lens,
+        hierarchy,
         radius,
         z_near,
-        delta: window_half_width(locations),
-        view_bandwidth: view_bandwidth.as_ref(),
-    };
+        has_lens,
+        has_time: loaded.has_time,
+        view_bandwidth,
+        box_image,
+        dropped: loaded.dropped,
+        notes,
+        read_s,
+        radius_s,
+        hierarchy_s,
+    })
+}
+
+/// `reconstruct_file` with another value per location (`nearest::reconstruct_nearest`).
+pub fn reconstruct_file_with(
+    value: Reconstruct,
+    path: &std::path::Path,
+    settings: &TlfrSettings,
+) -> Result<Output, MethodError> {
+    let prepared = prepare(path, settings)?;
+    let preprocess_s = prepared.read_s + prepared.radius_s + prepared.hierarchy_s;
+    let build_s = prepared.hierarchy_s;
+    let Prepared { width, height, radius, ref samples, ref hierarchy, input_samples, .. } = prepared;
+    let mut notes = prepared.notes.clone();
+    let start = Instant::now();
+    let locations = settings.locations.max(1);
+    let scene = prepared.scene(locations);
+    let box_image = &prepared.box_image;
     let fallback = |x: u32, y: u32| box_image.pixels[(y * width + x) as usize];
-    let (image, stats) =
-        integrate_with(value, &scene, (width, height), locations, (has_lens, loaded.has_time), settings.seed, fallback);
+    let (image, stats) = integrate_adaptive(
+        value,
+        &scene,
+        (width, height),
+        (locations, settings.adaptive),
+        (prepared.has_lens, prepared.has_time),
+        settings.seed,
+        fallback,
+    );
     let recon_s = start.elapsed().as_secs_f64();
     let per_location = |n: u64| 100.0 * n as f64 / stats.locations.max(1) as f64;
     let record_bytes = std::mem::size_of::<LensTimeSample>() + std::mem::size_of::<[f32; 3]>();
     // Per input sample: a sample split into time segments has a record per segment.
-    let kappa_bytes = view_bandwidth.as_ref().map_or(0, |v| v.kappa.len() * std::mem::size_of::<half::f16>());
+    let kappa_bytes = prepared.view_bandwidth.as_ref().map_or(0, |v| v.kappa.len() * std::mem::size_of::<half::f16>());
     let bytes =
         (samples.len() * record_bytes + kappa_bytes + hierarchy.node_bytes()) as f64 / input_samples.max(1) as f64;
     notes.push(format!(
         "R = {radius:.3} px measured on the input pattern ({:.2}/sqrt(spp); paper: about 2)",
-        radius * (loaded.spp as f32).sqrt()
+        radius * (prepared.spp as f32).sqrt()
     ));
     notes.push(format!(
-        "{} locations: {:.1}% one surface, {:.1}% quadrant accepts, {:.1}% triangle searches, {:.2}% widened, {:.3}% dropped",
+        "{} locations ({:.1} per pixel): {:.1}% one surface, {:.1}% quadrant accepts, {:.1}% triangle searches, {:.2}% widened, {:.3}% dropped",
         stats.locations,
+        stats.locations as f64 / (width as f64 * height as f64),
         per_location(stats.one_surface),
         per_location(stats.coverage.quadrant_accepts),
         per_location(stats.coverage.triangle_searches),
@@ -230,8 +305,8 @@ pub fn reconstruct_file_with(
         hierarchy.segment_entries(),
         hierarchy.node_bytes() as f64 / input_samples.max(1) as f64
     ));
-    if loaded.dropped > 0 {
-        notes.push(dropped_warning(path, loaded.dropped, input_samples + loaded.dropped));
+    if prepared.dropped > 0 {
+        notes.push(dropped_warning(path, prepared.dropped, input_samples + prepared.dropped));
     }
     if hierarchy.unplaced > 0 {
         notes.push(format!(

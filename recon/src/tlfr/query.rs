@@ -106,6 +106,67 @@ pub struct Scratch {
     log_weights: Vec<f64>,
 }
 
+/// The stages of one location that `lfr bench-tlfr` times: the hierarchy walk with the
+/// reprojection and grouping of steps 1–2 (`Query`), the surface choice of step 3 (`Coverage`)
+/// and the filter of step 4 (`Filter`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    Query,
+    Coverage,
+    Filter,
+}
+
+/// Where a location's time goes: `start` at its beginning, `lap(stage)` charges the time since
+/// the last call to `stage`. `NoClock` (every plain reconstruction) compiles to nothing.
+pub trait StageClock {
+    fn start(&mut self);
+    fn lap(&mut self, stage: Stage);
+}
+
+/// The clock of every plain reconstruction: no timing.
+pub struct NoClock;
+
+impl StageClock for NoClock {
+    #[inline(always)]
+    fn start(&mut self) {}
+    #[inline(always)]
+    fn lap(&mut self, _: Stage) {}
+}
+
+/// Seconds spent per stage (`lfr bench-tlfr`), summed over locations.
+#[derive(Clone, Debug, Default)]
+pub struct StageTimes {
+    pub query_s: f64,
+    pub coverage_s: f64,
+    pub filter_s: f64,
+    last: Option<std::time::Instant>,
+}
+
+impl StageTimes {
+    pub fn add(&mut self, other: &StageTimes) {
+        self.query_s += other.query_s;
+        self.coverage_s += other.coverage_s;
+        self.filter_s += other.filter_s;
+    }
+}
+
+impl StageClock for StageTimes {
+    fn start(&mut self) {
+        self.last = Some(std::time::Instant::now());
+    }
+
+    fn lap(&mut self, stage: Stage) {
+        let now = std::time::Instant::now();
+        let seconds = self.last.map_or(0.0, |last| (now - last).as_secs_f64());
+        self.last = Some(now);
+        match stage {
+            Stage::Query => self.query_s += seconds,
+            Stage::Coverage => self.coverage_s += seconds,
+            Stage::Filter => self.filter_s += seconds,
+        }
+    }
+}
+
 /// The reconstructed radiance at `location` = (x̂, ŷ) and `at` = (û, v̂, t̂), or `None` when no
 /// sample reprojects within 16R.
 pub fn reconstruct(
@@ -115,7 +176,27 @@ pub fn reconstruct(
     scratch: &mut Scratch,
     stats: &mut QueryStats,
 ) -> Option<[f32; 3]> {
-    let radius = covering_surface(scene, location, at, scratch, stats)?;
+    reconstruct_clocked(scene, location, at, scratch, stats, &mut NoClock)
+}
+
+/// `reconstruct` with its stages timed by `clock`.
+pub fn reconstruct_clocked(
+    scene: &Scene,
+    location: Point,
+    at: LensTime,
+    scratch: &mut Scratch,
+    stats: &mut QueryStats,
+    clock: &mut impl StageClock,
+) -> Option<[f32; 3]> {
+    clock.start();
+    let radius = covering_surface_clocked(scene, location, at, scratch, stats, clock)?;
+    let value = filter(scene, location, at, radius, scratch);
+    clock.lap(Stage::Filter);
+    value
+}
+
+/// Step 4 over the covering surface left in `scratch` by `covering_surface`.
+fn filter(scene: &Scene, location: Point, at: LensTime, radius: f32, scratch: &mut Scratch) -> Option<[f32; 3]> {
     scratch.values.clear();
     scratch.values.extend(scratch.covering.iter().map(|&i| scene.radiance[i as usize]));
     let Some(view) = scene.view_bandwidth else {
@@ -145,11 +226,23 @@ pub fn covering_surface(
     scratch: &mut Scratch,
     stats: &mut QueryStats,
 ) -> Option<f32> {
+    covering_surface_clocked(scene, location, at, scratch, stats, &mut NoClock)
+}
+
+fn covering_surface_clocked(
+    scene: &Scene,
+    location: Point,
+    at: LensTime,
+    scratch: &mut Scratch,
+    stats: &mut QueryStats,
+    clock: &mut impl StageClock,
+) -> Option<f32> {
     stats.locations += 1;
     let mut radius = scene.radius;
     for widening in 0..=MAX_WIDENINGS {
         let reach = 2.0 * radius;
         gather(scene, location, at, reach, scratch, stats);
+        clock.lap(Stage::Query);
         if scratch.near.is_empty() {
             radius *= 2.0;
             continue;
@@ -167,6 +260,7 @@ pub fn covering_surface(
             scratch.points.push(p);
             scratch.covering.push(i);
         }
+        clock.lap(Stage::Coverage);
         return Some(radius);
     }
     stats.dropped += 1;

@@ -585,7 +585,7 @@ pub fn reconstruct_soft_shadow(
     };
     let (image, stats) = super::integrate::integrate_locations(
         (width, height),
-        locations,
+        (locations, None),
         (camera.has_lens, camera.has_time),
         settings.seed,
         |(x, y, j), screen, at, scratch: &mut ShadowScratch, stats: &mut ShadowStats| {
