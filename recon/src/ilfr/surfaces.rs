@@ -116,12 +116,12 @@ pub fn prepare_candidates(
     out.clear();
     let mut dropped = 0;
     for h in hits {
-        let (disc, id) = bvh.disc_at(h.slot);
-        if params.backface_near_field_cull && h.hit.back_facing && h.hit.depth < disc.radius {
+        let (centre, normal, radius) = bvh.placed_at(h.slot, time);
+        if params.backface_near_field_cull && h.hit.back_facing && h.hit.depth < radius {
             dropped += 1;
             continue;
         }
-        out.push(Candidate { id, centre: disc.centre_at(time), normal: disc.normal, radius: disc.radius, hit: h.hit });
+        out.push(Candidate { id: h.id, centre, normal, radius, hit: h.hit });
     }
     out.sort_by(|a, b| a.hit.depth.total_cmp(&b.hit.depth).then(a.id.cmp(&b.id)));
     dropped
