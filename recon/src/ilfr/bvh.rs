@@ -743,7 +743,7 @@ mod tests {
             let mut inner = vec![0usize; bvh.wide.len()];
             for node in &bvh.wide {
                 let used = node.count.iter().filter(|&&c| c != EMPTY_LANE).count();
-                assert!(used >= 1 && used <= WIDTH);
+                assert!((1..=WIDTH).contains(&used));
                 for lane in 0..WIDTH {
                     match node.count[lane] {
                         EMPTY_LANE => {}
