@@ -389,7 +389,7 @@ fn bench(c: &mut Criterion) {
 
     // The structures, with their memory.
     let bvh = DiscBvh::build(&discs).unwrap();
-    let ours_bytes = bvh.node_count() * 32 + bvh.len() * (std::mem::size_of::<Disc>() + 4);
+    let ours_bytes = bvh.memory_bytes();
     let (device_1, bytes_1) = embree_device(1);
     let (device_all, _) = embree_device(0);
     let embree = EmbreeDiscs::build(&device_1, &discs, BuildQuality::MEDIUM);

@@ -128,21 +128,36 @@ pub struct DiscHit {
 /// documentation. `t_max` may be +inf.
 #[inline]
 pub fn intersect(disc: &Disc, ray: &Ray, t_min: f32, t_max: f32) -> Option<DiscHit> {
-    let to_centre = sub(disc.centre_at(ray.time), ray.origin);
-    let cosine = dot(disc.normal, ray.direction);
+    intersect_placed(disc.centre_at(ray.time), disc.normal, disc.radius, ray, t_min, t_max)
+}
+
+/// [`intersect`] for a disc already placed at the ray's time: `centre` (where it is then),
+/// unit `normal`, `radius`. The one implementation of the test, so that the hierarchy's compact
+/// records ([`super::bvh`]) give bit for bit the hits of [`intersect`].
+#[inline(always)]
+pub fn intersect_placed(
+    centre: [f32; 3],
+    normal: [f32; 3],
+    radius: f32,
+    ray: &Ray,
+    t_min: f32,
+    t_max: f32,
+) -> Option<DiscHit> {
+    let to_centre = sub(centre, ray.origin);
+    let cosine = dot(normal, ray.direction);
     // Each test is written so that NaN fails it.
     let steep_enough = cosine.abs() > GRAZING_COSINE;
     if !steep_enough {
         return None;
     }
-    let t = dot(disc.normal, to_centre) / cosine;
+    let t = dot(normal, to_centre) / cosine;
     if !(t > t_min && t < t_max) {
         return None;
     }
     let d = ray.direction;
     let offset = [t * d[0] - to_centre[0], t * d[1] - to_centre[1], t * d[2] - to_centre[2]];
     let spatial = length(offset);
-    let inside = spatial < disc.radius;
+    let inside = spatial < radius;
     if !inside {
         return None;
     }

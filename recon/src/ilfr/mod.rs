@@ -11,7 +11,8 @@
 //!   Eq. 2 (A_i(ω_j) ≥ 0.5), under the metric that counts offsets along the normal α = 3 times:
 //!   `neighbours` (kd-tree and the ordered walk), `splats` (radius, relaxation, fallbacks).
 //! - ✓ Section 2.3, the splats as oriented discs (`disc`: ray–disc intersection, exact disc
-//!   boxes) in our own BVH (`bvh`: binned SAH, every disc along a ray, refit). Embree's
+//!   boxes) in our own BVH (`bvh`: binned SAH, every disc along a ray walked on a 4-wide
+//!   collapse of it over compact disc records (issue 23), refit). Embree's
 //!   oriented-disc points, the alternative of issue item 2, are measured against it in
 //!   `benches/ilfr_discs.rs` and checked hit for hit in `tests/ilfr_embree_discs.rs`: 1.2–1.5×
 //!   faster walks, 20× slower refits; we keep ours (docs/ilfr-design.md, "Slice 7"). Motion
