@@ -227,35 +227,64 @@ where
         }
         Ok(())
     };
-    let mut slots: Vec<PieceBuffers> = Vec::new();
-    let mut all = pieces(pixel_count, settings.spp, values_per_sample, cut.piece_values).peekable();
-    while all.peek().is_some() {
-        // One batch: pieces until the batch's values would pass the cap (at least one piece).
-        let mut batch = Vec::new();
-        let mut batch_values = 0usize;
-        while let Some(piece) = all.peek() {
-            let size = piece.pixels as usize * piece.samples.len() * values_per_sample;
-            if !batch.is_empty() && batch_values + size > cut.batch_values {
-                break;
+    // The writing thread takes each traced batch while the workers trace the next one, and
+    // hands the batch's buffers back for reuse.
+    let (to_writer, batches_to_write) = std::sync::mpsc::sync_channel::<Vec<(Piece, PieceBuffers)>>(1);
+    let (to_tracer, written_buffers) = std::sync::mpsc::channel::<Vec<PieceBuffers>>();
+    let spp = settings.spp as u64;
+    let (traced, written) = std::thread::scope(|scope| {
+        let writing = scope.spawn(|| -> Result<SampleWriter, sampleio::SampleError> {
+            for batch in batches_to_write {
+                for (piece, slot) in &batch {
+                    writer.push_records(&slot.records)?;
+                    bar.inc(piece.pixels * piece.samples.len() as u64);
+                }
+                // The tracing side may have stopped already: then the buffers are just dropped.
+                let _ = to_tracer.send(batch.into_iter().map(|(_, slot)| slot).collect());
             }
-            batch_values += size;
-            batch.push(all.next().expect("peeked"));
-        }
-        if slots.len() < batch.len() {
-            slots.resize_with(batch.len(), PieceBuffers::default);
-        }
-        let tracing = Instant::now();
-        let encoded: Vec<_> = pool
-            .install(|| batch.par_iter().zip(slots.par_iter_mut()).map(|(piece, slot)| trace(piece, slot)).collect());
-        trace_seconds += tracing.elapsed().as_secs_f64();
-        for ((piece, slot), result) in batch.iter().zip(&slots).zip(encoded) {
-            if let Err((index, bad)) = result {
-                return Err(output_error(bad.at(path, writer.pushed() + index)));
+            Ok(writer)
+        });
+        let traced = (|| -> Result<(), RenderError> {
+            let mut spare: Vec<PieceBuffers> = Vec::new();
+            let mut all = pieces(pixel_count, settings.spp, values_per_sample, cut.piece_values).peekable();
+            while all.peek().is_some() {
+                // One batch: pieces until the batch's values would pass the cap (at least one piece).
+                let mut batch = Vec::new();
+                let mut batch_values = 0usize;
+                while let Some(piece) = all.peek() {
+                    let size = piece.pixels as usize * piece.samples.len() * values_per_sample;
+                    if !batch.is_empty() && batch_values + size > cut.batch_values {
+                        break;
+                    }
+                    batch_values += size;
+                    batch.push(all.next().expect("peeked"));
+                }
+                spare.extend(written_buffers.try_iter().flatten());
+                let mut slots: Vec<PieceBuffers> = (0..batch.len()).map(|_| spare.pop().unwrap_or_default()).collect();
+                let tracing = Instant::now();
+                let encoded: Vec<_> = pool.install(|| {
+                    batch.par_iter().zip(slots.par_iter_mut()).map(|(piece, slot)| trace(piece, slot)).collect()
+                });
+                trace_seconds += tracing.elapsed().as_secs_f64();
+                for (piece, result) in batch.iter().zip(encoded) {
+                    if let Err((index, bad)) = result {
+                        // File order: the piece's first sample is its pixel's `samples.start`.
+                        let sample = piece.first_pixel * spp + piece.samples.start as u64 + index;
+                        return Err(output_error(bad.at(path, sample)));
+                    }
+                }
+                if to_writer.send(batch.into_iter().zip(slots).collect()).is_err() {
+                    break; // the writer failed: its error is the one to report
+                }
             }
-            writer.push_records(&slot.records).map_err(output_error)?;
-            bar.inc(piece.pixels * piece.samples.len() as u64);
-        }
-    }
+            Ok(())
+        })();
+        drop(to_writer);
+        let written = writing.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        (traced, written)
+    });
+    let writer = written.map_err(output_error)?;
+    traced?;
     let samples = writer.pushed();
     let final_path = writer.finish().map_err(output_error)?;
     bar.finish_and_clear();
@@ -321,5 +350,32 @@ mod tests {
         assert_eq!(std::fs::read(&whole).unwrap(), std::fs::read(&cut).unwrap());
         let file = sampleio::SampleFile::open(&cut).unwrap();
         assert_eq!(file.len(), 5 * 3 * 7);
+    }
+
+    /// A value its field cannot hold, traced while earlier batches are being written: the
+    /// error names the file, the field and the sample in file order, and no file is left.
+    #[test]
+    fn a_value_no_field_can_hold_is_an_error_naming_its_sample_and_leaves_no_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let settings =
+            RenderSettings { width: 5, height: 3, spp: 7, seed: 1, max_bounces: 1, threads: 2, progress: false };
+        let spec = || {
+            HeaderSpec::new(SampleKind::Ao, 5, 3, 7)
+                .field(FieldSpec::new("xy", FieldType::F32, 2))
+                .field(FieldSpec::new("count", FieldType::U8, 1))
+        };
+        // Pixel (3, 2) is pixel 13; its sample 4 is sample 13 * 7 + 4 = 95 of the file.
+        let sample_pixel = |x: u32, y: u32, samples: std::ops::Range<u32>, out: &mut Vec<f32>| {
+            for s in samples {
+                let count = if (x, y, s) == (3, 2, 4) { 300.0 } else { s as f32 };
+                out.extend_from_slice(&[x as f32, y as f32, count]);
+            }
+        };
+        for cut in [PIECES, Pieces { piece_values: 6, batch_values: 7 }] {
+            let path = dir.path().join("bad.lfrs");
+            let error = write_samples_in(&path, spec(), &settings, 3, sample_pixel, cut).unwrap_err().to_string();
+            assert!(error.contains("bad.lfrs") && error.contains("count") && error.contains("95"), "{error}");
+            assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "no file and no temporary left");
+        }
     }
 }
