@@ -326,17 +326,22 @@ mod tests {
         }
     }
 
+    /// The settings of the writer tests: 5x3 pixels at 7 spp on two threads.
+    fn five_by_three_at_7_spp() -> RenderSettings {
+        RenderSettings { width: 5, height: 3, spp: 7, seed: 1, max_bounces: 1, threads: 2, progress: false }
+    }
+
+    /// A 5x3, 7-spp header with the film position and then `third`.
+    fn xy_and(third: FieldSpec) -> HeaderSpec {
+        HeaderSpec::new(SampleKind::Ao, 5, 3, 7).field(FieldSpec::new("xy", FieldType::F32, 2)).field(third)
+    }
+
     /// Tiny pieces and batches write the same file, byte for byte, as the defaults.
     #[test]
     fn the_file_does_not_depend_on_how_it_is_cut() {
         let dir = tempfile::tempdir().unwrap();
-        let settings =
-            RenderSettings { width: 5, height: 3, spp: 7, seed: 1, max_bounces: 1, threads: 2, progress: false };
-        let spec = || {
-            HeaderSpec::new(SampleKind::Ao, 5, 3, 7)
-                .field(FieldSpec::new("xy", FieldType::F32, 2))
-                .field(FieldSpec::new("index", FieldType::F32, 1))
-        };
+        let settings = five_by_three_at_7_spp();
+        let spec = || xy_and(FieldSpec::new("index", FieldType::F32, 1));
         let sample_pixel = |x: u32, y: u32, samples: std::ops::Range<u32>, out: &mut Vec<f32>| {
             for s in samples {
                 out.extend_from_slice(&[x as f32 + 0.25, y as f32 + 0.5, s as f32]);
@@ -357,13 +362,8 @@ mod tests {
     #[test]
     fn a_value_no_field_can_hold_is_an_error_naming_its_sample_and_leaves_no_file() {
         let dir = tempfile::tempdir().unwrap();
-        let settings =
-            RenderSettings { width: 5, height: 3, spp: 7, seed: 1, max_bounces: 1, threads: 2, progress: false };
-        let spec = || {
-            HeaderSpec::new(SampleKind::Ao, 5, 3, 7)
-                .field(FieldSpec::new("xy", FieldType::F32, 2))
-                .field(FieldSpec::new("count", FieldType::U8, 1))
-        };
+        let settings = five_by_three_at_7_spp();
+        let spec = || xy_and(FieldSpec::new("count", FieldType::U8, 1));
         // Pixel (3, 2) is pixel 13; its sample 4 is sample 13 * 7 + 4 = 95 of the file.
         let sample_pixel = |x: u32, y: u32, samples: std::ops::Range<u32>, out: &mut Vec<f32>| {
             for s in samples {
