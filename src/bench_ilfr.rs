@@ -98,7 +98,8 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
         for &spp in &args.spp {
             let settings = size.settings(&scene, spp, &run, seed, false)?;
             let path = dir.path().join("bench.lfrs");
-            let report = dump(&scene, &accel, &settings, SecondaryKind::Indirect, &path)?;
+            let report =
+                dump(&scene, &accel, &settings, SecondaryKind::Indirect, &tracer::samples::FieldSelection::All, &path)?;
             let start = Instant::now();
             let file = SampleFile::open(&path)?;
             let samples = read_indirect(&file).map_err(|e| anyhow!("{e}"))?;

@@ -137,7 +137,7 @@ pub fn run(args: &BenchTlfrArgs) -> Result<()> {
             let traced_samples = settings.width as u64 * settings.height as u64 * spp as u64;
             let traced_samples_per_s = traced_samples as f64 / trace_s;
             let path = dir.path().join("bench.lfrs");
-            tracer::samples::lens_time::dump(&scene, &accel, &settings, &path)?;
+            tracer::samples::lens_time::dump(&scene, &accel, &settings, &tracer::samples::FieldSelection::All, &path)?;
             let defaults = TlfrSettings::default();
             let adaptive = if args.fixed_locations { None } else { defaults.adaptive };
             let tlfr = TlfrSettings { seed, adaptive, ..defaults };

@@ -40,6 +40,11 @@ pub struct DumpArgs {
     /// the soft-shadow reconstruction (needs a planar area light).
     #[arg(long)]
     soft_shadow: bool,
+    /// Write only these fields (comma-separated, e.g. `radiance` or `x,y,z,radiance`), in the
+    /// kind's record order; each must be one of the kind's fields for this scene. A selected file
+    /// is the full one with the other columns left out (docs/sample-format.md).
+    #[arg(long, value_name = "LIST")]
+    fields: Option<String>,
 }
 
 pub fn run(args: &DumpArgs) -> Result<()> {
@@ -52,23 +57,38 @@ pub fn run(args: &DumpArgs) -> Result<()> {
         (false, _) => anyhow::bail!("--out {}: samples are written as an .lfrs file", args.out.display()),
     }
     check_outputs(&[&args.out], &scene_inputs(trace.scene.as_deref()))?;
+    let fields = match &args.fields {
+        Some(list) => {
+            anyhow::ensure!(
+                !matches!(args.kind, DumpKind::Guide),
+                "--fields applies to sample files, not --kind guide"
+            );
+            tracer::samples::FieldSelection::parse_strict(list)?
+        }
+        None => tracer::samples::FieldSelection::All,
+    };
     let scene = trace.load_scene()?;
     let settings = trace.settings(&scene, args.spp)?;
     let accel = Accel::build(&scene)?;
     let report = match args.kind {
         DumpKind::LensTime if args.soft_shadow => {
-            tracer::samples::lens_time::dump_for_soft_shadows(&scene, &accel, &settings, &args.out)?
+            tracer::samples::lens_time::dump_for_soft_shadows(&scene, &accel, &settings, &fields, &args.out)?
         }
-        DumpKind::LensTime => tracer::samples::lens_time::dump(&scene, &accel, &settings, &args.out)?,
+        DumpKind::LensTime => tracer::samples::lens_time::dump(&scene, &accel, &settings, &fields, &args.out)?,
         _ if args.soft_shadow => anyhow::bail!("--soft-shadow only applies to --kind lens-time"),
-        DumpKind::Light => tracer::samples::light::dump(&scene, &accel, &settings, &args.out)?,
+        DumpKind::Light => tracer::samples::light::dump(&scene, &accel, &settings, &fields, &args.out)?,
         DumpKind::Indirect => {
-            tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::Indirect, &args.out)?
+            tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::Indirect, &fields, &args.out)?
         }
         DumpKind::Guide => tracer::samples::guide::dump(&scene, &accel, &settings, &args.out)?,
-        DumpKind::Ao => {
-            tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::AmbientOcclusion, &args.out)?
-        }
+        DumpKind::Ao => tracer::samples::secondary::dump(
+            &scene,
+            &accel,
+            &settings,
+            SecondaryKind::AmbientOcclusion,
+            &fields,
+            &args.out,
+        )?,
     };
     println!(
         "wrote {} samples of {} to {} in {:.3} s ({:.3} s tracing, {:.3} s writing): {} bytes per record, {:.1} bytes per sample with header and checksums; fields: {}",

@@ -268,6 +268,40 @@ fn every_sample_kind_dumps_from_its_scene_and_reads_back() {
     assert!(stderr(&result).contains(".exr"));
 }
 
+/// `lfr dump --fields` writes only the named fields, in the kind's order; a name the scene's
+/// layout lacks, an empty name or a guide dump is an error naming it, with nothing written.
+#[test]
+fn dump_fields_selects_columns_and_refuses_unknown_names() {
+    let dir = tempfile::tempdir().unwrap();
+    let dump = |fields: &str, kind: &str, name: &str| {
+        let out = dir.path().join(name);
+        let args = ["dump", "--kind", kind, "--spp", "1", "--width", "6", "--height", "4", "--fields", fields];
+        let result = lfr(&[&args[..], &["--out", out.to_str().unwrap(), "--quiet"]].concat());
+        (result, out)
+    };
+    let (result, out) = dump("radiance,x", "indirect", "selected.lfrs");
+    assert!(result.status.success(), "{}", stderr(&result));
+    let file = sampleio::SampleFile::open(&out).unwrap();
+    let names: Vec<&str> = file.fields().iter().map(|f| f.name.as_str()).collect();
+    assert_eq!(names, ["x", "radiance"]);
+    assert_eq!(file.len(), 6 * 4);
+    let before: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    for (fields, kind, needle) in [
+        ("radiance,colour", "indirect", "`colour`"),
+        ("radiance,,x", "indirect", "empty field name"),
+        ("u", "lens-time", "`u`"), // the Cornell box has no lens
+        ("radiance", "guide", "--kind guide"),
+    ] {
+        let name = if kind == "guide" { "g.exr" } else { "bad.lfrs" };
+        let (result, _) = dump(fields, kind, name);
+        let message = stderr(&result);
+        assert!(!result.status.success() && message.contains(needle), "{fields} ({kind}): {message}");
+        assert!(!message.contains("panicked"), "{message}");
+    }
+    let after: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(before, after, "a refused dump writes nothing");
+}
+
 /// `lfr bench` times the tracer and the raw replay of its rays in alternating pairs: the pairs'
 /// ratios, their median and the best-against-best ratio are consistent with the seconds
 /// reported, and the replay traced exactly the rays the tracer counted (the command itself

@@ -27,7 +27,8 @@ fn dump_24x16(scene: &tracer::Scene) -> (tempfile::TempDir, SampleFile) {
     let path = dir.path().join("lens.lfrs");
     let settings =
         RenderSettings { width: 24, height: 16, spp: 4, seed: 3, max_bounces: 0, threads: 0, progress: false };
-    lens_time::dump(scene, &Accel::build(scene).unwrap(), &settings, &path).unwrap();
+    lens_time::dump(scene, &Accel::build(scene).unwrap(), &settings, &tracer::samples::FieldSelection::All, &path)
+        .unwrap();
     (dir, SampleFile::open(&path).unwrap())
 }
 

@@ -26,7 +26,7 @@ fn dump(scene: &Scene, width: u32, height: u32, spp: u32) -> (tempfile::TempDir,
     let path = dir.path().join("samples.lfrs");
     let accel = Accel::build(scene).unwrap();
     let settings = RenderSettings { width, height, spp, seed: 5, max_bounces: 0, threads: 0, progress: false };
-    lens_time::dump(scene, &accel, &settings, &path).unwrap();
+    lens_time::dump(scene, &accel, &settings, &tracer::samples::FieldSelection::All, &path).unwrap();
     (dir, path)
 }
 
@@ -300,8 +300,9 @@ fn soft_shadow_run(
     let (camera_path, light_path) = (dir.path().join("lens-time.lfrs"), dir.path().join("light.lfrs"));
     let accel = Accel::build(scene).unwrap();
     let settings = RenderSettings { width, height, spp, seed: 5, max_bounces: 1, threads: 0, progress: false };
-    lens_time::dump_for_soft_shadows(scene, &accel, &settings, &camera_path).unwrap();
-    tracer::samples::light::dump(scene, &accel, &settings, &light_path).unwrap();
+    lens_time::dump_for_soft_shadows(scene, &accel, &settings, &tracer::samples::FieldSelection::All, &camera_path)
+        .unwrap();
+    tracer::samples::light::dump(scene, &accel, &settings, &tracer::samples::FieldSelection::All, &light_path).unwrap();
     let tlfr_settings = recon::tlfr::settings::TlfrSettings { locations: 32, ..Default::default() };
     let output = recon::tlfr::shadows::reconstruct_soft_shadow(&camera_path, &light_path, &tlfr_settings).unwrap();
     let (box_image, _) =
@@ -422,8 +423,10 @@ fn soft_shadows_do_not_depend_on_the_thread_count() {
     let accel = Accel::build(&scene).unwrap();
     let settings =
         RenderSettings { width: 32, height: 24, spp: 2, seed: 3, max_bounces: 1, threads: 0, progress: false };
-    lens_time::dump_for_soft_shadows(&scene, &accel, &settings, &camera_path).unwrap();
-    tracer::samples::light::dump(&scene, &accel, &settings, &light_path).unwrap();
+    lens_time::dump_for_soft_shadows(&scene, &accel, &settings, &tracer::samples::FieldSelection::All, &camera_path)
+        .unwrap();
+    tracer::samples::light::dump(&scene, &accel, &settings, &tracer::samples::FieldSelection::All, &light_path)
+        .unwrap();
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         let tlfr = recon::tlfr::settings::TlfrSettings { locations: 8, ..Default::default() };
@@ -480,12 +483,13 @@ fn soft_shadow_inputs_that_do_not_belong_together_are_clear_errors() {
     let settings =
         |spp| RenderSettings { width: 8, height: 8, spp, seed: 1, max_bounces: 0, threads: 0, progress: false };
     let plain = dir.path().join("plain.lfrs");
-    lens_time::dump(&scene, &accel, &settings(2), &plain).unwrap();
+    lens_time::dump(&scene, &accel, &settings(2), &tracer::samples::FieldSelection::All, &plain).unwrap();
     // The square is the scene's only emitter and planar: it serves as the light.
     let light = dir.path().join("light.lfrs");
-    tracer::samples::light::dump(&scene, &accel, &settings(4), &light).unwrap();
+    tracer::samples::light::dump(&scene, &accel, &settings(4), &tracer::samples::FieldSelection::All, &light).unwrap();
     let shading = dir.path().join("shading.lfrs");
-    lens_time::dump_for_soft_shadows(&scene, &accel, &settings(2), &shading).unwrap();
+    lens_time::dump_for_soft_shadows(&scene, &accel, &settings(2), &tracer::samples::FieldSelection::All, &shading)
+        .unwrap();
     let run = |camera: &std::path::Path, light: &std::path::Path| {
         let tlfr = recon::tlfr::settings::TlfrSettings { locations: 4, ..Default::default() };
         recon::tlfr::shadows::reconstruct_soft_shadow(camera, light, &tlfr).unwrap_err().to_string()
@@ -546,6 +550,7 @@ fn the_seed_reaches_every_reconstruction_and_keeps_its_quality() {
         &accel,
         &settings,
         tracer::samples::secondary::SecondaryKind::Indirect,
+        &tracer::samples::FieldSelection::All,
         &indirect_path,
     )
     .unwrap();

@@ -210,6 +210,13 @@ pub trait Method: Send + Sync + std::fmt::Debug {
     fn reads_light_samples(&self, _effect: Effect) -> bool {
         false
     }
+    /// With `Input::Samples`: every field it reads of the sample files for `effect` (of the
+    /// light samples too, where it reads them), as the declarations it checks files against
+    /// (`crate::needs`); `None` when it does not say, and then reads any field. `lfr compare`
+    /// traces its input with these fields only, so that it pays for what it reads.
+    fn sample_needs(&self, _effect: Effect) -> Option<Vec<&'static sampleio::Needs>> {
+        None
+    }
     /// `Err(reason)` when a dependency is missing; checked once before any run.
     fn available(&self) -> Result<(), Error> {
         Ok(())

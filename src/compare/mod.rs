@@ -36,6 +36,7 @@ use tracer::limits::{MAX_COMPARE_SIDE, MAX_COMPARE_SPP, MAX_RECON_RAYS, MAX_SPP}
 use crate::common::TraceArgs;
 use recon::{Effect, Image};
 use tracer::output::write_atomically;
+use tracer::samples::FieldSelection;
 use tracer::Accel;
 
 use effect::{default_ao_radius, prepare_scene, Tracing};
@@ -195,10 +196,35 @@ impl Measured {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 enum TraceKey {
     Pt(u32),
-    Samples(u32),
+    /// The input samples at an spp with the fields of one selection (an index into the
+    /// selections the methods read, `input_selections`).
+    Samples(u32, usize),
     /// The light samples that soft shadows' samples pair with (traced with `Samples`).
-    LightSamples(u32),
+    LightSamples(u32, usize),
     Guide(u32),
+}
+
+/// The fields `method` reads of its sample files for `effect` (all when it does not say).
+fn input_fields(method: &Registered, effect: Effect) -> FieldSelection {
+    match method.sample_needs(effect) {
+        Some(needs) => {
+            FieldSelection::named(needs.iter().flat_map(|needs| needs.fields.iter().map(|field| field.name)))
+        }
+        None => FieldSelection::All,
+    }
+}
+
+/// The distinct field selections of the methods that read samples, in the methods' order: each
+/// is traced once per input spp, and each method pays for the one it reads.
+fn input_selections(methods: &[&Registered], effect: Effect) -> Vec<FieldSelection> {
+    let mut selections: Vec<FieldSelection> = Vec::new();
+    for method in methods.iter().filter(|m| m.input() == Input::Samples) {
+        let fields = input_fields(method, effect);
+        if !selections.contains(&fields) {
+            selections.push(fields);
+        }
+    }
+    selections
 }
 
 /// The trace times of a run that reads `key` and, when given, `light` too: repetition by
@@ -217,8 +243,8 @@ impl TraceKey {
     fn label(self) -> String {
         match self {
             TraceKey::Pt(spp) => format!("path tracing, {spp} spp"),
-            TraceKey::Samples(spp) => format!("input samples, {spp} spp"),
-            TraceKey::LightSamples(spp) => format!("light samples, {spp} spp"),
+            TraceKey::Samples(spp, selection) => format!("input samples, {spp} spp, fields {}", selection + 1),
+            TraceKey::LightSamples(spp, selection) => format!("light samples, {spp} spp, fields {}", selection + 1),
             TraceKey::Guide(spp) => format!("guide buffers, {spp} spp"),
         }
     }
@@ -670,7 +696,8 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     // The ladder holds every input spp whatever the methods, so that each method's input spp has
     // a path-traced image of the same samples beside it.
     let ladder_spp = ladder(args.pt_max_spp, &args.spp);
-    let input_count = args.spp.len() * (usize::from(needs(Input::Samples)) + usize::from(needs(Input::Guide)));
+    let selections = input_selections(&available, effect);
+    let input_count = args.spp.len() * (selections.len() + usize::from(needs(Input::Guide)));
     let method_count: usize = available.iter().map(|m| rays_of(m).len() * args.spp.len()).sum();
     bar.set_length((ladder_spp.len() + input_count + method_count + probe_methods.len()) as u64);
 
@@ -696,19 +723,19 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     let inputs_dir = dir.join("inputs");
     // An interrupt removes the input samples too, unless they are to be kept.
     let _inputs_registration = (!args.keep_samples).then(|| sampleio::interrupt::remove_on_interrupt(&inputs_dir));
-    let mut samples: BTreeMap<u32, effect::Dumped> = BTreeMap::new();
+    let mut samples: BTreeMap<(u32, usize), effect::Dumped> = BTreeMap::new();
     let mut guides: BTreeMap<u32, recon::method::GuideInput> = BTreeMap::new();
     for &spp in &args.spp {
-        if needs(Input::Samples) {
+        for (selection, fields) in selections.iter().enumerate() {
             bar.set_message(format!("tracing the input samples, {spp} spp"));
             std::fs::create_dir_all(&inputs_dir).with_context(|| format!("creating {}", inputs_dir.display()))?;
-            let dumped = tracing.dump(spp, seed, &inputs_dir)?;
-            traces.insert(TraceKey::Samples(spp), vec![dumped.samples_s]);
+            let dumped = tracing.dump(spp, seed, &inputs_dir, fields, selection)?;
+            traces.insert(TraceKey::Samples(spp, selection), vec![dumped.samples_s]);
             if let Some(seconds) = dumped.light_samples_s {
-                traces.insert(TraceKey::LightSamples(spp), vec![seconds]);
+                traces.insert(TraceKey::LightSamples(spp, selection), vec![seconds]);
             }
-            samples.insert(spp, dumped);
-            jobs.push(Job::Trace(TraceKey::Samples(spp), usize::MAX));
+            samples.insert((spp, selection), dumped);
+            jobs.push(Job::Trace(TraceKey::Samples(spp, selection), usize::MAX));
             bar.inc(1);
         }
         if needs(Input::Guide) {
@@ -723,8 +750,12 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     let inputs_of = |method: &Registered, spp: u32| -> (Inputs, TraceKey) {
         let (samples, light_samples, frame, guide, key) = match method.input() {
             Input::Samples => {
-                let dumped = &samples[&spp];
-                (Some(dumped.samples.clone()), dumped.light_samples.clone(), None, None, TraceKey::Samples(spp))
+                let fields = input_fields(method, effect);
+                let selection =
+                    selections.iter().position(|s| *s == fields).expect("every reader's selection is traced");
+                let dumped = &samples[&(spp, selection)];
+                let key = TraceKey::Samples(spp, selection);
+                (Some(dumped.samples.clone()), dumped.light_samples.clone(), None, None, key)
             }
             Input::Frame => (None, None, Some(&frames[&spp]), None, TraceKey::Pt(spp)),
             Input::Guide => (None, None, None, Some(&guides[&spp]), TraceKey::Guide(spp)),
@@ -770,9 +801,12 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                     (Some(a), Some(b)) => Some(a.max(b)),
                     (a, b) => a.or(b),
                 };
-                let light_trace = (key == TraceKey::Samples(spp) && method.reads_light_samples(effect))
-                    .then_some(TraceKey::LightSamples(spp))
-                    .filter(|light| traces.contains_key(light));
+                let light_trace = match key {
+                    TraceKey::Samples(spp, selection) if method.reads_light_samples(effect) => {
+                        Some(TraceKey::LightSamples(spp, selection)).filter(|light| traces.contains_key(light))
+                    }
+                    _ => None,
+                };
                 let trace_s = trace_times(&traces, key, light_trace)[0];
                 let run = context.measure(
                     method.name(),
@@ -854,14 +888,15 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                             }
                             traced.seconds
                         }
-                        TraceKey::Samples(spp) => {
-                            let dumped = tracing.dump(spp, seed, &inputs_dir)?;
+                        TraceKey::Samples(spp, selection) => {
+                            let dumped = tracing.dump(spp, seed, &inputs_dir, &selections[selection], selection)?;
                             if let Some(seconds) = dumped.light_samples_s {
-                                traces.get_mut(&TraceKey::LightSamples(spp)).expect("traced in pass 1").push(seconds);
+                                let light = TraceKey::LightSamples(spp, selection);
+                                traces.get_mut(&light).expect("traced in pass 1").push(seconds);
                             }
                             dumped.samples_s
                         }
-                        TraceKey::LightSamples(_) => unreachable!("traced with the samples"),
+                        TraceKey::LightSamples(..) => unreachable!("traced with the samples"),
                         TraceKey::Guide(spp) => tracing.guide(spp, seed)?.1,
                     };
                     traces.get_mut(key).expect("traced in pass 1").push(seconds);
@@ -1111,7 +1146,7 @@ mod tests {
         let mut measured = Measured {
             run,
             image: reference,
-            trace: TraceKey::Samples(4),
+            trace: TraceKey::Samples(4, 0),
             light_trace: None,
             parts: vec![[0.1, 1.0], [0.1, 3.0], [0.1, 2.0]],
             stats: vec![stats(0.9), stats(2.9), stats(1.9)],
@@ -1130,11 +1165,12 @@ mod tests {
     #[test]
     fn light_sample_times_add_to_the_runs_that_read_them() {
         let traces = BTreeMap::from([
-            (TraceKey::Samples(4), vec![1.0, 2.0, 3.0]),
-            (TraceKey::LightSamples(4), vec![0.25, 0.5, 0.75]),
+            (TraceKey::Samples(4, 0), vec![1.0, 2.0, 3.0]),
+            (TraceKey::LightSamples(4, 0), vec![0.25, 0.5, 0.75]),
         ]);
-        assert_eq!(trace_times(&traces, TraceKey::Samples(4), None), vec![1.0, 2.0, 3.0]);
-        assert_eq!(trace_times(&traces, TraceKey::Samples(4), Some(TraceKey::LightSamples(4))), vec![1.25, 2.5, 3.75]);
+        assert_eq!(trace_times(&traces, TraceKey::Samples(4, 0), None), vec![1.0, 2.0, 3.0]);
+        let with_light = trace_times(&traces, TraceKey::Samples(4, 0), Some(TraceKey::LightSamples(4, 0)));
+        assert_eq!(with_light, vec![1.25, 2.5, 3.75]);
         // Which methods read them: tlfr for soft shadows only; box never.
         let methods = resolve_methods(&["box".into(), "tlfr".into()], Effect::SoftShadow).unwrap();
         assert!(!methods[0].reads_light_samples(Effect::SoftShadow));

@@ -49,12 +49,22 @@ fn sample_dumps_count_dropped_contributions() {
         let settings =
             RenderSettings { width: 4, height: 4, spp: 2, seed: 1, max_bounces: 4, threads: 1, progress: false };
         let path = dir.path().join("lens.lfrs");
-        let report = tracer::samples::lens_time::dump(&scene, &accel, &settings, &path).unwrap();
+        let report =
+            tracer::samples::lens_time::dump(&scene, &accel, &settings, &tracer::samples::FieldSelection::All, &path)
+                .unwrap();
         assert_eq!(report.dropped_contributions >= 32, dropped, "lens-time {intensity}: {report:?}");
         assert_eq!(report.dropped_contributions > 0, dropped, "lens-time {intensity}: {report:?}");
         let path = dir.path().join("indirect.lfrs");
         let kind = tracer::samples::secondary::SecondaryKind::Indirect;
-        let report = tracer::samples::secondary::dump(&scene, &accel, &settings, kind, &path).unwrap();
+        let report = tracer::samples::secondary::dump(
+            &scene,
+            &accel,
+            &settings,
+            kind,
+            &tracer::samples::FieldSelection::All,
+            &path,
+        )
+        .unwrap();
         assert_eq!(report.dropped_contributions > 0, dropped, "indirect {intensity}: {report:?}");
     }
 }

@@ -16,7 +16,7 @@ fn dump(scene: &Scene, width: u32, height: u32, spp: u32, threads: usize) -> (te
     let accel = Accel::build(scene).unwrap();
     let settings =
         RenderSettings { width, height, spp, seed: 3, max_bounces: scene.max_bounces, threads, progress: false };
-    lens_time::dump(scene, &accel, &settings, &path).unwrap();
+    lens_time::dump(scene, &accel, &settings, &tracer::samples::FieldSelection::All, &path).unwrap();
     (dir, path)
 }
 

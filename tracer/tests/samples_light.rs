@@ -17,7 +17,7 @@ fn dump_light(scene: &Scene, size: (u32, u32), spp: u32) -> (tempfile::TempDir, 
     let accel = Accel::build(scene).unwrap();
     let settings =
         RenderSettings { width: size.0, height: size.1, spp, seed: 4, max_bounces: 4, threads: 0, progress: false };
-    dump(scene, &accel, &settings, &path).unwrap();
+    dump(scene, &accel, &settings, &tracer::samples::FieldSelection::All, &path).unwrap();
     (dir, SampleFile::open(&path).unwrap())
 }
 
@@ -153,7 +153,14 @@ fn dump_soft_shadow_lens_time(scene: &Scene, size: (u32, u32), spp: u32) -> (tem
     let accel = Accel::build(scene).unwrap();
     let settings =
         RenderSettings { width: size.0, height: size.1, spp, seed: 9, max_bounces: 1, threads: 0, progress: false };
-    tracer::samples::lens_time::dump_for_soft_shadows(scene, &accel, &settings, &path).unwrap();
+    tracer::samples::lens_time::dump_for_soft_shadows(
+        scene,
+        &accel,
+        &settings,
+        &tracer::samples::FieldSelection::All,
+        &path,
+    )
+    .unwrap();
     (dir, SampleFile::open(&path).unwrap())
 }
 
@@ -180,7 +187,14 @@ fn soft_shadow_lens_time_samples_split_off_exactly_the_planar_light() {
         let path = dir.path().join("plain.lfrs");
         let settings =
             RenderSettings { width: 16, height: 16, spp: 4, seed: 9, max_bounces: 1, threads: 0, progress: false };
-        tracer::samples::lens_time::dump(&scene, &Accel::build(&scene).unwrap(), &settings, &path).unwrap();
+        tracer::samples::lens_time::dump(
+            &scene,
+            &Accel::build(&scene).unwrap(),
+            &settings,
+            &tracer::samples::FieldSelection::All,
+            &path,
+        )
+        .unwrap();
         SampleFile::open(&path).unwrap().column("radiance").unwrap()
     };
     assert_eq!(radiance, plain, "splitting does not change the paths");

@@ -31,7 +31,7 @@ fn dump_file(
         threads: 0,
         progress: false,
     };
-    dump(scene, &accel, &settings, kind, &path).unwrap();
+    dump(scene, &accel, &settings, kind, &tracer::samples::FieldSelection::All, &path).unwrap();
     let file = SampleFile::open(&path).unwrap();
     (dir, file)
 }

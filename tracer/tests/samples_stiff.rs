@@ -23,10 +23,24 @@ fn dump_all(scene: &Scene, settings: &RenderSettings) -> Vec<(String, SampleFile
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("s.lfrs");
         let result = match kind {
-            "lens-time" => lens_time::dump(scene, &accel, settings, &path),
-            "light" => light::dump(scene, &accel, settings, &path),
-            "indirect" => secondary::dump(scene, &accel, settings, SecondaryKind::Indirect, &path),
-            _ => secondary::dump(scene, &accel, settings, SecondaryKind::AmbientOcclusion, &path),
+            "lens-time" => lens_time::dump(scene, &accel, settings, &tracer::samples::FieldSelection::All, &path),
+            "light" => light::dump(scene, &accel, settings, &tracer::samples::FieldSelection::All, &path),
+            "indirect" => secondary::dump(
+                scene,
+                &accel,
+                settings,
+                SecondaryKind::Indirect,
+                &tracer::samples::FieldSelection::All,
+                &path,
+            ),
+            _ => secondary::dump(
+                scene,
+                &accel,
+                settings,
+                SecondaryKind::AmbientOcclusion,
+                &tracer::samples::FieldSelection::All,
+                &path,
+            ),
         };
         match result {
             Ok(_) => files.push((kind.to_string(), SampleFile::open(&path).unwrap(), dir)),

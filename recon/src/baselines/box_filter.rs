@@ -30,6 +30,10 @@ impl Method for BoxFilter {
         Input::Samples
     }
 
+    fn sample_needs(&self, effect: Effect) -> Option<Vec<&'static sampleio::Needs>> {
+        Some(vec![crate::needs::box_filter(effect.sample_kind())])
+    }
+
     fn run(&self, inputs: &Inputs, _recon_rays: u32) -> Result<Output, MethodError> {
         let path = inputs.samples.as_ref().ok_or_else(|| Error::missing_input("samples", "box needs a sample file"))?;
         let start = Instant::now();

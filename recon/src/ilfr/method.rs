@@ -95,6 +95,10 @@ impl Method for Ilfr {
         vec![256]
     }
 
+    fn sample_needs(&self, effect: Effect) -> Option<Vec<&'static sampleio::Needs>> {
+        crate::needs::ilfr(effect.sample_kind()).map(|needs| vec![needs])
+    }
+
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
         let settings = IlfrSettings { recon_rays, seed: inputs.seed, ..IlfrSettings::default() };
         run_ilfr("ilfr", inputs, self.choices.apply(settings, inputs.effect))
@@ -115,6 +119,10 @@ impl Method for IlfrRecursive {
 
     fn default_recon_rays(&self) -> Vec<u32> {
         vec![256]
+    }
+
+    fn sample_needs(&self, effect: Effect) -> Option<Vec<&'static sampleio::Needs>> {
+        crate::needs::ilfr(effect.sample_kind()).map(|needs| vec![needs])
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
@@ -138,6 +146,10 @@ impl Method for IlfrDof {
 
     fn default_recon_rays(&self) -> Vec<u32> {
         vec![128]
+    }
+
+    fn sample_needs(&self, _effect: Effect) -> Option<Vec<&'static sampleio::Needs>> {
+        Some(vec![&crate::needs::ILFR_LENS])
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {

@@ -72,6 +72,14 @@ impl Method for TlfrMethod {
         effect == Effect::SoftShadow
     }
 
+    fn sample_needs(&self, effect: Effect) -> Option<Vec<&'static sampleio::Needs>> {
+        use crate::needs::{TLFR, TLFR_LIGHT, TLFR_SOFT_SHADOW};
+        Some(match effect {
+            Effect::SoftShadow => vec![&TLFR, &TLFR_SOFT_SHADOW, &TLFR_LIGHT],
+            _ => vec![&TLFR],
+        })
+    }
+
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
         let path = inputs
             .samples

@@ -30,7 +30,7 @@ use std::path::Path;
 
 use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleKind};
 
-use super::{camera_header, write_samples, DumpReport};
+use super::{camera_header, write_samples, DumpReport, FieldSelection};
 use crate::accel::Accel;
 use crate::camera::depth_gradient;
 use crate::error::RenderError;
@@ -143,9 +143,15 @@ impl LensTimeLayout {
     }
 }
 
-/// Writes `lens-time` samples of `scene` to `path`.
-pub fn dump(scene: &Scene, accel: &Accel, settings: &RenderSettings, path: &Path) -> Result<DumpReport, RenderError> {
-    dump_with(scene, accel, settings, LensTimeLayout::for_scene(scene), None, path)
+/// Writes `lens-time` samples of `scene` to `path`, the fields `fields` selects.
+pub fn dump(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &RenderSettings,
+    fields: &FieldSelection,
+    path: &Path,
+) -> Result<DumpReport, RenderError> {
+    dump_with(scene, accel, settings, LensTimeLayout::for_scene(scene), fields, None, path)
 }
 
 /// Writes `lens-time` samples with the soft-shadow fields (`albedo`, `normal`,
@@ -154,11 +160,12 @@ pub fn dump_for_soft_shadows(
     scene: &Scene,
     accel: &Accel,
     settings: &RenderSettings,
+    fields: &FieldSelection,
     path: &Path,
 ) -> Result<DumpReport, RenderError> {
     let light = super::light::PlanarLight::find(scene)?;
     let layout = LensTimeLayout { shading: true, ..LensTimeLayout::for_scene(scene) };
-    dump_with(scene, accel, settings, layout, Some(light.mesh), path)
+    dump_with(scene, accel, settings, layout, fields, Some(light.mesh), path)
 }
 
 fn dump_with(
@@ -166,72 +173,79 @@ fn dump_with(
     accel: &Accel,
     settings: &RenderSettings,
     layout: LensTimeLayout,
+    fields: &FieldSelection,
     split_emitter: Option<u32>,
     path: &Path,
 ) -> Result<DumpReport, RenderError> {
     settings.validate()?;
+    // The gradient's four extra camera rays are a tenth of a dump: only when it is written.
+    let with_gradient = fields.wants("depth_gradient");
     let lights = LightSampler::new(scene);
     let mut integrator = super::integrator(scene, accel, &lights, settings);
     integrator.split_emitter = split_emitter;
     let camera = &scene.camera;
     let spec = layout.header(scene, settings);
-    let mut report = write_samples(path, spec, settings, layout.values_per_sample(), |x, y, samples, values| {
-        for index in samples {
-            let mut sampler = Sampler::new(settings.seed, x, y, index);
-            let camera_sample = integrator.camera_sample(x, y, &mut sampler);
-            let path = integrator.trace_camera_sample(&camera_sample, &mut sampler, &mut NoRecording);
-            values.extend_from_slice(&[camera_sample.film.x, camera_sample.film.y]);
-            if layout.lens {
-                // The file's v runs along image +y, the camera's lens.y along up.
-                values.extend_from_slice(&[camera_sample.lens.x, -camera_sample.lens.y]);
-            }
-            if layout.time {
-                values.push(camera_sample.time);
-            }
-            match path.first_hit {
-                Some(hit) => {
-                    values.push(hit.depth);
-                    if layout.time {
-                        let motion = scene.meshes[hit.mesh as usize].motion;
-                        values.extend_from_slice(&camera.vector_to_camera_space(motion).to_array());
-                    }
-                    values.extend_from_slice(&path.radiance().to_array());
-                    let gradient = depth_gradient(
-                        camera,
-                        &camera_sample,
-                        hit.position,
-                        hit.geometric_normal,
-                        settings.width,
-                        settings.height,
-                    );
-                    values.extend_from_slice(&gradient.to_array());
-                    if layout.bandwidth {
-                        values.push(super::secondary::bandwidth(&hit.bsdf));
-                    }
-                    if layout.shading {
-                        values.extend_from_slice(&super::secondary::clamp_f16(hit.albedo).to_array());
-                        values.extend_from_slice(&super::secondary::encode_octahedral(hit.normal));
-                        values.extend_from_slice(&(path.radiance() - path.split_emitter_light).to_array());
-                    }
+    let mut report =
+        write_samples(path, spec, fields, settings, layout.values_per_sample(), |x, y, samples, values| {
+            for index in samples {
+                let mut sampler = Sampler::new(settings.seed, x, y, index);
+                let camera_sample = integrator.camera_sample(x, y, &mut sampler);
+                let path = integrator.trace_camera_sample(&camera_sample, &mut sampler, &mut NoRecording);
+                values.extend_from_slice(&[camera_sample.film.x, camera_sample.film.y]);
+                if layout.lens {
+                    // The file's v runs along image +y, the camera's lens.y along up.
+                    values.extend_from_slice(&[camera_sample.lens.x, -camera_sample.lens.y]);
                 }
-                None => {
-                    values.push(f32::INFINITY);
-                    if layout.time {
-                        values.extend_from_slice(&[0.0; 3]);
-                    }
-                    values.extend_from_slice(&path.radiance().to_array());
-                    values.extend_from_slice(&[0.0, 0.0]);
-                    if layout.bandwidth {
-                        values.push(0.0);
-                    }
-                    if layout.shading {
-                        values.extend_from_slice(&[0.0; 5]);
+                if layout.time {
+                    values.push(camera_sample.time);
+                }
+                match path.first_hit {
+                    Some(hit) => {
+                        values.push(hit.depth);
+                        if layout.time {
+                            let motion = scene.meshes[hit.mesh as usize].motion;
+                            values.extend_from_slice(&camera.vector_to_camera_space(motion).to_array());
+                        }
                         values.extend_from_slice(&path.radiance().to_array());
+                        let gradient = match with_gradient {
+                            true => depth_gradient(
+                                camera,
+                                &camera_sample,
+                                hit.position,
+                                hit.geometric_normal,
+                                settings.width,
+                                settings.height,
+                            ),
+                            false => glam::Vec2::ZERO, // left out of the file
+                        };
+                        values.extend_from_slice(&gradient.to_array());
+                        if layout.bandwidth {
+                            values.push(super::secondary::bandwidth(&hit.bsdf));
+                        }
+                        if layout.shading {
+                            values.extend_from_slice(&super::secondary::clamp_f16(hit.albedo).to_array());
+                            values.extend_from_slice(&super::secondary::encode_octahedral(hit.normal));
+                            values.extend_from_slice(&(path.radiance() - path.split_emitter_light).to_array());
+                        }
+                    }
+                    None => {
+                        values.push(f32::INFINITY);
+                        if layout.time {
+                            values.extend_from_slice(&[0.0; 3]);
+                        }
+                        values.extend_from_slice(&path.radiance().to_array());
+                        values.extend_from_slice(&[0.0, 0.0]);
+                        if layout.bandwidth {
+                            values.push(0.0);
+                        }
+                        if layout.shading {
+                            values.extend_from_slice(&[0.0; 5]);
+                            values.extend_from_slice(&path.radiance().to_array());
+                        }
                     }
                 }
             }
-        }
-    })?;
+        })?;
     report.dropped_contributions = integrator.dropped_contributions();
     Ok(report)
 }

@@ -29,7 +29,7 @@ use std::path::Path;
 use glam::{Mat3, Vec2, Vec3};
 use sampleio::{FieldSpec, FieldType, HeaderSpec, LightGeometry, SampleKind};
 
-use super::{camera_header, write_samples, DumpReport};
+use super::{camera_header, write_samples, DumpReport, FieldSelection};
 use crate::accel::Accel;
 use crate::camera::{depth_gradient, Camera, CameraSample};
 use crate::error::RenderError;
@@ -172,8 +172,14 @@ pub fn view_light_density(
     }
 }
 
-/// Writes `light` samples of `scene` to `path`.
-pub fn dump(scene: &Scene, accel: &Accel, settings: &RenderSettings, path: &Path) -> Result<DumpReport, RenderError> {
+/// Writes `light` samples of `scene` to `path`, the fields `fields` selects.
+pub fn dump(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &RenderSettings,
+    fields: &FieldSelection,
+    path: &Path,
+) -> Result<DumpReport, RenderError> {
     settings.validate()?;
     let light = PlanarLight::find(scene)?;
     let emission = scene.materials[scene.meshes[light.mesh as usize].material as usize].emission;
@@ -209,7 +215,7 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &RenderSettings, path: &Path
     spec.seed = Some(settings.seed);
     let values_per_sample = 4 + time_field as usize + 1 + 3 + 1 + 3 * time_field as usize;
     let light_mesh = &scene.meshes[light.mesh as usize];
-    write_samples(path, spec, settings, values_per_sample, |x, y, samples, out| {
+    write_samples(path, spec, fields, settings, values_per_sample, |x, y, samples, out| {
         for index in samples {
             let mut sampler = Sampler::new(settings.seed, x, y, index);
             let camera_sample = integrator.camera_sample(x, y, &mut sampler);

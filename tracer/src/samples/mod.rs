@@ -10,6 +10,9 @@ pub mod guide;
 pub mod lens_time;
 pub mod light;
 pub mod secondary;
+pub mod selection;
+
+pub use selection::FieldSelection;
 
 use std::path::Path;
 use std::time::Instant;
@@ -112,6 +115,8 @@ const PIECES: Pieces = Pieces { piece_values: 1 << 16, batch_values: 2 << 20 };
 #[derive(Default)]
 struct PieceBuffers {
     values: Vec<f32>,
+    /// One record's selected values (only with a field selection).
+    selected: Vec<f32>,
     records: Vec<u8>,
 }
 
@@ -156,11 +161,13 @@ fn pieces(pixel_count: u64, spp: u32, values_per_sample: usize, piece_values: us
 }
 
 /// Traces every pixel's samples with `sample_pixel` (which appends the records of the given
-/// sample indices, `values_per_sample` values each, for pixel (x, y)) in parallel batches of
-/// pieces and streams them into `path` in pixel-major order.
+/// sample indices, `values_per_sample` values each, for pixel (x, y), every field of `spec`) in
+/// parallel batches of pieces and streams them into `path` in pixel-major order, keeping the
+/// fields `fields` selects.
 pub fn write_samples<F>(
     path: &Path,
     spec: HeaderSpec,
+    fields: &FieldSelection,
     settings: &RenderSettings,
     values_per_sample: usize,
     sample_pixel: F,
@@ -168,12 +175,13 @@ pub fn write_samples<F>(
 where
     F: Fn(u32, u32, std::ops::Range<u32>, &mut Vec<f32>) + Sync,
 {
-    write_samples_in(path, spec, settings, values_per_sample, sample_pixel, PIECES)
+    write_samples_in(path, spec, fields, settings, values_per_sample, sample_pixel, PIECES)
 }
 
 fn write_samples_in<F>(
     path: &Path,
     spec: HeaderSpec,
+    fields: &FieldSelection,
     settings: &RenderSettings,
     values_per_sample: usize,
     sample_pixel: F,
@@ -183,6 +191,7 @@ where
     F: Fn(u32, u32, std::ops::Range<u32>, &mut Vec<f32>) + Sync,
 {
     settings.validate()?;
+    let (spec, selected_ranges) = fields.apply(spec)?;
     let output_error =
         |e: sampleio::SampleError| RenderError::Output { path: path.to_path_buf(), message: e.to_string() };
     let mut writer = SampleWriter::create(path, spec).map_err(output_error)?;
@@ -222,6 +231,16 @@ where
             for (index, (values, record)) in
                 slot.values.chunks_exact(values_per_sample).zip(slot.records.chunks_exact_mut(record_size)).enumerate()
             {
+                let values = match &selected_ranges {
+                    None => values,
+                    Some(ranges) => {
+                        slot.selected.clear();
+                        for range in ranges {
+                            slot.selected.extend_from_slice(&values[range.clone()]);
+                        }
+                        &slot.selected
+                    }
+                };
                 sampleio::encode_record(&header, values, record).map_err(|bad| (index as u64, bad))?;
             }
         }
@@ -349,9 +368,17 @@ mod tests {
         };
         let whole = dir.path().join("whole.lfrs");
         let cut = dir.path().join("cut.lfrs");
-        write_samples(&whole, spec(), &settings, 3, sample_pixel).unwrap();
-        write_samples_in(&cut, spec(), &settings, 3, sample_pixel, Pieces { piece_values: 6, batch_values: 7 })
-            .unwrap();
+        write_samples(&whole, spec(), &FieldSelection::All, &settings, 3, sample_pixel).unwrap();
+        write_samples_in(
+            &cut,
+            spec(),
+            &FieldSelection::All,
+            &settings,
+            3,
+            sample_pixel,
+            Pieces { piece_values: 6, batch_values: 7 },
+        )
+        .unwrap();
         assert_eq!(std::fs::read(&whole).unwrap(), std::fs::read(&cut).unwrap());
         let file = sampleio::SampleFile::open(&cut).unwrap();
         assert_eq!(file.len(), 5 * 3 * 7);
@@ -373,7 +400,9 @@ mod tests {
         };
         for cut in [PIECES, Pieces { piece_values: 6, batch_values: 7 }] {
             let path = dir.path().join("bad.lfrs");
-            let error = write_samples_in(&path, spec(), &settings, 3, sample_pixel, cut).unwrap_err().to_string();
+            let error = write_samples_in(&path, spec(), &FieldSelection::All, &settings, 3, sample_pixel, cut)
+                .unwrap_err()
+                .to_string();
             assert!(error.contains("bad.lfrs") && error.contains("count") && error.contains("95"), "{error}");
             assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "no file and no temporary left");
         }

@@ -51,7 +51,7 @@ use std::path::Path;
 use glam::{Vec2, Vec3};
 use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleKind};
 
-use super::{camera_header, write_samples, DumpReport};
+use super::{camera_header, write_samples, DumpReport, FieldSelection};
 use crate::accel::Accel;
 use crate::bsdf::{luminance, sample_cosine_hemisphere, Bsdf, Frame};
 use crate::error::RenderError;
@@ -282,12 +282,13 @@ fn push_bsdf(values: &mut Vec<f32>, bsdf: &Bsdf) {
     values.extend_from_slice(&[bsdf.metallic, bsdf.alpha.sqrt(), bsdf.specular, bsdf.f0]);
 }
 
-/// Writes `indirect` or `ao` samples of `scene` to `path`.
+/// Writes `indirect` or `ao` samples of `scene` to `path`, the fields `fields` selects.
 pub fn dump(
     scene: &Scene,
     accel: &Accel,
     settings: &RenderSettings,
     kind: SecondaryKind,
+    fields: &FieldSelection,
     path: &Path,
 ) -> Result<DumpReport, RenderError> {
     settings.validate()?;
@@ -315,7 +316,7 @@ pub fn dump(
     );
     spec.coordinates = Some(coordinates);
     let values = layout.values_per_sample();
-    let mut report = write_samples(path, spec, settings, values, |x, y, samples, out| {
+    let mut report = write_samples(path, spec, fields, settings, values, |x, y, samples, out| {
         for index in samples {
             let mut sampler = Sampler::new(settings.seed, x, y, index);
             let before = out.len();
