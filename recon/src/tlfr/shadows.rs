@@ -562,6 +562,7 @@ pub fn reconstruct_soft_shadow(
         z_near,
         delta,
         view_bandwidth: None,
+        one_query_per_pixel: false,
     };
     let light_scene = Scene {
         samples: &light.samples,
@@ -572,6 +573,7 @@ pub fn reconstruct_soft_shadow(
         z_near: light_z_near,
         delta,
         view_bandwidth: None,
+        one_query_per_pixel: false,
     };
     let area = light.space.width_u * light.space.width_v;
     let scene = ShadowScene {
