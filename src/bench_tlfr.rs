@@ -16,9 +16,9 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use recon::tlfr::integrate::{integrate_adaptive, integrate_clocked, Clocked};
-use recon::tlfr::method::{prepare, Prepared};
-use recon::tlfr::query::{reconstruct, QueryStats, Scene};
+use recon::tlfr::integrate::{integrate_adaptive, integrate_clocked};
+use recon::tlfr::method::prepare;
+use recon::tlfr::query::reconstruct;
 use recon::tlfr::settings::TlfrSettings;
 use serde::Serialize;
 use tracer::render::thread_pool;
@@ -42,11 +42,6 @@ pub struct BenchTlfrArgs {
     /// N locations in every pixel: the adaptive rule off (`recon::tlfr::integrate::AdaptiveRule`).
     #[arg(long)]
     fixed_locations: bool,
-    /// How queries walk the hierarchy, comma-separated: `pixel` (once per pixel, the default of
-    /// `tlfr`), `location` (once per location, the oracle). With both, the plain runs alternate
-    /// between them, each gets its rows, and their images must be the same bit for bit.
-    #[arg(long, value_delimiter = ',', default_value = "pixel")]
-    query: Vec<QueryWalk>,
     /// Timed repetitions of the render and of the plain reconstruction; the best of each is
     /// reported.
     #[arg(long, default_value_t = 2)]
@@ -54,16 +49,6 @@ pub struct BenchTlfrArgs {
     /// Also write the results as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
-}
-
-/// How a bench run's queries walk the hierarchy (`--query`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
-#[serde(rename_all = "kebab-case")]
-enum QueryWalk {
-    /// Once per pixel (`recon::tlfr::pixel_query`).
-    Pixel,
-    /// Once per location (the oracle).
-    Location,
 }
 
 #[derive(Serialize)]
@@ -76,8 +61,6 @@ struct Row {
     /// Locations per pixel asked for, and whether the adaptive rule could spend fewer.
     locations: u32,
     adaptive: bool,
-    /// How the queries walked the hierarchy.
-    query: QueryWalk,
     threads: usize,
     /// Samples the tracer rendered (width × height × spp) and its best time.
     traced_samples: u64,
@@ -99,10 +82,8 @@ struct Row {
     budget_locations_per_s: f64,
     budget_location_in_traced_samples: f64,
     /// The clocked integration: its wall time and its stages' time summed over the threads
-    /// (so the stages add up to about threads × clocked_s): the pixels' walks (`pixel_s`, 0
-    /// with `--query location`), and per location the query, the coverage and the filter.
+    /// (so the stages add up to about threads × clocked_s).
     clocked_s: f64,
-    pixel_s: f64,
     query_s: f64,
     coverage_s: f64,
     filter_s: f64,
@@ -113,9 +94,6 @@ struct Row {
     one_surface_percent: f64,
     triangle_search_percent: f64,
     leaves_per_location: f64,
-    /// Per pixel walked once: candidate leaves, and gates (nodes tested per location).
-    pixel_candidate_leaves: f64,
-    pixel_gates: f64,
     radius_px: f32,
     hierarchy_leaves: usize,
 }
@@ -157,6 +135,7 @@ pub fn run(args: &BenchTlfrArgs) -> Result<()> {
                 trace_s = trace_s.min(tracer::render(&scene, &accel, &settings)?.seconds);
             }
             let traced_samples = settings.width as u64 * settings.height as u64 * spp as u64;
+            let traced_samples_per_s = traced_samples as f64 / trace_s;
             let path = dir.path().join("bench.lfrs");
             tracer::samples::lens_time::dump(&scene, &accel, &settings, &path)?;
             let defaults = TlfrSettings::default();
@@ -167,50 +146,110 @@ pub fn run(args: &BenchTlfrArgs) -> Result<()> {
             let fallback = |x: u32, y: u32| prepared.box_image.pixels[(y * width + x) as usize];
             let has = (prepared.has_lens, prepared.has_time);
             for &locations in &args.locations {
-                // The plain runs, the walks alternating within each repeat.
-                let mut best = vec![(f64::INFINITY, None); args.query.len()];
+                let scene_view = prepared.scene(locations);
+                let mut reconstruct_s = f64::INFINITY;
+                let mut plain = None;
                 for _ in 0..args.repeats {
-                    for (k, &walk) in args.query.iter().enumerate() {
-                        let scene_view = prepared.scene(locations);
-                        let scene_view = Scene { one_query_per_pixel: walk == QueryWalk::Pixel, ..scene_view };
-                        let start = Instant::now();
-                        let result = pool.install(|| {
-                            let n = (locations, tlfr.adaptive);
-                            integrate_adaptive(reconstruct, &scene_view, (width, height), n, has, seed, fallback)
-                        });
-                        let seconds = start.elapsed().as_secs_f64();
-                        best[k].0 = seconds.min(best[k].0);
-                        best[k].1 = Some(result);
-                    }
-                }
-                for (k, &walk) in args.query.iter().enumerate() {
-                    let (reconstruct_s, ref plain) = best[k];
-                    let (image, stats) = plain.as_ref().expect("at least one repeat");
-                    if let Some((first_image, first_stats)) = best[0].1.as_ref() {
-                        if first_image.pixels != image.pixels || first_stats != stats {
-                            bail!("the walks {:?} and {walk:?} gave different images", args.query[0]);
-                        }
-                    }
-                    let scene_view = prepared.scene(locations);
-                    let scene_view = Scene { one_query_per_pixel: walk == QueryWalk::Pixel, ..scene_view };
                     let start = Instant::now();
-                    let (clocked_image, clocked) = pool.install(|| {
-                        integrate_clocked(&scene_view, (width, height), (locations, tlfr.adaptive), has, seed, fallback)
+                    let result = pool.install(|| {
+                        let n = (locations, tlfr.adaptive);
+                        integrate_adaptive(reconstruct, &scene_view, (width, height), n, has, seed, fallback)
                     });
-                    let clocked_s = start.elapsed().as_secs_f64();
-                    if clocked_image.pixels != image.pixels || clocked.stats != *stats {
-                        bail!("the clocked reconstruction differs from the plain one: the bench would time other work");
-                    }
-                    let row = row(
-                        &prepared,
-                        (&scene, &settings, spp, locations, walk, threads, tlfr.adaptive.is_some()),
-                        (traced_samples, trace_s),
-                        (reconstruct_s, stats),
-                        (clocked_s, &clocked),
-                    );
-                    print_row(&row);
-                    rows.push(row);
+                    reconstruct_s = reconstruct_s.min(start.elapsed().as_secs_f64());
+                    plain = Some(result);
                 }
+                let (image, stats) = plain.expect("at least one repeat");
+                let start = Instant::now();
+                let (clocked_image, clocked) = pool.install(|| {
+                    integrate_clocked(&scene_view, (width, height), (locations, tlfr.adaptive), has, seed, fallback)
+                });
+                let clocked_s = start.elapsed().as_secs_f64();
+                if clocked_image.pixels != image.pixels || clocked.stats != stats {
+                    bail!("the clocked reconstruction differs from the plain one: the bench would time other work");
+                }
+                let pixels = width as f64 * height as f64;
+                let locations_per_s = stats.locations as f64 / reconstruct_s;
+                let tlfr_total_s = prepared.read_s + prepared.radius_s + prepared.hierarchy_s + reconstruct_s;
+                let percent = |n: u64| 100.0 * n as f64 / stats.locations.max(1) as f64;
+                let row = Row {
+                    scene: scene.source.display().to_string(),
+                    width,
+                    height,
+                    max_bounces: settings.max_bounces,
+                    spp,
+                    locations,
+                    adaptive: tlfr.adaptive.is_some(),
+                    threads,
+                    traced_samples,
+                    trace_s,
+                    traced_samples_per_s,
+                    read_s: prepared.read_s,
+                    radius_s: prepared.radius_s,
+                    hierarchy_s: prepared.hierarchy_s,
+                    reconstruct_s,
+                    evaluated_locations: stats.locations,
+                    mean_locations_per_pixel: stats.locations as f64 / pixels,
+                    locations_per_s,
+                    location_in_traced_samples: traced_samples_per_s / locations_per_s,
+                    budget_locations_per_s: pixels * locations as f64 / reconstruct_s,
+                    budget_location_in_traced_samples: traced_samples_per_s
+                        / (pixels * locations as f64 / reconstruct_s),
+                    clocked_s,
+                    query_s: clocked.times.query_s,
+                    coverage_s: clocked.times.coverage_s,
+                    filter_s: clocked.times.filter_s,
+                    tlfr_total_s,
+                    tlfr_total_over_trace: tlfr_total_s / trace_s,
+                    one_surface_percent: percent(stats.one_surface),
+                    triangle_search_percent: percent(stats.coverage.triangle_searches),
+                    leaves_per_location: stats.leaves as f64 / stats.locations.max(1) as f64,
+                    radius_px: prepared.radius,
+                    hierarchy_leaves: prepared.hierarchy.leaf_count(),
+                };
+                let staged = row.query_s + row.coverage_s + row.filter_s;
+                let share = |s: f64| 100.0 * s / staged.max(f64::MIN_POSITIVE);
+                println!(
+                    "{} {}x{} max-bounces {}, {} spp, {} locations/pixel, {} threads\n  \
+                     trace   {:8.3} s  {} samples, {:.0} samples/s\n  \
+                     prepare {:8.3} s  read {:.3}, R {:.3} ({:.3} px), hierarchy {:.3} ({} leaves)\n  \
+                     locate  {:8.3} s  {} locations ({:.1} per pixel), {:.0} locations/s; clocked {:.3} s: \
+                     query {:.1}%, coverage {:.1}%, filter {:.1}%\n  \
+                     {:.1}% one surface, {:.2}% triangle searches, {:.1} leaves per location\n  \
+                     one location costs {:.3} traced samples ({:.3} per location of the budget); \
+                     tlfr in all {:.3} s = {:.2}x the render",
+                    row.scene,
+                    width,
+                    height,
+                    row.max_bounces,
+                    spp,
+                    locations,
+                    threads,
+                    row.trace_s,
+                    row.traced_samples,
+                    row.traced_samples_per_s,
+                    row.read_s + row.radius_s + row.hierarchy_s,
+                    row.read_s,
+                    row.radius_s,
+                    row.radius_px,
+                    row.hierarchy_s,
+                    row.hierarchy_leaves,
+                    row.reconstruct_s,
+                    row.evaluated_locations,
+                    row.mean_locations_per_pixel,
+                    row.locations_per_s,
+                    row.clocked_s,
+                    share(row.query_s),
+                    share(row.coverage_s),
+                    share(row.filter_s),
+                    row.one_surface_percent,
+                    row.triangle_search_percent,
+                    row.leaves_per_location,
+                    row.location_in_traced_samples,
+                    row.budget_location_in_traced_samples,
+                    row.tlfr_total_s,
+                    row.tlfr_total_over_trace,
+                );
+                rows.push(row);
             }
         }
     }
@@ -218,119 +257,4 @@ pub fn run(args: &BenchTlfrArgs) -> Result<()> {
         crate::common::write_json(path, &rows)?;
     }
     Ok(())
-}
-
-/// The row of one (scene, spp, locations, walk): the render, the preparation, the best plain
-/// integration and the clocked one.
-fn row(
-    prepared: &Prepared,
-    (scene, settings, spp, locations, query, threads, adaptive): (
-        &tracer::Scene,
-        &tracer::RenderSettings,
-        u32,
-        u32,
-        QueryWalk,
-        usize,
-        bool,
-    ),
-    (traced_samples, trace_s): (u64, f64),
-    (reconstruct_s, stats): (f64, &QueryStats),
-    (clocked_s, clocked): (f64, &Clocked),
-) -> Row {
-    let (width, height) = (prepared.width, prepared.height);
-    let traced_samples_per_s = traced_samples as f64 / trace_s;
-    let pixels = width as f64 * height as f64;
-    let locations_per_s = stats.locations as f64 / reconstruct_s;
-    let tlfr_total_s = prepared.read_s + prepared.radius_s + prepared.hierarchy_s + reconstruct_s;
-    let percent = |n: u64| 100.0 * n as f64 / stats.locations.max(1) as f64;
-    let per_pixel = |n: u64| n as f64 / clocked.pixels.max(1) as f64;
-    Row {
-        scene: scene.source.display().to_string(),
-        width,
-        height,
-        max_bounces: settings.max_bounces,
-        spp,
-        locations,
-        adaptive,
-        query,
-        threads,
-        traced_samples,
-        trace_s,
-        traced_samples_per_s,
-        read_s: prepared.read_s,
-        radius_s: prepared.radius_s,
-        hierarchy_s: prepared.hierarchy_s,
-        reconstruct_s,
-        evaluated_locations: stats.locations,
-        mean_locations_per_pixel: stats.locations as f64 / pixels,
-        locations_per_s,
-        location_in_traced_samples: traced_samples_per_s / locations_per_s,
-        budget_locations_per_s: pixels * locations as f64 / reconstruct_s,
-        budget_location_in_traced_samples: traced_samples_per_s / (pixels * locations as f64 / reconstruct_s),
-        clocked_s,
-        pixel_s: clocked.times.pixel_s,
-        query_s: clocked.times.query_s,
-        coverage_s: clocked.times.coverage_s,
-        filter_s: clocked.times.filter_s,
-        tlfr_total_s,
-        tlfr_total_over_trace: tlfr_total_s / trace_s,
-        one_surface_percent: percent(stats.one_surface),
-        triangle_search_percent: percent(stats.coverage.triangle_searches),
-        leaves_per_location: stats.leaves as f64 / stats.locations.max(1) as f64,
-        pixel_candidate_leaves: per_pixel(clocked.pixel_leaves),
-        pixel_gates: per_pixel(clocked.pixel_gates),
-        radius_px: prepared.radius,
-        hierarchy_leaves: prepared.hierarchy.leaf_count(),
-    }
-}
-
-fn print_row(row: &Row) {
-    let staged = row.pixel_s + row.query_s + row.coverage_s + row.filter_s;
-    let share = |s: f64| 100.0 * s / staged.max(f64::MIN_POSITIVE);
-    println!(
-        "{} {}x{} max-bounces {}, {} spp, {} locations/pixel, {:?} walk, {} threads\n  \
-         trace   {:8.3} s  {} samples, {:.0} samples/s\n  \
-         prepare {:8.3} s  read {:.3}, R {:.3} ({:.3} px), hierarchy {:.3} ({} leaves)\n  \
-         locate  {:8.3} s  {} locations ({:.1} per pixel), {:.0} locations/s; clocked {:.3} s: \
-         pixel walks {:.1}%, query {:.1}%, coverage {:.1}%, filter {:.1}%\n  \
-         {:.1}% one surface, {:.2}% triangle searches, {:.1} leaves per location; \
-         per pixel {:.1} candidate leaves, {:.1} gates\n  \
-         one location costs {:.3} traced samples ({:.3} per location of the budget); \
-         tlfr in all {:.3} s = {:.2}x the render",
-        row.scene,
-        row.width,
-        row.height,
-        row.max_bounces,
-        row.spp,
-        row.locations,
-        row.query,
-        row.threads,
-        row.trace_s,
-        row.traced_samples,
-        row.traced_samples_per_s,
-        row.read_s + row.radius_s + row.hierarchy_s,
-        row.read_s,
-        row.radius_s,
-        row.radius_px,
-        row.hierarchy_s,
-        row.hierarchy_leaves,
-        row.reconstruct_s,
-        row.evaluated_locations,
-        row.mean_locations_per_pixel,
-        row.locations_per_s,
-        row.clocked_s,
-        share(row.pixel_s),
-        share(row.query_s),
-        share(row.coverage_s),
-        share(row.filter_s),
-        row.one_surface_percent,
-        row.triangle_search_percent,
-        row.leaves_per_location,
-        row.pixel_candidate_leaves,
-        row.pixel_gates,
-        row.location_in_traced_samples,
-        row.budget_location_in_traced_samples,
-        row.tlfr_total_s,
-        row.tlfr_total_over_trace,
-    );
 }

@@ -26,10 +26,6 @@ pub struct ReconstructArgs {
     /// Every pixel takes all --locations (the adaptive rule off).
     #[arg(long)]
     fixed_locations: bool,
-    /// Walk the hierarchy once per location instead of once per pixel (the first form, kept
-    /// as the oracle: the same image bit for bit, slower).
-    #[arg(long)]
-    per_location_query: bool,
     /// Refocus: the new focus distance (scene units); needs --aperture.
     #[arg(long)]
     focus_distance: Option<f32>,
@@ -75,7 +71,6 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
         seed: args.run.seed_or(0),
         bandwidth_scale: args.bandwidth,
         adaptive: if args.fixed_locations { None } else { TlfrSettings::default().adaptive },
-        one_query_per_pixel: !args.per_location_query,
     };
     let pool = args.run.worker_pool()?;
     // Memory before any work (issue 22, class 5): the sample count from the file's header

@@ -58,7 +58,6 @@ fn bench(c: &mut Criterion) {
         z_near: input.z_near,
         delta: (1.0 / LOCATIONS as f32).sqrt(),
         view_bandwidth: None,
-        one_query_per_pixel: true,
     };
     let locations = (WIDTH * HEIGHT * LOCATIONS) as u64;
 

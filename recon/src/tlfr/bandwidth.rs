@@ -214,7 +214,6 @@ mod tests {
                 z_near,
                 delta: 0.125,
                 view_bandwidth: (kappa >= 0.0).then_some(&view),
-                one_query_per_pixel: true,
             };
             integrate(&scene, (48, 6), 64, (true, false), 3, |_, _| [f32::NAN; 3]).0.pixels
         };

@@ -57,20 +57,6 @@ impl Plane {
         self.time * t + self.lens * lens + self.constant
     }
 
-    /// The plane's smallest value in f32 over the rectangle `t` × `lens` (each [low, high]),
-    /// evaluated as `at` evaluates it, at the corner that minimises each term: f32 products and
-    /// sums round monotonically, so no point of the rectangle evaluates lower.
-    #[inline]
-    pub fn lowest(&self, t: [f32; 2], lens: [f32; 2]) -> f32 {
-        self.at(if self.time >= 0.0 { t[0] } else { t[1] }, if self.lens >= 0.0 { lens[0] } else { lens[1] })
-    }
-
-    /// The plane's largest value in f32 over the rectangle `t` × `lens`, like `lowest`.
-    #[inline]
-    pub fn highest(&self, t: [f32; 2], lens: [f32; 2]) -> f32 {
-        self.at(if self.time >= 0.0 { t[1] } else { t[0] }, if self.lens >= 0.0 { lens[1] } else { lens[0] })
-    }
-
     /// The plane's value in f64.
     fn at_f64(&self, t: f64, lens: f64) -> f64 {
         self.time as f64 * t + self.lens as f64 * lens + self.constant as f64
@@ -86,56 +72,6 @@ pub struct Bounds {
     pub y_max: Plane,
     /// The times [t0, t1] outside of which none of the samples can be seen near the image.
     pub span: [f32; 2],
-}
-
-/// A box of reconstruction locations: screen x, y (pixels) and lens-time u, v, t, each
-/// [low, high] (the locations of one pixel, `pixel_query`).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Window {
-    pub x: [f32; 2],
-    pub y: [f32; 2],
-    pub u: [f32; 2],
-    pub v: [f32; 2],
-    pub t: [f32; 2],
-}
-
-impl Window {
-    /// The smallest window holding every one of `locations` ((x̂, ŷ), (û, v̂, t̂)); `None` for
-    /// none.
-    pub fn around(locations: impl IntoIterator<Item = ([f32; 2], LensTime)>) -> Option<Window> {
-        let empty = [f32::INFINITY, f32::NEG_INFINITY];
-        let mut window = Window { x: empty, y: empty, u: empty, v: empty, t: empty };
-        let mut any = false;
-        for (screen, at) in locations {
-            window.include(screen, at);
-            any = true;
-        }
-        any.then_some(window)
-    }
-
-    /// Grows the window to hold the location.
-    pub fn include(&mut self, location: [f32; 2], at: LensTime) {
-        let grow = |range: &mut [f32; 2], value: f32| {
-            range[0] = range[0].min(value);
-            range[1] = range[1].max(value);
-        };
-        grow(&mut self.x, location[0]);
-        grow(&mut self.y, location[1]);
-        grow(&mut self.u, at.u);
-        grow(&mut self.v, at.v);
-        grow(&mut self.t, at.t);
-    }
-
-    /// Whether the location lies in the window (bounds inclusive).
-    #[inline]
-    pub fn contains(&self, location: [f32; 2], at: LensTime) -> bool {
-        let inside = |range: [f32; 2], value: f32| range[0] <= value && value <= range[1];
-        inside(self.x, location[0])
-            && inside(self.y, location[1])
-            && inside(self.u, at.u)
-            && inside(self.v, at.v)
-            && inside(self.t, at.t)
-    }
 }
 
 /// The region a sample must be able to come near to matter: the image and the largest reach
@@ -598,32 +534,6 @@ impl Bounds {
             && location[1] <= self.y_max.at(at.t, at.v) + reach
     }
 
-    /// Whether `near(location, at, reach)` may hold for some location of `window`: true whenever
-    /// it holds for one (each side of `near` compared at the window's corner most in its favour,
-    /// and f32 rounds monotonically), sometimes also when it holds for none.
-    #[inline]
-    pub fn may_be_near(&self, window: &Window, reach: f32) -> bool {
-        window.t[1] >= self.span[0]
-            && window.t[0] <= self.span[1]
-            && window.x[1] >= self.x_min.lowest(window.t, window.u) - reach
-            && window.x[0] <= self.x_max.highest(window.t, window.u) + reach
-            && window.y[1] >= self.y_min.lowest(window.t, window.v) - reach
-            && window.y[0] <= self.y_max.highest(window.t, window.v) + reach
-    }
-
-    /// Whether `near(location, at, reach)` holds for every location of `window` (each side of
-    /// `near` compared at the window's corner least in its favour); false does not mean it
-    /// fails for any.
-    #[inline]
-    pub fn near_throughout(&self, window: &Window, reach: f32) -> bool {
-        window.t[0] >= self.span[0]
-            && window.t[1] <= self.span[1]
-            && window.x[0] >= self.x_min.highest(window.t, window.u) - reach
-            && window.x[1] <= self.x_max.lowest(window.t, window.u) + reach
-            && window.y[0] >= self.y_min.highest(window.t, window.v) - reach
-            && window.y[1] <= self.y_max.lowest(window.t, window.v) + reach
-    }
-
     /// Bounds of the union of two nodes' samples (Appendix A; see the module comment).
     pub fn merge(&self, other: &Bounds) -> Bounds {
         merge_children(&[self, other])
@@ -778,64 +688,6 @@ mod tests {
             p.x,
             p.y
         );
-    }
-
-    /// The window tests against the location test they stand for, at random locations in
-    /// random windows (including the windows' own corners and edges, where rounding matters
-    /// most): `may_be_near` holds wherever `near` holds at some location of the window, and
-    /// `near_throughout` implies `near` at every one. Planes with slopes of either sign, time
-    /// spans that cover the window, part of it or none of it.
-    #[test]
-    fn window_tests_bound_the_location_test() {
-        let mut rng = Lcg(23);
-        let (mut near, mut throughout, mut may_not_all) = (0, 0, 0);
-        for _ in 0..20_000 {
-            let range = |rng: &mut Lcg, low: f32, width: f32| {
-                let a = low + width * rng.uniform();
-                [a, a + width * rng.uniform() * rng.uniform()]
-            };
-            let window = Window {
-                x: range(&mut rng, 0.0, 2.0),
-                y: range(&mut rng, 0.0, 2.0),
-                u: range(&mut rng, -1.0, 1.0),
-                v: range(&mut rng, -1.0, 1.0),
-                t: range(&mut rng, 0.0, 0.6),
-            };
-            // Planes around the window, slopes of either sign, 0–6 px apart.
-            let plane = |rng: &mut Lcg| Plane {
-                time: 8.0 * (rng.uniform() - 0.5),
-                lens: 4.0 * (rng.uniform() - 0.5),
-                constant: 8.0 * (rng.uniform() - 0.6),
-            };
-            let (x_min, y_min) = (plane(&mut rng), plane(&mut rng));
-            let widen = |p: Plane, rng: &mut Lcg| Plane { constant: p.constant + 6.0 * rng.uniform(), ..p };
-            let (x_max, y_max) = (widen(x_min, &mut rng), widen(y_min, &mut rng));
-            let s0 = rng.uniform() * 0.3;
-            let bounds = Bounds { x_min, x_max, y_min, y_max, span: [s0, s0 + 0.8 * rng.uniform() + 0.1] };
-            let reach = 2.0 * rng.uniform();
-            let (may, all) = (bounds.may_be_near(&window, reach), bounds.near_throughout(&window, reach));
-            assert!(may || !all);
-            for k in 0..16 {
-                // Corners and edges for the first locations, then inside.
-                let pick = |r: [f32; 2], rng: &mut Lcg| match k % 4 {
-                    0 => r[0],
-                    1 => r[1],
-                    _ => r[0] + (r[1] - r[0]) * rng.uniform(),
-                };
-                let location = [pick(window.x, &mut rng), pick(window.y, &mut rng)];
-                let at =
-                    LensTime { u: pick(window.u, &mut rng), v: pick(window.v, &mut rng), t: pick(window.t, &mut rng) };
-                assert!(window.contains(location, at));
-                let here = bounds.near(location, at, reach);
-                assert!(may || !here, "{bounds:?} {window:?} {location:?} {at:?}");
-                assert!(here || !all, "{bounds:?} {window:?} {location:?} {at:?}");
-                near += here as usize;
-                throughout += all as usize;
-                may_not_all += (may && !all && !here) as usize;
-            }
-        }
-        // Every case happens often.
-        assert!(near > 20_000 && throughout > 5_000 && may_not_all > 20_000, "{near} {throughout} {may_not_all}");
     }
 
     #[test]

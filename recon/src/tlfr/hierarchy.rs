@@ -59,7 +59,7 @@
 
 use rayon::prelude::*;
 
-use super::bounds::{sample_segments, Bounds, ScreenArea, Window};
+use super::bounds::{sample_segments, Bounds, ScreenArea};
 use super::lens::LensModel;
 use super::reprojection::{reproject, LensTime, LensTimeSample};
 use super::same_surface::{same_surface_at, BUILD_CROSSING_TOLERANCE_PX};
@@ -313,16 +313,6 @@ impl Hierarchy {
         }
     }
 
-    /// The query times entry `entry` takes, half-open: [−∞, +∞] for a whole sample, so that
-    /// `entry_takes(entry, t)` is `times[0] <= t && t < times[1]` for any finite t.
-    #[inline]
-    pub fn entry_times(&self, entry: usize) -> [f32; 2] {
-        match entry.checked_sub(self.whole_entries) {
-            None => [f32::NEG_INFINITY, f32::INFINITY],
-            Some(k) => self.segment_times[k],
-        }
-    }
-
     /// The number of entries (the length of the reordered samples).
     pub fn entry_count(&self) -> usize {
         self.whole_entries + self.segment_times.len()
@@ -353,59 +343,6 @@ impl Hierarchy {
         }
     }
 
-    /// One walk for every location of `window` (`pixel_query`): the leaves that `leaves_near`
-    /// with `reach` may return for some location of the window, and what decides for each
-    /// location which of them it does return, into `out` (cleared first). A node is skipped
-    /// when no location of the window can pass its test (`Bounds::may_be_near`); a node that
-    /// every location passes (`Bounds::near_throughout`) needs no test per location; every
-    /// other node on a leaf's path (the leaf included) is a gate that each location tests
-    /// (`open_gates`). So `leaves_near` at a location of the window returns exactly the leaves
-    /// whose gate is open there (or that have none), with no assumption on how the nodes'
-    /// bounds nest.
-    pub fn leaves_near_window(&self, window: &Window, reach: f32, out: &mut WindowLeaves) {
-        out.gates.clear();
-        out.leaves.clear();
-        out.stack.clear();
-        let mut i = 0usize;
-        while i < self.nodes.len() {
-            // Leave the subtrees that end here; the innermost open one gives the nearest gate.
-            while out.stack.last().is_some_and(|&(end, _)| end as usize <= i) {
-                out.stack.pop();
-            }
-            let above = out.stack.last().map_or(NO_GATE, |&(_, gate)| gate);
-            let node = &self.nodes[i];
-            if !node.bounds.may_be_near(window, reach) {
-                i = if node.is_leaf() { i + 1 } else { node.first_or_end as usize };
-                continue;
-            }
-            let gate = if node.bounds.near_throughout(window, reach) {
-                above
-            } else {
-                out.gates.push((i as u32, above));
-                (out.gates.len() - 1) as u32
-            };
-            if node.is_leaf() {
-                out.leaves.push((i as u32, gate));
-            } else {
-                out.stack.push((node.first_or_end, gate));
-            }
-            i += 1;
-        }
-    }
-
-    /// For a location of the window of `found` (`leaves_near_window` with the same `reach`):
-    /// `open[k]` (resized to the gates) tells whether gate k and every gate above it pass the
-    /// location's test, i.e. whether `leaves_near` walks through (or returns) that node there.
-    pub fn open_gates(&self, found: &WindowLeaves, location: [f32; 2], at: LensTime, reach: f32, open: &mut Vec<bool>) {
-        open.clear();
-        for &(node, above) in &found.gates {
-            let passes = self.nodes[node as usize].bounds.near(location, at, reach);
-            // Gates are depth first: the one above was decided before.
-            let above_open = above == NO_GATE || open[above as usize];
-            open.push(above_open && passes);
-        }
-    }
-
     /// The node `index`.
     #[inline]
     pub fn node(&self, index: u32) -> &Node {
@@ -425,32 +362,6 @@ impl Hierarchy {
     /// Memory of the nodes and the segments' times, bytes.
     pub fn node_bytes(&self) -> usize {
         self.nodes.len() * std::mem::size_of::<Node>() + self.segment_times.len() * std::mem::size_of::<[f32; 2]>()
-    }
-}
-
-/// A leaf of `WindowLeaves` with this gate is found by every location of the window.
-pub const NO_GATE: u32 = u32::MAX;
-
-/// What `Hierarchy::leaves_near_window` found for a window of locations.
-#[derive(Clone, Debug, Default)]
-pub struct WindowLeaves {
-    /// The nodes whose test goes either way within the window, depth first: (node, the index
-    /// in `gates` of the nearest such node above it, or `NO_GATE`).
-    pub gates: Vec<(u32, u32)>,
-    /// The leaves some location of the window may find, depth first: (leaf, the index in
-    /// `gates` of the leaf itself or of its nearest gate above, or `NO_GATE`).
-    pub leaves: Vec<(u32, u32)>,
-    /// The walk's open inner nodes: (end of the subtree, its gate).
-    stack: Vec<(u32, u32)>,
-}
-
-impl WindowLeaves {
-    /// Whether leaf `k` of `leaves` is found at the location whose gates are `open`
-    /// (`Hierarchy::open_gates`).
-    #[inline]
-    pub fn found(&self, k: usize, open: &[bool]) -> bool {
-        let gate = self.leaves[k].1;
-        gate == NO_GATE || open[gate as usize]
     }
 }
 
@@ -706,7 +617,40 @@ mod tests {
     use crate::tlfr::query::{reconstruct, QueryStats, Scene, Scratch};
     use crate::tlfr::reprojection::near_limit;
     use crate::tlfr::same_surface::same_surface;
-    use crate::tlfr::test_scenes::{layered_scene, random_scene, sample_scene, Lcg, MovingRect, ThinLens};
+    use crate::tlfr::test_scenes::{layered_scene, sample_scene, Lcg, MovingRect, ThinLens};
+
+    /// A scene of random moving rectangles over a `width` × `height` image with defocus; one of
+    /// them moves through the camera plane.
+    fn random_scene(seed: u64, width: u32, height: u32) -> (ThinLens, Vec<MovingRect>) {
+        let mut rng = Lcg(seed);
+        let lens = ThinLens {
+            f: width as f32,
+            a: 0.02 + 0.1 * rng.uniform(),
+            focus: 1.5 + 4.0 * rng.uniform(),
+            width,
+            height,
+        };
+        let mut rects = Vec::new();
+        for k in 0..6 {
+            let z = 1.0 + 8.0 * rng.uniform();
+            let (x, y) = (z * (rng.uniform() - 0.6), z * (rng.uniform() - 0.6));
+            let size = z * (0.1 + 0.5 * rng.uniform());
+            let motion = if k == 0 {
+                // Through the camera plane within the shutter.
+                [0.2 * (rng.uniform() - 0.5), 0.2 * (rng.uniform() - 0.5), -z / (0.3 + 0.6 * rng.uniform())]
+            } else {
+                [0.3 * (rng.uniform() - 0.5), 0.3 * (rng.uniform() - 0.5), 2.0 * (rng.uniform() - 0.5)]
+            };
+            rects.push(MovingRect {
+                x: [x, x + size],
+                y: [y, y + size * (0.5 + rng.uniform())],
+                z,
+                motion,
+                colour: [rng.uniform(), rng.uniform(), rng.uniform()],
+            });
+        }
+        (lens, rects)
+    }
 
     fn build(
         lens: &ThinLens,
@@ -809,7 +753,6 @@ mod tests {
             z_near,
             delta: 0.125,
             view_bandwidth: None,
-            one_query_per_pixel: false,
         };
         let (mut scratch, mut stats) = (Scratch::default(), QueryStats::default());
         for (qx, qy) in [(0.0, 0.0), (16.0, 16.0), (32.0, 32.0), (0.0, 32.0), (16.0, 0.0), (31.5, 7.0)] {
@@ -859,62 +802,6 @@ mod tests {
             }
             assert!(found_total > 1000 && found_in_segments > 10, "scene {seed}: {found_total}, {found_in_segments}");
         }
-    }
-
-    /// A random pixel's window of `count` locations (screen in pixel (px, py), lens and time
-    /// random over the whole domain or a part of it) and its locations.
-    fn random_pixel(rng: &mut Lcg, size: (u32, u32), count: usize) -> (Window, Vec<([f32; 2], LensTime)>) {
-        let (px, py) = ((rng.uniform() * size.0 as f32) as u32, (rng.uniform() * size.1 as f32) as u32);
-        // Sometimes a narrow part of the shutter and lens, as a few locations would span.
-        let (t0, t_width) = if rng.uniform() < 0.3 { (rng.uniform() * 0.8, 0.2) } else { (0.0, 1.0) };
-        let lens_scale = if rng.uniform() < 0.3 { 0.3 } else { 1.0 };
-        let locations: Vec<_> = (0..count)
-            .map(|_| {
-                let (u, v) = rng.disk();
-                let screen = [px as f32 + rng.uniform(), py as f32 + rng.uniform()];
-                (screen, LensTime { u: lens_scale * u, v: lens_scale * v, t: t0 + t_width * rng.uniform() })
-            })
-            .collect();
-        (Window::around(locations.iter().copied()).unwrap(), locations)
-    }
-
-    /// One walk for a pixel's window (`leaves_near_window`) and the gates tested per location
-    /// give exactly the leaves of the per-location walk (`leaves_near`), in the same order, at
-    /// every location of the window; the walk prunes (fewer candidates than leaves) and most
-    /// nodes on the candidates' paths need no test per location. Random scenes with defocus,
-    /// motion and a surface flying through the camera plane (time segments), reaches from R to
-    /// 16R.
-    #[test]
-    fn one_walk_per_window_finds_the_leaves_of_every_location() {
-        let mut rng = Lcg(77);
-        let (mut found, mut candidates, mut gates, mut locations_tested) = (WindowLeaves::default(), 0, 0, 0);
-        let (mut through_tree, mut through_window, mut open) = (Vec::new(), Vec::new(), Vec::new());
-        let mut some_gated_out = 0;
-        for seed in 0..5u64 {
-            let (lens, rects) = if seed == 0 { layered_scene(64, 40, true) } else { random_scene(seed + 30, 64, 40) };
-            let (_, hierarchy, _, _) = build(&lens, &rects, 4 + seed as u32 % 3 * 4, seed, 16.0 * 0.6);
-            for pixel in 0..60 {
-                let (window, locations) = random_pixel(&mut rng, (64, 40), [1, 4, 16, 64][pixel % 4]);
-                let reach = 0.6 * [1.0f32, 2.0, 4.0, 16.0][pixel % 4];
-                hierarchy.leaves_near_window(&window, reach, &mut found);
-                assert!(found.leaves.len() < hierarchy.leaf_count());
-                candidates += found.leaves.len();
-                gates += found.gates.len();
-                for &(screen, at) in &locations {
-                    hierarchy.leaves_near(screen, at, reach, &mut through_tree);
-                    hierarchy.open_gates(&found, screen, at, reach, &mut open);
-                    through_window.clear();
-                    through_window
-                        .extend((0..found.leaves.len()).filter(|&k| found.found(k, &open)).map(|k| found.leaves[k].0));
-                    assert_eq!(through_window, through_tree, "scene {seed}, {window:?}, at {screen:?} {at:?}");
-                    some_gated_out += (through_window.len() < found.leaves.len()) as usize;
-                    locations_tested += 1;
-                }
-            }
-        }
-        assert!(locations_tested > 5000 && some_gated_out > 1000, "{locations_tested}, {some_gated_out}");
-        // Far fewer nodes to test per location than the walk visits.
-        assert!(gates < 3 * candidates, "{gates} gates for {candidates} candidate leaves");
     }
 
     #[test]

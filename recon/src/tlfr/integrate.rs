@@ -21,7 +21,6 @@ use rayon::prelude::*;
 use shading::concentric_disk;
 use shading::sampling::{hash_u32, radical_inverse, to_unit_float};
 
-use super::bounds::Window;
 use super::coverage::Point;
 use super::query::{reconstruct, reconstruct_clocked, QueryStats, Scene, Scratch, StageTimes};
 use super::reprojection::LensTime;
@@ -54,62 +53,6 @@ pub fn location(seed: u32, x: u32, y: u32, j: u32, has_lens: bool, has_time: boo
     let (u, v) = if has_lens { concentric_disk(Vec2::new(dim(5, 2), dim(7, 3))).into() } else { (0.0, 0.0) };
     let t = if has_time { dim(11, 4) } else { 0.5 };
     (screen, LensTime { u, v, t })
-}
-
-/// The locations of one pixel (`location`) with the pixel's hashes computed once: the same
-/// values bit for bit.
-pub struct PixelLocations {
-    pixel: (u32, u32),
-    has: (bool, bool),
-    /// The Cranley–Patterson shifts of dimensions 0–4.
-    shifts: [f32; 5],
-}
-
-impl PixelLocations {
-    pub fn new(seed: u32, x: u32, y: u32, has: (bool, bool)) -> PixelLocations {
-        let halton = RotatedHalton::new(seed, x, y);
-        let shifts = [0u32, 1, 2, 3, 4]
-            .map(|dimension| to_unit_float(hash_u32(halton.pixel_hash ^ dimension.wrapping_mul(0x85eb_ca6b))));
-        PixelLocations { pixel: (x, y), has, shifts }
-    }
-
-    /// Location `j` (`location(seed, x, y, j, has_lens, has_time)`).
-    #[inline]
-    pub fn at(&self, j: u32) -> ([f32; 2], LensTime) {
-        let dim = |base: u32, dimension: usize| {
-            let v = radical_inverse(j, base) + self.shifts[dimension];
-            v - v.floor()
-        };
-        let (x, y) = self.pixel;
-        let screen = [x as f32 + dim(2, 0), y as f32 + dim(3, 1)];
-        let (u, v) = if self.has.0 { concentric_disk(Vec2::new(dim(5, 2), dim(7, 3))).into() } else { (0.0, 0.0) };
-        let t = if self.has.1 { dim(11, 4) } else { 0.5 };
-        (screen, LensTime { u, v, t })
-    }
-}
-
-/// Slices of the shutter a pixel's locations are walked in (`pixel_windows`): one. Measured on
-/// monkeys-defocus-motion at 16 spp (docs/tlfr.md): 4 and 8 slices found 29 and 22 candidate
-/// leaves per slice against 38 for the whole shutter (the window is mostly the lens and the
-/// pixel), and their walks cost more than the locations saved.
-pub const TIME_SLICES: usize = 1;
-
-/// The bounding windows of pixel (x, y)'s first `locations` locations (`location`), one per
-/// slice of the shutter that holds any (`TIME_SLICES` equal slices), for the pixel's walks of
-/// the hierarchy (`pixel_query`).
-pub fn pixel_windows(seed: u32, x: u32, y: u32, locations: u32, has: (bool, bool)) -> Vec<Window> {
-    let pixel = PixelLocations::new(seed, x, y, has);
-    let slices = TIME_SLICES;
-    let mut windows: Vec<Option<Window>> = vec![None; slices];
-    for j in 0..locations.max(1) {
-        let (screen, at) = pixel.at(j);
-        let slice = ((at.t * slices as f32) as usize).min(slices - 1);
-        match &mut windows[slice] {
-            Some(window) => window.include(screen, at),
-            empty => *empty = Window::around([(screen, at)]),
-        }
-    }
-    windows.into_iter().flatten().collect()
 }
 
 /// The value of one location (`query::reconstruct`, `nearest::reconstruct_nearest`).
@@ -185,34 +128,22 @@ pub fn integrate_adaptive(
         (locations, rule),
         has,
         seed,
-        |(x, y, j), screen, at, scratch: &mut Scratch, stats: &mut QueryStats| {
-            if j == 0 && scene.one_query_per_pixel {
-                scratch.begin_pixel(scene, &pixel_windows(seed, x, y, locations, has));
-            }
-            value(scene, screen, at, scratch, stats)
-        },
+        |_, screen, at, scratch: &mut Scratch, stats: &mut QueryStats| value(scene, screen, at, scratch, stats),
         fallback,
     )
 }
 
-/// Counters and stage times of `integrate_clocked`; with one walk per pixel, also the pixels
-/// walked and the candidate leaves and gates their walks found, summed.
+/// Counters and stage times of `integrate_clocked`.
 #[derive(Default)]
 pub struct Clocked {
     pub stats: QueryStats,
     pub times: StageTimes,
-    pub pixels: u64,
-    pub pixel_leaves: u64,
-    pub pixel_gates: u64,
 }
 
 impl Counters for Clocked {
     fn add(&mut self, other: &Self) {
         self.stats.add(&other.stats);
         self.times.add(&other.times);
-        self.pixels += other.pixels;
-        self.pixel_leaves += other.pixel_leaves;
-        self.pixel_gates += other.pixel_gates;
     }
 
     fn surface_counts(&self) -> (u64, u64) {
@@ -221,9 +152,8 @@ impl Counters for Clocked {
 }
 
 /// `integrate_adaptive` of `reconstruct` with every location's stages timed
-/// (`query::StageTimes`; `lfr bench-tlfr`), and each pixel's walk (`pixel_s`) where the scene
-/// walks once per pixel: the same image, bit for bit, at the cost of a few clock reads per
-/// location.
+/// (`query::StageTimes`; `lfr bench-tlfr`): the same image, bit for bit, at the cost of a few
+/// clock reads per location.
 pub fn integrate_clocked(
     scene: &Scene,
     size: (u32, u32),
@@ -237,16 +167,7 @@ pub fn integrate_clocked(
         locations,
         has,
         seed,
-        |(x, y, j), screen, at, scratch: &mut Scratch, clocked: &mut Clocked| {
-            if j == 0 && scene.one_query_per_pixel {
-                let start = std::time::Instant::now();
-                scratch.begin_pixel(scene, &pixel_windows(seed, x, y, locations.0, has));
-                clocked.times.pixel_s += start.elapsed().as_secs_f64();
-                let (leaves, gates) = scratch.pixel_counts();
-                clocked.pixel_leaves += leaves as u64;
-                clocked.pixel_gates += gates as u64;
-                clocked.pixels += 1;
-            }
+        |_, screen, at, scratch: &mut Scratch, clocked: &mut Clocked| {
             reconstruct_clocked(scene, screen, at, scratch, &mut clocked.stats, &mut clocked.times)
         },
         fallback,
@@ -295,12 +216,11 @@ pub fn integrate_locations<Sc: Default + Send, St: Counters>(
             let mut stats = St::default();
             let row = (0..width)
                 .map(|x| {
-                    let pixel = PixelLocations::new(seed, x, y, (has_lens, has_time));
                     let (mut sum, mut count) = ([0.0f64; 3], 0u32);
                     let mut agreement =
                         Agreement { simple: true, low: [f32::INFINITY; 3], high: [f32::NEG_INFINITY; 3] };
                     for j in 0..locations {
-                        let (screen, at) = pixel.at(j);
+                        let (screen, at) = location(seed, x, y, j, has_lens, has_time);
                         let before = stats.surface_counts();
                         let found = value((x, y, j), screen, at, scratch, &mut stats);
                         if let Some(found) = found {
@@ -363,17 +283,6 @@ mod tests {
             assert!(at.u * at.u + at.v * at.v <= 1.0 + 1e-5);
             assert!((0.0..1.0).contains(&at.t));
         }
-        // The pixel's hashes computed once give the same locations bit for bit.
-        for has in [(true, true), (false, true), (true, false), (false, false)] {
-            let pixel = PixelLocations::new(3, 7, 5, has);
-            for j in 0..300 {
-                let (a, b) = (pixel.at(j), location(3, 7, 5, j, has.0, has.1));
-                assert_eq!(
-                    (a.0.map(f32::to_bits), [a.1.u, a.1.v, a.1.t].map(f32::to_bits)),
-                    (b.0.map(f32::to_bits), [b.1.u, b.1.v, b.1.t].map(f32::to_bits))
-                );
-            }
-        }
         let (_, still) = location(3, 7, 5, 9, false, false);
         assert_eq!((still.u, still.v, still.t), (0.0, 0.0, 0.5));
         // Stratified: the first 64 locations' screen x fill the pixel's 64 strips of width 1/64.
@@ -427,7 +336,6 @@ mod tests {
             z_near,
             delta: 0.125,
             view_bandwidth: None,
-            one_query_per_pixel: true,
         };
         integrate(&scene, (size, size), 16, (false, time), 1, |_, _| [-1.0; 3]).0
     }
@@ -473,7 +381,6 @@ mod tests {
             z_near,
             delta: 0.125,
             view_bandwidth: None,
-            one_query_per_pixel: true,
         };
         let (mut scratch, mut stats) = (Scratch::default(), QueryStats::default());
         for j in 0..200 {
@@ -521,7 +428,6 @@ mod tests {
             z_near,
             delta: 0.125,
             view_bandwidth: None,
-            one_query_per_pixel: true,
         }
     }
 
@@ -644,7 +550,6 @@ mod tests {
             z_near,
             delta: 0.125,
             view_bandwidth: None,
-            one_query_per_pixel: true,
         };
         let start = std::time::Instant::now();
         let cpu_start = process_cpu_seconds();

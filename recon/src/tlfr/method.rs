@@ -138,8 +138,6 @@ pub struct Prepared {
     pub has_lens: bool,
     pub has_time: bool,
     pub view_bandwidth: Option<ViewBandwidth>,
-    /// Whether queries walk the hierarchy once per pixel (`TlfrSettings::one_query_per_pixel`).
-    pub one_query_per_pixel: bool,
     /// The per-pixel mean of the file's samples (a pixel's value where no location found any).
     pub box_image: Image,
     /// Samples read (usable ones) and dropped.
@@ -165,7 +163,6 @@ impl Prepared {
             z_near: self.z_near,
             delta: window_half_width(locations.max(1)),
             view_bandwidth: self.view_bandwidth.as_ref(),
-            one_query_per_pixel: self.one_query_per_pixel,
         }
     }
 }
@@ -238,7 +235,6 @@ pub fn prepare(path: &std::path::Path, settings: &TlfrSettings) -> Result<Prepar
         has_lens,
         has_time: loaded.has_time,
         view_bandwidth,
-        one_query_per_pixel: settings.one_query_per_pixel,
         box_image,
         dropped: loaded.dropped,
         notes,

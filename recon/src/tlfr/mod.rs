@@ -17,10 +17,6 @@
 //! - Section 4 "Construction" and "Query": quadtree leaves of at most 32 samples of one surface,
 //!   the BVH built bottom-up over them, the traversal returning the leaves near a location, and
 //!   which time segment of a sample takes a query time: `hierarchy`.
-//! - Not in the paper: one walk of the hierarchy per pixel for the union of its locations'
-//!   windows, each location then testing the few nodes the walk could not decide and
-//!   reprojecting the candidates from a structure of arrays: `pixel_query` (the per-location
-//!   walk of `query` stays as its oracle).
 //! - Section 3.3, "Determining visibility": valid triangles, coverage, the tent filter:
 //!   `coverage`.
 //! - Section 3 steps 1–4 and Figure 7, RECONSTRUCT at one location: leaves from `hierarchy`,
@@ -53,7 +49,6 @@ pub mod lens;
 pub mod light_space;
 pub mod method;
 pub mod nearest;
-pub mod pixel_query;
 pub mod query;
 pub mod reprojection;
 pub mod same_surface;

@@ -59,7 +59,6 @@ mod tests {
             z_near,
             delta: 0.35,
             view_bandwidth: None,
-            one_query_per_pixel: true,
         };
         let (image, _) = integrate_with(value, &scene, (lens.width, lens.height), 8, (true, true), 1, |_, _| [0.0; 3]);
         let (_, truth) = sample_scene(lens, rects, reference_spp, [0.5; 3], 9);
@@ -107,7 +106,6 @@ mod tests {
             z_near,
             delta: 0.25,
             view_bandwidth: None,
-            one_query_per_pixel: true,
         };
         let (mut scratch, mut stats, mut rng) = (Scratch::default(), QueryStats::default(), Lcg(2));
         for _ in 0..2000 {
@@ -156,7 +154,6 @@ mod tests {
             z_near,
             delta: 1.0,
             view_bandwidth: None,
-            one_query_per_pixel: true,
         };
         let (image, stats) =
             integrate_with(reconstruct_nearest, &scene, (48, 27), 1, (true, true), 4, |_, _| [-1.0; 3]);

@@ -27,11 +27,9 @@
 //! hierarchy must have been built with a reach of at least 16R (`max_reach`).
 
 use super::bandwidth::{weighted_tent_filter, ViewBandwidth};
-use super::bounds::Window;
 use super::coverage::{is_covered, tent_filter, CoverageStats, Point};
 use super::hierarchy::Hierarchy;
 use super::lens::LensModel;
-use super::pixel_query::PixelQuery;
 use super::reprojection::{depth_at, reproject, LensTime, LensTimeSample};
 use super::same_surface::{consistent, corners, CROSSING_TOLERANCE_PX};
 
@@ -63,9 +61,6 @@ pub struct Scene<'a> {
     /// The bandwidth extension (Figure 14), when on: step 4 weights each sample by how far its
     /// lens position is from the location's, for its BRDF's bandwidth (`bandwidth`).
     pub view_bandwidth: Option<&'a ViewBandwidth>,
-    /// Whether `integrate` walks the hierarchy once per pixel (`pixel_query`) instead of once
-    /// per location; the same image bit for bit either way.
-    pub one_query_per_pixel: bool,
 }
 
 /// Counters over many queries.
@@ -109,24 +104,6 @@ pub struct Scratch {
     pub points: Vec<Point>,
     values: Vec<[f32; 3]>,
     log_weights: Vec<f64>,
-    /// The current pixel's walk and candidates (`begin_pixel`), and the leaves a location
-    /// found among them: (depth key, node, candidate leaf).
-    pixel: PixelQuery,
-    pixel_leaves: Vec<(f32, u32, u32)>,
-}
-
-impl Scratch {
-    /// Walks `scene`'s hierarchy once per window of `windows` (one pixel's locations, by slice
-    /// of the shutter), for the first pass's reach 2R (`pixel_query`): queries of those
-    /// locations then start from the candidates found.
-    pub fn begin_pixel(&mut self, scene: &Scene, windows: &[Window]) {
-        self.pixel.prepare(scene.hierarchy, scene.samples, scene.lens, windows, 2.0 * scene.radius);
-    }
-
-    /// The current pixel's (candidate leaves, gates), for the bench and the tests.
-    pub fn pixel_counts(&self) -> (usize, usize) {
-        self.pixel.counts()
-    }
 }
 
 /// The stages of one location that `lfr bench-tlfr` times: the hierarchy walk with the
@@ -159,9 +136,6 @@ impl StageClock for NoClock {
 /// Seconds spent per stage (`lfr bench-tlfr`), summed over locations.
 #[derive(Clone, Debug, Default)]
 pub struct StageTimes {
-    /// The pixels' walks of the hierarchy and candidate collection (`Scratch::begin_pixel`),
-    /// timed by `integrate::integrate_clocked` outside the locations.
-    pub pixel_s: f64,
     pub query_s: f64,
     pub coverage_s: f64,
     pub filter_s: f64,
@@ -170,7 +144,6 @@ pub struct StageTimes {
 
 impl StageTimes {
     pub fn add(&mut self, other: &StageTimes) {
-        self.pixel_s += other.pixel_s;
         self.query_s += other.query_s;
         self.coverage_s += other.coverage_s;
         self.filter_s += other.filter_s;
@@ -295,110 +268,8 @@ fn covering_surface_clocked(
 }
 
 /// Steps 1–2: the samples within `reach` into `scratch.near`, grouped into surfaces
-/// (`scratch.surfaces`, front to back) leaf by leaf; from the pixel's candidates where
-/// `Scratch::begin_pixel` prepared them for this location and reach (`gather_from_pixel`),
-/// else through the tree (`gather_per_location`). Both give the same result bit for bit.
+/// (`scratch.surfaces`, front to back) leaf by leaf.
 fn gather(scene: &Scene, location: Point, at: LensTime, reach: f32, scratch: &mut Scratch, stats: &mut QueryStats) {
-    if let Some(part) = scratch.pixel.serving(scene.hierarchy, location, at, reach) {
-        gather_from_pixel(scene, location, at, (reach, part), scratch, stats);
-    } else {
-        gather_per_location(scene, location, at, reach, scratch, stats);
-    }
-}
-
-/// `gather` from the candidates of the location's pixel (`pixel_query`): the same leaves as
-/// the tree walk (the pixel's gates tested here), sorted the same way, each leaf's samples
-/// reprojected from the candidates' arrays to the same positions.
-fn gather_from_pixel(
-    scene: &Scene,
-    location: Point,
-    at: LensTime,
-    (reach, part): (f32, usize),
-    scratch: &mut Scratch,
-    stats: &mut QueryStats,
-) {
-    let pixel = scratch.pixel.part(part);
-    scratch.pixel_leaves.clear();
-    pixel.leaves_at(location, at, scene.z_near, &mut scratch.pixel_leaves);
-    stats.leaves += scratch.pixel_leaves.len() as u64;
-    scratch.pixel_leaves.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    scratch.near.clear();
-    scratch.surfaces.clear();
-    scratch.surface_traces.clear();
-    let window = corners(at, scene.delta);
-    let mut surface_start = 0;
-    for &(_, _, k) in &scratch.pixel_leaves {
-        let before = scratch.near.len();
-        let first = pixel.near_in_leaf(k as usize, scene.lens, location, at, reach, scene.z_near, &mut scratch.near);
-        let Some(first) = first else {
-            continue; // no samples within reach: the leaf plays no part in the grouping
-        };
-        let mut trace = [[0.0f32; 2]; 4];
-        let mut seen_throughout = true;
-        for (slot, corner) in trace.iter_mut().zip(window) {
-            match pixel.position(first, scene.lens, corner, scene.z_near) {
-                Some(p) => *slot = p,
-                None => seen_throughout = false,
-            }
-        }
-        let grouping = Grouping {
-            surfaces: &mut scratch.surfaces,
-            surface_traces: &mut scratch.surface_traces,
-            surface_start: &mut surface_start,
-        };
-        grouping.add_leaf(before, scratch.near.len(), seen_throughout.then_some(trace));
-    }
-    if scratch.near.len() > surface_start {
-        scratch.surfaces.push((surface_start, scratch.near.len()));
-    }
-}
-
-/// Step 2's bookkeeping: the surfaces closed so far, the representatives of the current
-/// surface's leaves at the window's corners and where the current surface starts in `near`.
-struct Grouping<'a> {
-    surfaces: &'a mut Vec<(usize, usize)>,
-    surface_traces: &'a mut Vec<[[f32; 2]; 4]>,
-    surface_start: &'a mut usize,
-}
-
-impl Grouping<'_> {
-    /// A leaf whose samples within reach are `near[before..end]` (at least one), with its
-    /// representative's positions at the window's corners, or `None` when the representative
-    /// leaves the window through the camera plane (then the leaf is a surface of its own).
-    /// It opens a new surface when Eq. 5 fails against a representative of the current one.
-    fn add_leaf(self, before: usize, end: usize, trace: Option<[[f32; 2]; 4]>) {
-        let same = trace.is_some_and(|trace| {
-            self.surface_traces.iter().all(|other| {
-                (0..2).all(|axis| consistent((0..4).map(|k| trace[k][axis] - other[k][axis]), CROSSING_TOLERANCE_PX))
-            })
-        });
-        if !same && before > *self.surface_start {
-            self.surfaces.push((*self.surface_start, before));
-            *self.surface_start = before;
-            self.surface_traces.clear();
-        }
-        match trace {
-            Some(trace) => self.surface_traces.push(trace),
-            None => {
-                // Leaving the window (through the camera plane): a surface of its own.
-                self.surfaces.push((*self.surface_start, end));
-                *self.surface_start = end;
-                self.surface_traces.clear();
-            }
-        }
-    }
-}
-
-/// `gather` through the tree, one walk per location (the first form, kept as the oracle of
-/// `gather_from_pixel` and for the passes and locations the pixel's walk does not serve).
-fn gather_per_location(
-    scene: &Scene,
-    location: Point,
-    at: LensTime,
-    reach: f32,
-    scratch: &mut Scratch,
-    stats: &mut QueryStats,
-) {
     let tree = scene.hierarchy;
     tree.leaves_near(location, at, reach, &mut scratch.leaves);
     stats.leaves += scratch.leaves.len() as u64;
@@ -441,12 +312,24 @@ fn gather_per_location(
                 None => seen_throughout = false,
             }
         }
-        let grouping = Grouping {
-            surfaces: &mut scratch.surfaces,
-            surface_traces: &mut scratch.surface_traces,
-            surface_start: &mut surface_start,
-        };
-        grouping.add_leaf(before, scratch.near.len(), seen_throughout.then_some(trace));
+        // Eq. 5 against every representative of the current surface.
+        let same = seen_throughout
+            && scratch.surface_traces.iter().all(|other| {
+                (0..2).all(|axis| consistent((0..4).map(|k| trace[k][axis] - other[k][axis]), CROSSING_TOLERANCE_PX))
+            });
+        if !same && before > surface_start {
+            scratch.surfaces.push((surface_start, before));
+            surface_start = before;
+            scratch.surface_traces.clear();
+        }
+        if seen_throughout {
+            scratch.surface_traces.push(trace);
+        } else {
+            // Leaving the window (through the camera plane): a surface of its own.
+            scratch.surfaces.push((surface_start, scratch.near.len()));
+            surface_start = scratch.near.len();
+            scratch.surface_traces.clear();
+        }
     }
     if scratch.near.len() > surface_start {
         scratch.surfaces.push((surface_start, scratch.near.len()));
@@ -479,141 +362,4 @@ fn choose_surface(
         start = end;
     }
     unreachable!("the last surface is always returned")
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::tlfr::integrate::{integrate_adaptive, location, pixel_windows, AdaptiveRule, Reconstruct};
-    use crate::tlfr::nearest::reconstruct_nearest;
-    use crate::tlfr::reprojection::near_limit;
-    use crate::tlfr::test_scenes::{indexed, layered_scene, random_scene, sample_scene, MovingRect, ThinLens};
-
-    /// The samples of `rects` through `lens` at `spp`, indexed for radius `radius`.
-    fn indexed_scene(
-        lens: &ThinLens,
-        rects: &[MovingRect],
-        spp: u32,
-        radius: f32,
-    ) -> (Hierarchy, Vec<LensTimeSample>, Vec<[f32; 3]>, LensModel, f32) {
-        let (samples, colours) = sample_scene(lens, rects, spp, [0.5; 3], 5);
-        let model = lens.model();
-        let z_near = near_limit(samples.iter().map(|s| s.z));
-        let (tree, samples, colours) = indexed(&samples, &colours, &model, z_near, (lens.width, lens.height), radius);
-        (tree, samples, colours, model, z_near)
-    }
-
-    /// The scenes of the tests below: the layered scene with a card flying through the camera
-    /// plane (time segments), without it, and random moving rectangles; (lens, rects, spp,
-    /// radius). The third's radius is a quarter of its pattern's, so that many locations find
-    /// nothing within 2R and widen.
-    fn scenes() -> Vec<(ThinLens, Vec<MovingRect>, u32, f32)> {
-        let mut scenes = vec![(layered_scene(48, 27, true), 4), (layered_scene(48, 27, false), 8)];
-        scenes.extend((0..3).map(|seed| (random_scene(seed + 50, 48, 27), [2, 4, 16][seed as usize])));
-        let radius = |k: usize, spp: u32| if k == 2 { 0.35 } else { 1.4 } / (spp as f32).sqrt();
-        scenes.into_iter().enumerate().map(|(k, ((lens, rects), spp))| (lens, rects, spp, radius(k, spp))).collect()
-    }
-
-    /// The per-pixel path (`Scratch::begin_pixel`, `pixel_query`) against the per-location walk
-    /// kept as the oracle, location by location: the same samples within reach with the same
-    /// positions (bit for bit), the same surfaces, the same covering surface and radius, the
-    /// same counters. Every location of the pixels is served by the pixel's candidates in its
-    /// first pass; widened passes fall back to the tree.
-    #[test]
-    fn one_query_per_pixel_finds_what_each_location_finds() {
-        let (mut served, mut total, mut compared, mut several_surfaces) = (0, 0, 0, 0);
-        let mut widened = 0;
-        for (lens, rects, spp, radius) in scenes() {
-            let (tree, samples, colours, model, z_near) = indexed_scene(&lens, &rects, spp, radius);
-            let locations = 32;
-            let scene = Scene {
-                samples: &samples,
-                radiance: &colours,
-                lens: &model,
-                hierarchy: &tree,
-                radius,
-                z_near,
-                delta: (1.0 / locations as f32).sqrt(),
-                view_bandwidth: None,
-                one_query_per_pixel: true,
-            };
-            let (mut fast, mut oracle) = (Scratch::default(), Scratch::default());
-            for y in 0..lens.height {
-                for x in (y % 3..lens.width).step_by(3) {
-                    fast.begin_pixel(&scene, &pixel_windows(9, x, y, locations, (true, true)));
-                    for j in 0..locations {
-                        let (screen, at) = location(9, x, y, j, true, true);
-                        served += fast.pixel.serving(scene.hierarchy, screen, at, 2.0 * radius).is_some() as usize;
-                        total += 1;
-                        let (mut fast_stats, mut oracle_stats) = (QueryStats::default(), QueryStats::default());
-                        let a = covering_surface(&scene, screen, at, &mut fast, &mut fast_stats);
-                        let b = covering_surface(&scene, screen, at, &mut oracle, &mut oracle_stats);
-                        let what = format!("pixel ({x}, {y}) location {j}: {screen:?} {at:?}");
-                        assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "{what}");
-                        assert_eq!(fast_stats, oracle_stats, "{what}");
-                        widened += oracle_stats.widened;
-                        if a.is_none() {
-                            continue;
-                        }
-                        let bits = |near: &[(u32, Point)]| {
-                            near.iter().map(|(i, p)| (*i, p[0].to_bits(), p[1].to_bits())).collect::<Vec<_>>()
-                        };
-                        assert_eq!(bits(&fast.near), bits(&oracle.near), "{what}");
-                        assert_eq!(fast.surfaces, oracle.surfaces, "{what}");
-                        assert_eq!(fast.covering, oracle.covering, "{what}");
-                        several_surfaces += (oracle.surfaces.len() > 1) as usize;
-                        compared += 1;
-                    }
-                }
-            }
-        }
-        assert_eq!(served, total);
-        assert!(compared > 20_000 && widened > 100, "{compared} compared, {widened} widened");
-        assert!(several_surfaces > 1000, "{several_surfaces} locations with more than one surface");
-    }
-
-    /// Whole images through `integrate_adaptive` with one walk per pixel and with one per
-    /// location: the same pixels bit for bit and the same counters, for `tlfr` and `tlfr-nn`,
-    /// with N in every pixel and with the adaptive rule, on one thread and on three.
-    #[test]
-    fn one_query_per_pixel_gives_the_same_image_bit_for_bit() {
-        let mut widened = 0;
-        for (k, (lens, rects, spp, radius)) in scenes().into_iter().enumerate() {
-            let (tree, samples, colours, model, z_near) = indexed_scene(&lens, &rects, spp, radius);
-            let locations = [16, 64][k % 2];
-            let scene = Scene {
-                samples: &samples,
-                radiance: &colours,
-                lens: &model,
-                hierarchy: &tree,
-                radius,
-                z_near,
-                delta: (1.0 / locations as f32).sqrt(),
-                view_bandwidth: None,
-                one_query_per_pixel: true,
-            };
-            let per_location = Scene { one_query_per_pixel: false, ..scene };
-            let size = (lens.width, lens.height);
-            let rule = Some(AdaptiveRule { first: 8, spread: 0.05 });
-            for (value, rule) in [(reconstruct as Reconstruct, None), (reconstruct, rule), (reconstruct_nearest, None)]
-            {
-                let run = |scene: &Scene, threads: usize| {
-                    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-                    pool.install(|| {
-                        integrate_adaptive(value, scene, size, (locations, rule), (true, true), 3, |_, _| [-1.0; 3])
-                    })
-                };
-                let (expected, expected_stats) = run(&per_location, 1);
-                for threads in [1, 3] {
-                    let (image, stats) = run(&scene, threads);
-                    assert_eq!(stats, expected_stats, "scene {k}, {rule:?}, {threads} threads");
-                    for (p, q) in image.pixels.iter().zip(&expected.pixels) {
-                        assert_eq!(p.map(f32::to_bits), q.map(f32::to_bits), "scene {k}, {rule:?}, {threads} threads");
-                    }
-                }
-                widened += expected_stats.widened;
-            }
-        }
-        assert!(widened > 100, "{widened}");
-    }
 }

@@ -33,20 +33,10 @@ pub struct TlfrSettings {
     /// Fewer locations where a pixel's first ones agree (`integrate::AdaptiveRule`), or N
     /// everywhere. Soft shadows always take N.
     pub adaptive: Option<AdaptiveRule>,
-    /// One walk of the hierarchy per pixel (`pixel_query`), or one per location (the first
-    /// form, kept as the oracle); the same image bit for bit.
-    pub one_query_per_pixel: bool,
 }
 
 impl Default for TlfrSettings {
     fn default() -> Self {
-        TlfrSettings {
-            locations: 128,
-            refocus: None,
-            seed: 0,
-            bandwidth_scale: None,
-            adaptive: Some(DEFAULT_ADAPTIVE),
-            one_query_per_pixel: true,
-        }
+        TlfrSettings { locations: 128, refocus: None, seed: 0, bandwidth_scale: None, adaptive: Some(DEFAULT_ADAPTIVE) }
     }
 }

@@ -562,7 +562,6 @@ pub fn reconstruct_soft_shadow(
         z_near,
         delta,
         view_bandwidth: None,
-        one_query_per_pixel: false,
     };
     let light_scene = Scene {
         samples: &light.samples,
@@ -573,7 +572,6 @@ pub fn reconstruct_soft_shadow(
         z_near: light_z_near,
         delta,
         view_bandwidth: None,
-        one_query_per_pixel: false,
     };
     let area = light.space.width_u * light.space.width_v;
     let scene = ShadowScene {

@@ -145,31 +145,3 @@ pub fn indexed(
     let (hierarchy, order) = Hierarchy::build(samples, lens, z_near, &area);
     (hierarchy, reorder(samples, &order), reorder(colours, &order))
 }
-
-/// A scene of random moving rectangles over a `width` × `height` image with defocus; one of
-/// them moves through the camera plane.
-pub fn random_scene(seed: u64, width: u32, height: u32) -> (ThinLens, Vec<MovingRect>) {
-    let mut rng = Lcg(seed);
-    let lens =
-        ThinLens { f: width as f32, a: 0.02 + 0.1 * rng.uniform(), focus: 1.5 + 4.0 * rng.uniform(), width, height };
-    let mut rects = Vec::new();
-    for k in 0..6 {
-        let z = 1.0 + 8.0 * rng.uniform();
-        let (x, y) = (z * (rng.uniform() - 0.6), z * (rng.uniform() - 0.6));
-        let size = z * (0.1 + 0.5 * rng.uniform());
-        let motion = if k == 0 {
-            // Through the camera plane within the shutter.
-            [0.2 * (rng.uniform() - 0.5), 0.2 * (rng.uniform() - 0.5), -z / (0.3 + 0.6 * rng.uniform())]
-        } else {
-            [0.3 * (rng.uniform() - 0.5), 0.3 * (rng.uniform() - 0.5), 2.0 * (rng.uniform() - 0.5)]
-        };
-        rects.push(MovingRect {
-            x: [x, x + size],
-            y: [y, y + size * (0.5 + rng.uniform())],
-            z,
-            motion,
-            colour: [rng.uniform(), rng.uniform(), rng.uniform()],
-        });
-    }
-    (lens, rects)
-}
