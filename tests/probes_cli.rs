@@ -122,6 +122,12 @@ fn relight_builds_the_cache_once_and_reuses_it_whatever_the_lights() {
     let report = json(&j);
     assert_eq!(report["precompute"]["precompute_from_cache"], false);
     assert!(a.with_extension("png").is_file());
+    // The frame split as the paper's Table 2, and the camera's kept lookups.
+    let times = &report["times"];
+    for key in ["direct_s", "probe_relight_s", "cluster_projection_s", "receiver_irradiance_s", "image_s", "frame_s"] {
+        assert!(times[key].as_f64().is_some_and(|v| v >= 0.0 && v.is_finite()), "{key}: {times}");
+    }
+    assert!(report["image_operator_s"].as_f64().unwrap() > 0.0 && report["image_operator_bytes"].as_u64().unwrap() > 0);
     let bytes = std::fs::read(&cache).unwrap();
 
     // The layers agree with each other: beauty = direct + indirect, indirect = albedo E / π.
@@ -307,7 +313,11 @@ fn animate_moves_a_light_over_frames_from_one_cache() {
             frames.join(format!("frame_{f:04}.exr")).is_file() && frames.join(format!("frame_{f:04}.png")).is_file()
         );
         assert!(frame["frame_s"].as_f64().unwrap().is_finite());
+        for key in ["direct_s", "probe_relight_s", "cluster_projection_s", "receiver_irradiance_s", "image_s"] {
+            assert!(frame[key].as_f64().is_some_and(|v| v >= 0.0), "{key}: {frame}");
+        }
     }
+    assert!(report["image_operator_s"].as_f64().unwrap() > 0.0);
     assert_eq!(list[2]["light_position"][0].as_f64().unwrap(), 450.0);
     assert_ne!(list[0]["mean_indirect"], list[2]["mean_indirect"]);
     assert!(list.iter().all(|f| f["mean_indirect"].as_array().unwrap().iter().all(|v| v.as_f64().unwrap() > 0.0)));
@@ -349,7 +359,10 @@ fn compare_runs_probes_with_its_precompute_times_and_per_frame_verdicts() {
     let cache = dir.path().join("cache");
     let tiny = "probes:probes=4:receivers=1500:directions=32:relight_rays=1024:order=3:pixel_samples=1";
     let spatial = format!("{tiny}:cpca=off:reconstruction=spatial:miss_weight=1");
-    let methods = format!("{tiny},{spatial}");
+    // The frame's image through the camera's kept lookups (the default) or traced and looked
+    // up every frame: the same image.
+    let lookups = format!("{tiny}:image=lookups");
+    let methods = format!("{tiny},{spatial},{lookups}");
     let first = dir.path().join("first");
     let out = probes_compare(&first, &cache, &methods, "indirect");
     assert!(out.status.success(), "{}", stderr(&out));
@@ -365,11 +378,12 @@ fn compare_runs_probes_with_its_precompute_times_and_per_frame_verdicts() {
     assert!(pt.iter().all(|r| r["precompute_from_cache"].is_null() && r["per_frame_speedup"].is_null()));
     let mine: Vec<&serde_json::Value> =
         runs.iter().filter(|r| r["method"].as_str().unwrap().starts_with("probes")).collect();
-    assert_eq!(mine.len(), 2);
-    for run in &mine {
+    assert_eq!(mine.len(), 3);
+    for (i, run) in mine.iter().enumerate() {
         assert_eq!(run["input_spp"], 0);
         assert_eq!(run["recon_rays"], 1);
-        assert_eq!(run["precompute_from_cache"], false, "{run}");
+        // The third has the first one's precompute settings: it reads the first one's cache.
+        assert_eq!(run["precompute_from_cache"], i == 2, "{run}");
         let (pre, recon, total) =
             (run["preprocess_s"].as_f64().unwrap(), run["recon_s"].as_f64().unwrap(), run["total_s"].as_f64().unwrap());
         assert!(pre > 0.0 && recon > 0.0 && (total - pre - recon).abs() < 1e-9, "{run}");
@@ -388,6 +402,17 @@ fn compare_runs_probes_with_its_precompute_times_and_per_frame_verdicts() {
     }
     assert!(mine[0]["stats"]["cpca_clusters"].as_f64().unwrap() >= 1.0);
     assert!(mine[1]["stats"].get("cpca_clusters").is_none());
+    // Kept lookups and projected bounces (the defaults with CPCA) are formed once per run; the
+    // dense transport has no projected bounce; `image=lookups` keeps none and gives the same
+    // image (the same PSNR bit for bit).
+    assert!(mine[0]["stats"]["image_operator_s"].as_f64().unwrap() > 0.0);
+    assert!(mine[0]["stats"]["projected_size"].as_f64().unwrap() >= 1.0);
+    assert!(mine[1]["stats"].get("projected_size").is_none() && mine[1]["stats"]["image_operator_s"].is_f64());
+    assert!(mine[2]["stats"].get("image_operator_s").is_none());
+    assert_eq!(mine[2]["psnr_db"], mine[0]["psnr_db"]);
+    for key in ["direct_s", "probe_relight_s", "cluster_projection_s", "receiver_irradiance_s", "image_s"] {
+        assert!(mine[0]["stats"][key].as_f64().is_some_and(|v| v >= 0.0), "{key}: {}", mine[0]["stats"]);
+    }
     let verdicts = results["verdicts"].as_array().unwrap();
     for (verdict, run) in verdicts.iter().zip(&mine) {
         assert_eq!(verdict["method"], run["method"]);
@@ -409,7 +434,19 @@ fn compare_runs_probes_with_its_precompute_times_and_per_frame_verdicts() {
     for (a, b) in mine.iter().zip(&rerun) {
         assert_eq!(b["precompute_from_cache"], true);
         assert_eq!(a["psnr_db"], b["psnr_db"]);
-        assert_eq!(a["preprocess_s"], b["preprocess_s"], "the build time is kept beside the cache");
+        // The precompute's and CPCA's build times are kept beside the cache; the camera's
+        // lookups and the projected bounce are formed in every run, and preprocess_s is the sum.
+        for key in ["precompute_s", "cpca_s"] {
+            assert_eq!(a["stats"][key], b["stats"][key], "{key}: the build time is kept beside the cache");
+        }
+        for run in [a, b] {
+            let parts: f64 = ["precompute_s", "cpca_s", "image_operator_s", "projected_bounce_s"]
+                .iter()
+                .filter_map(|k| run["stats"][*k].as_f64())
+                .sum();
+            let pre = run["preprocess_s"].as_f64().unwrap();
+            assert!((pre - parts).abs() <= 1e-9 * parts.max(1.0), "{pre} against {parts}: {run}");
+        }
     }
     // Another effect, and bad options, are refused before anything is traced.
     for (methods, effect, needle) in [

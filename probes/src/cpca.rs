@@ -169,11 +169,17 @@ impl Cpca {
     }
 
     /// The receivers' irradiance (unclamped) for probe coefficients `lambda` (probe-major, RGB):
-    /// the cluster projection.
+    /// the cluster projection ([`Cpca::project_clusters`]) then every receiver's short dot
+    /// product ([`Cpca::expand`]).
     pub fn irradiance(&self, lambda: &[Vec3]) -> Vec<Vec3> {
+        self.expand(&self.project_clusters(lambda))
+    }
+
+    /// The cluster projection: per cluster, `W λ` over its probes (`rank` RGB values, summed
+    /// in f64).
+    pub fn project_clusters(&self, lambda: &[Vec3]) -> Vec<Vec<DVec3>> {
         let nc = self.coefficients;
-        let per_cluster: Vec<Vec<Vec3>> = self
-            .clusters
+        self.clusters
             .par_iter()
             .map(|c| {
                 let m = c.probes.len() * nc;
@@ -189,6 +195,19 @@ impl Cpca {
                     }
                     *out = sum;
                 }
+                projected
+            })
+            .collect()
+    }
+
+    /// Every receiver's irradiance from the cluster projection `projected` (`U` times it); 0
+    /// for receivers in no cluster (hidden).
+    pub fn expand(&self, projected: &[Vec<DVec3>]) -> Vec<Vec3> {
+        let per_cluster: Vec<Vec<Vec3>> = self
+            .clusters
+            .par_iter()
+            .zip(projected)
+            .map(|(c, projected)| {
                 (0..c.receivers.len())
                     .map(|r| {
                         let mut e = DVec3::ZERO;

@@ -8,6 +8,8 @@
 //! through the probes (lfr's `indirect` layer excludes emitter → first-hit light). Negative
 //! reconstructed irradiance (SH ringing) is clamped at zero and counted.
 
+use std::time::Instant;
+
 use glam::Vec3;
 use rayon::prelude::*;
 use tracer::Scene;
@@ -74,6 +76,37 @@ pub trait ReceiverTransport: Sync {
     /// Every receiver's irradiance, unclamped, for `lambda` (probe-major RGB, `coefficients`
     /// per probe).
     fn gather(&self, lambda: &[Vec3], coefficients: usize) -> Vec<Vec3>;
+    /// [`ReceiverTransport::gather`] with its seconds added to `times`: the cluster projection
+    /// (CPCA's λ onto each cluster's basis; none for the dense transport) and the receiver
+    /// irradiance. The same values as `gather`.
+    fn gather_timed(&self, lambda: &[Vec3], coefficients: usize, times: &mut BounceTimes) -> Vec<Vec3> {
+        let t = Instant::now();
+        let e = self.gather(lambda, coefficients);
+        times.receiver_irradiance_s += t.elapsed().as_secs_f64();
+        e
+    }
+}
+
+/// Seconds spent in each stage of the bounces, summed over the iterations: the paper's Table 2
+/// columns after "scene relight".
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BounceTimes {
+    /// Sender radiance and the probes' SH from the relight rays (with the masked fit).
+    pub probe_relight_s: f64,
+    /// CPCA: λ projected onto each cluster's basis (0 for the dense transport).
+    pub cluster_projection_s: f64,
+    /// Every receiver's irradiance (CPCA: U times the projection; dense: Eq. 7), the clamp
+    /// at zero and the convergence test.
+    pub receiver_irradiance_s: f64,
+    /// The bounces run in CPCA's projected space (`projected_bounce`), all three stages at
+    /// once; 0 for the loop here.
+    pub reduced_bounces_s: f64,
+}
+
+impl BounceTimes {
+    pub fn total_s(&self) -> f64 {
+        self.probe_relight_s + self.cluster_projection_s + self.receiver_irradiance_s + self.reduced_bounces_s
+    }
 }
 
 impl ReceiverTransport for [Transport] {
@@ -100,6 +133,15 @@ impl ReceiverTransport for crate::cpca::Cpca {
     }
     fn gather(&self, lambda: &[Vec3], _coefficients: usize) -> Vec<Vec3> {
         self.irradiance(lambda)
+    }
+    fn gather_timed(&self, lambda: &[Vec3], _coefficients: usize, times: &mut BounceTimes) -> Vec<Vec3> {
+        let t = Instant::now();
+        let projected = self.project_clusters(lambda);
+        times.cluster_projection_s += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let e = self.expand(&projected);
+        times.receiver_irradiance_s += t.elapsed().as_secs_f64();
+        e
     }
 }
 
@@ -130,6 +172,19 @@ pub fn indirect_from<T: ReceiverTransport + ?Sized>(
     max_iterations: usize,
     tolerance: f32,
 ) -> Result<Indirect, ProbesError> {
+    indirect_timed(transports, table, albedo, direct, start, max_iterations, tolerance).map(|(out, _)| out)
+}
+
+/// [`indirect_from`] with the seconds of each stage, summed over the iterations.
+pub fn indirect_timed<T: ReceiverTransport + ?Sized>(
+    transports: &T,
+    table: &RelightTable,
+    albedo: &[Vec3],
+    direct: &[Vec3],
+    start: Option<&[Vec3]>,
+    max_iterations: usize,
+    tolerance: f32,
+) -> Result<(Indirect, BounceTimes), ProbesError> {
     let n = transports.receiver_count();
     if albedo.len() != n || direct.len() != n {
         return Err(ProbesError::parameter(
@@ -154,12 +209,16 @@ pub fn indirect_from<T: ReceiverTransport + ?Sized>(
     let nc = table.coefficients;
     let mut e = start.map_or_else(|| vec![Vec3::ZERO; n], |s| s.to_vec());
     let mut out = Indirect { irradiance: Vec::new(), iterations: 0, clamped: 0, change: f32::INFINITY };
+    let mut times = BounceTimes::default();
     for _ in 0..max_iterations {
+        let t = Instant::now();
         let radiance: Vec<Vec3> =
             albedo.iter().zip(direct).zip(&e).map(|((a, d), e)| *a * (*d + *e) / std::f32::consts::PI).collect();
         let lambda = table.project(&radiance);
-        let next: Vec<(Vec3, u64)> = transports
-            .gather(&lambda, nc)
+        times.probe_relight_s += t.elapsed().as_secs_f64();
+        let gathered = transports.gather_timed(&lambda, nc, &mut times);
+        let t = Instant::now();
+        let next: Vec<(Vec3, u64)> = gathered
             .into_iter()
             .map(|v| {
                 let clamped = v.to_array().iter().filter(|&&c| c < 0.0).count() as u64;
@@ -172,12 +231,13 @@ pub fn indirect_from<T: ReceiverTransport + ?Sized>(
         out.clamped = next.iter().map(|(_, c)| c).sum();
         e = next.into_iter().map(|(v, _)| v).collect();
         out.iterations += 1;
+        times.receiver_irradiance_s += t.elapsed().as_secs_f64();
         if out.change < tolerance {
             break;
         }
     }
     out.irradiance = e;
-    Ok(out)
+    Ok((out, times))
 }
 
 #[cfg(test)]

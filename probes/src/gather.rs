@@ -184,3 +184,82 @@ pub fn pixel_gather(
         })
         .collect()
 }
+
+/// Diagnosis of the brightness deficit (docs/probes.md, "Brightness"): the one-bounce gather at
+/// the camera's own hits of [`pixel_gather`], with the same rays, reading at each secondary hit
+/// (a) the senders through the lookup, as `pixel_gather` does, (b) the direct light evaluated
+/// there exactly through the tracer's surface (textured albedo at the hit, `samples` light
+/// samples about the geometric normal facing the ray, as the senders are lit), and (c) the same
+/// about the hit's shading normal (as the path tracer's next-event estimation). Returns the
+/// three images' sums (radiance summed over the pixels). (a) ≈ (b) clears the senders and the
+/// lookup from the camera's side; (b) against (c) measures the shading normals; (d) is (a)
+/// with hidden senders (no transport) dropped beside valid ones.
+#[allow(clippy::too_many_arguments)]
+pub fn pixel_gather_split(
+    scene: &tracer::Scene,
+    accel: &Accel,
+    surfels: &Surfels,
+    transports: &[Transport],
+    sender_radiance: &[Vec3],
+    (width, height): (u32, u32),
+    rays: u32,
+    samples: u32,
+    scale: f32,
+) -> [glam::DVec3; 4] {
+    let lights = tracer::lights::LightSampler::new(scene);
+    let tan = scene.camera.tan_half_fov(width, height);
+    let parts: Vec<[glam::DVec3; 4]> = (0..width * height)
+        .into_par_iter()
+        .map(|index| {
+            let film = glam::Vec2::new((index % width) as f32 + 0.5, (index / width) as f32 + 0.5);
+            let (o, d) = scene.camera.generate_ray_with_tan(tan, film, glam::Vec2::ZERO, width, height);
+            let Some(hit) = accel.intersect(o, d, 0.0, f32::INFINITY, 0.0) else {
+                return [glam::DVec3::ZERO; 4];
+            };
+            let surface = tracer::integrator::SurfacePoint::new(scene, &hit, -d, 0.0, 0.0);
+            let rho = surface.bsdf.base_color * (1.0 - surface.bsdf.metallic);
+            let ng = hit.geometric_normal.normalize_or_zero();
+            let n = if ng.dot(d) > 0.0 { -ng } else { ng };
+            let x = surface.position + n * offset(surface.position, scale);
+            let frame = Frame::new(surface.shading_normal);
+            let mut found = Vec::new();
+            let (mut via, mut exact, mut shading, mut valid) = (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO, Vec3::ZERO);
+            for k in 0..rays {
+                let u = Sampler::new(0x99, index, 0x55, k).next_2d();
+                let dir = frame.to_world(sample_cosine_hemisphere(u)).normalize();
+                if dir.dot(n) <= 0.0 {
+                    continue;
+                }
+                let Some(h) = accel.intersect(x, dir, 0.0, f32::INFINITY, 0.0) else { continue };
+                let g = h.geometric_normal.normalize_or_zero();
+                let side = if g.dot(dir) > 0.0 { -g } else { g };
+                let y = x + dir * h.distance;
+                lookup(surfels, y, side, &mut found);
+                for &(s, w) in &found {
+                    via += sender_radiance[s as usize] * w;
+                }
+                // The same with hidden senders (no transport) dropped beside the others.
+                let total: f32 =
+                    found.iter().filter(|(s, _)| !transports[*s as usize].probes.is_empty()).map(|(_, w)| w).sum();
+                for &(s, w) in &found {
+                    if total == 0.0 {
+                        valid += sender_radiance[s as usize] * w;
+                    } else if !transports[s as usize].probes.is_empty() {
+                        valid += sender_radiance[s as usize] * w / total;
+                    }
+                }
+                let second = tracer::integrator::SurfacePoint::new(scene, &h, -dir, 0.0, 0.0);
+                let rho2 = second.bsdf.base_color * (1.0 - second.bsdf.metallic);
+                let pattern = index.wrapping_mul(rays).wrapping_add(k);
+                let e = crate::direct::direct_at(scene, accel, &lights, y, side, pattern, samples, 0, scale);
+                exact += rho2 * e / std::f32::consts::PI;
+                let ns = second.shading_normal;
+                let e = crate::direct::direct_at(scene, accel, &lights, y, ns, pattern, samples, 0, scale);
+                shading += rho2 * e / std::f32::consts::PI;
+            }
+            let w = 1.0 / rays.max(1) as f32;
+            [via, exact, shading, valid].map(|v| (rho * v * w).as_dvec3())
+        })
+        .collect();
+    parts.iter().fold([glam::DVec3::ZERO; 4], |acc, p| [acc[0] + p[0], acc[1] + p[1], acc[2] + p[2], acc[3] + p[3]])
+}

@@ -26,8 +26,12 @@
 //!   bounces: `frame`.
 //! - ✓ Section 4.2, "Scene relight": direct irradiance at the senders through the tracer's light
 //!   model: `direct`.
-//! - ✓ Eq. 11, CPCA compression and the per-frame cluster projection (f32 or fp16): `cpca`.
-//! - ✓ The image from the receivers at the camera's hits: `image`; the whole precompute as one
+//! - ✓ Eq. 11, CPCA compression and the per-frame cluster projection (f32 or fp16): `cpca`;
+//!   our extension, the bounces after the first run in the clusters' projected space (one
+//!   R × R product each, R = Σ ranks): `projected_bounce`.
+//! - ✓ The image from the receivers at the camera's hits: `image` (traced and looked up per
+//!   frame, the oracle) and `image_operator` (the lookups kept per camera: one weighted sum
+//!   per pixel a frame); the whole precompute as one
 //!   value, `precompute`, and its cache keyed by geometry and settings, `cache`.
 //! - — Brute-force surfel radiosity, the oracle of the probes' reconstruction (same receivers
 //!   and senders, no probes): `gather`.
@@ -44,11 +48,13 @@ pub mod frame;
 pub mod gather;
 pub mod geometry;
 pub mod image;
+pub mod image_operator;
 pub mod kernel;
 pub mod layout;
 pub mod lookup;
 pub mod placement;
 pub mod precompute;
+pub mod projected_bounce;
 pub mod relight;
 pub mod sh;
 pub mod surfels;

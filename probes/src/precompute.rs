@@ -139,6 +139,13 @@ impl Precompute {
     }
 
     /// SH coefficients per probe.
+    /// Drops hidden senders from the relight table's hits beside valid ones
+    /// ([`RelightTable::drop_hidden_senders`]; a hidden receiver has an empty transport).
+    pub fn drop_hidden_senders(&mut self) -> Result<u64, ProbesError> {
+        let valid: Vec<bool> = self.transports.iter().map(|t| !t.probes.is_empty()).collect();
+        self.table.drop_hidden_senders(&valid)
+    }
+
     pub fn coefficients(&self) -> usize {
         self.table.coefficients
     }
