@@ -111,6 +111,13 @@ const SHRINK: OptionSpec = OptionSpec {
     default: "all-rays",
     help: "which input rays shrink the splats they cross (§2.3.1): all, or only those that hit (the authors' code)",
 };
+const SMALL: OptionSpec = OptionSpec {
+    key: "small",
+    kind: OptionKind::Choice(&["auto", "merge", "keep"]),
+    default: "auto",
+    help: "one- to three-splat surfaces the ray passes near the rim of (§2.5): merged into the surface behind, \
+           kept, or (auto) merged except for ambient occlusion",
+};
 const ROBUST: OptionSpec = OptionSpec {
     key: "robust",
     kind: OptionKind::Choice(&["spread", "clamp", "off"]),
@@ -225,7 +232,7 @@ pub const METHODS: &[MethodSpec] = &[
     MethodSpec {
         name: "ilfr",
         effects: INDIRECT_AND_AO,
-        options: &[CONFLICT, SHRINK, ROBUST],
+        options: &[CONFLICT, SHRINK, ROBUST, SMALL],
         description: "indirect light field reconstruction (Lehtinen et al. 2012)",
         build: |options| Ok(Box::new(Ilfr { choices: ilfr_choices(options) })),
     },
@@ -268,6 +275,11 @@ fn ilfr_choices(options: &Options) -> IlfrChoices {
             Some("off") => RobustMode::Off,
             Some("spread") => RobustMode::Spread,
             _ => defaults.robust,
+        },
+        merge_small_surfaces: match options.choice("small") {
+            Some("merge") => Some(true),
+            Some("keep") => Some(false),
+            _ => defaults.merge_small_surfaces,
         },
     }
 }
@@ -396,6 +408,17 @@ mod tests {
             (settings.surfaces.conflict_test, settings.shrink.escaped_rays),
             (ConflictTest::FacingOrCoplanar, false)
         );
+        for (option, effect, merge) in [
+            ("conflict=auto", Effect::Ao, false),
+            ("conflict=auto", Effect::Indirect, true),
+            ("small=merge", Effect::Ao, true),
+            ("small=keep", Effect::Indirect, false),
+            ("small=auto", Effect::Glossy, true),
+        ] {
+            let choices = ilfr_choices(&spec("ilfr").unwrap().parse_options(option).unwrap());
+            let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), effect);
+            assert_eq!(applied.surfaces.merge_small_surfaces, merge, "{option} for {effect:?}");
+        }
         assert!(find("median:radius=3").unwrap().is_none());
         assert!(find("median").unwrap().is_none());
         for (spec, needle) in [
@@ -421,6 +444,7 @@ mod tests {
             ("ilfr-recursive:passes=0", "at least 1"),
             ("ilfr:conflict=maybe", "off-plane"),
             ("ilfr:shrink=some", "hit-rays"),
+            ("ilfr:small=some", "keep"),
         ] {
             let error = find(spec).err().unwrap_or_else(|| panic!("{spec} must fail")).to_string();
             assert!(error.contains(needle) && error.contains(spec.split(':').next().unwrap()), "{spec}: {error}");

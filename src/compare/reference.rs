@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use recon::Image;
+use recon::{Effect, Image};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use tracer::output::{read_exr, write_atomically, write_exr, Layer};
@@ -18,6 +18,10 @@ use crate::convert::rgb_channels;
 /// Bumped whenever the tracer's estimators change what a reference contains (4: normal maps,
 /// single-sided materials, rectangle lights by solid angle, scale-free offsets; session 16).
 const ESTIMATOR_VERSION: &str = "lfr-reference/4";
+
+/// Added to the key of ambient-occlusion references only, bumped when the AO estimator changes
+/// (2: a cosine direction below the geometric surface is occluded, no longer an escape; issue 23).
+const AO_ESTIMATOR_VERSION: &str = "ao/2";
 
 /// A reference: the mean of two halves, and the halves (none for an external reference given as
 /// one image).
@@ -107,6 +111,9 @@ pub fn cache_dir(given: Option<&Path>) -> PathBuf {
 pub fn cache_key(scene_text: &[u8], tracing: &Tracing, spp: u32, seeds: [u32; 2]) -> String {
     let mut hash = Sha256::new();
     hash.update(ESTIMATOR_VERSION.as_bytes());
+    if tracing.effect == Effect::Ao {
+        hash.update(AO_ESTIMATOR_VERSION.as_bytes());
+    }
     crate::fingerprint::hash_scene(&mut hash, scene_text, tracing.scene);
     let settings = format!(
         "effect={} width={} height={} spp={} seeds={:?} max_bounces={} ao_radius={}",

@@ -285,6 +285,69 @@ fn ambient_occlusion_distances_follow_the_cosine_distribution() {
     assert!((fraction - 0.75).abs() < 0.01, "{fraction}");
 }
 
+/// A floor whose shading normal is tilted θ = 60° from its geometric normal (vertex normals, no
+/// occluder): cosine directions about the shading normal fall below the geometric surface with
+/// probability (1 − cos θ) / 2 = 1/4 (Malley: the directions project uniformly onto the unit
+/// disc, and those below are the part of the disc outside the ellipse x²/cos²θ + y² < 1 on one
+/// side). They enter the surface, so they are occluded (distance 0, no direction), and the AO
+/// image reads 3/4; every other ray escapes. Before, they counted as escapes (AO 1), which no
+/// reconstruction from the file (it knows only the shading normal) could reproduce.
+#[test]
+fn ambient_occlusion_directions_below_the_geometric_surface_are_occluded() {
+    let mut scene = scene_from_toml(
+        r#"
+        [render]
+        [camera]
+        position = [0, 1, 0]
+        look_at = [0, 0, 0]
+        up = [0, 0, 1]
+        fov = 20
+        [[mesh]]
+        shape = "polygon"
+        points = [[-5, 0, -5], [-5, 0, 5], [5, 0, 5], [5, 0, -5]]
+        "#,
+    );
+    let theta = 60f32.to_radians();
+    let tilted = Vec3::new(theta.sin(), theta.cos(), 0.0);
+    let vertices = scene.meshes[0].positions.len();
+    scene.meshes[0].normals = Some(vec![tilted; vertices]);
+    let (_dir, file) = dump_file(&scene, SecondaryKind::AmbientOcclusion, (16, 16), 64, 5);
+    let (distance, direction) = (file.column("distance").unwrap(), file.column("direction").unwrap());
+    let mut below = 0usize;
+    for (i, &d) in distance.iter().enumerate() {
+        let omega = octahedral(&direction, i);
+        if d == 0.0 {
+            assert_eq!(omega, Vec3::ZERO, "sample {i}: an occluded-below sample carries no direction");
+            below += 1;
+        } else {
+            assert_eq!(d, f32::INFINITY, "sample {i}: nothing else to hit");
+            assert!(omega.y > 0.0 && (omega.dot(tilted) > 0.0), "sample {i}: {omega}");
+        }
+    }
+    let fraction = below as f64 / file.len() as f64;
+    let expected = (1.0 - theta.cos() as f64) / 2.0;
+    // 16384 samples: standard error 0.0034.
+    assert!((fraction - expected).abs() < 0.015, "{fraction} below, expected {expected}");
+
+    let accel = Accel::build(&scene).unwrap();
+    let settings = RenderSettings {
+        width: 16,
+        height: 16,
+        spp: 64,
+        seed: 5,
+        max_bounces: scene.max_bounces,
+        threads: 0,
+        progress: false,
+    };
+    let frame = tracer::samples::secondary::ambient_occlusion_frame(&scene, &accel, &settings, 1.0).unwrap();
+    let mean = frame.visibility.iter().map(|&v| v as f64).sum::<f64>() / frame.visibility.len() as f64;
+    assert!(
+        (mean - (1.0 - fraction)).abs() < 1e-6,
+        "the AO image is the dump's samples: {mean} against {}",
+        1.0 - fraction
+    );
+}
+
 #[test]
 fn lens_motion_and_gloss_add_their_fields_within_120_bytes() {
     let _ = shared_scenes();

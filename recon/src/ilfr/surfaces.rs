@@ -25,7 +25,8 @@
 //!   single-sample surfaces and … for two-sample surfaces"): [`first_surface`] — a surface of fewer
 //!   than 4 splats that is not the last is kept only if the ray passes inside the convex hull of
 //!   its splats' footprints with radii × 0.5, 0.6, 0.7 (1, 2, 3 splats; the code's constants),
-//!   else it is merged into the next ([`inside_footprint_hull`]).
+//!   else it is merged into the next ([`inside_footprint_hull`]); switchable
+//!   ([`SurfaceParams::merge_small_surfaces`], off for ambient occlusion by default).
 //!
 //! Footprints are orthographic projections along the ray onto the st plane (ellipses; the code
 //! projects centrally onto the uv plane). For one splat this is exact and equals "the ray passes
@@ -68,6 +69,9 @@ pub struct SurfaceParams {
     pub backface_near_field_cull: bool,
     /// Footprint scale of the small-surface test for surfaces of 1, 2, 3 splats.
     pub small_surface_scale: [f32; 3],
+    /// Whether the small-surface rule (§2.5) runs; off, every surface counts whatever its size
+    /// (ambient occlusion's default: docs/ilfr.md, "Issue 23: ambient occlusion").
+    pub merge_small_surfaces: bool,
 }
 
 impl Default for SurfaceParams {
@@ -76,6 +80,7 @@ impl Default for SurfaceParams {
             conflict_test: ConflictTest::EventLineOffPlane,
             backface_near_field_cull: true,
             small_surface_scale: [0.5, 0.6, 0.7],
+            merge_small_surfaces: true,
         }
     }
 }
@@ -269,7 +274,7 @@ pub fn first_surface(ray: &Ray, candidates: &[Candidate], params: &SurfaceParams
         let end = group_end(ray, candidates, start, params.conflict_test);
         let size = end;
         let last = end == candidates.len();
-        if !last && size <= params.small_surface_scale.len() {
+        if params.merge_small_surfaces && !last && size <= params.small_surface_scale.len() {
             let scale = params.small_surface_scale[size - 1];
             if !inside_footprint_hull(ray, &candidates[..end], scale) {
                 merged_surfaces += 1;
@@ -618,6 +623,25 @@ mod tests {
         let c = candidates(&lone, &params);
         assert_eq!(first_surface(&RAY, &c, &params).unwrap().members, 0..1);
         assert_eq!(first_surface(&RAY, &[], &params), None);
+    }
+
+    #[test]
+    fn without_the_small_surface_rule_a_single_splat_in_front_is_the_surface() {
+        // The splat of the test above, passed at s = 0.9 (the rule merges it into the wall): with
+        // the rule off it is the surface, so a visibility threshold between it (depth 1) and the
+        // wall (depth 3) reads it as an occluder; with the rule on, the merged surface's tent vote
+        // is the wall's: visible.
+        use crate::ilfr::filter::filter_visibility;
+        let mut discs = vec![Disc::new([0.9, 1.0, 0.0], [0.0, -1.0, 0.0], 1.0)];
+        discs.extend(wall());
+        for (merge, members, visibility) in [(true, 0..6, 1.0), (false, 0..1, 0.0)] {
+            let params = SurfaceParams { merge_small_surfaces: merge, ..SurfaceParams::default() };
+            let c = candidates(&discs, &params);
+            let surface = first_surface(&RAY, &c, &params).unwrap();
+            assert_eq!((surface.members.clone(), surface.merged_surfaces), (members, merge as u32), "merge {merge}");
+            let v = filter_visibility(&c, &surface, 2.0);
+            assert!((v - visibility).abs() < 0.05, "merge {merge}: visibility {v}");
+        }
     }
 
     #[test]

@@ -14,7 +14,7 @@
 //! | `t` | f32 | motion | time in [0, 1] |
 //! | `direction` | u16 × 2 | always | ω, world space, octahedral (see `encode_octahedral`) |
 //! | `radiance` | f32 × 3 | `indirect` | L: radiance arriving at o from ω, without the emission of h itself |
-//! | `distance` | f32 | `ao` | distance from o to h; +inf when the ray escapes |
+//! | `distance` | f32 | `ao` | distance from o to h; +inf when the ray escapes; 0 when the cosine direction about the shading normal lies below the geometric surface (no ray is traced: the surface itself occludes it) |
 //! | `origin` | f32 × 3 | always | o, world space |
 //! | `hit` | f32 × 3 | always | h, world space; equal to o when the ray escapes |
 //! | `origin_normal`, `hit_normal` | u16 × 2 | always | shading normals at o and h facing the ray's origin side, octahedral; (0, 0) → zero for a miss |
@@ -331,7 +331,8 @@ pub fn dump(
 /// Ambient occlusion per pixel, from exactly the samples an `ao` dump with the same settings
 /// would write: the fraction of a pixel's samples whose cosine-weighted secondary ray travels
 /// at least `radius` (or escapes). A sample whose camera ray escapes counts as unoccluded (1):
-/// nothing occludes the background. Also returns what a denoiser takes as auxiliary buffers:
+/// nothing occludes the background. A direction (about the shading normal) below the geometric
+/// surface counts as occluded: it enters the surface. Also returns what a denoiser takes as auxiliary buffers:
 /// the mean first-hit normal and an albedo of 1 wherever a surface was hit.
 #[derive(Clone, Debug)]
 pub struct AmbientOcclusionFrame {
@@ -516,9 +517,13 @@ fn trace_secondary(
     let secondary_hit = secondary.first_hit;
     match layout.kind {
         SecondaryKind::Indirect => values.extend_from_slice(&secondary.reflected().to_array()),
+        // A cosine direction about the shading normal that points below the geometric surface
+        // enters the surface: it is occluded at distance 0 (as the indirect dump gives such a
+        // direction no light), not an escape.
         SecondaryKind::AmbientOcclusion => values.push(match &secondary_hit {
             Some(h) => (h.position - surface.position).length(),
-            None => f32::INFINITY,
+            None if valid_direction => f32::INFINITY,
+            None => 0.0,
         }),
     }
     values.extend_from_slice(&surface.position.to_array());
