@@ -94,7 +94,7 @@ fn every_sample_reader_gives_the_same_image_from_a_dump_of_its_declared_fields()
                 continue;
             }
             let Some(needs) = method.sample_needs(effect) else { continue };
-            let fields = FieldSelection::named(needs.iter().flat_map(|n| n.fields.iter().map(|f| f.name)));
+            let fields = FieldSelection::reading(&needs);
             let own_dir = dir.path().join(spec.name);
             std::fs::create_dir(&own_dir).unwrap();
             let own = dump(scene, effect, &fields, &own_dir);

@@ -207,9 +207,7 @@ enum TraceKey {
 /// The fields `method` reads of its sample files for `effect` (all when it does not say).
 fn input_fields(method: &Registered, effect: Effect) -> FieldSelection {
     match method.sample_needs(effect) {
-        Some(needs) => {
-            FieldSelection::named(needs.iter().flat_map(|needs| needs.fields.iter().map(|field| field.name)))
-        }
+        Some(needs) => FieldSelection::reading(&needs),
         None => FieldSelection::All,
     }
 }

@@ -42,6 +42,12 @@ impl FieldSelection {
         FieldSelection::Only { names: names.into_iter().map(Into::into).collect(), strict: false }
     }
 
+    /// Every field the consumers `needs` declare (`sampleio::Needs`), ignoring names the layout
+    /// does not have.
+    pub fn reading(needs: &[&sampleio::Needs]) -> FieldSelection {
+        FieldSelection::named(needs.iter().flat_map(|needs| needs.fields.iter().map(|field| field.name)))
+    }
+
     /// A user's list (`--fields a,b,c`): every name must be one of the layout's fields.
     pub fn parse_strict(list: &str) -> Result<FieldSelection, RenderError> {
         let names: BTreeSet<String> = list.split(',').map(|name| name.trim().to_string()).collect();
