@@ -53,6 +53,7 @@ mod header;
 pub mod interrupt;
 mod needs;
 mod output;
+mod positional_writer;
 mod reader;
 mod writer;
 
@@ -65,5 +66,6 @@ pub use header::{
 };
 pub use needs::{FieldNeed, Needs, OCTAHEDRAL, REAL};
 pub use output::check_output_target;
+pub use positional_writer::PositionalWriter;
 pub use reader::SampleFile;
-pub use writer::{encode_record, SampleWriter, UnencodableValue};
+pub use writer::{encode_record, Durability, SampleWriter, UnencodableValue};

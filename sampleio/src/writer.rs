@@ -85,35 +85,102 @@ pub fn encode_record(header: &Header, values: &[f32], record: &mut [u8]) -> std:
     Ok(())
 }
 
+/// Whether a finished file is made durable before the writer reports success.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Durability {
+    /// The file and its directory are synced to disk before the rename is reported: a file
+    /// that outlives the process (what `lfr dump` writes).
+    Synced,
+    /// Renamed into place from the page cache, not synced: a scratch file the same process reads
+    /// back and removes (`lfr compare`'s inputs). A crash still never leaves a half-written file
+    /// under the name; a power cut may lose the file.
+    Unsynced,
+}
+
+/// What both writers do before the first record: the header validated and laid out, a
+/// temporary file beside `path` created and registered for removal on interrupt.
+pub(crate) struct Started {
+    pub header: Header,
+    /// CRC-32 of the header text, for the trailer.
+    pub header_crc: u32,
+    pub tmp: PathBuf,
+    pub registration: crate::interrupt::Registered,
+    pub file: File,
+    /// The preamble and the padded header text: the file's first bytes, up to the data.
+    pub preamble_and_header: Vec<u8>,
+}
+
+pub(crate) fn start(path: &Path, header: HeaderSpec) -> Result<Started> {
+    crate::check_output_target(path, &[])?;
+    let header = header.to_header().map_err(|e| e.at(path))?;
+    let header_bytes = header.to_padded_json();
+    if header_bytes.len() as u64 > MAX_HEADER_LEN {
+        return Err(SampleError::Invalid {
+            path: path.to_path_buf(),
+            field: "header".into(),
+            message: format!("{} bytes of header text exceed {MAX_HEADER_LEN}", header_bytes.len()),
+        });
+    }
+    let tmp = temporary_path(path).ok_or_else(|| SampleError::Invalid {
+        path: path.to_path_buf(),
+        field: "path".into(),
+        message: "the path has no file name".into(),
+    })?;
+    crate::interrupt::remove_stale_temporaries(path);
+    let registration = crate::interrupt::remove_on_interrupt(&tmp);
+    let file = File::create(&tmp).map_err(|e| SampleError::io(&tmp, "create", e))?;
+    let mut preamble_and_header = Vec::with_capacity(16 + header_bytes.len());
+    preamble_and_header.extend_from_slice(&MAGIC);
+    preamble_and_header.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    preamble_and_header.extend_from_slice(&(header_bytes.len() as u32).to_le_bytes());
+    preamble_and_header.extend_from_slice(&header_bytes);
+    Ok(Started { header_crc: crc32fast::hash(&header_bytes), header, tmp, registration, file, preamble_and_header })
+}
+
+/// The bytes after the data: the chunk table (one CRC-32 per chunk) and the trailer.
+pub(crate) fn end_of_file(header: &Header, header_crc: u32, chunk_crcs: &[u32]) -> Vec<u8> {
+    let table: Vec<u8> = chunk_crcs.iter().flat_map(|c| c.to_le_bytes()).collect();
+    let mut end = Vec::with_capacity(table.len() + 32);
+    end.extend_from_slice(&table);
+    end.extend_from_slice(&TRAILER_MAGIC);
+    end.extend_from_slice(&header.sample_count.to_le_bytes());
+    end.extend_from_slice(&header_crc.to_le_bytes());
+    end.extend_from_slice(&crc32fast::hash(&table).to_le_bytes());
+    end.extend_from_slice(&(chunk_crcs.len() as u64).to_le_bytes());
+    end
+}
+
+/// Syncs `file` if `durability` asks, closes it and renames `tmp` to `path` (then, if synced,
+/// makes the rename durable too: best effort, since not every platform can open a directory).
+pub(crate) fn rename_into_place(file: File, tmp: &Path, path: &Path, durability: Durability) -> Result<()> {
+    if durability == Durability::Synced {
+        file.sync_all().map_err(|e| SampleError::io(tmp, "sync", e))?;
+    }
+    drop(file);
+    fs::rename(tmp, path).map_err(|e| SampleError::io(path, "rename into place", e))?;
+    if durability == Durability::Synced {
+        if let Some(dir) = path.parent() {
+            let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
+            if let Ok(d) = File::open(dir) {
+                let _ = d.sync_all();
+            }
+        }
+    }
+    Ok(())
+}
+
 impl SampleWriter {
     /// Validates the header, computes the field layout and starts writing to
     /// `<path>.<pid>.tmp` beside `path`.
     pub fn create(path: &Path, header: HeaderSpec) -> Result<SampleWriter> {
-        crate::check_output_target(path, &[])?;
-        let header = header.to_header().map_err(|e| e.at(path))?;
-        let header_bytes = header.to_padded_json();
-        if header_bytes.len() as u64 > MAX_HEADER_LEN {
-            return Err(SampleError::Invalid {
-                path: path.to_path_buf(),
-                field: "header".into(),
-                message: format!("{} bytes of header text exceed {MAX_HEADER_LEN}", header_bytes.len()),
-            });
-        }
-        let tmp = temporary_path(path).ok_or_else(|| SampleError::Invalid {
-            path: path.to_path_buf(),
-            field: "path".into(),
-            message: "the path has no file name".into(),
-        })?;
-        crate::interrupt::remove_stale_temporaries(path);
-        let registration = crate::interrupt::remove_on_interrupt(&tmp);
-        let file = File::create(&tmp).map_err(|e| SampleError::io(&tmp, "create", e))?;
+        let Started { header, header_crc, tmp, registration, file, preamble_and_header } = start(path, header)?;
         let mut writer = SampleWriter {
             path: path.to_path_buf(),
             tmp,
             _interrupt: registration,
             out: Some(BufWriter::with_capacity(BUFFER_BYTES, file)),
             record: vec![0; header.record_size as usize],
-            header_crc: crc32fast::hash(&header_bytes),
+            header_crc,
             header,
             pushed: 0,
             in_chunk: 0,
@@ -122,12 +189,7 @@ impl SampleWriter {
             aborted: false,
             finished: false,
         };
-        let mut preamble = Vec::with_capacity(16);
-        preamble.extend_from_slice(&MAGIC);
-        preamble.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-        preamble.extend_from_slice(&(header_bytes.len() as u32).to_le_bytes());
-        writer.write(&preamble)?;
-        writer.write(&header_bytes)?;
+        writer.write(&preamble_and_header)?;
         Ok(writer)
     }
 
@@ -289,30 +351,14 @@ impl SampleWriter {
         if self.in_chunk > 0 {
             self.end_chunk();
         }
-        let table: Vec<u8> = self.chunk_crcs.iter().flat_map(|c| c.to_le_bytes()).collect();
         debug_assert_eq!(self.chunk_crcs.len() as u64, self.header.chunk_count());
-        let mut trailer = Vec::with_capacity(32);
-        trailer.extend_from_slice(&TRAILER_MAGIC);
-        trailer.extend_from_slice(&self.header.sample_count.to_le_bytes());
-        trailer.extend_from_slice(&self.header_crc.to_le_bytes());
-        trailer.extend_from_slice(&crc32fast::hash(&table).to_le_bytes());
-        trailer.extend_from_slice(&(self.chunk_crcs.len() as u64).to_le_bytes());
-        self.write(&table)?;
-        self.write(&trailer)?;
+        let end = end_of_file(&self.header, self.header_crc, &self.chunk_crcs);
+        self.write(&end)?;
 
         let out = self.out.take().expect("the writer is open until finished");
         let file = out.into_inner().map_err(|e| SampleError::io(&self.tmp, "write", e.into_error()))?;
-        file.sync_all().map_err(|e| SampleError::io(&self.tmp, "sync", e))?;
-        drop(file);
-        fs::rename(&self.tmp, &self.path).map_err(|e| SampleError::io(&self.path, "rename into place", e))?;
+        rename_into_place(file, &self.tmp, &self.path, Durability::Synced)?;
         self.finished = true;
-        // Make the rename durable too; not every platform can open a directory, so best effort.
-        if let Some(dir) = self.path.parent() {
-            let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
-            if let Ok(d) = File::open(dir) {
-                let _ = d.sync_all();
-            }
-        }
         Ok(self.path.clone())
     }
 }
