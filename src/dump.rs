@@ -91,7 +91,7 @@ pub fn run(args: &DumpArgs) -> Result<()> {
         )?,
     };
     println!(
-        "wrote {} samples of {} to {} in {:.3} s ({:.3} s tracing, {:.3} s writing): {} bytes per record, {:.1} bytes per sample with header and checksums; fields: {}",
+        "wrote {} samples of {} to {} in {:.3} s ({:.3} s tracing and writing the records, {:.3} s finishing the file): {} bytes per record, {:.1} bytes per sample with header and checksums; fields: {}",
         report.samples,
         scene.source.display(),
         args.out.display(),

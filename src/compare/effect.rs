@@ -19,7 +19,7 @@ use glam::Vec3;
 use recon::method::{FrameInput, GuideInput};
 use recon::{Effect, Image};
 use tracer::samples::secondary::{ambient_occlusion_frame, scene_is_glossy, SecondaryKind};
-use tracer::samples::FieldSelection;
+use tracer::samples::{DumpTarget, FieldSelection};
 use tracer::{Accel, RenderSettings, Scene};
 
 use crate::convert::{guide_input, image_from_vec3};
@@ -177,7 +177,8 @@ impl Tracing<'_> {
     /// Writes the effect's samples at `spp` with the fields `fields` selects into the folder
     /// `dir` (`<kind>-<spp>spp-fields<N>.lfrs`, N = `selection` + 1; for soft shadows the
     /// lens-time file with its shading fields and `light-<spp>spp-fields<N>.lfrs`); returns the
-    /// files and the wall time of tracing each.
+    /// files and the wall time of tracing each. The files are scratch files, read back by this
+    /// process and removed: not synced to disk (`DumpTarget::scratch`).
     pub fn dump(&self, spp: u32, seed: u32, dir: &Path, fields: &FieldSelection, selection: usize) -> Result<Dumped> {
         let settings = self.dump_settings(spp, seed);
         let start = Instant::now();
@@ -185,15 +186,21 @@ impl Tracing<'_> {
         let name = |kind: sampleio::SampleKind| format!("{}-{spp}spp-fields{}.lfrs", kind.name(), selection + 1);
         let path = dir.join(name(self.effect.sample_kind()));
         if self.effect == Effect::SoftShadow {
-            tracer::samples::lens_time::dump_for_soft_shadows(scene, accel, &settings, fields, &path)?;
+            tracer::samples::lens_time::dump_for_soft_shadows(
+                scene,
+                accel,
+                &settings,
+                fields,
+                DumpTarget::scratch(&path),
+            )?;
             let samples_s = start.elapsed().as_secs_f64();
             let light_start = Instant::now();
             let light_path = dir.join(name(sampleio::SampleKind::Light));
-            tracer::samples::light::dump(scene, accel, &settings, fields, &light_path)?;
+            tracer::samples::light::dump(scene, accel, &settings, fields, DumpTarget::scratch(&light_path))?;
             let light_samples_s = Some(light_start.elapsed().as_secs_f64());
             return Ok(Dumped { samples: path, light_samples: Some(light_path), samples_s, light_samples_s });
         }
-        let path = path.as_path();
+        let path = DumpTarget::scratch(path.as_path());
         match self.effect.sample_kind() {
             sampleio::SampleKind::Indirect => {
                 tracer::samples::secondary::dump(scene, accel, &settings, SecondaryKind::Indirect, fields, path)?
@@ -210,6 +217,6 @@ impl Tracing<'_> {
             sampleio::SampleKind::Light => tracer::samples::light::dump(scene, accel, &settings, fields, path)?,
         };
         let samples_s = start.elapsed().as_secs_f64();
-        Ok(Dumped { samples: path.to_path_buf(), light_samples: None, samples_s, light_samples_s: None })
+        Ok(Dumped { samples: path.path.to_path_buf(), light_samples: None, samples_s, light_samples_s: None })
     }
 }

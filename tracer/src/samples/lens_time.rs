@@ -26,11 +26,9 @@
 //! in the paper's Eq. 2–3; the homogeneous screen motion of Eq. 3 is v = (fx·ΔX + cx·ΔZ,
 //! fy·ΔY + cy·ΔZ, ΔZ) with the focal lengths and principal point of `pixel_to_camera`.
 
-use std::path::Path;
-
 use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleKind};
 
-use super::{camera_header, write_samples, DumpReport, FieldSelection};
+use super::{camera_header, write_samples, DumpReport, DumpTarget, FieldSelection};
 use crate::accel::Accel;
 use crate::camera::depth_gradient;
 use crate::error::RenderError;
@@ -143,29 +141,29 @@ impl LensTimeLayout {
     }
 }
 
-/// Writes `lens-time` samples of `scene` to `path`, the fields `fields` selects.
-pub fn dump(
+/// Writes `lens-time` samples of `scene` to `target`, the fields `fields` selects.
+pub fn dump<'a>(
     scene: &Scene,
     accel: &Accel,
     settings: &RenderSettings,
     fields: &FieldSelection,
-    path: &Path,
+    target: impl Into<DumpTarget<'a>>,
 ) -> Result<DumpReport, RenderError> {
-    dump_with(scene, accel, settings, LensTimeLayout::for_scene(scene), fields, None, path)
+    dump_with(scene, accel, settings, LensTimeLayout::for_scene(scene), fields, None, target.into())
 }
 
 /// Writes `lens-time` samples with the soft-shadow fields (`albedo`, `normal`,
 /// `radiance_without_light`) for the scene's planar light (`light::PlanarLight::find`).
-pub fn dump_for_soft_shadows(
+pub fn dump_for_soft_shadows<'a>(
     scene: &Scene,
     accel: &Accel,
     settings: &RenderSettings,
     fields: &FieldSelection,
-    path: &Path,
+    target: impl Into<DumpTarget<'a>>,
 ) -> Result<DumpReport, RenderError> {
     let light = super::light::PlanarLight::find(scene)?;
     let layout = LensTimeLayout { shading: true, ..LensTimeLayout::for_scene(scene) };
-    dump_with(scene, accel, settings, layout, fields, Some(light.mesh), path)
+    dump_with(scene, accel, settings, layout, fields, Some(light.mesh), target.into())
 }
 
 fn dump_with(
@@ -175,7 +173,7 @@ fn dump_with(
     layout: LensTimeLayout,
     fields: &FieldSelection,
     split_emitter: Option<u32>,
-    path: &Path,
+    target: DumpTarget,
 ) -> Result<DumpReport, RenderError> {
     settings.validate()?;
     // The gradient's four extra camera rays are a tenth of a dump: only when it is written.
@@ -186,7 +184,7 @@ fn dump_with(
     let camera = &scene.camera;
     let spec = layout.header(scene, settings);
     let mut report =
-        write_samples(path, spec, fields, settings, layout.values_per_sample(), |x, y, samples, values| {
+        write_samples(target, spec, fields, settings, layout.values_per_sample(), |x, y, samples, values| {
             for index in samples {
                 let mut sampler = Sampler::new(settings.seed, x, y, index);
                 let camera_sample = integrator.camera_sample(x, y, &mut sampler);

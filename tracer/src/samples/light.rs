@@ -24,12 +24,10 @@
 //! and (l_x, l_y) is its projection from the centre of the light (a point light) seen through a
 //! pinhole camera, as the paper does.
 
-use std::path::Path;
-
 use glam::{Mat3, Vec2, Vec3};
 use sampleio::{FieldSpec, FieldType, HeaderSpec, LightGeometry, SampleKind};
 
-use super::{camera_header, write_samples, DumpReport, FieldSelection};
+use super::{camera_header, write_samples, DumpReport, DumpTarget, FieldSelection};
 use crate::accel::Accel;
 use crate::camera::{depth_gradient, Camera, CameraSample};
 use crate::error::RenderError;
@@ -173,12 +171,12 @@ pub fn view_light_density(
 }
 
 /// Writes `light` samples of `scene` to `path`, the fields `fields` selects.
-pub fn dump(
+pub fn dump<'a>(
     scene: &Scene,
     accel: &Accel,
     settings: &RenderSettings,
     fields: &FieldSelection,
-    path: &Path,
+    target: impl Into<DumpTarget<'a>>,
 ) -> Result<DumpReport, RenderError> {
     settings.validate()?;
     let light = PlanarLight::find(scene)?;
@@ -215,7 +213,7 @@ pub fn dump(
     spec.seed = Some(settings.seed);
     let values_per_sample = 4 + time_field as usize + 1 + 3 + 1 + 3 * time_field as usize;
     let light_mesh = &scene.meshes[light.mesh as usize];
-    write_samples(path, spec, fields, settings, values_per_sample, |x, y, samples, out| {
+    write_samples(target, spec, fields, settings, values_per_sample, |x, y, samples, out| {
         for index in samples {
             let mut sampler = Sampler::new(settings.seed, x, y, index);
             let camera_sample = integrator.camera_sample(x, y, &mut sampler);

@@ -2,9 +2,10 @@
 //! for external tools. One file per kind (`lens_time.rs`, ...); this module holds what every
 //! kind shares: the camera block of the header and the streaming driver that traces pieces of
 //! the image (runs of whole pixels, or a range of one pixel's samples when a pixel alone is too
-//! big) in parallel and writes them in pixel-major order, so that memory stays bounded by one
-//! batch of pieces (about 64 MiB, whatever the size and spp) and the file is identical for any
-//! thread count.
+//! big) in parallel, each worker encoding its piece and writing it at its place in the file
+//! (`sampleio::PositionalWriter`), so that memory stays bounded by one piece per worker (at most
+//! 64 K values, 256 KiB, whatever the size and spp) and the file is identical for any thread
+//! count and any cut.
 
 pub mod guide;
 pub mod lens_time;
@@ -19,7 +20,7 @@ use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
-use sampleio::{HeaderSpec, SampleWriter};
+use sampleio::{Durability, HeaderSpec, PositionalWriter};
 
 use crate::accel::Accel;
 use crate::camera::{Camera, FovAxis};
@@ -47,8 +48,8 @@ pub struct DumpReport {
     pub record_size: usize,
     pub fields: Vec<String>,
     pub seconds: f64,
-    /// Of `seconds`, the time spent tracing (the parallel batches); the rest went to encoding,
-    /// writing and syncing the file.
+    /// Of `seconds`, the time of the parallel pass (tracing, encoding and writing the records);
+    /// the rest went to the chunk table, syncing and renaming the file.
     pub trace_seconds: f64,
     /// Path contributions that were NaN or infinite and were dropped (`TracedRay::dropped`).
     pub dropped_contributions: u64,
@@ -99,19 +100,48 @@ pub fn camera_header(camera: &Camera, width: u32, height: u32) -> sampleio::Came
     }
 }
 
+/// Where a dump goes and whether the file must outlive the process.
+#[derive(Clone, Copy, Debug)]
+pub struct DumpTarget<'a> {
+    pub path: &'a Path,
+    pub durability: Durability,
+}
+
+impl<'a> DumpTarget<'a> {
+    /// A scratch file the same process reads back and removes (`lfr compare`'s inputs): not
+    /// synced to disk, still renamed into place only once complete.
+    pub fn scratch(path: &'a Path) -> DumpTarget<'a> {
+        DumpTarget { path, durability: Durability::Unsynced }
+    }
+}
+
+impl<'a> From<&'a Path> for DumpTarget<'a> {
+    /// A file for later: synced to disk before the dump reports success.
+    fn from(path: &'a Path) -> DumpTarget<'a> {
+        DumpTarget { path, durability: Durability::Synced }
+    }
+}
+
+impl<'a> From<&'a std::path::PathBuf> for DumpTarget<'a> {
+    fn from(path: &'a std::path::PathBuf) -> DumpTarget<'a> {
+        path.as_path().into()
+    }
+}
+
 /// How the dump is cut into pieces: at most `piece_values` values per piece (several whole
-/// pixels, or a range of one pixel's samples), at most `batch_values` per parallel batch.
+/// pixels, or a range of one pixel's samples), and at least `pieces_per_thread` pieces per
+/// worker where the image has enough pixels, so that the workers end together.
 #[derive(Clone, Copy, Debug)]
 struct Pieces {
     piece_values: usize,
-    batch_values: usize,
+    pieces_per_thread: usize,
 }
 
-/// About 256 KiB of values per piece and 8 MiB per batch: small enough that a batch's buffers
-/// stay in memory already touched, many pieces per batch so that threads end together.
-const PIECES: Pieces = Pieces { piece_values: 1 << 16, batch_values: 2 << 20 };
+/// At most about 256 KiB of values per piece (a worker's buffers stay in memory already
+/// touched), at least 16 pieces per worker.
+const PIECES: Pieces = Pieces { piece_values: 1 << 16, pieces_per_thread: 16 };
 
-/// A worker's buffers for one piece: its values, then its encoded records.
+/// A worker's buffers, kept from piece to piece: the piece's values, then its encoded records.
 #[derive(Default)]
 struct PieceBuffers {
     values: Vec<f32>,
@@ -127,6 +157,13 @@ struct Piece {
     first_pixel: u64,
     pixels: u64,
     samples: std::ops::Range<u32>,
+}
+
+impl Piece {
+    /// The piece's first sample in file order.
+    fn first_sample(&self, spp: u32) -> u64 {
+        self.first_pixel * spp as u64 + self.samples.start as u64
+    }
 }
 
 /// The pieces of a `pixel_count`-pixel image at `spp`, in file order.
@@ -160,12 +197,20 @@ fn pieces(pixel_count: u64, spp: u32, values_per_sample: usize, piece_values: us
     })
 }
 
+/// The values per piece for an image of `total_values` values on `threads` workers: `cut`'s
+/// cap, lowered so that each worker gets `cut.pieces_per_thread` pieces (at least one value).
+fn piece_values(total_values: u64, threads: usize, cut: Pieces) -> usize {
+    let wanted = (threads.max(1) * cut.pieces_per_thread.max(1)) as u64;
+    (total_values.div_ceil(wanted).max(1)).min(cut.piece_values.max(1) as u64) as usize
+}
+
 /// Traces every pixel's samples with `sample_pixel` (which appends the records of the given
 /// sample indices, `values_per_sample` values each, for pixel (x, y), every field of `spec`) in
-/// parallel batches of pieces and streams them into `path` in pixel-major order, keeping the
-/// fields `fields` selects.
-pub fn write_samples<F>(
-    path: &Path,
+/// parallel pieces, each encoded and written at its place in `target`'s file by the worker
+/// that traced it, keeping the fields `fields` selects. The file is the same, byte for byte,
+/// for any thread count and any cut.
+pub fn write_samples<'a, F>(
+    target: impl Into<DumpTarget<'a>>,
     spec: HeaderSpec,
     fields: &FieldSelection,
     settings: &RenderSettings,
@@ -175,11 +220,11 @@ pub fn write_samples<F>(
 where
     F: Fn(u32, u32, std::ops::Range<u32>, &mut Vec<f32>) + Sync,
 {
-    write_samples_in(path, spec, fields, settings, values_per_sample, sample_pixel, PIECES)
+    write_samples_in(target.into(), spec, fields, settings, values_per_sample, sample_pixel, PIECES)
 }
 
 fn write_samples_in<F>(
-    path: &Path,
+    target: DumpTarget,
     spec: HeaderSpec,
     fields: &FieldSelection,
     settings: &RenderSettings,
@@ -191,16 +236,19 @@ where
     F: Fn(u32, u32, std::ops::Range<u32>, &mut Vec<f32>) + Sync,
 {
     settings.validate()?;
+    let path = target.path;
     let (spec, selected_ranges) = fields.apply(spec)?;
     let output_error =
         |e: sampleio::SampleError| RenderError::Output { path: path.to_path_buf(), message: e.to_string() };
-    let mut writer = SampleWriter::create(path, spec).map_err(output_error)?;
-    let record_size = writer.header().record_size as usize;
-    let fields = writer.header().fields.iter().map(|f| f.name.clone()).collect();
+    let writer = PositionalWriter::create(path, spec).map_err(output_error)?;
+    let header = writer.header().clone();
+    let record_size = header.record_size as usize;
+    let fields = header.fields.iter().map(|f| f.name.clone()).collect();
     let pool = crate::render::thread_pool(settings.threads)?;
     let pixel_count = settings.width as u64 * settings.height as u64;
+    let spp = settings.spp;
     let bar = if settings.progress {
-        let bar = ProgressBar::new(pixel_count * settings.spp as u64);
+        let bar = ProgressBar::new(pixel_count * spp as u64);
         bar.set_style(
             ProgressStyle::with_template("dump [{elapsed_precise}] {wide_bar} {percent}% of the samples (eta {eta})")
                 .unwrap_or_else(|_| ProgressStyle::default_bar()),
@@ -210,13 +258,15 @@ where
         ProgressBar::hidden()
     };
     let start = Instant::now();
-    let mut trace_seconds = 0.0;
     let width = settings.width as u64;
-    let header = writer.header().clone();
-    // Each worker traces a piece's values and encodes them into records, into buffers kept from
-    // batch to batch (fresh memory for every batch cost a tenth of a dump in page faults); the
-    // writing thread only copies the records out and checksums them.
-    let trace = |piece: &Piece, slot: &mut PieceBuffers| -> Result<(), (u64, sampleio::UnencodableValue)> {
+    let total_values = pixel_count * spp as u64 * values_per_sample as u64;
+    let piece_values = piece_values(total_values, pool.current_num_threads(), cut);
+    let all: Vec<Piece> = pieces(pixel_count, spp, values_per_sample, piece_values).collect();
+    // The first failing piece in file order; pieces after it are skipped, those before it still
+    // run, so the error reported is the same whatever the threads' timing.
+    let first_failure = std::sync::atomic::AtomicUsize::new(usize::MAX);
+    let failures: std::sync::Mutex<Vec<(usize, sampleio::SampleError)>> = Default::default();
+    let trace = |slot: &mut PieceBuffers, piece: &Piece| -> Result<(), sampleio::SampleError> {
         let size = piece.pixels as usize * piece.samples.len() * values_per_sample;
         slot.values.clear();
         slot.values.reserve(size);
@@ -227,8 +277,9 @@ where
         let count = size / values_per_sample.max(1);
         slot.records.clear();
         slot.records.resize(count * record_size, 0);
+        let first_sample = piece.first_sample(spp);
         if values_per_sample > 0 {
-            for (index, (values, record)) in
+            for (at, (values, record)) in
                 slot.values.chunks_exact(values_per_sample).zip(slot.records.chunks_exact_mut(record_size)).enumerate()
             {
                 let values = match &selected_ranges {
@@ -241,74 +292,41 @@ where
                         &slot.selected
                     }
                 };
-                sampleio::encode_record(&header, values, record).map_err(|bad| (index as u64, bad))?;
+                sampleio::encode_record(&header, values, record)
+                    .map_err(|bad| bad.at(path, first_sample + at as u64))?;
             }
         }
+        writer.write_records_at(first_sample, &slot.records)?;
+        bar.inc(count as u64);
         Ok(())
     };
-    // The writing thread takes each traced batch while the workers trace the next one, and
-    // hands the batch's buffers back for reuse.
-    let (to_writer, batches_to_write) = std::sync::mpsc::sync_channel::<Vec<(Piece, PieceBuffers)>>(1);
-    let (to_tracer, written_buffers) = std::sync::mpsc::channel::<Vec<PieceBuffers>>();
-    let spp = settings.spp as u64;
-    let (traced, written) = std::thread::scope(|scope| {
-        let writing = scope.spawn(|| -> Result<SampleWriter, sampleio::SampleError> {
-            for batch in batches_to_write {
-                for (piece, slot) in &batch {
-                    writer.push_records(&slot.records)?;
-                    bar.inc(piece.pixels * piece.samples.len() as u64);
-                }
-                // The tracing side may have stopped already: then the buffers are just dropped.
-                let _ = to_tracer.send(batch.into_iter().map(|(_, slot)| slot).collect());
+    // One set of buffers per worker, reused for all its pieces (fresh memory per piece costs
+    // page faults); a worker only ever locks its own.
+    let slots: Vec<std::sync::Mutex<PieceBuffers>> =
+        (0..pool.current_num_threads()).map(|_| Default::default()).collect();
+    pool.install(|| {
+        all.par_iter().enumerate().for_each(|(index, piece)| {
+            if index > first_failure.load(std::sync::atomic::Ordering::Relaxed) {
+                return;
             }
-            Ok(writer)
-        });
-        let traced = (|| -> Result<(), RenderError> {
-            let mut spare: Vec<PieceBuffers> = Vec::new();
-            let mut all = pieces(pixel_count, settings.spp, values_per_sample, cut.piece_values).peekable();
-            while all.peek().is_some() {
-                // One batch: pieces until the batch's values would pass the cap (at least one piece).
-                let mut batch = Vec::new();
-                let mut batch_values = 0usize;
-                while let Some(piece) = all.peek() {
-                    let size = piece.pixels as usize * piece.samples.len() * values_per_sample;
-                    if !batch.is_empty() && batch_values + size > cut.batch_values {
-                        break;
-                    }
-                    batch_values += size;
-                    batch.push(all.next().expect("peeked"));
-                }
-                spare.extend(written_buffers.try_iter().flatten());
-                let mut slots: Vec<PieceBuffers> = (0..batch.len()).map(|_| spare.pop().unwrap_or_default()).collect();
-                let tracing = Instant::now();
-                let encoded: Vec<_> = pool.install(|| {
-                    batch.par_iter().zip(slots.par_iter_mut()).map(|(piece, slot)| trace(piece, slot)).collect()
-                });
-                trace_seconds += tracing.elapsed().as_secs_f64();
-                for (piece, result) in batch.iter().zip(encoded) {
-                    if let Err((index, bad)) = result {
-                        // File order: the piece's first sample is its pixel's `samples.start`.
-                        let sample = piece.first_pixel * spp + piece.samples.start as u64 + index;
-                        return Err(output_error(bad.at(path, sample)));
-                    }
-                }
-                if to_writer.send(batch.into_iter().zip(slots).collect()).is_err() {
-                    break; // the writer failed: its error is the one to report
-                }
+            let worker = rayon::current_thread_index().unwrap_or(0) % slots.len();
+            let mut slot = slots[worker].lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+            if let Err(error) = trace(&mut slot, piece) {
+                first_failure.fetch_min(index, std::sync::atomic::Ordering::Relaxed);
+                failures.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).push((index, error));
             }
-            Ok(())
-        })();
-        drop(to_writer);
-        let written = writing.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic));
-        (traced, written)
+        })
     });
-    let writer = written.map_err(output_error)?;
-    traced?;
-    let samples = writer.pushed();
-    let final_path = writer.finish().map_err(output_error)?;
+    let trace_seconds = start.elapsed().as_secs_f64();
+    let failures = failures.into_inner().unwrap_or_else(|poisoned| poisoned.into_inner());
+    if let Some((_, error)) = failures.into_iter().min_by_key(|(index, _)| *index) {
+        return Err(output_error(error));
+    }
+    let final_path = writer.finish(target.durability).map_err(output_error)?;
     bar.finish_and_clear();
     let bytes = std::fs::metadata(&final_path).map(|m| m.len()).unwrap_or(0);
     let seconds = start.elapsed().as_secs_f64();
+    let samples = pixel_count * spp as u64;
     Ok(DumpReport { samples, bytes, record_size, fields, seconds, trace_seconds, dropped_contributions: 0 })
 }
 
@@ -355,9 +373,11 @@ mod tests {
         HeaderSpec::new(SampleKind::Ao, 5, 3, 7).field(FieldSpec::new("xy", FieldType::F32, 2)).field(third)
     }
 
-    /// Tiny pieces and batches write the same file, byte for byte, as the defaults.
+    /// Tiny pieces, one to three threads and a scratch target write the same file, byte for
+    /// byte, as the defaults: the file the streaming writer gives for the same records pushed
+    /// in pixel-major order.
     #[test]
-    fn the_file_does_not_depend_on_how_it_is_cut() {
+    fn the_file_does_not_depend_on_how_it_is_cut_or_on_the_threads() {
         let dir = tempfile::tempdir().unwrap();
         let settings = five_by_three_at_7_spp();
         let spec = || xy_and(FieldSpec::new("index", FieldType::F32, 1));
@@ -366,22 +386,50 @@ mod tests {
                 out.extend_from_slice(&[x as f32 + 0.25, y as f32 + 0.5, s as f32]);
             }
         };
+        let streamed = dir.path().join("streamed.lfrs");
+        let mut writer = sampleio::SampleWriter::create(&streamed, spec()).unwrap();
+        for (y, x, s) in (0..3).flat_map(|y| (0..5).flat_map(move |x| (0..7).map(move |s| (y, x, s)))) {
+            writer.push(&[x as f32 + 0.25, y as f32 + 0.5, s as f32]).unwrap();
+        }
+        writer.finish().unwrap();
+        let expected = std::fs::read(&streamed).unwrap();
         let whole = dir.path().join("whole.lfrs");
-        let cut = dir.path().join("cut.lfrs");
         write_samples(&whole, spec(), &FieldSelection::All, &settings, 3, sample_pixel).unwrap();
-        write_samples_in(
-            &cut,
-            spec(),
-            &FieldSelection::All,
-            &settings,
-            3,
-            sample_pixel,
-            Pieces { piece_values: 6, batch_values: 7 },
-        )
-        .unwrap();
-        assert_eq!(std::fs::read(&whole).unwrap(), std::fs::read(&cut).unwrap());
-        let file = sampleio::SampleFile::open(&cut).unwrap();
+        assert_eq!(std::fs::read(&whole).unwrap(), expected);
+        for threads in [1, 2, 3] {
+            for cut in [
+                PIECES,
+                Pieces { piece_values: 6, pieces_per_thread: 1 },
+                Pieces { piece_values: 1, pieces_per_thread: 1 },
+            ] {
+                let path = dir.path().join(format!("cut-{threads}-{}.lfrs", cut.piece_values));
+                let settings = RenderSettings { threads, ..settings.clone() };
+                write_samples_in(
+                    DumpTarget::scratch(&path),
+                    spec(),
+                    &FieldSelection::All,
+                    &settings,
+                    3,
+                    sample_pixel,
+                    cut,
+                )
+                .unwrap();
+                assert_eq!(std::fs::read(&path).unwrap(), expected, "{threads} threads, {cut:?}");
+            }
+        }
+        let file = sampleio::SampleFile::open(&whole).unwrap();
         assert_eq!(file.len(), 5 * 3 * 7);
+    }
+
+    /// Pieces shrink so that every worker gets its share, never below one value, never above
+    /// the cap.
+    #[test]
+    fn pieces_shrink_to_give_every_worker_its_share() {
+        assert_eq!(piece_values(1 << 30, 2, PIECES), PIECES.piece_values);
+        assert_eq!(piece_values(3200, 2, PIECES), 100);
+        assert_eq!(piece_values(3201, 2, PIECES), 101);
+        assert_eq!(piece_values(5, 4, PIECES), 1);
+        assert_eq!(piece_values(0, 0, PIECES), 1);
     }
 
     /// A value its field cannot hold, traced while earlier batches are being written: the
@@ -398,9 +446,9 @@ mod tests {
                 out.extend_from_slice(&[x as f32, y as f32, count]);
             }
         };
-        for cut in [PIECES, Pieces { piece_values: 6, batch_values: 7 }] {
+        for cut in [PIECES, Pieces { piece_values: 6, pieces_per_thread: 1 }] {
             let path = dir.path().join("bad.lfrs");
-            let error = write_samples_in(&path, spec(), &FieldSelection::All, &settings, 3, sample_pixel, cut)
+            let error = write_samples_in((&path).into(), spec(), &FieldSelection::All, &settings, 3, sample_pixel, cut)
                 .unwrap_err()
                 .to_string();
             assert!(error.contains("bad.lfrs") && error.contains("count") && error.contains("95"), "{error}");

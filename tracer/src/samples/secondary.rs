@@ -46,12 +46,10 @@
 //! and clamped to its largest finite value 65504 (a lobe 0.004 rad wide: a mirror at any
 //! resolution we use).
 
-use std::path::Path;
-
 use glam::{Vec2, Vec3};
 use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleKind};
 
-use super::{camera_header, write_samples, DumpReport, FieldSelection};
+use super::{camera_header, write_samples, DumpReport, DumpTarget, FieldSelection};
 use crate::accel::Accel;
 use crate::bsdf::{luminance, sample_cosine_hemisphere, Bsdf, Frame};
 use crate::error::RenderError;
@@ -283,13 +281,13 @@ fn push_bsdf(values: &mut Vec<f32>, bsdf: &Bsdf) {
 }
 
 /// Writes `indirect` or `ao` samples of `scene` to `path`, the fields `fields` selects.
-pub fn dump(
+pub fn dump<'a>(
     scene: &Scene,
     accel: &Accel,
     settings: &RenderSettings,
     kind: SecondaryKind,
     fields: &FieldSelection,
-    path: &Path,
+    target: impl Into<DumpTarget<'a>>,
 ) -> Result<DumpReport, RenderError> {
     settings.validate()?;
     let layout = SecondaryLayout::for_scene(scene, kind);
@@ -316,7 +314,7 @@ pub fn dump(
     );
     spec.coordinates = Some(coordinates);
     let values = layout.values_per_sample();
-    let mut report = write_samples(path, spec, fields, settings, values, |x, y, samples, out| {
+    let mut report = write_samples(target, spec, fields, settings, values, |x, y, samples, out| {
         for index in samples {
             let mut sampler = Sampler::new(settings.seed, x, y, index);
             let before = out.len();
