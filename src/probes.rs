@@ -30,6 +30,7 @@ use serde::Serialize;
 use tracer::output::{write_exr_with_attributes, write_png, Layer};
 
 use crate::common::{check_outputs, scene_inputs, write_json, TraceArgs};
+use crate::compare::probes_method::MAX_PROJECTED;
 
 #[derive(clap::Args)]
 pub struct ProbesArgs {
@@ -59,6 +60,15 @@ enum Candidates {
     Front,
     /// Next to any surface (the paper's rule).
     Paper,
+}
+
+/// How `relight` runs the bounces after the first with the CPCA transport.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+enum BounceLoop {
+    /// In CPCA's projected space (`probes::projected_bounce`).
+    Projected,
+    /// Every bounce through the relight rays and the cluster projection (`probes::frame`).
+    Full,
 }
 
 /// Receivers and probe placement, shared by `stats` and `precompute`.
@@ -688,6 +698,12 @@ pub struct RelightArgs {
     /// Bounces of indirect light (0: to convergence, at most --max-bounces or the scene's).
     #[arg(long, default_value_t = 0)]
     bounces: u32,
+    /// With --cpca, how the bounces after the first run: `projected` (the default: R × R
+    /// products in CPCA's projected space, `probes::projected_bounce`, the matrix formed once
+    /// per run; the full loop when R is over the limit) or `full` (every bounce through the
+    /// relight rays and the cluster projection). The dense transport runs them in full.
+    #[arg(long, value_enum)]
+    bounce_loop: Option<BounceLoop>,
     /// Output EXR; the PNG preview goes beside it.
     #[arg(long)]
     out: PathBuf,
@@ -1052,6 +1068,10 @@ struct RelightReport {
     /// Seconds to trace the camera's primary rays and keep their lookups (once per camera).
     image_operator_s: f64,
     image_operator_bytes: usize,
+    /// How the bounces after the first ran: `projected` or `full`.
+    bounce_loop: &'static str,
+    /// The projected bounces' matrix, when they ran projected.
+    projected: Option<ProjectedReport>,
     times: FrameTimes,
     clamped_channels: u64,
     lookup_holes: u64,
@@ -1059,6 +1079,16 @@ struct RelightReport {
     misses: u64,
     mean_indirect: [f32; 3],
     reference: Option<ReferenceReport>,
+}
+
+/// The projected bounces' matrix M (`probes::projected_bounce`).
+#[derive(Serialize)]
+struct ProjectedReport {
+    /// R: projected values in all clusters (M is R × R per channel).
+    size: usize,
+    bytes: usize,
+    /// Seconds to form M (once per run: it depends on the albedo, not the light).
+    build_s: f64,
 }
 
 #[derive(Serialize)]
@@ -1302,6 +1332,9 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
     if args.bounces > 10_000 {
         anyhow::bail!("bounces: must be at most 10000 (0: to convergence), got {}", args.bounces);
     }
+    if args.bounce_loop == Some(BounceLoop::Projected) && cpca_settings.is_none() {
+        anyhow::bail!("bounce-loop: projected runs in CPCA's projected space; add --cpca");
+    }
     let position = args.light_position.as_deref().map(|v| point_option("light-position", v)).transpose()?;
     if intensity.is_some() && position.is_none() {
         anyhow::bail!("light-intensity: needs --light-position");
@@ -1335,6 +1368,34 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
     bar.set_message("relighting");
     let max_bounces = args.trace.size.max_bounces.unwrap_or(scene.max_bounces).max(1) as usize;
     let (bounces, tolerance) = if args.bounces == 0 { (max_bounces, 1e-3) } else { (args.bounces as usize, 0.0) };
+    // The bounces' matrix in CPCA's projected space depends on the albedo, not the light:
+    // formed once per run, as `lfr compare` does.
+    let mut projected_report = None;
+    let projected = match (&op, args.bounce_loop.unwrap_or(BounceLoop::Projected)) {
+        (Operator::Cpca(c), BounceLoop::Projected) => {
+            let size: usize = c.clusters.iter().map(|c| c.rank).sum();
+            if size > MAX_PROJECTED {
+                bar.suspend(|| {
+                    eprintln!(
+                        "note: bounce-loop: {size} projected values (over {MAX_PROJECTED}): the bounces run in full"
+                    )
+                });
+                None
+            } else {
+                bar.set_message("forming the projected bounce");
+                let t = Instant::now();
+                let albedo = pool.install(|| surfel_albedo(&lit, &pre.surfels));
+                let projected = pool.install(|| ProjectedBounce::build(c, &pre.table, &albedo))?;
+                projected_report = Some(ProjectedReport {
+                    size: projected.size,
+                    bytes: projected.bytes(),
+                    build_s: t.elapsed().as_secs_f64(),
+                });
+                Some(projected)
+            }
+        }
+        _ => None,
+    };
     bar.set_message("tracing the camera's lookups");
     let (camera, image_operator_s) = image_operator(&lit, &accel, &pre, &image, &pool)?;
     bar.set_message("relighting");
@@ -1343,7 +1404,7 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
         &accel,
         &pre,
         &op,
-        None,
+        projected.as_ref(),
         None,
         bounces,
         tolerance,
@@ -1473,6 +1534,8 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
         light_intensity: light.map(|l| l.1.to_array()),
         image_operator_s,
         image_operator_bytes: camera.bytes(),
+        bounce_loop: if projected.is_some() { "projected" } else { "full" },
+        projected: projected_report,
         times,
         clamped_channels: out.clamped,
         lookup_holes: img.lookups.holes,
@@ -1493,6 +1556,14 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
             if c.fp16 { " (fp16)" } else { "" },
             if c.from_cache { "read from the cache in" } else { "compressed in" },
             c.compress_s
+        );
+    }
+    if let Some(p) = &report.projected {
+        println!(
+            "bounces     after the first in CPCA's projected space: R = {}, M formed in {:.2} s ({:.1} MB; once per run)",
+            p.size,
+            p.build_s,
+            p.bytes as f64 / 1e6
         );
     }
     let t = &report.times;

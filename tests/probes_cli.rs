@@ -206,6 +206,41 @@ fn relight_builds_the_cache_once_and_reuses_it_whatever_the_lights() {
 }
 
 #[test]
+fn relight_runs_the_bounces_projected_or_in_full_to_the_same_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cache, a, b, j) =
+        (dir.path().join("c.probes"), dir.path().join("a.exr"), dir.path().join("b.exr"), dir.path().join("r.json"));
+    // Six bounces: the loops differ only in where negative irradiance is clamped (after every
+    // bounce or once at the end). To convergence: each stops by its own test of the change,
+    // so they agree within the bounce tolerance (1e-3 of the largest irradiance).
+    for (bounces, within) in [("6", 1e-4f32), ("0", 2e-3)] {
+        let out = relight(&cache, &a, &j, &["--cpca", "--bounces", bounces]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        let r = json(&j);
+        assert_eq!(r["bounce_loop"], "projected", "{r}");
+        let size = r["projected"]["size"].as_u64().unwrap();
+        assert!(size > 0 && r["projected"]["bytes"].as_u64().unwrap() == 12 * size * size, "{r}");
+        assert!(r["times"]["reduced_bounces_s"].as_f64().unwrap() >= 0.0);
+        let projected_iterations = r["times"]["iterations"].as_u64().unwrap();
+        let out = relight(&cache, &b, &j, &["--cpca", "--bounces", bounces, "--bounce-loop", "full"]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        let r = json(&j);
+        assert_eq!(r["bounce_loop"], "full");
+        assert!(r["projected"].is_null() && r["times"]["reduced_bounces_s"].as_f64() == Some(0.0), "{r}");
+        if bounces != "0" {
+            assert_eq!(r["times"]["iterations"].as_u64().unwrap(), projected_iterations);
+        }
+        let (pa, pb) = (channels(&a), channels(&b));
+        for ch in ["irradiance.R", "irradiance.G", "irradiance.B"] {
+            let largest = pb[ch].iter().fold(0.0f32, |m, v| m.max(*v));
+            assert!(largest > 0.0);
+            let worst = pa[ch].iter().zip(&pb[ch]).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+            assert!(worst <= within * largest, "{bounces} bounces, {ch}: off by {worst} of {largest}");
+        }
+    }
+}
+
+#[test]
 fn corrupt_truncated_foreign_and_stale_caches_are_errors_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let (cache, out_exr, j) = (dir.path().join("c.probes"), dir.path().join("a.exr"), dir.path().join("r.json"));
@@ -268,6 +303,8 @@ fn relight_and_animate_refuse_bad_parameters_before_any_work() {
         ("relight", vec!["--light-samples", "0"], "light-samples:"),
         ("relight", vec!["--pixel-samples", "0"], "pixel-samples:"),
         ("relight", vec!["--bounces", "20000"], "bounces:"),
+        ("relight", vec!["--bounce-loop", "projected"], "bounce-loop:"),
+        ("relight", vec!["--cpca", "--bounce-loop", "some"], "--bounce-loop"),
         ("animate", vec!["--frames", "0"], "frames:"),
         ("animate", vec!["--light-to", "1,2"], "light-to:"),
         ("animate", vec!["--bounces-per-frame", "0"], "bounces-per-frame:"),

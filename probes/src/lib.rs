@@ -57,6 +57,8 @@ pub mod precompute;
 pub mod projected_bounce;
 pub mod relight;
 pub mod sh;
+#[cfg(test)]
+mod stiff_cases;
 pub mod surfels;
 #[cfg(test)]
 mod test_scenes;

@@ -18,8 +18,9 @@
 //! `projected_bounces_equal_the_full_bounces`).
 //!
 //! Convergence: U's columns are orthonormal within each cluster, so ‖E_{k+1} − E_k‖₂ =
-//! ‖p_{k+1} − p_k‖₂ and the loop stops when that falls under `tolerance` × ‖p_{k+1}‖₂ (an L2
-//! criterion; `frame::indirect` uses the largest change over the largest irradiance).
+//! ‖p_{k+1} − p_k‖₂ and the loop stops when that, and the tail of bounces it predicts
+//! (`frame::converged`), fall under `tolerance` × ‖p_{k+1}‖₂ (an L2 criterion;
+//! `frame::indirect` uses the largest change over the largest irradiance).
 //!
 //! M's columns come from the relight table transposed (which probe rays read each sender), a
 //! cluster at a time; each column is computed on its own in a fixed order, so any thread count
@@ -31,7 +32,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::cpca::Cpca;
-use crate::frame::{BounceTimes, Indirect};
+use crate::frame::{converged, BounceTimes, Indirect};
 use crate::relight::RelightTable;
 use crate::ProbesError;
 
@@ -201,7 +202,8 @@ impl ProjectedBounce {
 
     /// `frame::indirect_timed` with the bounces after the first in projected space (see the
     /// module's documentation): at most `max_iterations` bounces from `start` (zero when
-    /// `None`), stopping when the L2 change falls under `tolerance` of the L2 norm.
+    /// `None`), stopping when the L2 change and its predicted tail fall under `tolerance` of
+    /// the L2 norm.
     #[allow(clippy::too_many_arguments)]
     pub fn indirect(
         &self,
@@ -265,6 +267,8 @@ impl ProjectedBounce {
         out.iterations = 1;
         let t = Instant::now();
         let norm = |v: &[DVec3]| v.iter().map(|x| x.length_squared()).sum::<f64>().sqrt();
+        // The first bounce changed the irradiance by p itself when it started from zero.
+        let mut history = if start.is_none() { vec![norm(&p)] } else { Vec::new() };
         while out.iterations < max_iterations {
             let next = self.step(&p_direct, &p);
             let change = norm(&next.iter().zip(&p).map(|(a, b)| *a - *b).collect::<Vec<_>>());
@@ -272,7 +276,8 @@ impl ProjectedBounce {
             out.change = if size > 0.0 { (change / size) as f32 } else { 0.0 };
             p = next;
             out.iterations += 1;
-            if out.change < tolerance {
+            history.push(change);
+            if converged(out.change, &history, tolerance) {
                 break;
             }
         }

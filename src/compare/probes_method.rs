@@ -65,7 +65,7 @@ pub struct ProbesMethod {
 pub const OPTIONS: &str = "probes=N (64), receivers=N (20000), overlap=X (10), order=0..7 (7), directions=M (512), \
 relight_rays=R (8000), reconstruction=visibility|spatial (visibility: Eq. 2; spatial: Eq. 1), cpca=on|off (on), \
 fp16=on|off (off), miss_weight=(0,1] (0.01; 1 = the paper's projection), light_samples=N (16), pixel_samples=N (4), \
-tolerance=X (0.001: bounces stop when the largest change is under X of the largest irradiance; 0: all), \
+tolerance=X (0.001: bounces stop when the largest change and the tail it predicts are under X of the largest irradiance; 0: all), \
 image=kept|lookups (kept: the camera's lookups traced once, in preprocess_s; lookups: traced every frame), \
 bounces=projected|full (projected: bounces after the first as R x R products in CPCA's projected space, its matrix \
 formed once, in preprocess_s; needs cpca=on; full: every bounce through the relight rays), \
