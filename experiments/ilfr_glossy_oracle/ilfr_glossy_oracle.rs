@@ -121,10 +121,10 @@ fn sky_samples(samples: &IndirectSamples, x: u32, y: u32, radius: u32, out: &mut
 
 /// Per pixel: images [ilfr, a, b, exact, exact_on_supported] and per-kind signed error sums.
 struct PixelOut {
-    images: [[f64; 3]; 7],
+    images: [[f64; 3]; 9],
     kind_error: [[f64; 3]; KINDS],
     kind_count: [u64; KINDS],
-    glossy_wrong: [u64; 2],
+    glossy_wrong: [u64; 4],
 }
 
 fn main() -> anyhow::Result<()> {
@@ -168,7 +168,7 @@ fn main() -> anyhow::Result<()> {
             let spacing = sky_samples(&samples, x, y, 2, &mut sky);
             let min_cosine = spacing.map(|s| (2.0 * s).min(std::f32::consts::PI).cos());
             let (mut stack, mut hits, mut cands) = (Vec::new(), Vec::new(), Vec::new());
-            let mut out = PixelOut { images: [[0.0; 3]; 7], kind_error: [[0.0; 3]; KINDS], kind_count: [0; KINDS], glossy_wrong: [0; 2] };
+            let mut out = PixelOut { images: [[0.0; 3]; 9], kind_error: [[0.0; 3]; KINDS], kind_count: [0; KINDS], glossy_wrong: [0; 4] };
             for i in (pixel * spp) as usize..((pixel + 1) * spp) as usize {
                 if samples.class[i] == SampleClass::CameraMiss {
                     continue;
@@ -176,10 +176,10 @@ fn main() -> anyhow::Result<()> {
                 let scramble = hash_u32(settings.seed ^ hash_u32(i as u32 ^ 0x6a09_e667));
                 let (o, n) = (samples.primary_hit[i], samples.primary_normal[i]);
                 // sums: [ilfr supported, a (all N), b supported, exact (all N), exact on supported]
-                let mut sums = [[0.0f64; 3]; 7];
+                let mut sums = [[0.0f64; 3]; 9];
                 let (mut supported, mut supported_b) = (0u32, 0u32);
                 let mut per_ray: Vec<(Kind, [f32; 3], [f32; 3])> = Vec::new();
-                for wr in bsdf_rays(&shading_of[i], o, n, per_hit, scramble, p.offset) {
+                for wr in bsdf_rays(&shading_of[i], o, n, (0, per_hit), scramble, p.offset) {
                     let Some(ray) = wr.ray else {
                         supported += 1;
                         supported_b += 1;
@@ -208,8 +208,15 @@ fn main() -> anyhow::Result<()> {
                         .map(|h| h.distance);
                     let wrong_surface = kind == Kind::Glossy
                         && traced_t.is_none_or(|t| (surface_t - t).abs() > 0.05 * t + 0.02);
+                    // 0 right depth, 1 the traced ray escapes, 2 ILFR's surface nearer, 3 farther.
+                    let category = match (wrong_surface, traced_t) {
+                        (false, _) => 0,
+                        (true, None) => 1,
+                        (true, Some(t)) if surface_t < t => 2,
+                        (true, Some(_)) => 3,
+                    };
                     if kind == Kind::Glossy {
-                        out.glossy_wrong[wrong_surface as usize] += 1;
+                        out.glossy_wrong[category] += 1;
                     }
                     for c in 0..3 {
                         let wt = wr.weight[c] as f64;
@@ -219,6 +226,10 @@ fn main() -> anyhow::Result<()> {
                                 let glossy_traced = if kind == Kind::Glossy { traced[c] } else { l[c] };
                                 let sky_traced = if kind == Kind::Glossy && wrong_surface { traced[c] } else { l[c] };
                                 sums[5][c] += wt * glossy_traced as f64;
+                                let in_front = kind == Kind::Glossy && (category == 1 || category == 2);
+                                let behind = kind == Kind::Glossy && category == 3;
+                                sums[7][c] += wt * if in_front { traced[c] } else { l[c] } as f64;
+                                sums[8][c] += wt * if behind { traced[c] } else { l[c] } as f64;
                                 sums[6][c] += wt * sky_traced as f64;
                                 sums[0][c] += wt * l[c] as f64;
                                 sums[1][c] += wt * l[c] as f64;
@@ -252,6 +263,8 @@ fn main() -> anyhow::Result<()> {
                     value(sums[4], supported),
                     value(sums[5], supported),
                     value(sums[6], supported),
+                    value(sums[7], supported),
+                    value(sums[8], supported),
                 ];
                 for (img, v) in out.images.iter_mut().zip(hit_values) {
                     for c in 0..3 {
@@ -318,6 +331,8 @@ fn main() -> anyhow::Result<()> {
         "exact-on-supported",
         "glossy-rays=traced",
         "glossy-wrong-surface=traced",
+        "surface-in-front=traced",
+        "surface-behind=traced",
     ];
     let extra: Vec<(String, Image)> = std::env::var("EXTRA_EXR")
         .unwrap_or_default()
@@ -388,8 +403,11 @@ fn main() -> anyhow::Result<()> {
             .sum();
         line += &format!(" {kn}: {:+.2}% ({:.1}% of rays);", 100.0 * err / ref_heads, 100.0 * counts[k] as f64 / all as f64);
     }
-    let gw = pixels.iter().fold([0u64; 2], |a, p| [a[0] + p.glossy_wrong[0], a[1] + p.glossy_wrong[1]]);
-    println!("glossy rays on a wrong surface: {} of {}", gw[1], gw[0] + gw[1]);
+    let gw = pixels.iter().fold([0u64; 4], |a, p| [0, 1, 2, 3].map(|k| a[k] + p.glossy_wrong[k]));
+    println!(
+        "glossy rays: {} at the right depth, {} where the traced ray escapes, {} on a surface nearer, {} farther",
+        gw[0], gw[1], gw[2], gw[3]
+    );
     println!("{variant:>10} heads' linear error by ray kind, of the reference's mean there:{line}");
     Ok(())
 }
