@@ -121,7 +121,7 @@ fn sky_samples(samples: &IndirectSamples, x: u32, y: u32, radius: u32, out: &mut
 
 /// Per pixel: images [ilfr, a, b, exact, exact_on_supported] and per-kind signed error sums.
 struct PixelOut {
-    images: [[f64; 3]; 9],
+    images: [[f64; 3]; 10],
     kind_error: [[f64; 3]; KINDS],
     kind_count: [u64; KINDS],
     glossy_wrong: [u64; 4],
@@ -168,7 +168,7 @@ fn main() -> anyhow::Result<()> {
             let spacing = sky_samples(&samples, x, y, 2, &mut sky);
             let min_cosine = spacing.map(|s| (2.0 * s).min(std::f32::consts::PI).cos());
             let (mut stack, mut hits, mut cands) = (Vec::new(), Vec::new(), Vec::new());
-            let mut out = PixelOut { images: [[0.0; 3]; 9], kind_error: [[0.0; 3]; KINDS], kind_count: [0; KINDS], glossy_wrong: [0; 4] };
+            let mut out = PixelOut { images: [[0.0; 3]; 10], kind_error: [[0.0; 3]; KINDS], kind_count: [0; KINDS], glossy_wrong: [0; 4] };
             for i in (pixel * spp) as usize..((pixel + 1) * spp) as usize {
                 if samples.class[i] == SampleClass::CameraMiss {
                     continue;
@@ -176,7 +176,7 @@ fn main() -> anyhow::Result<()> {
                 let scramble = hash_u32(settings.seed ^ hash_u32(i as u32 ^ 0x6a09_e667));
                 let (o, n) = (samples.primary_hit[i], samples.primary_normal[i]);
                 // sums: [ilfr supported, a (all N), b supported, exact (all N), exact on supported]
-                let mut sums = [[0.0f64; 3]; 9];
+                let mut sums = [[0.0f64; 3]; 10];
                 let (mut supported, mut supported_b) = (0u32, 0u32);
                 let mut per_ray: Vec<(Kind, [f32; 3], [f32; 3])> = Vec::new();
                 for wr in bsdf_rays(&shading_of[i], o, n, (0, per_hit), scramble, p.offset) {
@@ -230,6 +230,7 @@ fn main() -> anyhow::Result<()> {
                                 let behind = kind == Kind::Glossy && category == 3;
                                 sums[7][c] += wt * if in_front { traced[c] } else { l[c] } as f64;
                                 sums[8][c] += wt * if behind { traced[c] } else { l[c] } as f64;
+                                sums[9][c] += wt * if kind == Kind::Sky { traced[c] } else { l[c] } as f64;
                                 sums[6][c] += wt * sky_traced as f64;
                                 sums[0][c] += wt * l[c] as f64;
                                 sums[1][c] += wt * l[c] as f64;
@@ -265,6 +266,7 @@ fn main() -> anyhow::Result<()> {
                     value(sums[6], supported),
                     value(sums[7], supported),
                     value(sums[8], supported),
+                    value(sums[9], supported),
                 ];
                 for (img, v) in out.images.iter_mut().zip(hit_values) {
                     for c in 0..3 {
@@ -333,6 +335,7 @@ fn main() -> anyhow::Result<()> {
         "glossy-wrong-surface=traced",
         "surface-in-front=traced",
         "surface-behind=traced",
+        "sky-rays=traced",
     ];
     let extra: Vec<(String, Image)> = std::env::var("EXTRA_EXR")
         .unwrap_or_default()
