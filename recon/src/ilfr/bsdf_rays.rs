@@ -8,8 +8,12 @@
 //! normals) and n_d = N − n_s from the diffuse lobe (cosine), with P_s the probability the
 //! tracer's one-sample mixture uses for this ωo, and each direction weighted by
 //! f·cos / ((n_s/N) p_s + (n_d/N) p_d) — Veach's multi-sample MIS with the balance heuristic,
-//! unbiased for any split. Each lobe gets its own Owen-scrambled Sobol' prefix, so both sets
-//! stay stratified; a random lobe choice per ray would add noise for nothing. When both lobes
+//! unbiased for any split. Each lobe gets its own Owen-scrambled Sobol' sequence, of which a hit
+//! takes the points from `first` on (a prefix at `first` = 0; the final gather gives hit k of a
+//! pixel `first` = k·N of sequences scrambled per pixel where all its directions come from one
+//! lobe ([`single_lobe`]), so that the pixel's hits share one stratification, as the cosine rays
+//! of `directions` do, issue 23), so both sets stay
+//! stratified; a random lobe choice per ray would add noise for nothing. When both lobes
 //! exist and N ≥ 2, each gets at least one direction; with N = 1 the lobe is chosen by a hash
 //! with probability P_s and the one-sample mixture weight is used.
 //!
@@ -50,13 +54,32 @@ fn lobe_split(specular_probability: f32, per_hit: u32, scramble: u32) -> (u32, [
     ((u < p) as u32, [p, 1.0 - p])
 }
 
+/// Whether all `per_hit` directions of the hit come from one lobe (a pure metal, a Lambertian
+/// surface, or a view from below): only then are a pixel's hits given consecutive blocks of one
+/// sequence. With both lobes each hit's lobe takes a prefix of its block, and the prefixes of
+/// aligned blocks of a scrambled (0, 2)-sequence all lie in the same strip of the square (the
+/// points k·N of the sequence share their leading digits), so the pixel's specular directions
+/// would cluster: measured 3× the error of one set per hit (`method.rs`,
+/// `glossy_hits_of_a_pixel_share_one_stratified_set_per_lobe`).
+pub fn single_lobe(primary: &PrimaryShading, normal: [f32; 3], per_hit: u32) -> bool {
+    let frame = shading::Frame::new(Vec3::from(normal));
+    let wo = frame.to_local(Vec3::from(primary.to_eye));
+    if wo.z <= 0.0 || per_hit < 2 {
+        return true;
+    }
+    let (n_spec, _) = lobe_split(primary.bsdf.specular_probability(wo), per_hit, 0);
+    n_spec == 0 || n_spec == per_hit
+}
+
 /// The `per_hit` weighted rays of a primary hit at `origin` with unit shading `normal` (facing
-/// the camera): rays start at origin + offset·normal. `scramble` seeds the directions.
+/// the camera): rays start at origin + offset·normal. `scramble` seeds the directions; each
+/// lobe's directions are its sequence's points `first`, `first` + 1, … (see the module
+/// documentation), and with one ray the lobe is drawn by a hash of `scramble` and `first`.
 pub fn bsdf_rays(
     primary: &PrimaryShading,
     origin: [f32; 3],
     normal: [f32; 3],
-    per_hit: u32,
+    (first, per_hit): (u32, u32),
     scramble: u32,
     offset: f32,
 ) -> impl Iterator<Item = WeightedRay> + '_ {
@@ -64,16 +87,16 @@ pub fn bsdf_rays(
     let wo = frame.to_local(Vec3::from(primary.to_eye));
     let bsdf = &primary.bsdf;
     let (n_spec, fractions) =
-        if wo.z > 0.0 { lobe_split(bsdf.specular_probability(wo), per_hit, scramble) } else { (0, [0.0, 1.0]) };
+        if wo.z > 0.0 { lobe_split(bsdf.specular_probability(wo), per_hit, scramble ^ first) } else { (0, [0.0, 1.0]) };
     let start = [0, 1, 2].map(|a| origin[a] + offset * normal[a]);
     let geometric = Vec3::from(primary.geometric_normal);
     let (spec_scramble, diffuse_scramble) = (hash_u32(scramble ^ 0x4528_21e6), hash_u32(scramble ^ 0x38d0_1377));
     (0..per_hit).map(move |j| {
         let local = if j < n_spec {
-            let (u, v) = sobol_2d_scrambled(j, spec_scramble);
+            let (u, v) = sobol_2d_scrambled(first.wrapping_add(j), spec_scramble);
             bsdf.sample_specular(wo, [u, v])
         } else {
-            let (u, v) = sobol_2d_scrambled(j - n_spec, diffuse_scramble);
+            let (u, v) = sobol_2d_scrambled(first.wrapping_add(j - n_spec), diffuse_scramble);
             shading::sample_cosine_hemisphere([u, v])
         };
         let world = frame.to_world(local).normalize_or_zero();
@@ -131,7 +154,7 @@ mod tests {
                 let p = primary(bsdf, view(theta));
                 let n = 1 << 14;
                 let mut sum = [0.0f64; 3];
-                for r in bsdf_rays(&p, [0.0; 3], [0.0, 0.0, 1.0], n, 7, 0.0) {
+                for r in bsdf_rays(&p, [0.0; 3], [0.0, 0.0, 1.0], (0, n), 7, 0.0) {
                     for (total, w) in sum.iter_mut().zip(r.weight) {
                         *total += w as f64;
                     }
@@ -151,7 +174,7 @@ mod tests {
     fn a_lambertian_hit_gets_cosine_rays_weighted_by_its_albedo() {
         let bsdf = shading::Bsdf::new(Vec3::new(0.2, 0.5, 0.8), 0.0, 1.0, 0.0);
         let p = primary(bsdf, view(0.4));
-        for r in bsdf_rays(&p, [1.0, 2.0, 3.0], [0.0, 0.0, 1.0], 64, 3, 0.5) {
+        for r in bsdf_rays(&p, [1.0, 2.0, 3.0], [0.0, 0.0, 1.0], (0, 64), 3, 0.5) {
             let ray = r.ray.expect("every cosine direction is above the surface");
             assert_eq!(ray.origin, [1.0, 2.0, 3.5]);
             assert!((Vec3::from(r.weight) - Vec3::new(0.2, 0.5, 0.8)).abs().max_element() < 1e-5, "{:?}", r.weight);
@@ -166,7 +189,7 @@ mod tests {
         let mut p = primary(bsdf, view(0.0));
         let shading_normal = view(std::f32::consts::FRAC_PI_3);
         p.to_eye = shading_normal;
-        let rays: Vec<_> = bsdf_rays(&p, [0.0; 3], shading_normal, 1024, 5, 0.0).collect();
+        let rays: Vec<_> = bsdf_rays(&p, [0.0; 3], shading_normal, (0, 1024), 5, 0.0).collect();
         let below = rays.iter().filter(|r| r.ray.is_none()).count();
         assert!(below > 100 && below < 500, "{below}");
         for r in &rays {
@@ -182,7 +205,7 @@ mod tests {
         let bsdf = shading::Bsdf::new(Vec3::ONE, 1.0, 0.0, 1.0);
         let p = primary(bsdf, view(0.5));
         let mirror = Vec3::new(-0.5f32.sin(), 0.0, 0.5f32.cos());
-        let rays: Vec<_> = bsdf_rays(&p, [0.0; 3], [0.0, 0.0, 1.0], 16, 1, 0.0).collect();
+        let rays: Vec<_> = bsdf_rays(&p, [0.0; 3], [0.0, 0.0, 1.0], (0, 16), 1, 0.0).collect();
         for r in &rays {
             let ray = r.ray.expect("a mirror reflects above the surface");
             assert!((Vec3::from(ray.direction) - mirror).length() < 1e-3);
@@ -197,7 +220,7 @@ mod tests {
         let bsdf = shading::Bsdf::new(Vec3::splat(0.8), 0.5, 0.4, 1.0);
         for to_eye in [[0.0, 0.6, -0.8], [f32::NAN, 0.0, 1.0]] {
             let p = primary(bsdf, to_eye);
-            for r in bsdf_rays(&p, [0.0; 3], [0.0, 0.0, 1.0], 16, 2, 0.0) {
+            for r in bsdf_rays(&p, [0.0; 3], [0.0, 0.0, 1.0], (0, 16), 2, 0.0) {
                 assert_eq!((r.ray, r.weight), (None, [0.0; 3]), "{to_eye:?}");
             }
         }

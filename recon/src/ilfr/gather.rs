@@ -24,18 +24,20 @@
 //! - A pixel is the mean over its spp records (sample i belongs to pixel i / spp), a camera miss
 //!   giving 0 indirect light (the box value: its radiance is zero) or visibility 1.
 //!
-//! Directions: the 2D Sobol' (0, 2)-sequence, Owen-scrambled by a hash of (seed, sample index),
-//! mapped by the concentric disk map and lifted to the hemisphere (Malley). Each pixel is a pure
+//! Directions: the 2D Sobol' (0, 2)-sequence, Owen-scrambled by a hash of (seed, pixel), hit k
+//! of the pixel taking block k of it ([`GatherSettings::pixel_stratified`]; a hash of (seed,
+//! sample index) per hit without it), mapped by the concentric disk map and lifted to the
+//! hemisphere (Malley) — or, at glossy hits, through each lobe's sampling map (`bsdf_rays`). Each pixel is a pure
 //! function of the input, so the image is bit-identical for any number of threads.
 
 use rayon::prelude::*;
 use shading::sampling::hash_u32;
 
-use super::bsdf_rays::bsdf_rays;
+use super::bsdf_rays::{bsdf_rays, single_lobe, WeightedRay};
 use super::directions::cosine_rays;
 use super::disc::Ray;
 use super::reconstruct::{ReconstructStats, Reconstructor, Scratch, SkyFallbacks, SkySample};
-use super::samples::{IndirectSamples, SampleClass};
+use super::samples::{IndirectSamples, PrimaryShading, SampleClass};
 use crate::error::Error;
 use crate::image::Image;
 
@@ -51,8 +53,9 @@ pub struct GatherSettings {
     pub sky_pixel_radius: u32,
     /// A sky sample counts within this many angular spacings of the ray.
     pub sky_spacing_factor: f32,
-    /// Cosine rays of a pixel's primary hits as consecutive blocks of one scrambled sequence
-    /// per pixel (one stratification over the pixel), instead of one sequence per hit.
+    /// The directions of a pixel's primary hits as consecutive blocks of one scrambled sequence
+    /// per pixel (one stratification over the pixel), instead of one sequence per hit: cosine
+    /// rays, and at glossy hits each BSDF lobe's directions (`bsdf_rays`).
     pub pixel_stratified: bool,
 }
 
@@ -219,9 +222,7 @@ pub fn reconstruction_rays(samples: &IndirectSamples, settings: &GatherSettings)
         match &samples.primary_shading {
             None => rays.extend(hit_rays(samples, i, per_hit, settings)),
             Some(shading) => {
-                let (o, normal) = (samples.primary_hit[i], samples.primary_normal[i]);
-                let weighted = bsdf_rays(&shading[i], o, normal, per_hit, hit_scramble(i, settings), settings.offset);
-                rays.extend(weighted.filter_map(|w| w.ray));
+                rays.extend(weighted_rays(samples, shading, i, per_hit, settings).filter_map(|w| w.ray));
             }
         }
     }
@@ -262,18 +263,43 @@ pub(super) fn sky_samples(
     (rays > 0 && !out.is_empty()).then(|| (std::f32::consts::TAU / rays as f32).sqrt())
 }
 
-/// The reconstruction rays of primary hit `i`: origin lifted along the normal, directions
-/// cosine-distributed about it.
-fn hit_rays(samples: &IndirectSamples, i: usize, per_hit: u32, settings: &GatherSettings) -> impl Iterator<Item = Ray> {
-    let (block, scramble) = if settings.pixel_stratified {
-        // Hit k of pixel p takes block k of the pixel's sequence.
+/// Where primary hit `i`'s directions start in which scrambled sequence: with
+/// [`GatherSettings::pixel_stratified`] hit k of pixel p takes block k (points k·`per_hit` on)
+/// of the pixel's sequence, else the start of its own.
+fn direction_block(samples: &IndirectSamples, i: usize, per_hit: u32, settings: &GatherSettings) -> (u32, u32) {
+    if settings.pixel_stratified {
         let spp = samples.spp.max(1) as usize;
         let (pixel, k) = (i / spp, (i % spp) as u32);
         (k.saturating_mul(per_hit), hash_u32(settings.seed ^ hash_u32(pixel as u32 ^ 0x243f_6a88)))
     } else {
         (0, hit_scramble(i, settings))
-    };
+    }
+}
+
+/// The reconstruction rays of primary hit `i`: origin lifted along the normal, directions
+/// cosine-distributed about it.
+fn hit_rays(samples: &IndirectSamples, i: usize, per_hit: u32, settings: &GatherSettings) -> impl Iterator<Item = Ray> {
+    let (block, scramble) = direction_block(samples, i, per_hit, settings);
     cosine_rays(samples.primary_hit[i], samples.primary_normal[i], settings.offset, (block, per_hit), scramble)
+}
+
+/// The weighted reconstruction rays of glossy primary hit `i`, drawn from its own BSDF
+/// (`bsdf_rays`): from the block of [`direction_block`] where they all come from one lobe,
+/// else from a sequence of the hit's own ([`single_lobe`] says why).
+fn weighted_rays<'a>(
+    samples: &IndirectSamples,
+    shading: &'a [PrimaryShading],
+    i: usize,
+    per_hit: u32,
+    settings: &GatherSettings,
+) -> impl Iterator<Item = WeightedRay> + 'a {
+    let (o, normal) = (samples.primary_hit[i], samples.primary_normal[i]);
+    let (block, scramble) = if single_lobe(&shading[i], normal, per_hit) {
+        direction_block(samples, i, per_hit, settings)
+    } else {
+        (0, hit_scramble(i, settings))
+    };
+    bsdf_rays(&shading[i], o, normal, (block, per_hit), scramble, settings.offset)
 }
 
 /// The seed of primary hit i's directions.
@@ -318,8 +344,7 @@ fn indirect_at(
         }
         // o's own BSDF: directions and weights f·cos/p from it (`bsdf_rays`).
         Some(shading) => {
-            let (o, normal) = (samples.primary_hit[i], samples.primary_normal[i]);
-            for weighted in bsdf_rays(&shading[i], o, normal, per_hit, hit_scramble(i, settings), settings.offset) {
+            for weighted in weighted_rays(samples, shading, i, per_hit, settings) {
                 match weighted.ray {
                     // Below the surface: a sample of value 0, as the tracer counts it.
                     None => add([0.0; 3], [0.0; 3]),

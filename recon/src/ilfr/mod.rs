@@ -33,8 +33,9 @@
 //!   the lobes with multi-sample MIS: `bsdf_rays`.
 //! - Beyond the paper (issue 23): splats far brighter than their neighbours in the lobe keep a
 //!   bounded radiance and share the excess with them, power kept (`robust`); the final gather's
-//!   cosine rays of a pixel's primary hits are consecutive blocks of one scrambled Sobol'
-//!   sequence per pixel (`gather`, `directions`); ambient occlusion skips §2.5's small-surface
+//!   directions of a pixel's primary hits (cosine rays, and each BSDF lobe's at glossy hits)
+//!   are consecutive blocks of one scrambled Sobol' sequence per pixel (`gather`,
+//!   `directions`, `bsdf_rays`); ambient occlusion skips §2.5's small-surface
 //!   rule by default, which on Sponza turned more real occluders visible than it spared
 //!   spurious ones (`surfaces::SurfaceParams::merge_small_surfaces`, `method`).
 //! - ✓ Section 4, recursive filtering: at every secondary hit 16 rays reconstruct the incident

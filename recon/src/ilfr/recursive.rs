@@ -171,7 +171,7 @@ pub fn recursive_pass(
                                 &h,
                                 samples.secondary_hit[i],
                                 samples.secondary_normal[i],
-                                settings.rays_per_hit,
+                                (0, settings.rays_per_hit),
                                 hit_scramble(i, settings),
                                 settings.offset,
                             );
