@@ -5,6 +5,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
+use recon::tlfr::global_illumination::GiMode;
 use recon::tlfr::method::reconstruct_file;
 use recon::tlfr::settings::TlfrSettings;
 use tracer::output::{write_exr, write_png, Layer};
@@ -37,6 +38,12 @@ pub struct ReconstructArgs {
     /// the reflected lobe's deviation; without a value 0.5, docs/tlfr.md). Off unless given.
     #[arg(long, value_name = "SCALE", num_args = 0..=1, default_missing_value = "0.5")]
     bandwidth: Option<f32>,
+    /// Full global illumination: reconstruct only each sample's `direct` part (the file must
+    /// have it: `lfr dump --fields ...,direct`) and add the rest of the radiance averaged per
+    /// pixel and smoothed over RADIUS pixels among pixels of similar depth (docs/tlfr.md, "Full
+    /// global illumination"; without a value the default radius). Off unless given.
+    #[arg(long, value_name = "RADIUS", num_args = 0..=1, default_missing_value = "3")]
+    gi_split: Option<u32>,
     #[command(flatten)]
     run: RunArgs,
     /// No progress bar.
@@ -71,6 +78,11 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
         seed: args.run.seed_or(0),
         bandwidth_scale: args.bandwidth,
         adaptive: if args.fixed_locations { None } else { TlfrSettings::default().adaptive },
+        gi: match args.gi_split {
+            Some(radius) if radius > 64 => bail!("--gi-split takes a radius in 0..=64 pixels, got {radius}"),
+            Some(radius) => GiMode::Split { radius },
+            None => GiMode::Whole,
+        },
     };
     let pool = args.run.worker_pool()?;
     // Memory before any work (issue 22, class 5): the sample count from the file's header

@@ -577,3 +577,79 @@ fn the_seed_reaches_every_reconstruction_and_keeps_its_quality() {
         }
     }
 }
+
+/// `tlfr:gi=split` (issue 24 item 5) on the monkeys' full global illumination, run through the
+/// registry as `lfr compare` runs it, against second computations: with one bounce (no light
+/// beyond the first hit) it is `tlfr`'s image bit for bit; with four bounces and `gi_radius=0`
+/// it is `tlfr` on the one-bounce file (whose radiance is the direct part, tested in the
+/// tracer) plus each pixel's mean of `radiance − direct`, computed here from the file; and with
+/// the default smoothing it is closer to a converged render than `tlfr` on the whole radiance.
+#[test]
+fn gi_split_reconstructs_the_direct_part_and_adds_the_filtered_rest() {
+    use recon::method::Inputs;
+    let _ = common::shared_scenes();
+    let mut scene = Scene::load(&common::project_root().join("scenes/monkeys-defocus-motion.toml")).unwrap();
+    let (width, height, spp) = (48u32, 27u32, 4u32);
+    let dir = tempfile::tempdir().unwrap();
+    let fields = tracer::samples::FieldSelection::named(["x", "y", "u", "v", "t", "z", "motion", "radiance", "direct"]);
+    let mut dump_bounces = |bounces: u32, name: &str| {
+        scene.max_bounces = bounces;
+        let path = dir.path().join(name);
+        let settings =
+            RenderSettings { width, height, spp, seed: 2, max_bounces: bounces, threads: 0, progress: false };
+        lens_time::dump(&scene, &Accel::build(&scene).unwrap(), &settings, &fields, &path).unwrap();
+        path
+    };
+    let (one, four) = (dump_bounces(1, "one.lfrs"), dump_bounces(4, "four.lfrs"));
+    let run = |name: &str, path: &std::path::Path| {
+        let inputs = Inputs {
+            effect: recon::Effect::DofMotion,
+            width,
+            height,
+            spp,
+            samples: Some(path.to_path_buf()),
+            light_samples: None,
+            frame: None,
+            guide: None,
+            ao_radius: 1.0,
+            seed: 2,
+            threads: 0,
+        };
+        recon::registry::find(name).unwrap().unwrap().run(&inputs, 32).unwrap().image.pixels
+    };
+    assert_eq!(run("tlfr:gi=split", &one), run("tlfr", &one), "without indirect light the split changes nothing");
+
+    let file = SampleFile::open(&four).unwrap();
+    let (radiance, direct) = (file.column("radiance").unwrap(), file.column("direct").unwrap());
+    let per_pixel = 3 * spp as usize;
+    let expected: Vec<[f32; 3]> = run("tlfr", &one)
+        .iter()
+        .enumerate()
+        .map(|(pixel, value)| {
+            std::array::from_fn(|c| {
+                let rest: f64 = (0..spp as usize)
+                    .map(|s| pixel * per_pixel + 3 * s + c)
+                    .map(|i| radiance[i] as f64 - direct[i] as f64)
+                    .sum();
+                value[c] + (rest / spp as f64) as f32
+            })
+        })
+        .collect();
+    let split = run("tlfr:gi=split:gi_radius=0", &four);
+    for (got, want) in split.iter().zip(&expected) {
+        for c in 0..3 {
+            assert!((got[c] - want[c]).abs() <= 1e-5 * (1.0 + want[c].abs()), "{got:?} vs {want:?}");
+        }
+    }
+
+    scene.max_bounces = 4;
+    let converged = common::render(&scene, width, height, 1024, 11);
+    let rmse = |pixels: &[[f32; 3]]| {
+        let sum: f64 = (pixels.iter().zip(&converged.beauty))
+            .map(|(p, r)| (0..3).map(|c| (p[c] as f64 - r[c] as f64).powi(2)).sum::<f64>())
+            .sum();
+        (sum / (3 * pixels.len()) as f64).sqrt()
+    };
+    let (whole, split) = (rmse(&run("tlfr", &four)), rmse(&run("tlfr:gi=split", &four)));
+    assert!(split < 0.9 * whole, "RMSE against 1024 spp: split {split:.4}, whole {whole:.4}");
+}

@@ -29,6 +29,10 @@ pub const TLFR: Needs = Needs {
     ],
 };
 
+/// TLFR with `gi=split` (`tlfr::global_illumination`): the direct part of each sample's
+/// radiance, on top of [`TLFR`].
+pub const TLFR_GI_SPLIT: Needs = Needs { consumer: "TLFR gi=split", fields: &[FieldNeed::real("direct", 3)] };
+
 /// TLFR's soft shadows: the shading fields of the camera's `lens-time` file
 /// (`tlfr::shadows::read_shading`), on top of [`TLFR`].
 pub const TLFR_SOFT_SHADOW: Needs = Needs {

@@ -12,6 +12,7 @@ use crate::ilfr::robust::RobustMode;
 use crate::ilfr::surfaces::ConflictTest;
 use crate::method::{Effect, Method};
 use crate::options::{OptionKind, OptionSpec, Options};
+use crate::tlfr::global_illumination::{GiMode, DEFAULT_GI_RADIUS};
 use crate::tlfr::method::{TLFR, TLFR_BANDWIDTH, TLFR_NEAREST};
 
 /// One method as data.
@@ -137,6 +138,19 @@ const BANDWIDTH: OptionSpec = OptionSpec {
     default: "0.5",
     help: "scale of the lens-distance Gaussian matched to each sample's BRDF bandwidth",
 };
+const GI: OptionSpec = OptionSpec {
+    key: "gi",
+    kind: OptionKind::Choice(&["whole", "split"]),
+    default: "whole",
+    help: "full global illumination: each sample's whole radiance through the reconstruction (the paper), or only \
+           its `direct` part with the light of longer paths averaged per pixel and smoothed (docs/tlfr.md)",
+};
+const GI_RADIUS: OptionSpec = OptionSpec {
+    key: "gi_radius",
+    kind: OptionKind::Count { min: 0, max: 64 },
+    default: "3",
+    help: "with gi=split: radius in pixels of the depth-aware smoothing of the longer paths' light (0: per pixel)",
+};
 const PASSES: OptionSpec = OptionSpec {
     key: "passes",
     kind: OptionKind::Count { min: 1, max: 8 },
@@ -210,9 +224,9 @@ pub const METHODS: &[MethodSpec] = &[
     MethodSpec {
         name: "tlfr",
         effects: DEFOCUS_MOTION_AND_SHADOWS,
-        options: &[],
+        options: &[GI, GI_RADIUS],
         description: "temporal light field reconstruction (Lehtinen et al. 2011)",
-        build: |_| Ok(Box::new(TLFR)),
+        build: |options| Ok(Box::new(TLFR.with_gi(tlfr_gi(options)))),
     },
     MethodSpec {
         name: "tlfr-nn",
@@ -256,6 +270,14 @@ pub const METHODS: &[MethodSpec] = &[
         build: |options| Ok(Box::new(IlfrDof { choices: ilfr_choices(options) })),
     },
 ];
+
+/// The `gi` and `gi_radius` options of `tlfr`.
+fn tlfr_gi(options: &Options) -> GiMode {
+    match options.choice("gi") {
+        Some("split") => GiMode::Split { radius: options.count("gi_radius").unwrap_or(DEFAULT_GI_RADIUS) },
+        _ => GiMode::Whole,
+    }
+}
 
 /// The `conflict` and `shrink` options of the ILFR methods.
 fn ilfr_choices(options: &Options) -> IlfrChoices {
@@ -419,6 +441,18 @@ mod tests {
             let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), effect);
             assert_eq!(applied.surfaces.merge_small_surfaces, merge, "{option} for {effect:?}");
         }
+        let gi = |text: &str| tlfr_gi(&spec("tlfr").unwrap().parse_options(text).unwrap());
+        assert_eq!(gi(""), GiMode::Whole);
+        assert_eq!(gi("gi=split"), GiMode::Split { radius: GI_RADIUS.default.parse().unwrap() });
+        assert_eq!(gi("gi=split"), GiMode::Split { radius: DEFAULT_GI_RADIUS });
+        assert_eq!(gi("gi=split:gi_radius=0"), GiMode::Split { radius: 0 });
+        assert_eq!(find("tlfr:gi_radius=1:gi=split").unwrap().unwrap().name(), "tlfr:gi=split:gi_radius=1");
+        // Only the split reads `direct`, so only it makes `lfr compare` write (and pay for) it.
+        let reads_direct = |text: &str| {
+            let needs = find(text).unwrap().unwrap().sample_needs(Effect::DofMotion).unwrap();
+            needs.iter().any(|n| n.fields.iter().any(|f| f.name == "direct"))
+        };
+        assert!(reads_direct("tlfr:gi=split") && !reads_direct("tlfr"));
         assert!(find("median:radius=3").unwrap().is_none());
         assert!(find("median").unwrap().is_none());
         for (spec, needle) in [
@@ -439,6 +473,8 @@ mod tests {
             ("atrous:iterations=99", "iteration"),
             ("gif:lookup=bilinear", "own-pixel"),
             ("tlfr:radius=3", "does not apply to tlfr"),
+            ("tlfr:gi=both", "split"),
+            ("tlfr:gi=split:gi_radius=65", "gi_radius"),
             ("box:x=1", "box takes no options"),
             ("tlfr-bw:bandwidth=0", "positive"),
             ("ilfr-recursive:passes=0", "at least 1"),

@@ -184,3 +184,49 @@ fn glossy_scenes_add_the_brdf_bandwidth_within_64_bytes() {
     }
     assert!(bandwidth.iter().any(|&k| k > 0.0), "the metal heads and floor are glossy");
 }
+
+/// `direct` (issue 24 item 5): written only when a selection names it, so full dumps keep their
+/// size. With one bounce every sample's radiance is its direct part; with more bounces the
+/// direct part is the one-bounce radiance of the same seed (the first hit draws the same
+/// numbers), and the rest is what the longer paths add (never negative per channel here: every
+/// contribution is).
+#[test]
+fn direct_is_written_when_named_and_is_the_one_bounce_radiance() {
+    let _ = common::shared_scenes();
+    let mut scene = Scene::load(&common::project_root().join("scenes/monkeys-defocus-motion.toml")).unwrap();
+    let dump_named = |scene: &Scene, fields: &tracer::samples::FieldSelection| {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("samples.lfrs");
+        let accel = Accel::build(scene).unwrap();
+        let settings = RenderSettings {
+            width: 24,
+            height: 16,
+            spp: 2,
+            seed: 3,
+            max_bounces: scene.max_bounces,
+            threads: 0,
+            progress: false,
+        };
+        lens_time::dump(scene, &accel, &settings, fields, &path).unwrap();
+        (dir, path)
+    };
+    let (_full_dir, full) = dump(&scene, 24, 16, 2, 0);
+    assert!(
+        !field_names(&SampleFile::open(&full).unwrap()).contains(&"direct".to_string()),
+        "a full dump leaves it out"
+    );
+    let named = tracer::samples::FieldSelection::parse_strict("z,radiance,direct").unwrap();
+    scene.max_bounces = 4;
+    let (_many_dir, many) = dump_named(&scene, &named);
+    scene.max_bounces = 1;
+    let (_one_dir, one) = dump_named(&scene, &named);
+    let (many, one) = (SampleFile::open(&many).unwrap(), SampleFile::open(&one).unwrap());
+    assert_eq!(field_names(&many), ["z", "radiance", "direct"]);
+    let column = |file: &SampleFile, name: &str| file.column(name).unwrap();
+    assert_eq!(column(&one, "direct"), column(&one, "radiance"), "one bounce: all of it is direct");
+    assert_eq!(column(&many, "direct"), column(&one, "radiance"), "the same first bounce");
+    let (radiance, direct) = (column(&many, "radiance"), column(&many, "direct"));
+    assert!(radiance.iter().zip(&direct).all(|(r, d)| r >= d));
+    let longer = radiance.iter().zip(&direct).filter(|(r, d)| r > d).count();
+    assert!(longer > radiance.len() / 20, "indirect light in {longer} of {} values", radiance.len());
+}

@@ -10,6 +10,7 @@ use sampleio::SampleFile;
 use super::bandwidth::ViewBandwidth;
 use super::bounds::ScreenArea;
 use super::dispersion::measure_radius;
+use super::global_illumination::{indirect_pixel_means, smooth_indirect, split_sample, GiMode};
 use super::hierarchy::{reorder, Hierarchy};
 use super::integrate::{integrate_adaptive, Reconstruct};
 use super::lens::LensModel;
@@ -31,6 +32,7 @@ pub struct TlfrMethod {
     name: &'static str,
     value: Reconstruct,
     bandwidth_scale: Option<f32>,
+    gi: GiMode,
 }
 
 /// `tlfr`: the paper's reconstruction (effects `dof`, `motion`, `dof-motion`, `soft-shadow`).
@@ -40,22 +42,32 @@ pub struct TlfrMethod {
 /// 250-320 B a sample over a fixed ~46 MB; rounded up.
 pub const BYTES_PER_SAMPLE: u64 = 384;
 
-pub const TLFR: TlfrMethod = TlfrMethod { name: "tlfr", value: reconstruct, bandwidth_scale: None };
+pub const TLFR: TlfrMethod = TlfrMethod { name: "tlfr", value: reconstruct, bandwidth_scale: None, gi: GiMode::Whole };
 
 /// `tlfr-nn`: the same reconstruction with the nearest sample's radiance instead of the filter
 /// (`nearest`); effects `dof`, `motion`, `dof-motion`.
-pub const TLFR_NEAREST: TlfrMethod = TlfrMethod { name: "tlfr-nn", value: reconstruct_nearest, bandwidth_scale: None };
+pub const TLFR_NEAREST: TlfrMethod =
+    TlfrMethod { name: "tlfr-nn", value: reconstruct_nearest, bandwidth_scale: None, gi: GiMode::Whole };
 
 /// `tlfr-bw`: the reconstruction with the bandwidth extension (Figure 14, `bandwidth`): each
 /// sample also weighted by a Gaussian in lens distance matched to its BRDF's bandwidth; effects
 /// `dof`, `motion`, `dof-motion`.
-pub const TLFR_BANDWIDTH: TlfrMethod =
-    TlfrMethod { name: "tlfr-bw", value: reconstruct, bandwidth_scale: Some(DEFAULT_BANDWIDTH_SCALE) };
+pub const TLFR_BANDWIDTH: TlfrMethod = TlfrMethod {
+    name: "tlfr-bw",
+    value: reconstruct,
+    bandwidth_scale: Some(DEFAULT_BANDWIDTH_SCALE),
+    gi: GiMode::Whole,
+};
 
 impl TlfrMethod {
     /// This method with the bandwidth extension's scale set to `scale` (its default when `None`).
     pub fn with_bandwidth_scale(self, scale: Option<f32>) -> TlfrMethod {
         TlfrMethod { bandwidth_scale: scale.or(self.bandwidth_scale), ..self }
+    }
+
+    /// This method treating full global illumination as `gi` says (`global_illumination`).
+    pub fn with_gi(self, gi: GiMode) -> TlfrMethod {
+        TlfrMethod { gi, ..self }
     }
 }
 
@@ -73,10 +85,11 @@ impl Method for TlfrMethod {
     }
 
     fn sample_needs(&self, effect: Effect) -> Option<Vec<&'static sampleio::Needs>> {
-        use crate::needs::{TLFR, TLFR_LIGHT, TLFR_SOFT_SHADOW};
-        Some(match effect {
-            Effect::SoftShadow => vec![&TLFR, &TLFR_SOFT_SHADOW, &TLFR_LIGHT],
-            _ => vec![&TLFR],
+        use crate::needs::{TLFR, TLFR_GI_SPLIT, TLFR_LIGHT, TLFR_SOFT_SHADOW};
+        Some(match (effect, self.gi) {
+            (Effect::SoftShadow, _) => vec![&TLFR, &TLFR_SOFT_SHADOW, &TLFR_LIGHT],
+            (_, GiMode::Whole) => vec![&TLFR],
+            (_, GiMode::Split { .. }) => vec![&TLFR, &TLFR_GI_SPLIT],
         })
     }
 
@@ -89,6 +102,7 @@ impl Method for TlfrMethod {
             locations: recon_rays,
             seed: inputs.seed,
             bandwidth_scale: self.bandwidth_scale,
+            gi: self.gi,
             ..TlfrSettings::default()
         };
         let output = if inputs.effect == Effect::SoftShadow {
@@ -146,8 +160,11 @@ pub struct Prepared {
     pub has_lens: bool,
     pub has_time: bool,
     pub view_bandwidth: Option<ViewBandwidth>,
-    /// The per-pixel mean of the file's samples (a pixel's value where no location found any).
+    /// The per-pixel mean of the file's samples (a pixel's value where no location found any;
+    /// of their direct parts with `gi=split`).
     pub box_image: Image,
+    /// With `gi=split`: the filtered indirect parts, added to the reconstruction of the direct.
+    pub indirect: Option<Image>,
     /// Samples read (usable ones) and dropped.
     pub input_samples: usize,
     pub dropped: usize,
@@ -182,9 +199,31 @@ pub fn prepare(path: &std::path::Path, settings: &TlfrSettings) -> Result<Prepar
     let file = SampleFile::open(path)?;
     let mut loaded = read_lens_time(&file)?;
     let (width, height) = (loaded.width, loaded.height);
-    let (box_image, _) = average(&file, Effect::Dof, 0.0)?;
-    drop(file);
+    let (mut box_image, _) = average(&file, Effect::Dof, 0.0)?;
     let mut notes = Vec::new();
+    let indirect = match settings.gi {
+        GiMode::Whole => None,
+        GiMode::Split { radius } => {
+            file.check_needs(&crate::needs::TLFR_GI_SPLIT)?;
+            let direct = loaded.direct.take().ok_or_else(|| {
+                Error::sample_content(path, "gi=split needs the `direct` field (lfr dump --fields ...,direct)")
+            })?;
+            let mut rest = Vec::with_capacity(direct.len());
+            for (radiance, direct) in loaded.radiance.iter_mut().zip(&direct) {
+                let (direct, indirect) = split_sample(*radiance, *direct);
+                *radiance = direct;
+                rest.push(indirect);
+            }
+            let spp = loaded.spp as usize;
+            let pixel_of = || loaded.file_index.iter().map(|&i| i as usize / spp);
+            let depth: Vec<f32> = loaded.samples.iter().map(|s| s.z).collect();
+            let (means, inverse_depth) = indirect_pixel_means((width, height), pixel_of(), &rest, &depth);
+            box_image = indirect_pixel_means((width, height), pixel_of(), &loaded.radiance, &depth).0;
+            notes.push(format!("gi=split: the direct part reconstructed, the rest filtered over radius {radius} px"));
+            Some(smooth_indirect(&means, &inverse_depth, radius))
+        }
+    };
+    drop(file);
     let sample_aperture = loaded.lens.aperture_radius();
     if let Some((focus_distance, aperture_radius)) = settings.refocus {
         refocus(&mut loaded, focus_distance, aperture_radius)?;
@@ -244,6 +283,7 @@ pub fn prepare(path: &std::path::Path, settings: &TlfrSettings) -> Result<Prepar
         has_time: loaded.has_time,
         view_bandwidth,
         box_image,
+        indirect,
         dropped: loaded.dropped,
         notes,
         read_s,
@@ -268,7 +308,7 @@ pub fn reconstruct_file_with(
     let scene = prepared.scene(locations);
     let box_image = &prepared.box_image;
     let fallback = |x: u32, y: u32| box_image.pixels[(y * width + x) as usize];
-    let (image, stats) = integrate_adaptive(
+    let (mut image, stats) = integrate_adaptive(
         value,
         &scene,
         (width, height),
@@ -277,6 +317,13 @@ pub fn reconstruct_file_with(
         settings.seed,
         fallback,
     );
+    if let Some(indirect) = &prepared.indirect {
+        for (pixel, rest) in image.pixels.iter_mut().zip(&indirect.pixels) {
+            for c in 0..3 {
+                pixel[c] += rest[c];
+            }
+        }
+    }
     let recon_s = start.elapsed().as_secs_f64();
     let per_location = |n: u64| 100.0 * n as f64 / stats.locations.max(1) as f64;
     let record_bytes = std::mem::size_of::<LensTimeSample>() + std::mem::size_of::<[f32; 3]>();

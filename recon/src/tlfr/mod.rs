@@ -36,6 +36,9 @@
 //! - Section 6 "Bandwidth information and view-dependent effects", Figure 14: each sample
 //!   weighted by a Gaussian in lens distance matched to its BRDF's bandwidth: `bandwidth`
 //!   (method `tlfr-bw`).
+//! - Not in the paper: full global illumination with each sample's `direct` part through the
+//!   reconstruction and the rest filtered per pixel (`gi=split`, issue 24 item 5):
+//!   `global_illumination`.
 //! - Section 5 and Appendix B, soft shadows: the light's samples as a second camera
 //!   (`light_space`) and the two reconstructions per location (`shadows`).
 
@@ -43,6 +46,7 @@ pub mod bandwidth;
 pub mod bounds;
 pub mod coverage;
 pub mod dispersion;
+pub mod global_illumination;
 pub mod hierarchy;
 pub mod integrate;
 pub mod lens;

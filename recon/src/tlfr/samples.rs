@@ -7,7 +7,9 @@
 //! radiance, or a depth that is NaN or not positive, cannot be reprojected; they are dropped and
 //! counted (the tracer never writes them; a file from elsewhere might). The optional `bandwidth`
 //! (κ of the BRDF at the hit, for the bandwidth extension) is kept as the file's f16 when
-//! present; a NaN or negative κ also drops its sample.
+//! present; a NaN or negative κ also drops its sample. The optional `direct` (emission plus the
+//! first hit's direct light, for `gi=split`, `global_illumination`) is kept when present; a
+//! non-finite one drops its sample too.
 
 use half::f16;
 use sampleio::{SampleFile, SampleKind};
@@ -29,6 +31,8 @@ pub struct LensTimeSamples {
     pub radiance: Vec<[f32; 3]>,
     /// κ of `samples[i]` when the file has `bandwidth` (glossy scenes); 0 for diffuse and misses.
     pub kappa: Option<Vec<f16>>,
+    /// The direct part of `radiance[i]` when the file has `direct`.
+    pub direct: Option<Vec<[f32; 3]>>,
     /// `samples[i]` is record `file_index[i]` of the file.
     pub file_index: Vec<u32>,
     /// Samples dropped for non-finite or impossible values.
@@ -57,6 +61,12 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, Error> {
     let (t, motion) = (file.field("t"), file.field("motion"));
     let bandwidth = file.field("bandwidth");
     let mut kappa = bandwidth.map(|_| Vec::with_capacity(file.len()));
+    let direct_field = file.field("direct");
+    if direct_field.is_some() {
+        // Declared as `gi=split` reads it: a `direct` of another shape is an error naming it.
+        file.check_needs(&crate::needs::TLFR_GI_SPLIT)?;
+    }
+    let mut direct = direct_field.map(|_| Vec::with_capacity(file.len()));
     let mut samples = Vec::with_capacity(file.len());
     let mut radiances = Vec::with_capacity(file.len());
     let mut file_index = Vec::with_capacity(file.len());
@@ -78,9 +88,14 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, Error> {
             && colour.iter().all(|c| c.is_finite());
         let depth_ok = sample.z > 0.0 && (sample.z.is_finite() || sample.z == f32::INFINITY);
         let sample_kappa = bandwidth.map_or(0.0, |f| value(f, 0));
-        if finite && depth_ok && (0.0..=1.0).contains(&sample.t) && sample_kappa >= 0.0 {
+        let sample_direct = direct_field.map_or([0.0; 3], |f| [value(f, 0), value(f, 1), value(f, 2)]);
+        let direct_ok = sample_direct.iter().all(|c| c.is_finite());
+        if finite && depth_ok && direct_ok && (0.0..=1.0).contains(&sample.t) && sample_kappa >= 0.0 {
             if let Some(kappa) = kappa.as_mut() {
                 kappa.push(f16::from_f32(sample_kappa));
+            }
+            if let Some(direct) = direct.as_mut() {
+                direct.push(sample_direct);
             }
             samples.push(sample);
             radiances.push(colour);
@@ -97,6 +112,7 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, Error> {
         samples,
         radiance: radiances,
         kappa,
+        direct,
         file_index,
         dropped,
         has_lens: u.is_some(),
@@ -211,6 +227,21 @@ mod tests {
         assert_eq!(loaded.dropped, 2, "NaN and negative κ");
         assert_eq!(loaded.kappa, Some(vec![f16::from_f32(0.0), f16::from_f32(90.5)]));
         assert_eq!(loaded.samples.len(), 2);
+    }
+
+    #[test]
+    fn direct_is_kept_and_a_non_finite_one_drops_its_sample() {
+        let dir = tempfile::tempdir().unwrap();
+        let fields = [("x", 1), ("y", 1), ("z", 1), ("radiance", 3), ("direct", 3)];
+        let row = |d: f32| vec![0.5, 0.5, 2.0, 1.0, 1.0, 1.0, d, 0.5, 0.25];
+        let rows = vec![row(0.75), row(f32::NAN), row(1.0), row(f32::INFINITY)];
+        let path = write(dir.path(), SampleKind::LensTime, &fields, &rows);
+        let loaded = read_lens_time(&SampleFile::open(&path).unwrap()).unwrap();
+        assert_eq!(loaded.dropped, 2, "NaN and infinite direct");
+        assert_eq!(loaded.direct, Some(vec![[0.75, 0.5, 0.25], [1.0, 0.5, 0.25]]));
+        assert_eq!(loaded.file_index, [0, 2]);
+        let path = write(dir.path(), SampleKind::LensTime, &fields[..4], &vec![row(0.0)[..6].to_vec(); 4]);
+        assert_eq!(read_lens_time(&SampleFile::open(&path).unwrap()).unwrap().direct, None);
     }
 
     #[test]

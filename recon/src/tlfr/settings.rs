@@ -2,6 +2,7 @@
 //! optional refocus, the seed of the locations and the bandwidth extension's scale; shared by
 //! the depth-of-field and motion driver (`method`) and the soft-shadow driver (`shadows`).
 
+use super::global_illumination::GiMode;
 use super::integrate::AdaptiveRule;
 
 /// Random reprojections for measuring R.
@@ -33,10 +34,20 @@ pub struct TlfrSettings {
     /// Fewer locations where a pixel's first ones agree (`integrate::AdaptiveRule`), or N
     /// everywhere. Soft shadows always take N.
     pub adaptive: Option<AdaptiveRule>,
+    /// The whole radiance through the reconstruction, or only its `direct` part with the rest
+    /// filtered per pixel (`global_illumination`).
+    pub gi: GiMode,
 }
 
 impl Default for TlfrSettings {
     fn default() -> Self {
-        TlfrSettings { locations: 128, refocus: None, seed: 0, bandwidth_scale: None, adaptive: Some(DEFAULT_ADAPTIVE) }
+        TlfrSettings {
+            locations: 128,
+            refocus: None,
+            seed: 0,
+            bandwidth_scale: None,
+            adaptive: Some(DEFAULT_ADAPTIVE),
+            gi: GiMode::Whole,
+        }
     }
 }

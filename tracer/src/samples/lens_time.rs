@@ -17,10 +17,15 @@
 //! | `albedo` | f16 × 3 | soft-shadow dumps | reflectance of the first hit (0 for a miss) |
 //! | `normal` | u16 × 2 | soft-shadow dumps | shading normal of the first hit facing the camera, world space, octahedral; (0, 0) for a miss |
 //! | `radiance_without_light` | 3 | soft-shadow dumps | `radiance` minus the light the planar light (`light::PlanarLight`) sent to the first hit directly or after more bounces; its emission seen by the camera stays |
+//! | `direct` | 3 | selected by name | the part of `radiance` that is emission seen by the camera or light reflected by the first hit straight from an emitter (`PathSample::direct`); `radiance − direct` is the light of longer paths |
 //!
 //! The soft-shadow dump (`dump_for_soft_shadows`) adds the last three so a reconstruction can
 //! shade the visible point with its own estimate of the planar light (paper Section 5), taking
 //! everything else from `radiance_without_light`.
+//!
+//! `direct` is written only when a selection names it (`FieldSelection::names`): a full dump
+//! keeps its record size, and only a consumer that reads it (TLFR's `gi=split`) pays its 12
+//! bytes.
 //!
 //! With the circle of confusion C(z) = C1/z + C2 (header `camera.coc`), a sample reprojects as
 //! in the paper's Eq. 2–3; the homogeneous screen motion of Eq. 3 is v = (fx·ΔX + cx·ΔZ,
@@ -46,6 +51,8 @@ pub struct LensTimeLayout {
     pub bandwidth: bool,
     /// `albedo`, `normal` and `radiance_without_light` for soft shadows.
     pub shading: bool,
+    /// `direct`: emission plus the first hit's direct light, when a selection names it.
+    pub direct: bool,
 }
 
 impl LensTimeLayout {
@@ -55,7 +62,13 @@ impl LensTimeLayout {
             time: scene.has_motion(),
             bandwidth: super::secondary::scene_is_glossy(scene),
             shading: false,
+            direct: false,
         }
+    }
+
+    /// This layout with `direct` when `fields` names it.
+    pub fn with_selected(self, fields: &FieldSelection) -> LensTimeLayout {
+        LensTimeLayout { direct: fields.names("direct"), ..self }
     }
 
     pub fn values_per_sample(&self) -> usize {
@@ -67,6 +80,7 @@ impl LensTimeLayout {
             + 2
             + self.bandwidth as usize
             + 8 * self.shading as usize
+            + 3 * self.direct as usize
     }
 
     pub fn header(&self, scene: &Scene, settings: &RenderSettings) -> HeaderSpec {
@@ -128,6 +142,15 @@ impl LensTimeLayout {
                     "radiance minus the planar light's light reflected by the first hit (directly or not)",
                 ));
         }
+        if self.direct {
+            spec = spec.field(f32_field(
+                "direct",
+                3,
+                "W/(m^2 sr)",
+                "emission seen by the camera plus light reflected by the first hit straight from emitters; \
+                 radiance - direct is the rest of the path",
+            ));
+        }
         spec.camera = Some(camera_header(&scene.camera, settings.width, settings.height));
         spec.scene = Some(scene.source.display().to_string());
         spec.seed = Some(settings.seed);
@@ -149,7 +172,15 @@ pub fn dump<'a>(
     fields: &FieldSelection,
     target: impl Into<DumpTarget<'a>>,
 ) -> Result<DumpReport, RenderError> {
-    dump_with(scene, accel, settings, LensTimeLayout::for_scene(scene), fields, None, target.into())
+    dump_with(
+        scene,
+        accel,
+        settings,
+        LensTimeLayout::for_scene(scene).with_selected(fields),
+        fields,
+        None,
+        target.into(),
+    )
 }
 
 /// Writes `lens-time` samples with the soft-shadow fields (`albedo`, `normal`,
@@ -162,7 +193,7 @@ pub fn dump_for_soft_shadows<'a>(
     target: impl Into<DumpTarget<'a>>,
 ) -> Result<DumpReport, RenderError> {
     let light = super::light::PlanarLight::find(scene)?;
-    let layout = LensTimeLayout { shading: true, ..LensTimeLayout::for_scene(scene) };
+    let layout = LensTimeLayout { shading: true, ..LensTimeLayout::for_scene(scene).with_selected(fields) };
     dump_with(scene, accel, settings, layout, fields, Some(light.mesh), target.into())
 }
 
@@ -225,6 +256,9 @@ fn dump_with(
                             values.extend_from_slice(&super::secondary::encode_octahedral(hit.normal));
                             values.extend_from_slice(&(path.radiance() - path.split_emitter_light).to_array());
                         }
+                        if layout.direct {
+                            values.extend_from_slice(&path.direct.to_array());
+                        }
                     }
                     None => {
                         values.push(f32::INFINITY);
@@ -239,6 +273,9 @@ fn dump_with(
                         if layout.shading {
                             values.extend_from_slice(&[0.0; 5]);
                             values.extend_from_slice(&path.radiance().to_array());
+                        }
+                        if layout.direct {
+                            values.extend_from_slice(&path.direct.to_array());
                         }
                     }
                 }

@@ -57,6 +57,12 @@ impl FieldSelection {
         Ok(FieldSelection::Only { names, strict: true })
     }
 
+    /// Whether the selection names `name` explicitly (`All` does not): a layout adds a field
+    /// that full dumps leave out (`lens-time`'s `direct`) only then.
+    pub fn names(&self, name: &str) -> bool {
+        matches!(self, FieldSelection::Only { names, .. } if names.contains(name))
+    }
+
     /// Whether the field `name` is written (a layout computes a costly value only then).
     pub fn wants(&self, name: &str) -> bool {
         match self {
