@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use recon::tlfr::global_illumination::GiMode;
+use recon::tlfr::global_illumination::{GiMode, DEFAULT_GI_RADIUS};
 use recon::tlfr::method::reconstruct_file;
 use recon::tlfr::settings::TlfrSettings;
 use tracer::output::{write_exr, write_png, Layer};
@@ -42,8 +42,8 @@ pub struct ReconstructArgs {
     /// have it: `lfr dump --fields ...,direct`) and add the rest of the radiance averaged per
     /// pixel and smoothed over RADIUS pixels among pixels of similar depth (docs/tlfr.md, "Full
     /// global illumination"; without a value the default radius). Off unless given.
-    #[arg(long, value_name = "RADIUS", num_args = 0..=1, default_missing_value = "3")]
-    gi_split: Option<u32>,
+    #[arg(long, value_name = "RADIUS")]
+    gi_split: Option<Option<u32>>,
     #[command(flatten)]
     run: RunArgs,
     /// No progress bar.
@@ -79,8 +79,8 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
         bandwidth_scale: args.bandwidth,
         adaptive: if args.fixed_locations { None } else { TlfrSettings::default().adaptive },
         gi: match args.gi_split {
-            Some(radius) if radius > 64 => bail!("--gi-split takes a radius in 0..=64 pixels, got {radius}"),
-            Some(radius) => GiMode::Split { radius },
+            Some(Some(radius)) if radius > 64 => bail!("--gi-split takes a radius in 0..=64 pixels, got {radius}"),
+            Some(radius) => GiMode::Split { radius: radius.unwrap_or(DEFAULT_GI_RADIUS) },
             None => GiMode::Whole,
         },
     };

@@ -652,4 +652,30 @@ fn gi_split_reconstructs_the_direct_part_and_adds_the_filtered_rest() {
     };
     let (whole, split) = (rmse(&run("tlfr", &four)), rmse(&run("tlfr:gi=split", &four)));
     assert!(split < 0.9 * whole, "RMSE against 1024 spp: split {split:.4}, whole {whole:.4}");
+
+    // `lfr reconstruct --gi-split` without a radius takes the registry's default radius; a
+    // radius beyond 64 is refused before anything is written.
+    let cli = |extra: &[&str], name: &str| {
+        let out = dir.path().join(name);
+        let result = std::process::Command::new(env!("CARGO_BIN_EXE_lfr"))
+            .args(["reconstruct", "--samples", four.to_str().unwrap(), "--locations", "8", "--quiet", "--out"])
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        (result, out)
+    };
+    let channel = |out: &std::path::Path| tracer::output::read_exr(out).unwrap().2;
+    let (default, default_out) = cli(&["--gi-split"], "default.exr");
+    let (three, three_out) =
+        cli(&["--gi-split", &recon::tlfr::global_illumination::DEFAULT_GI_RADIUS.to_string()], "r.exr");
+    let (zero, zero_out) = cli(&["--gi-split", "0"], "zero.exr");
+    for result in [&default, &three, &zero] {
+        assert!(result.status.success(), "{}", String::from_utf8_lossy(&result.stderr));
+    }
+    assert_eq!(channel(&default_out), channel(&three_out));
+    assert_ne!(channel(&default_out), channel(&zero_out), "the radius reaches the reconstruction");
+    let (bad, bad_out) = cli(&["--gi-split", "65"], "bad.exr");
+    assert!(!bad.status.success() && String::from_utf8_lossy(&bad.stderr).contains("--gi-split"));
+    assert!(!bad_out.exists());
 }

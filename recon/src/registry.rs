@@ -226,7 +226,7 @@ pub const METHODS: &[MethodSpec] = &[
         effects: DEFOCUS_MOTION_AND_SHADOWS,
         options: &[GI, GI_RADIUS],
         description: "temporal light field reconstruction (Lehtinen et al. 2011)",
-        build: |options| Ok(Box::new(TLFR.with_gi(tlfr_gi(options)))),
+        build: |options| Ok(Box::new(TLFR.with_gi(tlfr_gi(options)?))),
     },
     MethodSpec {
         name: "tlfr-nn",
@@ -271,11 +271,17 @@ pub const METHODS: &[MethodSpec] = &[
     },
 ];
 
-/// The `gi` and `gi_radius` options of `tlfr`.
-fn tlfr_gi(options: &Options) -> GiMode {
-    match options.choice("gi") {
-        Some("split") => GiMode::Split { radius: options.count("gi_radius").unwrap_or(DEFAULT_GI_RADIUS) },
-        _ => GiMode::Whole,
+/// The `gi` and `gi_radius` options of `tlfr`; a radius without `gi=split` would be ignored,
+/// so it is refused.
+fn tlfr_gi(options: &Options) -> Result<GiMode, Error> {
+    let radius = options.count("gi_radius");
+    match (options.choice("gi"), radius) {
+        (Some("split"), _) => Ok(GiMode::Split { radius: radius.unwrap_or(DEFAULT_GI_RADIUS) }),
+        (_, Some(_)) => Err(Error::Option {
+            spec: format!("tlfr:{}", options.canonical()),
+            message: "gi_radius applies only with gi=split (the whole radiance is not smoothed)".into(),
+        }),
+        (_, None) => Ok(GiMode::Whole),
     }
 }
 
@@ -392,9 +398,13 @@ mod tests {
     #[test]
     fn the_declared_defaults_are_the_methods_defaults() {
         // Spelling every default out must give the method the harness runs without options:
-        // the data of the listing is what the code does.
+        // the data of the listing is what the code does. `gi_radius` applies only with
+        // `gi=split` (refused with the default `gi=whole`); its default is checked with the split
+        // in `specs_parse_apply_and_name_the_variant`.
         for spec in METHODS {
-            let text: Vec<String> = spec.options.iter().map(|o| format!("{}={}", o.key, o.default)).collect();
+            let text: Vec<String> = (spec.options.iter().filter(|o| o.key != GI_RADIUS.key))
+                .map(|o| format!("{}={}", o.key, o.default))
+                .collect();
             let explicit = spec.parse_options(&text.join(":")).unwrap_or_else(|e| panic!("{}: {e}", spec.name));
             let explicit = spec.build(&explicit).unwrap();
             let plain = spec.build(&Options::default()).unwrap();
@@ -441,7 +451,7 @@ mod tests {
             let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), effect);
             assert_eq!(applied.surfaces.merge_small_surfaces, merge, "{option} for {effect:?}");
         }
-        let gi = |text: &str| tlfr_gi(&spec("tlfr").unwrap().parse_options(text).unwrap());
+        let gi = |text: &str| tlfr_gi(&spec("tlfr").unwrap().parse_options(text).unwrap()).unwrap();
         assert_eq!(gi(""), GiMode::Whole);
         assert_eq!(gi("gi=split"), GiMode::Split { radius: GI_RADIUS.default.parse().unwrap() });
         assert_eq!(gi("gi=split"), GiMode::Split { radius: DEFAULT_GI_RADIUS });
@@ -475,6 +485,8 @@ mod tests {
             ("tlfr:radius=3", "does not apply to tlfr"),
             ("tlfr:gi=both", "split"),
             ("tlfr:gi=split:gi_radius=65", "gi_radius"),
+            ("tlfr:gi_radius=2", "only with gi=split"),
+            ("tlfr:gi=whole:gi_radius=0", "only with gi=split"),
             ("box:x=1", "box takes no options"),
             ("tlfr-bw:bandwidth=0", "positive"),
             ("ilfr-recursive:passes=0", "at least 1"),
