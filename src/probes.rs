@@ -123,7 +123,7 @@ pub struct StatsArgs {
     directions: u32,
     /// Run the whole dense pipeline once on every receiver (transport with --directions, relight
     /// rays, direct light, bounces to convergence or --max-bounces) and time a relit frame; slow
-    /// on big budgets. (--width and --height are for the image, still to come.)
+    /// on big budgets. No image is made: `lfr probes relight` makes one.
     #[arg(long)]
     frame: bool,
     /// Relight rays per probe for --frame.
@@ -215,6 +215,12 @@ struct FrameReport {
 }
 
 fn run_stats(args: &StatsArgs) -> Result<()> {
+    if args.trace.size.width.is_some() || args.trace.size.height.is_some() {
+        anyhow::bail!(
+            "--width/--height: `lfr probes stats` makes no image (the receivers do not depend on it); `lfr probes \
+             relight` makes one"
+        );
+    }
     let (surfel_settings, placement_settings) = args.placement.settings(args.trace.seed());
     // Every setting and output is checked before the scene is read.
     surfel_settings.validate()?;
@@ -1048,7 +1054,7 @@ pub(crate) struct FrameTimes {
     pub(crate) receiver_irradiance_s: f64,
     /// The bounces after the first in CPCA's projected space (all three stages at once), when
     /// they run there.
-    pub(crate) reduced_bounces_s: f64,
+    pub(crate) projected_bounces_s: f64,
     pub(crate) iterations: usize,
     /// The image from the receivers: the kept lookups' weighted sums when the camera's image
     /// operator was built, else primary rays and lookups.
@@ -1224,7 +1230,7 @@ pub(crate) fn relit_frame(
             probe_relight_s: split.probe_relight_s,
             cluster_projection_s: split.cluster_projection_s,
             receiver_irradiance_s: split.receiver_irradiance_s,
-            reduced_bounces_s: split.reduced_bounces_s,
+            projected_bounces_s: split.projected_bounces_s,
             iterations: out.iterations,
             image_s,
             frame_s: direct_s + bounces_s,
@@ -1317,7 +1323,7 @@ fn print_split(t: &FrameTimes) {
         t.probe_relight_s,
         t.cluster_projection_s,
         t.receiver_irradiance_s,
-        t.reduced_bounces_s,
+        t.projected_bounces_s,
         t.iterations,
         t.image_s,
         t.frame_s + t.image_s

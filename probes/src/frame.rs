@@ -100,12 +100,12 @@ pub struct BounceTimes {
     pub receiver_irradiance_s: f64,
     /// The bounces run in CPCA's projected space (`projected_bounce`), all three stages at
     /// once; 0 for the loop here.
-    pub reduced_bounces_s: f64,
+    pub projected_bounces_s: f64,
 }
 
 impl BounceTimes {
     pub fn total_s(&self) -> f64 {
-        self.probe_relight_s + self.cluster_projection_s + self.receiver_irradiance_s + self.reduced_bounces_s
+        self.probe_relight_s + self.cluster_projection_s + self.receiver_irradiance_s + self.projected_bounces_s
     }
 }
 

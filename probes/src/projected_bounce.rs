@@ -281,7 +281,7 @@ impl ProjectedBounce {
                 break;
             }
         }
-        times.reduced_bounces_s += t.elapsed().as_secs_f64();
+        times.projected_bounces_s += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let e = cpca.expand(&self.unflatten(cpca, &p));
         out.clamped = e.iter().map(|v| v.to_array().iter().filter(|&&c| c < 0.0).count() as u64).sum();
@@ -378,7 +378,7 @@ mod tests {
                 assert_eq!(fast.iterations, k);
                 let err = worst(&fast.irradiance, &full.irradiance);
                 assert!(err < 1e-4, "{k} bounces, {} clusters: {err}", cpca.clusters.len());
-                assert!(times.reduced_bounces_s >= 0.0 && times.total_s() > 0.0);
+                assert!(times.projected_bounces_s >= 0.0 && times.total_s() > 0.0);
                 // From a start (the animation's feedback): the same as the full loop from it.
                 let (full2, _) =
                     indirect_timed(&cpca, &s.table, &albedo, &direct, Some(&full.irradiance), 3, 0.0).unwrap();

@@ -393,14 +393,14 @@ pub fn run(
     stats.insert("probe_relight_s".into(), times.probe_relight_s);
     stats.insert("cluster_projection_s".into(), times.cluster_projection_s);
     stats.insert("receiver_irradiance_s".into(), times.receiver_irradiance_s);
-    stats.insert("projected_bounces_s".into(), times.reduced_bounces_s);
+    stats.insert("projected_bounces_s".into(), times.projected_bounces_s);
     notes.push(format!(
         "frame split (first frame): scene relight {:.4} s, probe relight {:.4} s, cluster projection {:.4} s, receiver irradiance {:.4} s, projected bounces {:.4} s; {} bounces; image {:.4} s; the camera's lookups kept once in {:.4} s (in preprocess_s)",
         times.direct_s,
         times.probe_relight_s,
         times.cluster_projection_s,
         times.receiver_irradiance_s,
-        times.reduced_bounces_s,
+        times.projected_bounces_s,
         times.iterations,
         times.image_s,
         image_operator_s
