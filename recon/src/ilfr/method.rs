@@ -720,19 +720,25 @@ pub(crate) mod tests {
         // the pixel's hits (each hit a consecutive block) must be clearly better than 16
         // independent 4-ray sets (issue 23: the error grew with the input spp at fixed rays).
         let samples = box_samples(8, 16, SampleKind::Indirect, None, |h| [h[2]; 3]);
-        let reference = reconstruct_samples(&samples, GatherTarget::Indirect, &settings(4096)).unwrap().image;
+        let (per_pixel, per_hit) = stratification_errors(&samples);
+        assert!(per_pixel < 0.5 * per_hit, "MSE one set per pixel {per_pixel:.3e}, one per hit {per_hit:.3e}");
+    }
+
+    /// The mean squared error (summed over the channels) of 64 rays per pixel against the same
+    /// splats gathered with 4096, with one stratified set per pixel and with one per hit.
+    fn stratification_errors(samples: &IndirectSamples) -> (f64, f64) {
+        let reference = reconstruct_samples(samples, GatherTarget::Indirect, &settings(4096)).unwrap().image;
         let error = |pixel_stratified: bool| {
             let settings = IlfrSettings { pixel_stratified, ..settings(64) };
-            let image = reconstruct_samples(&samples, GatherTarget::Indirect, &settings).unwrap().image;
+            let image = reconstruct_samples(samples, GatherTarget::Indirect, &settings).unwrap().image;
             let mut sum = 0.0f64;
             for (a, b) in image.pixels.iter().zip(&reference.pixels) {
-                assert!(a[0].is_finite());
-                sum += ((a[0] - b[0]) as f64).powi(2);
+                assert!(a.iter().all(|v| v.is_finite()));
+                sum += (0..3).map(|c| ((a[c] - b[c]) as f64).powi(2)).sum::<f64>();
             }
             sum / image.pixels.len() as f64
         };
-        let (per_pixel, per_hit) = (error(true), error(false));
-        assert!(per_pixel < 0.5 * per_hit, "MSE one set per pixel {per_pixel:.3e}, one per hit {per_hit:.3e}");
+        (error(true), error(false))
     }
 
     /// Gives the box's floor the BSDF `bsdf`, seen from `eye`, as a glossy file carries it.
@@ -849,18 +855,7 @@ pub(crate) mod tests {
         for (roughness, metallic) in [(0.5f32, 1.0f32), (0.6, 0.0)] {
             let bsdf = shading::Bsdf::new(glam::Vec3::new(0.9, 0.6, 0.3), metallic, roughness, 1.0);
             let samples = with_floor_bsdf(box_samples(8, 16, SampleKind::Indirect, None, |h| [h[2]; 3]), bsdf, eye);
-            let reference = reconstruct_samples(&samples, GatherTarget::Indirect, &settings(4096)).unwrap().image;
-            let error = |pixel_stratified: bool| {
-                let settings = IlfrSettings { pixel_stratified, ..settings(64) };
-                let image = reconstruct_samples(&samples, GatherTarget::Indirect, &settings).unwrap().image;
-                let mut sum = 0.0f64;
-                for (a, b) in image.pixels.iter().zip(&reference.pixels) {
-                    assert!(a.iter().all(|v| v.is_finite()));
-                    sum += (0..3).map(|c| ((a[c] - b[c]) as f64).powi(2)).sum::<f64>();
-                }
-                sum / image.pixels.len() as f64
-            };
-            let (per_pixel, per_hit) = (error(true), error(false));
+            let (per_pixel, per_hit) = stratification_errors(&samples);
             if metallic < 1.0 {
                 assert_eq!(per_pixel, per_hit, "both lobes: one set per hit either way");
                 continue;
