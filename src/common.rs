@@ -319,9 +319,10 @@ pub fn load_scene(path: Option<&Path>, access: FileAccess, lighting: &LightingAr
 
 /// Runs `work` (a reconstruction) while a second thread adds its stage's progress
 /// (`recon::progress`: rows done and time left) to the bar's `message` five times a second.
+/// When `work` returns, whether or not it ended its stage, the bar shows `message` alone again.
 pub fn with_stage_progress<T>(bar: &indicatif::ProgressBar, message: &str, work: impl FnOnce() -> T) -> T {
     let finished = std::sync::atomic::AtomicBool::new(false);
-    std::thread::scope(|scope| {
+    let result = std::thread::scope(|scope| {
         let ticker = scope.spawn(|| {
             while !finished.load(std::sync::atomic::Ordering::Relaxed) {
                 let stage = recon::progress::describe();
@@ -333,7 +334,11 @@ pub fn with_stage_progress<T>(bar: &indicatif::ProgressBar, message: &str, work:
         finished.store(true, std::sync::atomic::Ordering::Relaxed);
         ticker.thread().unpark();
         result
-    })
+    });
+    // The ticker is joined: nothing sets a stale stage after this.
+    recon::progress::end();
+    bar.set_message(message.to_string());
+    result
 }
 
 #[cfg(test)]
@@ -351,10 +356,10 @@ mod tests {
             while !bar.message().contains("gather") && std::time::Instant::now() < deadline {
                 std::thread::sleep(std::time::Duration::from_millis(20));
             }
-            let seen = bar.message();
-            recon::progress::end();
-            seen
+            bar.message()
         });
         assert!(seen.starts_with("ilfr, 4 spp: gather 1/4 rows"), "{seen}");
+        // The stage was left open: the finished run's bar no longer shows it.
+        assert_eq!(bar.message(), "ilfr, 4 spp");
     }
 }

@@ -798,7 +798,7 @@ pub(crate) fn obtain(
             Err(ProbesError::Cache { problem, .. })
                 if stale == Stale::Replace && !matches!(problem, CacheProblem::NotACache | CacheProblem::Io) =>
             {
-                bar.suspend(|| eprintln!("note: {} cannot be used ({problem:?}); building it again", cache.display()));
+                bar.suspend(|| eprintln!("note: {} cannot be used: {problem}; building it again", cache.display()));
             }
             Err(e) => return Err(e.into()),
         }
@@ -1006,7 +1006,7 @@ pub(crate) fn operator<'a>(
                     CacheProblem::OtherSettings | CacheProblem::OtherGeometry | CacheProblem::Version
                 ) =>
             {
-                eprintln!("note: {} holds another compression ({problem:?}); replacing it", path.display());
+                eprintln!("note: {} holds another compression ({problem}); replacing it", path.display());
                 None
             }
             Err(e) => return Err(e.into()),

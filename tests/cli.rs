@@ -689,6 +689,11 @@ fn special_files_as_inputs_are_refused_at_once() {
     }
     std::fs::create_dir(path("dir.toml")).unwrap();
     expect_render_error(&path("dir.toml"), &[], &["dir.toml", "directory"]);
+    // A scene that does not exist is named once, not as its own referencing file too.
+    let missing = lfr(&["render", "--scene", path("missing.toml").to_str().unwrap(), "--out", "x.exr", "--quiet"]);
+    let message = stderr(&missing);
+    assert!(!missing.status.success() && message.contains("file not found"), "{message}");
+    assert_eq!(message.matches("missing.toml").count(), 1, "{message}");
     // A mesh that is a directory, a symlink loop, a device.
     std::fs::create_dir(path("meshdir.obj")).unwrap();
     let scene = write(dir.path(), "a.toml", "[[mesh]]\nfile = \"meshdir.obj\"\n");

@@ -21,6 +21,21 @@ pub enum CacheProblem {
     OtherSettings,
 }
 
+impl std::fmt::Display for CacheProblem {
+    /// In words, for messages (`{:?}` would print the variant's name).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            CacheProblem::Io => "it cannot be read",
+            CacheProblem::NotACache => "it is not a probes cache",
+            CacheProblem::Version => "it has another format version",
+            CacheProblem::Truncated => "it is truncated",
+            CacheProblem::Corrupt => "it is corrupt",
+            CacheProblem::OtherGeometry => "it was built for other geometry",
+            CacheProblem::OtherSettings => "it was built with other settings",
+        })
+    }
+}
+
 /// What can go wrong while building surfels or placing probes.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum ProbesError {

@@ -923,7 +923,11 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     }
     measured.extend(precomputed);
     if args.repeats > 1 {
-        eprintln!("  timings: the median of up to {} repetitions per run (results.json `timings`)", args.repeats);
+        eprintln!(
+            "  timings: the lines above show each run's first timing; the verdicts and reports use the median of up to \
+             {} repetitions per run (results.json `timings`)",
+            args.repeats
+        );
     }
     if !args.keep_samples && inputs_dir.exists() {
         std::fs::remove_dir_all(&inputs_dir).with_context(|| format!("removing {}", inputs_dir.display()))?;

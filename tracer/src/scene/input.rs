@@ -55,23 +55,25 @@ pub fn confine(
 
 /// Checks that `path` (followed through symbolic links) is a regular file of at most
 /// `max_bytes`; `referenced_from` and `field` name where the path came from in errors.
+/// The error names `referenced_from` first; `path` is repeated in the message only when it is
+/// another file (a scene's own file would be named twice).
 pub fn check_input(path: &Path, max_bytes: u64, referenced_from: &Path, field: &str) -> Result<u64, SceneError> {
     let error = |message: String| SceneError::new(referenced_from, field, message);
-    let shown = path.display();
+    let named = if path == referenced_from { String::new() } else { format!("{}: ", path.display()) };
     let metadata = std::fs::metadata(path).map_err(|e| {
         error(match e.kind() {
-            std::io::ErrorKind::NotFound => format!("{shown}: file not found"),
-            _ => format!("{shown}: cannot read: {e}"),
+            std::io::ErrorKind::NotFound => format!("{named}file not found"),
+            _ => format!("{named}cannot read: {e}"),
         })
     })?;
     if metadata.is_dir() {
-        return Err(error(format!("{shown} is a directory, not a file")));
+        return Err(error(format!("{named}a directory, not a file")));
     }
     if !metadata.is_file() {
-        return Err(error(format!("{shown} is not a regular file (a device, FIFO or socket)")));
+        return Err(error(format!("{named}not a regular file (a device, FIFO or socket)")));
     }
     if metadata.len() > max_bytes {
-        return Err(error(format!("{shown} has {} bytes, more than the {max_bytes} lfr reads", metadata.len())));
+        return Err(error(format!("{named}{} bytes, more than the {max_bytes} lfr reads", metadata.len())));
     }
     Ok(metadata.len())
 }
@@ -101,7 +103,7 @@ mod tests {
         let message = |path: &Path, max: u64| read_input(path, max, &scene, "mesh.file").unwrap_err().to_string();
         for (path, max, needle) in [
             (file.as_path(), 3, "more than the 3"),
-            (dir.path(), 100, "is a directory"),
+            (dir.path(), 100, "a directory"),
             (Path::new("/dev/zero"), 100, "not a regular file"),
             (&dir.path().join("gone.obj"), 100, "file not found"),
         ] {
@@ -114,5 +116,9 @@ mod tests {
             std::os::unix::fs::symlink(&looped, &looped).unwrap();
             assert!(message(&looped, 100).contains("cannot read"), "{}", message(&looped, 100));
         }
+        // A scene's own file is named once (as the file of the error), not again in the message.
+        let own = read_input(&scene, 100, &scene, "file").unwrap_err().to_string();
+        assert_eq!(own.matches("scene.toml").count(), 1, "{own}");
+        assert!(own.contains("file not found"), "{own}");
     }
 }
