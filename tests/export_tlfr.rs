@@ -108,4 +108,17 @@ fn export_of_a_missing_or_damaged_file_is_a_clear_error() {
     assert!(String::from_utf8_lossy(&damaged.stderr).contains("junk.lfrs"));
     assert!(!String::from_utf8_lossy(&damaged.stderr).contains("panicked"));
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1, "no output written");
+
+    // A file of another kind: named by the format's word for it, not a Rust variant name.
+    let indirect = dir.path().join("indirect.lfrs");
+    let dump = lfr(&["dump", "--kind", "indirect", "--spp", "1", "--width", "4", "--height", "4", "--quiet", "--out"]
+        .iter()
+        .copied()
+        .chain([indirect.to_str().unwrap()])
+        .collect::<Vec<_>>());
+    assert!(dump.status.success(), "{}", String::from_utf8_lossy(&dump.stderr));
+    let wrong = lfr(&["export", "--format", "tlfr-1.3", indirect.to_str().unwrap(), out.to_str().unwrap()]);
+    let message = String::from_utf8_lossy(&wrong.stderr);
+    assert!(!wrong.status.success() && message.contains("this file holds indirect samples"), "{message}");
+    assert!(!message.contains("Indirect") && !out.exists(), "{message}");
 }
