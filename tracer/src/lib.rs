@@ -22,7 +22,6 @@ pub mod sampler;
 pub mod samples;
 pub mod scene;
 pub mod texture;
-pub mod wavefront;
 
 pub use accel::Accel;
 pub use camera::Camera;

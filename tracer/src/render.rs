@@ -2,7 +2,7 @@
 //! run with flush-to-zero and denormals-are-zero (Embree's recommendation). Every sample's
 //! random numbers depend only on (seed, pixel, sample index), and each pixel is accumulated by
 //! one thread in sample order, so the image is bit-identical for any thread count. Within a
-//! tile, each sample index's paths advance together as a wavefront (`crate::wavefront`).
+//! tile, each sample index's paths advance together as a wavefront (`render_tile`).
 
 use std::time::Instant;
 
@@ -10,14 +10,15 @@ use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 
-use crate::accel::Accel;
+use crate::accel::{Accel, Hit};
 use crate::error::RenderError;
-use crate::integrator::{Integrator, NoRecording, PathSample, RayRecorder, RecordedRay};
+use crate::integrator::{
+    preload_vertices, Integrator, NoRecording, PathSample, PathState, RayRecorder, RecordedRay, ShadowTest,
+};
 use crate::lights::LightSampler;
 use crate::limits::{MAX_IMAGE_SIDE, MAX_SPP, MAX_THREADS};
 use crate::sampler::Sampler;
 use crate::scene::Scene;
-use crate::wavefront::Wavefront;
 
 const TILE: u32 = 16;
 
@@ -178,9 +179,15 @@ struct TileResult {
     rays: u64,
 }
 
-/// Renders one tile as a wavefront (`crate::wavefront`): for each sample index, the paths of
-/// all the tile's pixels advance together, so the image is bit-identical to tracing the paths
-/// one at a time.
+/// Renders one tile as a wavefront: for each sample index, the paths of all the tile's pixels
+/// advance together, one ray at a time: every live path's closest-hit ray is traced, then every
+/// hit is shaded, then every shadow ray is traced. Each phase runs one kind of work over
+/// independent paths, so the vertex data of all hits can be loaded ahead of shading with their
+/// cache misses overlapping (`preload_vertices`), which a single path's chain of dependent
+/// loads does not allow.
+///
+/// Each path takes the same steps as `Integrator::trace_ray`, so the image is bit-identical
+/// to tracing the paths one at a time.
 fn render_tile<R: RayRecorder>(
     integrator: &Integrator,
     settings: &RenderSettings,
@@ -194,18 +201,47 @@ fn render_tile<R: RayRecorder>(
     let pixel_count = ((x1 - x0) * (y1 - y0)) as usize;
     let mut pixels = vec![PixelSum::default(); pixel_count];
     let mut rays = 0u64;
-    let mut wavefront = Wavefront::default();
+    let mut paths: Vec<PathState> = Vec::with_capacity(pixel_count);
+    let mut live: Vec<(usize, RecordedRay)> = Vec::with_capacity(pixel_count);
+    let mut hits: Vec<Option<Hit>> = Vec::with_capacity(pixel_count);
+    let mut shadows: Vec<(usize, ShadowTest)> = Vec::with_capacity(pixel_count);
     for index in samples {
-        wavefront.paths.clear();
+        paths.clear();
         for py in y0..y1 {
             for px in x0..x1 {
                 let mut sampler = Sampler::new(settings.seed, px, py, index);
                 let camera_sample = integrator.camera_sample(px, py, &mut sampler);
-                wavefront.paths.push(integrator.start_path(&integrator.camera_path_start(&camera_sample), sampler));
+                paths.push(integrator.start_path(&integrator.camera_path_start(&camera_sample), sampler));
             }
         }
-        wavefront.trace(integrator, recorder);
-        for (acc, path) in pixels.iter_mut().zip(&wavefront.paths) {
+        loop {
+            live.clear();
+            for (i, path) in paths.iter_mut().enumerate() {
+                if let Some(ray) = integrator.next_ray(path, recorder) {
+                    live.push((i, ray));
+                }
+            }
+            if live.is_empty() {
+                break;
+            }
+            hits.clear();
+            hits.extend(
+                live.iter()
+                    .map(|(_, ray)| integrator.accel.intersect(ray.origin, ray.direction, 0.0, ray.t_max, ray.time)),
+            );
+            shadows.clear();
+            preload_vertices(integrator.scene, &hits);
+            for ((i, _), hit) in live.iter().zip(&hits) {
+                if let Some(test) = integrator.shade(&mut paths[*i], hit.as_ref(), recorder) {
+                    shadows.push((*i, test));
+                }
+            }
+            for (i, test) in &shadows {
+                let occluded = integrator.is_occluded(test);
+                integrator.resolve_shadow(&mut paths[*i], test, occluded);
+            }
+        }
+        for (acc, path) in pixels.iter_mut().zip(&paths) {
             integrator.count_dropped(&path.traced);
             let sample = PathSample::from(path.traced);
             rays += sample.rays as u64;

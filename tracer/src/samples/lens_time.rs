@@ -33,16 +33,15 @@
 
 use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleKind};
 
-use super::{camera_header, write_sample_pieces, DumpReport, DumpTarget, FieldSelection};
+use super::{camera_header, write_samples, DumpReport, DumpTarget, FieldSelection};
 use crate::accel::Accel;
-use crate::camera::{depth_gradient, CameraSample};
+use crate::camera::depth_gradient;
 use crate::error::RenderError;
-use crate::integrator::{NoRecording, PathSample};
+use crate::integrator::NoRecording;
 use crate::lights::LightSampler;
 use crate::render::RenderSettings;
 use crate::sampler::Sampler;
 use crate::scene::Scene;
-use crate::wavefront::Wavefront;
 
 /// Which optional fields a scene needs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -198,11 +197,6 @@ pub fn dump_for_soft_shadows<'a>(
     dump_with(scene, accel, settings, layout, fields, Some(light.mesh), target.into())
 }
 
-/// Paths traced together per wavefront in a dump: as many as a render tile has (16 × 16),
-/// enough for the phases to stay in the instruction cache, few enough for the paths' state to
-/// stay in the data cache.
-const WAVEFRONT_PATHS: usize = 256;
-
 fn dump_with(
     scene: &Scene,
     accel: &Accel,
@@ -213,30 +207,77 @@ fn dump_with(
     target: DumpTarget,
 ) -> Result<DumpReport, RenderError> {
     settings.validate()?;
+    // The gradient's four extra camera rays are a tenth of a dump: only when it is written.
+    let with_gradient = fields.wants("depth_gradient");
     let lights = LightSampler::new(scene);
     let mut integrator = super::integrator(scene, accel, &lights, settings);
     integrator.split_emitter = split_emitter;
+    let camera = &scene.camera;
     let spec = layout.header(scene, settings);
-    let record = SampleRecord::new(scene, settings, layout, fields);
     let mut report =
-        write_sample_pieces(target, spec, fields, settings, layout.values_per_sample(), |piece, values| {
-            // Each piece's samples in wavefronts of up to `WAVEFRONT_PATHS`, in file order.
-            let mut wavefront = Wavefront::default();
-            let mut cameras: Vec<CameraSample> = Vec::with_capacity(WAVEFRONT_PATHS);
-            let mut samples = piece.samples_in_file_order(settings.width).peekable();
-            while samples.peek().is_some() {
-                wavefront.paths.clear();
-                cameras.clear();
-                for (x, y, index) in samples.by_ref().take(WAVEFRONT_PATHS) {
-                    let mut sampler = Sampler::new(settings.seed, x, y, index);
-                    let camera_sample = integrator.camera_sample(x, y, &mut sampler);
-                    wavefront.paths.push(integrator.start_path(&integrator.camera_path_start(&camera_sample), sampler));
-                    cameras.push(camera_sample);
+        write_samples(target, spec, fields, settings, layout.values_per_sample(), |x, y, samples, values| {
+            for index in samples {
+                let mut sampler = Sampler::new(settings.seed, x, y, index);
+                let camera_sample = integrator.camera_sample(x, y, &mut sampler);
+                let path = integrator.trace_camera_sample(&camera_sample, &mut sampler, &mut NoRecording);
+                values.extend_from_slice(&[camera_sample.film.x, camera_sample.film.y]);
+                if layout.lens {
+                    // The file's v runs along image +y, the camera's lens.y along up.
+                    values.extend_from_slice(&[camera_sample.lens.x, -camera_sample.lens.y]);
                 }
-                wavefront.trace(&integrator, &mut NoRecording);
-                for (camera_sample, path) in cameras.iter().zip(&wavefront.paths) {
-                    integrator.count_dropped(&path.traced);
-                    record.push(camera_sample, &PathSample::from(path.traced), values);
+                if layout.time {
+                    values.push(camera_sample.time);
+                }
+                match path.first_hit {
+                    Some(hit) => {
+                        values.push(hit.depth);
+                        if layout.time {
+                            let motion = scene.meshes[hit.mesh as usize].motion;
+                            values.extend_from_slice(&camera.vector_to_camera_space(motion).to_array());
+                        }
+                        values.extend_from_slice(&path.radiance().to_array());
+                        let gradient = match with_gradient {
+                            true => depth_gradient(
+                                camera,
+                                &camera_sample,
+                                hit.position,
+                                hit.geometric_normal,
+                                settings.width,
+                                settings.height,
+                            ),
+                            false => glam::Vec2::ZERO, // left out of the file
+                        };
+                        values.extend_from_slice(&gradient.to_array());
+                        if layout.bandwidth {
+                            values.push(super::secondary::bandwidth(&hit.bsdf));
+                        }
+                        if layout.shading {
+                            values.extend_from_slice(&super::secondary::clamp_f16(hit.albedo).to_array());
+                            values.extend_from_slice(&super::secondary::encode_octahedral(hit.normal));
+                            values.extend_from_slice(&(path.radiance() - path.split_emitter_light).to_array());
+                        }
+                        if layout.direct {
+                            values.extend_from_slice(&path.direct.to_array());
+                        }
+                    }
+                    None => {
+                        values.push(f32::INFINITY);
+                        if layout.time {
+                            values.extend_from_slice(&[0.0; 3]);
+                        }
+                        values.extend_from_slice(&path.radiance().to_array());
+                        values.extend_from_slice(&[0.0, 0.0]);
+                        if layout.bandwidth {
+                            values.push(0.0);
+                        }
+                        if layout.shading {
+                            values.extend_from_slice(&[0.0; 5]);
+                            values.extend_from_slice(&path.radiance().to_array());
+                        }
+                        if layout.direct {
+                            values.extend_from_slice(&path.direct.to_array());
+                        }
+                    }
                 }
             }
         })?;
@@ -244,159 +285,9 @@ fn dump_with(
     Ok(report)
 }
 
-/// What a lens-time record holds, for the scene, settings, layout and selection of one dump.
-struct SampleRecord<'a> {
-    scene: &'a Scene,
-    width: u32,
-    height: u32,
-    layout: LensTimeLayout,
-    /// The gradient's four extra camera rays are a tenth of a dump: only when it is written.
-    with_gradient: bool,
-}
-
-impl<'a> SampleRecord<'a> {
-    fn new(scene: &'a Scene, settings: &RenderSettings, layout: LensTimeLayout, fields: &FieldSelection) -> Self {
-        let with_gradient = fields.wants("depth_gradient");
-        SampleRecord { scene, width: settings.width, height: settings.height, layout, with_gradient }
-    }
-
-    /// Appends the record of the camera sample `camera_sample` whose path gave `path`, every
-    /// field of the layout in record order.
-    fn push(&self, camera_sample: &CameraSample, path: &PathSample, values: &mut Vec<f32>) {
-        let (layout, camera) = (&self.layout, &self.scene.camera);
-        values.extend_from_slice(&[camera_sample.film.x, camera_sample.film.y]);
-        if layout.lens {
-            // The file's v runs along image +y, the camera's lens.y along up.
-            values.extend_from_slice(&[camera_sample.lens.x, -camera_sample.lens.y]);
-        }
-        if layout.time {
-            values.push(camera_sample.time);
-        }
-        match path.first_hit {
-            Some(hit) => {
-                values.push(hit.depth);
-                if layout.time {
-                    let motion = self.scene.meshes[hit.mesh as usize].motion;
-                    values.extend_from_slice(&camera.vector_to_camera_space(motion).to_array());
-                }
-                values.extend_from_slice(&path.radiance().to_array());
-                let gradient = match self.with_gradient {
-                    true => depth_gradient(
-                        camera,
-                        camera_sample,
-                        hit.position,
-                        hit.geometric_normal,
-                        self.width,
-                        self.height,
-                    ),
-                    false => glam::Vec2::ZERO, // left out of the file
-                };
-                values.extend_from_slice(&gradient.to_array());
-                if layout.bandwidth {
-                    values.push(super::secondary::bandwidth(&hit.bsdf));
-                }
-                if layout.shading {
-                    values.extend_from_slice(&super::secondary::clamp_f16(hit.albedo).to_array());
-                    values.extend_from_slice(&super::secondary::encode_octahedral(hit.normal));
-                    values.extend_from_slice(&(path.radiance() - path.split_emitter_light).to_array());
-                }
-                if layout.direct {
-                    values.extend_from_slice(&path.direct.to_array());
-                }
-            }
-            None => {
-                values.push(f32::INFINITY);
-                if layout.time {
-                    values.extend_from_slice(&[0.0; 3]);
-                }
-                values.extend_from_slice(&path.radiance().to_array());
-                values.extend_from_slice(&[0.0, 0.0]);
-                if layout.bandwidth {
-                    values.push(0.0);
-                }
-                if layout.shading {
-                    values.extend_from_slice(&[0.0; 5]);
-                    values.extend_from_slice(&path.radiance().to_array());
-                }
-                if layout.direct {
-                    values.extend_from_slice(&path.direct.to_array());
-                }
-            }
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The slow, simple oracle of `dump_with`: every camera sample traced alone
-    /// (`Integrator::trace_camera_sample`), pixel by pixel.
-    fn dump_one_path_at_a_time(
-        scene: &Scene,
-        settings: &RenderSettings,
-        layout: LensTimeLayout,
-        fields: &FieldSelection,
-        split_emitter: Option<u32>,
-        path: &std::path::Path,
-    ) -> DumpReport {
-        let accel = Accel::build(scene).unwrap();
-        let lights = LightSampler::new(scene);
-        let mut integrator = crate::samples::integrator(scene, &accel, &lights, settings);
-        integrator.split_emitter = split_emitter;
-        let record = SampleRecord::new(scene, settings, layout, fields);
-        let spec = layout.header(scene, settings);
-        let mut report = super::super::write_samples(
-            path,
-            spec,
-            fields,
-            settings,
-            layout.values_per_sample(),
-            |x, y, samples, values| {
-                for index in samples {
-                    let mut sampler = Sampler::new(settings.seed, x, y, index);
-                    let camera_sample = integrator.camera_sample(x, y, &mut sampler);
-                    let path = integrator.trace_camera_sample(&camera_sample, &mut sampler, &mut NoRecording);
-                    record.push(&camera_sample, &path, values);
-                }
-            },
-        )
-        .unwrap();
-        report.dropped_contributions = integrator.dropped_contributions();
-        report
-    }
-
-    /// The wavefront dump (several wavefronts per piece: 13 × 7 pixels at 5 spp) writes the
-    /// file the one-path-at-a-time oracle writes, byte for byte, with the same dropped count:
-    /// on the moving, defocused glossy monkeys (lens, time, bandwidth, every field) and on the
-    /// Cornell box's soft-shadow dump (shading fields, the light split off).
-    #[test]
-    fn wavefront_dumps_equal_one_path_at_a_time_byte_for_byte() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
-        let dir = tempfile::tempdir().unwrap();
-        for (name, soft_shadows) in [("monkeys-defocus-motion.toml", false), ("cornell.toml", true)] {
-            let scene = Scene::load(&root.join(name)).unwrap();
-            let accel = Accel::build(&scene).unwrap();
-            let settings =
-                RenderSettings { width: 13, height: 7, spp: 5, seed: 3, max_bounces: 4, threads: 2, progress: false };
-            for fields in [FieldSelection::All, FieldSelection::named(["x", "y", "radiance"])] {
-                let mut layout = LensTimeLayout::for_scene(&scene).with_selected(&fields);
-                let mut split_emitter = None;
-                if soft_shadows {
-                    layout.shading = true;
-                    split_emitter = Some(crate::samples::light::PlanarLight::find(&scene).unwrap().mesh);
-                }
-                let (fast, slow) = (dir.path().join("fast.lfrs"), dir.path().join("slow.lfrs"));
-                let report =
-                    dump_with(&scene, &accel, &settings, layout, &fields, split_emitter, DumpTarget::scratch(&fast))
-                        .unwrap();
-                let oracle = dump_one_path_at_a_time(&scene, &settings, layout, &fields, split_emitter, &slow);
-                assert!(report.samples > WAVEFRONT_PATHS as u64);
-                assert_eq!(std::fs::read(&fast).unwrap(), std::fs::read(&slow).unwrap(), "{name}");
-                assert_eq!(report.dropped_contributions, oracle.dropped_contributions, "{name}");
-            }
-        }
-    }
     use crate::camera::FovAxis;
     use crate::camera::{Camera, CameraSample};
     use glam::{Vec2, Vec3};

@@ -150,28 +150,19 @@ struct PieceBuffers {
     records: Vec<u8>,
 }
 
-/// A piece of a dump: `pixels` whole pixels from `first_pixel` (row-major), or, when `pixels`
-/// is 1, the samples `samples` of that pixel.
+/// A piece: `pixels` whole pixels from `first_pixel` (row-major), or, when `pixels` is 1, the
+/// samples `samples` of that pixel.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Piece {
-    pub first_pixel: u64,
-    pub pixels: u64,
-    pub samples: std::ops::Range<u32>,
+struct Piece {
+    first_pixel: u64,
+    pixels: u64,
+    samples: std::ops::Range<u32>,
 }
 
 impl Piece {
     /// The piece's first sample in file order.
     fn first_sample(&self, spp: u32) -> u64 {
         self.first_pixel * spp as u64 + self.samples.start as u64
-    }
-
-    /// The piece's samples as (x, y, sample index) in file order, in an image `width` wide.
-    pub fn samples_in_file_order(&self, width: u32) -> impl Iterator<Item = (u32, u32, u32)> + '_ {
-        let width = width.max(1) as u64;
-        (self.first_pixel..self.first_pixel + self.pixels).flat_map(move |pixel| {
-            let (x, y) = ((pixel % width) as u32, (pixel / width) as u32);
-            self.samples.clone().map(move |index| (x, y, index))
-        })
     }
 }
 
@@ -229,44 +220,7 @@ pub fn write_samples<'a, F>(
 where
     F: Fn(u32, u32, std::ops::Range<u32>, &mut Vec<f32>) + Sync,
 {
-    write_samples_in(
-        target.into(),
-        spec,
-        fields,
-        settings,
-        values_per_sample,
-        per_pixel(settings, sample_pixel),
-        PIECES,
-    )
-}
-
-/// [`write_samples`] with `sample_piece` appending the records of a whole piece's samples
-/// (`Piece::samples_in_file_order`) at once, for dumps that trace them together.
-pub fn write_sample_pieces<'a, F>(
-    target: impl Into<DumpTarget<'a>>,
-    spec: HeaderSpec,
-    fields: &FieldSelection,
-    settings: &RenderSettings,
-    values_per_sample: usize,
-    sample_piece: F,
-) -> Result<DumpReport, RenderError>
-where
-    F: Fn(&Piece, &mut Vec<f32>) + Sync,
-{
-    write_samples_in(target.into(), spec, fields, settings, values_per_sample, sample_piece, PIECES)
-}
-
-/// A piece's records from a per-pixel `sample_pixel`, pixel by pixel.
-fn per_pixel<F>(settings: &RenderSettings, sample_pixel: F) -> impl Fn(&Piece, &mut Vec<f32>) + Sync
-where
-    F: Fn(u32, u32, std::ops::Range<u32>, &mut Vec<f32>) + Sync,
-{
-    let width = settings.width.max(1) as u64;
-    move |piece: &Piece, values: &mut Vec<f32>| {
-        for pixel in piece.first_pixel..piece.first_pixel + piece.pixels {
-            sample_pixel((pixel % width) as u32, (pixel / width) as u32, piece.samples.clone(), values);
-        }
-    }
+    write_samples_in(target.into(), spec, fields, settings, values_per_sample, sample_pixel, PIECES)
 }
 
 fn write_samples_in<F>(
@@ -275,11 +229,11 @@ fn write_samples_in<F>(
     fields: &FieldSelection,
     settings: &RenderSettings,
     values_per_sample: usize,
-    sample_piece: F,
+    sample_pixel: F,
     cut: Pieces,
 ) -> Result<DumpReport, RenderError>
 where
-    F: Fn(&Piece, &mut Vec<f32>) + Sync,
+    F: Fn(u32, u32, std::ops::Range<u32>, &mut Vec<f32>) + Sync,
 {
     settings.validate()?;
     let path = target.path;
@@ -304,6 +258,7 @@ where
         ProgressBar::hidden()
     };
     let start = Instant::now();
+    let width = settings.width as u64;
     let total_values = pixel_count * spp as u64 * values_per_sample as u64;
     let piece_values = piece_values(total_values, pool.current_num_threads(), cut);
     let all: Vec<Piece> = pieces(pixel_count, spp, values_per_sample, piece_values).collect();
@@ -315,7 +270,9 @@ where
         let size = piece.pixels as usize * piece.samples.len() * values_per_sample;
         slot.values.clear();
         slot.values.reserve(size);
-        sample_piece(piece, &mut slot.values);
+        for pixel in piece.first_pixel..piece.first_pixel + piece.pixels {
+            sample_pixel((pixel % width) as u32, (pixel / width) as u32, piece.samples.clone(), &mut slot.values);
+        }
         debug_assert_eq!(slot.values.len(), size);
         let count = size / values_per_sample.max(1);
         slot.records.clear();
@@ -439,15 +396,6 @@ mod tests {
         let whole = dir.path().join("whole.lfrs");
         write_samples(&whole, spec(), &FieldSelection::All, &settings, 3, sample_pixel).unwrap();
         assert_eq!(std::fs::read(&whole).unwrap(), expected);
-        // A whole piece at once, from its samples in file order: the same file.
-        let by_piece = dir.path().join("by-piece.lfrs");
-        let sample_piece = |piece: &Piece, out: &mut Vec<f32>| {
-            for (x, y, s) in piece.samples_in_file_order(5) {
-                out.extend_from_slice(&[x as f32 + 0.25, y as f32 + 0.5, s as f32]);
-            }
-        };
-        write_sample_pieces(&by_piece, spec(), &FieldSelection::All, &settings, 3, sample_piece).unwrap();
-        assert_eq!(std::fs::read(&by_piece).unwrap(), expected);
         for threads in [1, 2, 3] {
             for cut in [
                 PIECES,
@@ -462,7 +410,7 @@ mod tests {
                     &FieldSelection::All,
                     &settings,
                     3,
-                    per_pixel(&settings, sample_pixel),
+                    sample_pixel,
                     cut,
                 )
                 .unwrap();
@@ -500,8 +448,7 @@ mod tests {
         };
         for cut in [PIECES, Pieces { piece_values: 6, pieces_per_thread: 1 }] {
             let path = dir.path().join("bad.lfrs");
-            let sample_piece = per_pixel(&settings, sample_pixel);
-            let error = write_samples_in((&path).into(), spec(), &FieldSelection::All, &settings, 3, sample_piece, cut)
+            let error = write_samples_in((&path).into(), spec(), &FieldSelection::All, &settings, 3, sample_pixel, cut)
                 .unwrap_err()
                 .to_string();
             assert!(error.contains("bad.lfrs") && error.contains("count") && error.contains("95"), "{error}");
