@@ -362,6 +362,42 @@ fn animate_moves_a_light_over_frames_from_one_cache() {
     assert!(list.iter().all(|f| f["mean_indirect"].as_array().unwrap().iter().all(|v| v.as_f64().unwrap() > 0.0)));
 }
 
+#[test]
+fn a_moving_light_reuses_the_same_precompute_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("c.probes");
+    let animate = |frames: &Path, from: &str, to: &str| {
+        let mut args = vec!["probes", "animate", "--quiet", "--width", "16", "--height", "12", "--light-samples", "2"];
+        args.extend_from_slice(&SMALL);
+        args.extend_from_slice(&["--cache", cache.to_str().unwrap(), "--out-dir", frames.to_str().unwrap()]);
+        args.extend_from_slice(&["--frames", "3", "--no-scene-lights", "--light-intensity", "40000"]);
+        args.extend_from_slice(&["--light-from", from, "--light-to", to]);
+        let out = lfr(&args);
+        assert!(out.status.success(), "{}", stderr(&out));
+        json(&frames.join("timings.json"))
+    };
+    let read = |p: &Path| std::fs::read(p).unwrap();
+    // The first run builds the cache; every frame of it uses that one precompute.
+    let (first, second, other) = (dir.path().join("a"), dir.path().join("b"), dir.path().join("c"));
+    let report = animate(&first, "100,400,200", "450,400,400");
+    assert_eq!(report["precompute"]["precompute_from_cache"], false);
+    let bytes = read(&cache);
+    // The same light path again: the precompute comes from the cache, the file is untouched, and
+    // every frame is the same bit for bit as the frames made from the freshly built precompute.
+    let report = animate(&second, "100,400,200", "450,400,400");
+    assert_eq!(report["precompute"]["precompute_from_cache"], true);
+    assert_eq!(read(&cache), bytes, "the cache changed");
+    for f in 0..3 {
+        let name = format!("frame_{f:04}.exr");
+        assert_eq!(read(&first.join(&name)), read(&second.join(&name)), "{name} differs from the cache's");
+    }
+    // Another light path: still the cache's precompute, the file unchanged, other images.
+    let report = animate(&other, "300,200,100", "200,500,300");
+    assert_eq!(report["precompute"]["precompute_from_cache"], true);
+    assert_eq!(read(&cache), bytes, "a moved light changed the cache");
+    assert_ne!(read(&first.join("frame_0002.exr")), read(&other.join("frame_0002.exr")));
+}
+
 /// `lfr` with `$LFR_MEMORY_AVAILABLE` set to `bytes` (the measured available memory replaced).
 fn lfr_with_memory(args: &[&str], bytes: u64) -> std::process::Output {
     std::process::Command::new(env!("CARGO_BIN_EXE_lfr"))
