@@ -18,6 +18,7 @@ use probes::frame::{indirect, indirect_timed, surfel_albedo, Indirect, ReceiverT
 use probes::image::{render_image, ImageSettings, ProbeImage};
 use probes::image_operator::ImageOperator;
 use probes::layout::{Layout, Step};
+use probes::memory::MemoryEstimate;
 use probes::placement::{CandidateRule, PlacementSettings};
 use probes::precompute::{Precompute, PrecomputeSettings, Stage};
 use probes::projected_bounce::ProjectedBounce;
@@ -245,6 +246,16 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
         check_outputs(&[json], &scene_inputs(args.trace.scene.as_deref()))?;
     }
     let scene = args.trace.load_scene()?;
+    if args.frame {
+        // --frame builds the whole dense pipeline: the precompute's memory.
+        let settings = PrecomputeSettings {
+            surfels: surfel_settings,
+            placement: placement_settings,
+            transport: transport_settings,
+            relight_rays: args.relight_rays,
+        };
+        check_memory("probes stats --frame", &MemoryEstimate::precompute(&settings, threads))?;
+    }
     let pool = tracer::render::thread_pool(threads)?;
 
     let bar = if args.trace.quiet { ProgressBar::hidden() } else { ProgressBar::new_spinner() };
@@ -907,11 +918,38 @@ fn check_common(trace: &TraceArgs, pre: &PrecomputeOptions, outputs: &[&Path]) -
     Ok(settings)
 }
 
+/// Refuses the run when its estimated peak memory (`probes::memory`) is over what the machine
+/// has available (`tracer::memory`; `LFR_MEMORY_AVAILABLE` replaces the measurement). Called
+/// after the scene is read (its memory is then out of the measured available memory) and
+/// before the precompute, the cache read or any frame.
+fn check_memory(what: &str, estimate: &MemoryEstimate) -> Result<()> {
+    tracer::memory::check(&estimate.describe(what), estimate.total())?;
+    Ok(())
+}
+
+/// The estimate of a relit frame (`relight`, `animate`): the precompute or its cache, CPCA and
+/// the projected bounce when asked for, and the image.
+fn frame_estimate(
+    settings: &PrecomputeSettings,
+    cpca: Option<&CpcaSettings>,
+    projected: bool,
+    image: &ImageSettings,
+    threads: usize,
+) -> MemoryEstimate {
+    let mut e = MemoryEstimate::precompute(settings, threads);
+    if let Some(cpca) = cpca {
+        e = e.with_cpca(settings, cpca, threads, projected.then_some(MAX_PROJECTED));
+    }
+    e.with_image(image.width, image.height, image.pixel_samples)
+}
+
 fn run_precompute(args: &PrecomputeArgs) -> Result<()> {
     let outputs: Vec<&Path> = args.json.iter().map(|p| p.as_path()).collect();
     let settings = check_common(&args.trace, &args.pre, &outputs)?;
     let scene = args.trace.load_scene()?;
-    let pool = tracer::render::thread_pool(args.trace.run.thread_count()?)?;
+    let threads = args.trace.run.thread_count()?;
+    check_memory("the probes precompute", &MemoryEstimate::precompute(&settings, threads))?;
+    let pool = tracer::render::thread_pool(threads)?;
     let bar = spinner(args.trace.quiet, "precompute");
     let (pre, from_cache, s) = obtain(&scene, &settings, &args.pre.cache, Stale::Replace, &pool, &bar)?;
     bar.finish_and_clear();
@@ -1361,6 +1399,8 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
     let scene = args.trace.load_scene()?;
     let image = image_settings(&args.trace, &scene, &args.frame)?;
     let threads = args.trace.run.thread_count()?;
+    let projected = args.bounce_loop.unwrap_or(BounceLoop::Projected) == BounceLoop::Projected;
+    check_memory("the probes relight", &frame_estimate(&settings, cpca_settings.as_ref(), projected, &image, threads))?;
     let pool = tracer::render::thread_pool(threads)?;
     let bar = spinner(args.trace.quiet, "relight");
     let (mut pre, from_cache, s) = obtain(&scene, &settings, &args.pre.cache, Stale::Refuse, &pool, &bar)?;
@@ -1673,7 +1713,10 @@ fn run_animate(args: &AnimateArgs) -> Result<()> {
     let settings = check_common(&args.trace, &args.pre, &outputs)?;
     let scene = args.trace.load_scene()?;
     let image = image_settings(&args.trace, &scene, &args.frame)?;
-    let pool = tracer::render::thread_pool(args.trace.run.thread_count()?)?;
+    let threads = args.trace.run.thread_count()?;
+    // Animate runs one bounce a frame through the full loop: no projected bounce.
+    check_memory("the probes animation", &frame_estimate(&settings, cpca_settings.as_ref(), false, &image, threads))?;
+    let pool = tracer::render::thread_pool(threads)?;
     let bar = spinner(args.trace.quiet, "animate");
     let (mut pre, from_cache, s) = obtain(&scene, &settings, &args.pre.cache, Stale::Refuse, &pool, &bar)?;
     args.frame.apply(&mut pre, &pool)?;

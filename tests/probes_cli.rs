@@ -365,6 +365,95 @@ fn animate_moves_a_light_over_frames_from_one_cache() {
     assert!(list.iter().all(|f| f["mean_indirect"].as_array().unwrap().iter().all(|v| v.as_f64().unwrap() > 0.0)));
 }
 
+#[test]
+fn a_moving_light_reuses_the_same_precompute_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("c.probes");
+    let animate = |frames: &Path, from: &str, to: &str| {
+        let mut args = vec!["probes", "animate", "--quiet", "--width", "16", "--height", "12", "--light-samples", "2"];
+        args.extend_from_slice(&SMALL);
+        args.extend_from_slice(&["--cache", cache.to_str().unwrap(), "--out-dir", frames.to_str().unwrap()]);
+        args.extend_from_slice(&["--frames", "3", "--no-scene-lights", "--light-intensity", "40000"]);
+        args.extend_from_slice(&["--light-from", from, "--light-to", to]);
+        let out = lfr(&args);
+        assert!(out.status.success(), "{}", stderr(&out));
+        json(&frames.join("timings.json"))
+    };
+    let read = |p: &Path| std::fs::read(p).unwrap();
+    // The first run builds the cache; every frame of it uses that one precompute.
+    let (first, second, other) = (dir.path().join("a"), dir.path().join("b"), dir.path().join("c"));
+    let report = animate(&first, "100,400,200", "450,400,400");
+    assert_eq!(report["precompute"]["precompute_from_cache"], false);
+    let bytes = read(&cache);
+    // The same light path again: the precompute comes from the cache, the file is untouched, and
+    // every frame is the same bit for bit as the frames made from the freshly built precompute.
+    let report = animate(&second, "100,400,200", "450,400,400");
+    assert_eq!(report["precompute"]["precompute_from_cache"], true);
+    assert_eq!(read(&cache), bytes, "the cache changed");
+    for f in 0..3 {
+        let name = format!("frame_{f:04}.exr");
+        assert_eq!(read(&first.join(&name)), read(&second.join(&name)), "{name} differs from the cache's");
+    }
+    // Another light path: still the cache's precompute, the file unchanged, other images.
+    let report = animate(&other, "300,200,100", "200,500,300");
+    assert_eq!(report["precompute"]["precompute_from_cache"], true);
+    assert_eq!(read(&cache), bytes, "a moved light changed the cache");
+    assert_ne!(read(&first.join("frame_0002.exr")), read(&other.join("frame_0002.exr")));
+}
+
+/// `lfr` with `$LFR_MEMORY_AVAILABLE` set to `bytes` (the measured available memory replaced).
+fn lfr_with_memory(args: &[&str], bytes: u64) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_lfr"))
+        .args(args)
+        .current_dir(common::project_root())
+        .env("LFR_SCENES", common::shared_scenes())
+        .env("LFR_MEMORY_AVAILABLE", bytes.to_string())
+        .output()
+        .expect("lfr runs")
+}
+
+#[test]
+fn an_estimated_memory_above_the_machines_is_refused_before_the_precompute() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("c.probes");
+    let (c, exr, frames) = (cache.to_str().unwrap(), dir.path().join("x.exr"), dir.path().join("frames"));
+    let (exr, frames) = (exr.to_str().unwrap(), frames.to_str().unwrap());
+    let mut runs: Vec<Vec<&str>> = vec![
+        vec!["probes", "precompute", "--cache", c],
+        vec!["probes", "relight", "--cache", c, "--out", exr, "--width", "24", "--height", "20"],
+        vec!["probes", "relight", "--cache", c, "--out", exr, "--width", "24", "--height", "20", "--cpca"],
+        vec!["probes", "animate", "--cache", c, "--out-dir", frames, "--light-from", "0,0,0", "--light-to", "1,1,1"],
+    ];
+    for run in &mut runs {
+        run.push("--quiet");
+        run.extend_from_slice(&SMALL);
+    }
+    let mut stats = vec!["probes", "stats", "--quiet", "--frame", "--survey", "0"];
+    stats.extend_from_slice(&SMALL[..6]);
+    runs.push(stats);
+    for args in &runs {
+        // 1 MB available: every run is refused with the estimate, before anything is built.
+        let out = lfr_with_memory(args, 1 << 20);
+        let message = stderr(&out);
+        assert!(!out.status.success(), "{args:?} must fail");
+        assert!(!message.contains("panicked"), "{message}");
+        assert!(message.contains("needs about") && message.contains("1.0 MiB is available"), "{args:?}: {message}");
+        assert!(message.contains("receivers") && message.contains("LFR_MEMORY_AVAILABLE"), "{message}");
+        assert!(!cache.exists() && !Path::new(exr).exists() && !Path::new(frames).exists(), "{args:?} did work");
+    }
+    // The case: a budget the machine cannot hold (20 M receivers need tens of GB of
+    // dense transport) against 8 GiB, refused within a test's time instead of killed later.
+    let mut big = vec!["probes", "precompute", "--quiet", "--cache", c, "--receivers", "20000000"];
+    big.extend_from_slice(&["--directions", "32", "--relight-rays", "512"]);
+    let out = lfr_with_memory(&big, 8 << 30);
+    assert!(!out.status.success() && stderr(&out).contains("8.0 GiB is available"), "{}", stderr(&out));
+    assert!(!cache.exists());
+    // The same small precompute with 16 GiB available runs.
+    let out = lfr_with_memory(&runs[0], 16 << 30);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(cache.is_file());
+}
+
 /// `lfr compare --methods probes...` on the embedded Cornell box at 32×32 (tiny precompute).
 fn probes_compare(out: &Path, cache: &Path, methods: &str, effect: &str) -> std::process::Output {
     lfr(&[

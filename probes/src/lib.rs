@@ -52,6 +52,7 @@ pub mod image_operator;
 pub mod kernel;
 pub mod layout;
 pub mod lookup;
+pub mod memory;
 pub mod placement;
 pub mod precompute;
 pub mod projected_bounce;
