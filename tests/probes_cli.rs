@@ -592,3 +592,34 @@ fn compare_runs_probes_with_its_precompute_times_and_per_frame_verdicts() {
         assert!(!bad.join("results.json").exists());
     }
 }
+
+/// Same seed, same output whatever the thread count: the whole precompute (the cache file, byte
+/// for byte) and a relit frame with CPCA and the projected bounces (every layer, bit for bit)
+/// with one, two and three worker threads.
+#[test]
+fn the_precompute_and_a_relit_frame_do_not_depend_on_the_thread_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut first: Option<(Vec<u8>, std::collections::HashMap<String, Vec<f32>>)> = None;
+    for threads in ["1", "2", "3"] {
+        let (cache, exr, j) = (
+            dir.path().join(format!("c{threads}.probes")),
+            dir.path().join(format!("a{threads}.exr")),
+            dir.path().join(format!("r{threads}.json")),
+        );
+        let out = relight(&cache, &exr, &j, &["--cpca", "--threads", threads]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        assert_eq!(json(&j)["precompute"]["precompute_from_cache"], false);
+        let (bytes, layers) = (std::fs::read(&cache).unwrap(), channels(&exr));
+        match &first {
+            None => first = Some((bytes, layers)),
+            Some((bytes_1, layers_1)) => {
+                assert!(bytes == *bytes_1, "the cache differs with {threads} threads");
+                for (name, values) in layers_1 {
+                    let other = &layers[name];
+                    let same = values.iter().zip(other).all(|(a, b)| a.to_bits() == b.to_bits());
+                    assert!(same && values.len() == other.len(), "layer {name} differs with {threads} threads");
+                }
+            }
+        }
+    }
+}
