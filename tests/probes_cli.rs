@@ -599,7 +599,8 @@ fn compare_runs_probes_with_its_precompute_times_and_per_frame_verdicts() {
 #[test]
 fn the_precompute_and_a_relit_frame_do_not_depend_on_the_thread_count() {
     let dir = tempfile::tempdir().unwrap();
-    let mut first: Option<(Vec<u8>, std::collections::HashMap<String, Vec<f32>>)> = None;
+    type CacheAndLayers = (Vec<u8>, std::collections::HashMap<String, Vec<f32>>);
+    let mut first: Option<CacheAndLayers> = None;
     for threads in ["1", "2", "3"] {
         let (cache, exr, j) = (
             dir.path().join(format!("c{threads}.probes")),
