@@ -64,7 +64,7 @@ pub struct ProbesMethod {
 /// The options with their defaults, for `--list-methods` and errors.
 pub const OPTIONS: &str = "probes=N (64), receivers=N (20000), overlap=X (10), order=0..7 (7), directions=M (512), \
 relight_rays=R (8000), reconstruction=visibility|spatial (visibility: Eq. 2; spatial: Eq. 1), cpca=on|off (on), \
-fp16=on|off (off), miss_weight=(0,1] (0.01; 1 = the paper's projection), light_samples=N (16), pixel_samples=N (4), \
+fp16=on|off (off), miss_weight=(0,1] (0.01; 1 = the paper's projection), light_samples=N (16), pixel_samples=N (16), \
 tolerance=X (0.001: bounces stop when the largest change and the tail it predicts are under X of the largest irradiance; 0: all), \
 image=kept|lookups (kept: the camera's lookups traced once, in preprocess_s; lookups: traced every frame), \
 bounces=projected|full (projected: bounces after the first as R x R products in CPCA's projected space, its matrix \
@@ -105,7 +105,7 @@ impl ProbesMethod {
             cpca: None,
             miss_weight: 0.01,
             light_samples: 16,
-            pixel_samples: 4,
+            pixel_samples: 16,
             tolerance: 1e-3,
             kept_lookups: true,
             projected_bounces: true,
@@ -438,6 +438,7 @@ mod tests {
         assert_eq!(m.precompute.transport.order, 7);
         assert_eq!(m.precompute.surfels.seed, 3);
         assert!(m.cpca.is_some());
+        assert_eq!(m.pixel_samples, 16, "Cornell's edges need 16 rays per pixel (docs/probes.md)");
         let m = ProbesMethod::parse("probes:probes=29:order=2:cpca=off:reconstruction=spatial:miss_weight=1", 1)
             .unwrap()
             .unwrap();
