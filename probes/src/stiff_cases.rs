@@ -428,3 +428,28 @@ fn alpha_masked_walls_let_light_through_their_hole_as_the_tracer_does() {
     }
     assert!(far_side[1] > far_side[0]);
 }
+
+/// A flat scene: one lit quad and nothing else. A plane cannot light itself (every direction
+/// above it leaves the scene), so the indirect light is exactly zero everywhere, in both
+/// bounce loops, while the direct light is there; probes are still placed (above the plane,
+/// within the scene's flat extent) and the image is finite.
+#[test]
+fn a_flat_scene_gets_direct_light_and_exactly_zero_indirect() {
+    let mut flat = scene_of(vec![crate::test_scenes::unit_quad()], Vec3::ZERO);
+    flat.camera = Camera::look_at(Vec3::new(0.5, 0.5, 1.5), Vec3::new(0.5, 0.5, 0.0), Vec3::Y, 40.0, FovAxis::Smaller);
+    flat.lights.push(PunctualLight::Point { position: Vec3::new(0.4, 0.6, 0.8), intensity: Vec3::ONE });
+    let pre = Precompute::build(&flat, &settings(), &mut |_| {}).unwrap();
+    assert!(!pre.probes.is_empty());
+    for p in &pre.probes {
+        assert!(p.z >= 0.0 && (-0.5..=1.5).contains(&p.x) && (-0.5..=1.5).contains(&p.y), "probe at {p}");
+    }
+    let image = ImageSettings { width: 10, height: 8, light_samples: 2, pixel_samples: 2, seed: 5 };
+    for projected in [false, true] {
+        let f = relit(&flat, &pre, &image, projected, 4);
+        assert_eq!(f.image, f.oracle);
+        assert!(all_finite(&f.image));
+        assert!(f.indirect.irradiance.iter().all(|e| *e == Vec3::ZERO), "projected {projected}");
+        assert!(f.image.indirect.iter().all(|v| *v == Vec3::ZERO), "projected {projected}");
+        assert!(f.image.direct.iter().any(|v| v.min_element() > 0.0), "the quad is lit");
+    }
+}
