@@ -141,6 +141,48 @@ mod tests {
         assert!(err.to_string().starts_with("light samples:"), "{err}");
     }
 
+    /// A spot light pointing down: inside its inner cone the point light's law, outside its
+    /// outer cone nothing (between them the glTF falloff, not checked here).
+    #[test]
+    fn a_spot_light_lights_its_inner_cone_as_a_point_light_and_nothing_outside_its_outer_cone() {
+        let mut scene = scene_of(vec![unit_quad()], Vec3::new(0.5, 0.5, 3.0));
+        let (position, intensity) = (Vec3::new(0.5, 0.5, 0.6), Vec3::new(1.5, 1.0, 0.5));
+        let (inner_cone, outer_cone) = (0.25f32, 0.45f32);
+        scene.lights.push(PunctualLight::Spot { position, direction: -Vec3::Z, intensity, inner_cone, outer_cone });
+        let (accel, surfels) = quad_surfels(&scene);
+        let e = direct_irradiance(&scene, &accel, &surfels, 4, 0, 1.0).unwrap();
+        let (mut inside, mut outside) = (0, 0);
+        for (s, e) in surfels.surfels.iter().zip(&e) {
+            let d = position - s.position;
+            let angle = (-d.normalize()).dot(-Vec3::Z).clamp(-1.0, 1.0).acos();
+            if s.normal.z > 0.0 && angle < inner_cone - 0.02 {
+                let expected = intensity * s.normal.dot(d.normalize()) / d.length_squared();
+                assert!((*e - expected).abs().max_element() <= 1e-4 * expected.max_element(), "{e} vs {expected}");
+                inside += 1;
+            } else if s.normal.z < 0.0 || angle > outer_cone + 0.02 {
+                assert_eq!(*e, Vec3::ZERO, "{} {}", s.position, s.normal);
+                outside += 1;
+            }
+        }
+        assert!(inside > 10 && outside > 10, "{inside} inside, {outside} outside");
+    }
+
+    /// A constant environment over a lone quad: each side sees a whole unoccluded hemisphere,
+    /// so E = π L on both, up to the light samples' noise.
+    #[test]
+    fn a_constant_environment_gives_pi_times_its_radiance_on_an_open_quad() {
+        let mut scene = scene_of(vec![unit_quad()], Vec3::new(0.5, 0.5, 3.0));
+        scene.environment = Vec3::new(0.2, 0.5, 1.0);
+        let (accel, surfels) = quad_surfels(&scene);
+        let e = direct_irradiance(&scene, &accel, &surfels, MAX_SAMPLES, 0, 1.0).unwrap();
+        let expected = scene.environment * std::f32::consts::PI;
+        for e in &e {
+            assert!(((*e - expected) / expected).abs().max_element() < 0.15, "{e} vs {expected}");
+        }
+        let mean = e.iter().fold(Vec3::ZERO, |sum, e| sum + *e) / e.len() as f32;
+        assert!(((mean - expected) / expected).abs().max_element() < 0.01, "mean {mean} vs {expected}");
+    }
+
     #[test]
     fn an_emissive_triangle_matches_brute_force_quadrature() {
         // A floor quad under an emissive triangle facing down at height 0.6.
