@@ -68,13 +68,8 @@ impl Layout {
         progress(Step::Placement);
         let t = Instant::now();
         let mut placement = place(&geometry, &seed_points(scene), placement_settings)?;
-        // Probe validity: drop probes that see mostly back faces (a leaky flood fill).
         let accel = Accel::build(scene).map_err(|e| ProbesError::Tracer(e.to_string()))?;
-        let inside = probes_inside(&accel, &placement.probes, 256, geometry.scale() as f32);
-        let before = placement.probes.len();
-        let mut flags = inside.iter();
-        placement.probes.retain(|_| !flags.next().copied().unwrap_or(false));
-        let probes_inside = before - placement.probes.len();
+        let probes_inside = drop_probes_inside(&accel, &mut placement.probes, geometry.scale() as f32);
         if placement.probes.is_empty() {
             return Err(ProbesError::NoCandidates { voxel: placement.voxel });
         }
@@ -103,5 +98,34 @@ impl Layout {
     /// Bytes of the surfels themselves (position, normal, area, mesh, triangle).
     pub fn surfel_bytes(&self) -> f64 {
         (self.surfels.surfels.len() * std::mem::size_of::<crate::surfels::Surfel>()) as f64
+    }
+}
+
+/// Probe validity: drops the probes that see mostly back faces (inside geometry, where a leaky
+/// flood fill put them) and returns how many were dropped; the others keep their order.
+fn drop_probes_inside(accel: &Accel, probes: &mut Vec<DVec3>, scale: f32) -> usize {
+    let inside = probes_inside(accel, probes, 256, scale);
+    let before = probes.len();
+    let mut flags = inside.iter();
+    probes.retain(|_| !flags.next().copied().unwrap_or(false));
+    before - probes.len()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A probe placed inside a closed box (as a leaky flood fill would) is dropped, counted,
+    /// and the others are kept in order; the layout then carries on with them.
+    #[test]
+    fn probes_inside_geometry_are_dropped_and_counted() {
+        use crate::test_scenes::{room, scene_of};
+        let boxed = tracer::scene::shapes::axis_aligned_box("box", glam::Vec3::splat(0.2), glam::Vec3::splat(0.5), 0);
+        let scene = scene_of(vec![room(glam::Vec3::ZERO, glam::Vec3::ONE), boxed], glam::Vec3::splat(0.8));
+        let accel = Accel::build(&scene).unwrap();
+        let mut probes = vec![DVec3::splat(0.8), DVec3::splat(0.35), DVec3::new(0.1, 0.9, 0.5), DVec3::splat(0.3)];
+        assert_eq!(drop_probes_inside(&accel, &mut probes, 1.0), 2);
+        assert_eq!(probes, vec![DVec3::splat(0.8), DVec3::new(0.1, 0.9, 0.5)]);
+        assert_eq!(drop_probes_inside(&accel, &mut probes, 1.0), 0, "nothing more to drop");
     }
 }
