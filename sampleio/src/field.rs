@@ -111,6 +111,7 @@ impl FieldType {
 
     /// Reads one component of this type from `bytes` (exactly `self.size()` bytes), as f32
     /// (exact except for `u32` values above 2^24).
+    #[inline]
     pub fn decode(self, bytes: &[u8]) -> f32 {
         match self {
             FieldType::F32 => f32::from_le_bytes(le4(bytes)),
@@ -167,7 +168,20 @@ impl Field {
         u64::from(self.offset) + self.ty.size() as u64 * u64::from(self.components)
     }
 
+    /// Component `component` of this field in `record` (one record of a file with this field),
+    /// converted to f32 like [`FieldType::decode`]: the per-record form of
+    /// [`SampleFile::value`](crate::SampleFile::value) for loops over
+    /// [`SampleFile::pixel_records`](crate::SampleFile::pixel_records).
+    ///
+    /// # Panics
+    /// If the component lies outside `record`.
+    #[inline]
+    pub fn decode_from(&self, record: &[u8], component: usize) -> f32 {
+        self.ty.decode(&record[self.component_range(component)])
+    }
+
     /// Byte range of component `component` inside the record.
+    #[inline]
     pub(crate) fn component_range(&self, component: usize) -> std::ops::Range<usize> {
         let start = self.offset as usize + component * self.ty.size();
         start..start + self.ty.size()

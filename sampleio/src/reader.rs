@@ -312,6 +312,16 @@ impl SampleFile {
         Ok(out)
     }
 
+    /// The records of pixel (x, y)'s samples, `spp` of `header().record_size` bytes each, in
+    /// sample order (read their fields with [`Field::decode_from`]).
+    ///
+    /// # Panics
+    /// If `x >= width` or `y >= height`.
+    pub fn pixel_records(&self, x: u32, y: u32) -> &[u8] {
+        let samples = self.pixel_samples(x, y);
+        &self.data()[samples.start * self.record_size..samples.end * self.record_size]
+    }
+
     /// The sample indices of pixel (x, y): `(y * width + x) * spp ..` plus `spp`.
     ///
     /// # Panics

@@ -125,6 +125,17 @@ proptest! {
                 let r = file.pixel_samples(x, y);
                 prop_assert_eq!(r.start, ((y * h.width + x) * h.spp) as usize);
                 prop_assert_eq!(r.len(), h.spp as usize);
+                // The pixel's records, decoded per record, give `value`'s values.
+                let records = file.pixel_records(x, y);
+                prop_assert_eq!(records.len(), r.len() * h.record_size as usize);
+                for (sample, record) in r.zip(records.chunks_exact(h.record_size as usize)) {
+                    prop_assert_eq!(record, file.record(sample));
+                    for field in file.fields() {
+                        for c in 0..field.components as usize {
+                            prop_assert!(same(field.decode_from(record, c), file.value(sample, field, c)));
+                        }
+                    }
+                }
             }
         }
     }

@@ -112,6 +112,7 @@ pub fn average(file: &SampleFile, effect: Effect, ao_radius: f32) -> Result<(Ima
         SampleKind::LensTime | SampleKind::Light => Estimator::Radiance { radiance: required("radiance")? },
     };
     let (width, height, spp) = (header.width, header.height, header.spp as usize);
+    let record_size = header.record_size as usize;
     let rows: Vec<(Vec<[f32; 3]>, u64)> = (0..height)
         .into_par_iter()
         .map(|y| {
@@ -119,8 +120,8 @@ pub fn average(file: &SampleFile, effect: Effect, ao_radius: f32) -> Result<(Ima
             let row = (0..width)
                 .map(|x| {
                     let (mut sum, mut count) = ([0.0f64; 3], 0u32);
-                    for sample in file.pixel_samples(x, y) {
-                        let value = estimator.value(file, sample);
+                    for record in file.pixel_records(x, y).chunks_exact(record_size.max(1)) {
+                        let value = estimator.value(record);
                         if value.iter().all(|v| v.is_finite()) {
                             for c in 0..3 {
                                 sum[c] += value[c] as f64;
@@ -151,8 +152,9 @@ enum Estimator<'a> {
 }
 
 impl Estimator<'_> {
-    fn value(&self, file: &SampleFile, sample: usize) -> [f32; 3] {
-        let vec3 = |field: &Field| [0, 1, 2].map(|c| file.value(sample, field, c));
+    /// The value of the sample whose record is `record`.
+    fn value(&self, record: &[u8]) -> [f32; 3] {
+        let vec3 = |field: &Field| [0, 1, 2].map(|c| field.decode_from(record, c));
         match self {
             Estimator::Weighted { weight, radiance } => {
                 let (w, l) = (vec3(weight), vec3(radiance));
@@ -160,8 +162,8 @@ impl Estimator<'_> {
             }
             Estimator::Visibility { distance, origin_normal, radius } => {
                 let camera_ray_hit =
-                    file.value(sample, origin_normal, 0) != 0.0 || file.value(sample, origin_normal, 1) != 0.0;
-                let distance = file.value(sample, distance, 0);
+                    origin_normal.decode_from(record, 0) != 0.0 || origin_normal.decode_from(record, 1) != 0.0;
+                let distance = distance.decode_from(record, 0);
                 let visible = !camera_ray_hit || distance >= *radius;
                 [visible as u32 as f32; 3]
             }
