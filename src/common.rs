@@ -317,16 +317,31 @@ pub fn load_scene(path: Option<&Path>, access: FileAccess, lighting: &LightingAr
     Ok(scene)
 }
 
-/// Runs `work` (a reconstruction) while a second thread adds its stage's progress
-/// (`recon::progress`: rows done and time left) to the bar's `message` five times a second.
-/// When `work` returns, whether or not it ended its stage, the bar shows `message` alone again.
+/// Runs `work` (a reconstruction or a traced step) while a second thread adds its stage's
+/// progress (`recon::progress`: units done and time left) to the bar's `message` five times a
+/// second. When `work` returns, whether or not it ended its stage, the bar shows `message` alone
+/// again.
 pub fn with_stage_progress<T>(bar: &indicatif::ProgressBar, message: &str, work: impl FnOnce() -> T) -> T {
+    with_expected_progress(bar, message, None, work)
+}
+
+/// [`with_stage_progress`] for a step that may report no stage of its own (an external
+/// denoiser): while none runs, the bar shows the seconds so far and, when `expected_s` (the
+/// time of a previous run of the same step) is known, about how many are left.
+pub fn with_expected_progress<T>(
+    bar: &indicatif::ProgressBar,
+    message: &str,
+    expected_s: Option<f64>,
+    work: impl FnOnce() -> T,
+) -> T {
     let finished = std::sync::atomic::AtomicBool::new(false);
+    let start = std::time::Instant::now();
     let result = std::thread::scope(|scope| {
         let ticker = scope.spawn(|| {
             while !finished.load(std::sync::atomic::Ordering::Relaxed) {
                 let stage = recon::progress::describe();
-                bar.set_message(if stage.is_empty() { message.to_string() } else { format!("{message}: {stage}") });
+                let elapsed = start.elapsed().as_secs_f64();
+                bar.set_message(step_message(message, &stage, elapsed, expected_s));
                 std::thread::park_timeout(std::time::Duration::from_millis(200));
             }
         });
@@ -341,15 +356,43 @@ pub fn with_stage_progress<T>(bar: &indicatif::ProgressBar, message: &str, work:
     result
 }
 
+/// The bar's message for a step `elapsed` seconds in: its stage when one runs, else the time
+/// so far and what is left of `expected_s`; the message alone in its first second.
+fn step_message(message: &str, stage: &str, elapsed: f64, expected_s: Option<f64>) -> String {
+    if !stage.is_empty() {
+        return format!("{message}: {stage}");
+    }
+    if elapsed < 1.0 {
+        return message.to_string();
+    }
+    match expected_s {
+        Some(expected) if expected.is_finite() && expected > elapsed => {
+            format!("{message}: {elapsed:.0} s, about {:.0} s left", (expected - elapsed).ceil())
+        }
+        _ => format!("{message}: {elapsed:.0} s"),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
+    fn a_step_without_a_stage_shows_its_time_and_what_is_left_of_the_expected() {
+        assert_eq!(step_message("oidn, 4 spp", "", 0.4, Some(9.0)), "oidn, 4 spp", "nothing in the first second");
+        assert_eq!(step_message("oidn, 4 spp", "", 3.2, Some(9.0)), "oidn, 4 spp: 3 s, about 6 s left");
+        assert_eq!(step_message("oidn, 4 spp", "", 3.2, None), "oidn, 4 spp: 3 s");
+        assert_eq!(step_message("oidn, 4 spp", "", 12.0, Some(9.0)), "oidn, 4 spp: 12 s", "past the expected time");
+        assert_eq!(step_message("oidn, 4 spp", "", 2.0, Some(f64::NAN)), "oidn, 4 spp: 2 s");
+        let stage = "render 3/64 tiles, 2 s left";
+        assert_eq!(step_message("pt, 16 spp", stage, 5.0, Some(1.0)), format!("pt, 16 spp: {stage}"));
+    }
+
+    #[test]
     fn a_reconstruction_stage_shows_in_the_bar_while_it_runs() {
         let bar = indicatif::ProgressBar::hidden();
         let seen = with_stage_progress(&bar, "ilfr, 4 spp", || {
-            recon::progress::begin("gather", 4);
+            recon::progress::begin("gather", 4, "rows");
             recon::progress::advance(1);
             // The ticker updates five times a second.
             let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);

@@ -22,7 +22,6 @@ pub mod metrics;
 pub mod needs;
 pub mod octahedral;
 pub mod options;
-pub mod progress;
 pub mod python;
 pub mod registry;
 pub mod tlfr;
@@ -31,3 +30,5 @@ pub use error::Error;
 pub use image::Image;
 pub use method::{Effect, Method};
 pub use sampleio;
+/// How far the running reconstruction is (shared with the tracer: `shading::progress`).
+pub use shading::progress;

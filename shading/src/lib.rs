@@ -1,7 +1,9 @@
 //! Shading and sampling numerics shared by the tracer and the reconstructions: the
 //! metallic-roughness BSDF (`bsdf.rs`), the shading frame (`frame.rs`), the square-to-disk and
 //! hemisphere maps (`warp.rs`), scale-free normals, areas and unit vectors (`scale_free.rs`), and
-//! hashing, Owen scrambling, Sobol' and Halton points (`sampling.rs`).
+//! hashing, Owen scrambling, Sobol' and Halton points (`sampling.rs`); and how far the running
+//! long step is (`progress.rs`), which the tracer's and the reconstructions' loops report to the
+//! same progress bar.
 //!
 //! The tracer draws secondary rays with it; ILFR's final gather (paper Eq. 3) draws its
 //! reconstruction rays from the primary hit's BSDF and weights them with the same code, so the
@@ -13,6 +15,7 @@
 
 mod bsdf;
 mod frame;
+pub mod progress;
 pub mod sampling;
 mod scale_free;
 mod warp;

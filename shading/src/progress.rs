@@ -1,11 +1,13 @@
-//! How far the running reconstruction is, for the caller's progress bar.
+//! How far the running long step is, for the caller's progress bar.
 //!
-//! A method's long loops (ILFR's gather, TLFR's integration over locations) call [`begin`] with
-//! the stage and its row count and [`advance`] once per finished row; a command polls
+//! A long loop (the tracer's tiles and sample pieces, ILFR's gather, TLFR's integration over
+//! locations, the reconstructions' preprocessing) calls [`begin`] with the stage, its count of
+//! work units and their name, and [`advance`] once per finished unit; a command polls
 //! [`snapshot`] from another thread and draws it (`lfr compare`'s bar, `lfr reconstruct`'s).
-//! Process-wide, not passed through the methods' signatures: one reconstruction runs at a time
-//! in a command, progress never changes a result, and the hot loops pay one relaxed atomic add
-//! per row. Concurrent reconstructions (the tests) only mix their displayed counts.
+//! Process-wide, not passed through the signatures: one long step runs at a time in a command,
+//! progress never changes a result, and the hot loops pay one relaxed atomic add per unit.
+//! Concurrent steps (the tests) only mix their displayed counts. It lives here, below the
+//! tracer and the reconstructions, so that both report to the same bar.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
@@ -17,15 +19,17 @@ static DONE: AtomicU64 = AtomicU64::new(0);
 #[derive(Clone, Debug)]
 struct Stage {
     name: &'static str,
+    unit: &'static str,
     total: u64,
     started: Instant,
 }
 
-/// A stage of the running reconstruction: its name, rows done of its total, seconds since it
-/// began.
+/// A stage of the running step: its name, units (`unit`: "rows", "tiles", ...) done of its
+/// total, seconds since it began.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Snapshot {
     pub stage: &'static str,
+    pub unit: &'static str,
     pub done: u64,
     pub total: u64,
     pub elapsed_s: f64,
@@ -38,17 +42,17 @@ impl Snapshot {
     }
 }
 
-/// Starts stage `name` of `total` rows (replaces the previous stage).
-pub fn begin(name: &'static str, total: u64) {
+/// Starts stage `name` of `total` units called `unit` (replaces the previous stage).
+pub fn begin(name: &'static str, total: u64, unit: &'static str) {
     let mut stage = STAGE.lock().unwrap_or_else(|e| e.into_inner());
     DONE.store(0, Ordering::Relaxed);
-    *stage = Some(Stage { name, total, started: Instant::now() });
+    *stage = Some(Stage { name, unit, total, started: Instant::now() });
 }
 
-/// `rows` more rows of the current stage are done.
+/// `units` more units of the current stage are done.
 #[inline]
-pub fn advance(rows: u64) {
-    DONE.fetch_add(rows, Ordering::Relaxed);
+pub fn advance(units: u64) {
+    DONE.fetch_add(units, Ordering::Relaxed);
 }
 
 /// The current stage, if one has begun since the last [`end`].
@@ -56,6 +60,7 @@ pub fn snapshot() -> Option<Snapshot> {
     let stage = STAGE.lock().unwrap_or_else(|e| e.into_inner()).clone()?;
     Some(Snapshot {
         stage: stage.name,
+        unit: stage.unit,
         done: DONE.load(Ordering::Relaxed).min(stage.total),
         total: stage.total,
         elapsed_s: stage.started.elapsed().as_secs_f64(),
@@ -72,8 +77,8 @@ pub fn describe() -> String {
     match snapshot() {
         None => String::new(),
         Some(s) => match s.eta_s() {
-            Some(eta) => format!("{} {}/{} rows, {:.0} s left", s.stage, s.done, s.total, eta.ceil()),
-            None => format!("{} {}/{} rows", s.stage, s.done, s.total),
+            Some(eta) => format!("{} {}/{} {}, {:.0} s left", s.stage, s.done, s.total, s.unit, eta.ceil()),
+            None => format!("{} {}/{} {}", s.stage, s.done, s.total, s.unit),
         },
     }
 }
@@ -84,7 +89,7 @@ mod tests {
 
     #[test]
     fn a_stage_counts_its_rows_and_estimates_the_rest() {
-        begin("gather", 8);
+        begin("gather", 8, "rows");
         advance(2);
         advance(0);
         let s = snapshot().expect("a stage runs");
@@ -98,6 +103,6 @@ mod tests {
         end();
         assert_eq!(snapshot(), None);
         assert_eq!(describe(), "");
-        assert_eq!(Snapshot { stage: "x", done: 0, total: 5, elapsed_s: 1.0 }.eta_s(), None);
+        assert_eq!(Snapshot { stage: "x", unit: "rows", done: 0, total: 5, elapsed_s: 1.0 }.eta_s(), None);
     }
 }

@@ -702,9 +702,10 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     // The path-tracing ladder; its frames are the `Frame` inputs of the methods.
     let mut frames: BTreeMap<u32, FrameInput> = BTreeMap::new();
     for &spp in &ladder_spp {
-        bar.set_message(format!("path tracing, {spp} spp"));
+        let message = format!("path tracing, {spp} spp");
+        bar.set_message(message.clone());
         memory::reset_peak();
-        let traced = tracing.trace(spp, seed, false)?;
+        let traced = crate::common::with_stage_progress(&bar, &message, || tracing.trace(spp, seed, false))?;
         let peak = memory::peak_rss_mb();
         let image = traced.frame.color.clone();
         let run = context.measure("pt", spp, 0, (traced.seconds, 0.0, 0.0), peak, image, Default::default())?;
@@ -725,9 +726,12 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     let mut guides: BTreeMap<u32, recon::method::GuideInput> = BTreeMap::new();
     for &spp in &args.spp {
         for (selection, fields) in selections.iter().enumerate() {
-            bar.set_message(format!("tracing the input samples, {spp} spp"));
+            let message = format!("tracing the input samples, {spp} spp");
+            bar.set_message(message.clone());
             std::fs::create_dir_all(&inputs_dir).with_context(|| format!("creating {}", inputs_dir.display()))?;
-            let dumped = tracing.dump(spp, seed, &inputs_dir, fields, selection)?;
+            let dumped = crate::common::with_stage_progress(&bar, &message, || {
+                tracing.dump(spp, seed, &inputs_dir, fields, selection)
+            })?;
             traces.insert(TraceKey::Samples(spp, selection), vec![dumped.samples_s]);
             if let Some(seconds) = dumped.light_samples_s {
                 traces.insert(TraceKey::LightSamples(spp, selection), vec![seconds]);
@@ -737,8 +741,9 @@ pub fn run(args: &CompareArgs) -> Result<()> {
             bar.inc(1);
         }
         if needs(Input::Guide) {
-            bar.set_message(format!("tracing the guide buffers, {spp} spp"));
-            let (guide, seconds) = tracing.guide(spp, seed)?;
+            let message = format!("tracing the guide buffers, {spp} spp");
+            bar.set_message(message.clone());
+            let (guide, seconds) = crate::common::with_stage_progress(&bar, &message, || tracing.guide(spp, seed))?;
             guides.insert(spp, guide);
             traces.insert(TraceKey::Guide(spp), vec![seconds]);
             jobs.push(Job::Trace(TraceKey::Guide(spp), usize::MAX));
@@ -776,24 +781,27 @@ pub fn run(args: &CompareArgs) -> Result<()> {
 
     // The methods.
     'methods: for (index, method) in available.iter().enumerate() {
+        // The previous run of this method: how long the next one may take when it reports no
+        // stage of its own (OIDN).
+        let mut previous_s: Option<f64> = None;
         for &spp in &args.spp {
             let (inputs, key) = inputs_of(method, spp);
             for recon_rays in rays_of(method) {
                 let message = format!("{}, {spp} spp{}", method.name(), rays_label(recon_rays));
                 bar.set_message(message.clone());
                 memory::reset_peak();
-                let output =
-                    match crate::common::with_stage_progress(&bar, &message, || method.run(&inputs, recon_rays)) {
-                        Ok(output) => output,
-                        Err(MethodError::Unavailable(reason)) => {
-                            bar.suspend(|| eprintln!("skipping {}: {reason}", method.name()));
-                            skipped.push(Skipped { method: method.name().to_string(), reason: reason.to_string() });
-                            measured.retain(|m| m.run.method != method.name());
-                            jobs.retain(|job| !matches!(job, Job::Method { method, .. } if *method == index));
-                            continue 'methods;
-                        }
-                        Err(error) => bail!("{} at {spp} spp: {error}", method.name()),
-                    };
+                let run = || method.run(&inputs, recon_rays);
+                let output = match crate::common::with_expected_progress(&bar, &message, previous_s, run) {
+                    Ok(output) => output,
+                    Err(MethodError::Unavailable(reason)) => {
+                        bar.suspend(|| eprintln!("skipping {}: {reason}", method.name()));
+                        skipped.push(Skipped { method: method.name().to_string(), reason: reason.to_string() });
+                        measured.retain(|m| m.run.method != method.name());
+                        jobs.retain(|job| !matches!(job, Job::Method { method, .. } if *method == index));
+                        continue 'methods;
+                    }
+                    Err(error) => bail!("{} at {spp} spp: {error}", method.name()),
+                };
                 let own_peak = memory::peak_rss_mb();
                 let peak = match (own_peak, output.external_peak_rss_mb) {
                     (Some(a), Some(b)) => Some(a.max(b)),
@@ -806,6 +814,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                     _ => None,
                 };
                 let trace_s = trace_times(&traces, key, light_trace)[0];
+                previous_s = Some(output.preprocess_s + output.recon_s);
                 let run = context.measure(
                     method.name(),
                     spp,
@@ -877,26 +886,29 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         for (job, _) in jobs.iter().zip(&repeats).filter(|(_, &r)| pass < r) {
             match job {
                 Job::Trace(key, run) => {
-                    bar.set_message(format!("repetition {}: {}", pass + 1, key.label()));
-                    let seconds = match *key {
-                        TraceKey::Pt(spp) => {
-                            let traced = tracing.trace(spp, seed, false)?;
-                            if traced.frame.color != measured[*run].image {
-                                measured[*run].run.notes.push(not_deterministic(pass));
+                    let message = format!("repetition {}: {}", pass + 1, key.label());
+                    bar.set_message(message.clone());
+                    let seconds = crate::common::with_stage_progress(&bar, &message, || -> Result<f64> {
+                        Ok(match *key {
+                            TraceKey::Pt(spp) => {
+                                let traced = tracing.trace(spp, seed, false)?;
+                                if traced.frame.color != measured[*run].image {
+                                    measured[*run].run.notes.push(not_deterministic(pass));
+                                }
+                                traced.seconds
                             }
-                            traced.seconds
-                        }
-                        TraceKey::Samples(spp, selection) => {
-                            let dumped = tracing.dump(spp, seed, &inputs_dir, &selections[selection], selection)?;
-                            if let Some(seconds) = dumped.light_samples_s {
-                                let light = TraceKey::LightSamples(spp, selection);
-                                traces.get_mut(&light).expect("traced in pass 1").push(seconds);
+                            TraceKey::Samples(spp, selection) => {
+                                let dumped = tracing.dump(spp, seed, &inputs_dir, &selections[selection], selection)?;
+                                if let Some(seconds) = dumped.light_samples_s {
+                                    let light = TraceKey::LightSamples(spp, selection);
+                                    traces.get_mut(&light).expect("traced in pass 1").push(seconds);
+                                }
+                                dumped.samples_s
                             }
-                            dumped.samples_s
-                        }
-                        TraceKey::LightSamples(..) => unreachable!("traced with the samples"),
-                        TraceKey::Guide(spp) => tracing.guide(spp, seed)?.1,
-                    };
+                            TraceKey::LightSamples(..) => unreachable!("traced with the samples"),
+                            TraceKey::Guide(spp) => tracing.guide(spp, seed)?.1,
+                        })
+                    })?;
                     traces.get_mut(key).expect("traced in pass 1").push(seconds);
                 }
                 &Job::Method { method, spp, recon_rays, measured: m } => {
@@ -905,7 +917,9 @@ pub fn run(args: &CompareArgs) -> Result<()> {
                         format!("repetition {}: {}, {spp} spp{}", pass + 1, method.name(), rays_label(recon_rays));
                     bar.set_message(message.clone());
                     let (inputs, _) = inputs_of(method, spp);
-                    let output = crate::common::with_stage_progress(&bar, &message, || method.run(&inputs, recon_rays))
+                    let first = measured[m].parts.first().map(|[pre, recon]| pre + recon);
+                    let run = || method.run(&inputs, recon_rays);
+                    let output = crate::common::with_expected_progress(&bar, &message, first, run)
                         .map_err(|e| anyhow::anyhow!("{} at {spp} spp: {e}", method.name()))?;
                     if output.image != measured[m].image {
                         measured[m].run.notes.push(not_deterministic(pass));

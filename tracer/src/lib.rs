@@ -17,6 +17,7 @@ pub mod lights;
 pub mod limits;
 pub mod memory;
 pub mod output;
+pub mod progress;
 pub mod render;
 pub mod sampler;
 pub mod samples;

@@ -7,7 +7,6 @@
 use std::time::Instant;
 
 use glam::Vec3;
-use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 
 use crate::accel::{Accel, Hit};
@@ -275,19 +274,6 @@ pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool, RenderError> {
         .map_err(|e| RenderError::Settings(format!("cannot start {threads} threads: {e}")))
 }
 
-fn progress_bar(settings: &RenderSettings, len: u64, message: &str) -> ProgressBar {
-    if !settings.progress {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(len);
-    bar.set_style(
-        ProgressStyle::with_template("{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} tiles (eta {eta})")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    bar.set_message(message.to_string());
-    bar
-}
-
 /// One of `count` disjoint parts of a render (`lfr render --shard I/N [--shard-by samples]`).
 ///
 /// By tiles: tile t, counted row by row, belongs to shard t mod `count`, so every shard gets
@@ -430,7 +416,7 @@ pub fn render_shard_with_lights(
     let integrator = Integrator::new(scene, accel, lights, settings.max_bounces, settings.width, settings.height);
     let tile_list: Vec<(u32, u32)> =
         tiles(settings).into_iter().filter(|&(x, y)| shard.covers(settings.width, x, y)).collect();
-    let bar = progress_bar(settings, tile_list.len() as u64, "render");
+    let bar = crate::progress::StepProgress::begin(settings.progress, "render", tile_list.len() as u64, "tiles");
     let pool = thread_pool(settings.threads)?;
     let start = Instant::now();
     let results: Vec<TileResult> = pool.install(|| {
@@ -438,13 +424,13 @@ pub fn render_shard_with_lights(
             .par_iter()
             .map(|&(x, y)| {
                 let tile = render_tile(&integrator, settings, samples.clone(), x, y, &mut NoRecording);
-                bar.inc(1);
+                bar.advance(1);
                 tile
             })
             .collect()
     });
     let seconds = start.elapsed().as_secs_f64();
-    bar.finish_and_clear();
+    bar.finish();
     let mut frame = assemble(settings, samples.len() as u32, results, seconds);
     frame.dropped_contributions = integrator.dropped_contributions();
     Ok(frame)

@@ -142,7 +142,7 @@ pub fn gather(
         return Err(Error::sample_content(&samples.path, message));
     }
     let per_hit = rays_per_hit(settings.rays_per_pixel, spp);
-    crate::progress::begin("gather", height as u64);
+    crate::progress::begin("gather", height as u64, "rows");
     let rows: Vec<(Vec<[f32; 3]>, GatherStats)> = (0..height)
         .into_par_iter()
         .map(|y| {

@@ -256,7 +256,7 @@ pub fn gather_lens(
     }
     let n = settings.rays_per_pixel.max(1);
     let moving = samples.time.is_some();
-    crate::progress::begin("gather", height as u64);
+    crate::progress::begin("gather", height as u64, "rows");
     let rows: Vec<(Vec<[f32; 3]>, GatherStats)> = (0..height)
         .into_par_iter()
         .map(|y| {

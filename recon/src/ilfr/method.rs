@@ -466,11 +466,14 @@ pub fn reconstruct_samples(
     }
     let failed = |error: Error| MethodError::Failed(error.in_file(&samples.path));
 
+    // Sizing, hierarchy and shrinking, for the caller's progress bar.
+    crate::progress::begin("preprocessing", 3, "steps");
     let start = Instant::now();
     let storage = GatheredPoints::from_samples(samples);
     let points = storage.points();
     let sized = size_splats(&points, &settings.splats).map_err(failed)?;
     let sizing_s = start.elapsed().as_secs_f64();
+    crate::progress::advance(1);
 
     let start = Instant::now();
     let motion = |k: usize| storage.motion.as_ref().map_or([0.0; 3], |m| m[k]);
@@ -480,6 +483,7 @@ pub fn reconstruct_samples(
     let mut bvh = DiscBvh::build(&discs).map_err(failed)?;
     drop(discs);
     let hierarchy_s = start.elapsed().as_secs_f64();
+    crate::progress::advance(1);
 
     let start = Instant::now();
     let rays = input_rays(samples, &storage.sample_index);
@@ -487,6 +491,7 @@ pub fn reconstruct_samples(
     let diagonal = scene_diagonal(&bvh, &rays);
     drop(rays);
     let shrinking_s = start.elapsed().as_secs_f64();
+    crate::progress::end();
 
     let offset = if diagonal > 0.0 { settings.relative_offset * diagonal } else { settings.relative_offset };
     // Outliers are judged for indirect light (and in every recursive pass), not in the lens

@@ -209,7 +209,7 @@ pub fn integrate_locations<Sc: Default + Send, St: Counters>(
 ) -> (Image, St) {
     let locations = locations.max(1);
     let rule = rule.filter(|r| r.first >= 1 && r.first < locations);
-    crate::progress::begin("locations", height as u64);
+    crate::progress::begin("locations", height as u64, "rows");
     let rows: Vec<(Vec<[f32; 3]>, St)> = (0..height)
         .into_par_iter()
         .map_init(Sc::default, |scratch, y| {

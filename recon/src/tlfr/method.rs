@@ -238,11 +238,14 @@ pub fn prepare(path: &std::path::Path, settings: &TlfrSettings) -> Result<Prepar
     let has_lens = loaded.has_lens || settings.refocus.is_some_and(|(_, a)| a > 0.0);
     let z_near = near_limit(loaded.samples.iter().map(|s| s.z));
     let read_s = start.elapsed().as_secs_f64();
+    // Measuring R and building the hierarchy, for the caller's progress bar.
+    crate::progress::begin("preprocessing", 2, "steps");
     let start = Instant::now();
     let radius = measure_radius(&loaded.samples, width, height, loaded.spp, RADIUS_TRIALS, settings.seed)
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(1.0);
     let radius_s = start.elapsed().as_secs_f64();
+    crate::progress::advance(1);
     let start = Instant::now();
     let area = ScreenArea { width: width as f32, height: height as f32, max_reach: max_reach(radius) };
     let (hierarchy, order) = Hierarchy::build(&loaded.samples, &loaded.lens, z_near, &area);
@@ -268,6 +271,7 @@ pub fn prepare(path: &std::path::Path, settings: &TlfrSettings) -> Result<Prepar
         }),
     };
     let hierarchy_s = start.elapsed().as_secs_f64();
+    crate::progress::end();
     Ok(Prepared {
         width,
         height,

@@ -514,11 +514,14 @@ pub fn reconstruct_soft_shadow(
     let read_s = start.elapsed().as_secs_f64();
 
     let (width, height) = (camera.width, camera.height);
+    // R, the camera's hierarchy and the light's, for the caller's progress bar.
+    crate::progress::begin("preprocessing", 3, "steps");
     let radius_start = Instant::now();
     let radius = measure_radius(&camera.samples, width, height, camera.spp, RADIUS_TRIALS, settings.seed)
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(1.0);
     let radius_s = radius_start.elapsed().as_secs_f64();
+    crate::progress::advance(1);
     let z_near = near_limit(camera.samples.iter().map(|s| s.z));
     // The hierarchies; every array aligned with the samples follows their new order.
     let build_start = Instant::now();
@@ -541,12 +544,14 @@ pub fn reconstruct_soft_shadow(
         max_reach: max_reach(radius * largest_density / light.median_density),
     };
     let camera_build_s = build_start.elapsed().as_secs_f64();
+    crate::progress::advance(1);
     let build_start = Instant::now();
     let (light_tree, light_order) = Hierarchy::build(&light.samples, &light_lens, light_z_near, &light_area);
     let mut light = light;
     light.samples = reorder(&light.samples, &light_order);
     light.radiance = reorder(&light.radiance, &light_order);
     let light_build_s = build_start.elapsed().as_secs_f64();
+    crate::progress::end();
     let (camera, shading, light) = (camera, shading, light);
     let preprocess_s = start.elapsed().as_secs_f64();
 

@@ -252,12 +252,19 @@ pub fn guide_buffers(scene: &Scene, accel: &Accel, settings: &RenderSettings) ->
     let mut direct_only = super::integrator(scene, accel, &lights, settings);
     direct_only.max_bounces = 1;
     let pool = crate::render::thread_pool(settings.threads)?;
+    let pixel_count = settings.width * settings.height;
+    let bar = crate::progress::StepProgress::begin(settings.progress, "guide buffers", pixel_count as u64, "pixels");
     let pixels: Vec<GuidePixel> = pool.install(|| {
-        (0..settings.width * settings.height)
+        (0..pixel_count)
             .into_par_iter()
-            .map(|i| guide_pixel(&integrator, &direct_only, settings, i % settings.width, i / settings.width))
+            .map(|i| {
+                let pixel = guide_pixel(&integrator, &direct_only, settings, i % settings.width, i / settings.width);
+                bar.advance(1);
+                pixel
+            })
             .collect()
     });
+    bar.finish();
     Ok(GuideBuffers {
         width: settings.width,
         height: settings.height,

@@ -18,7 +18,6 @@ pub use selection::FieldSelection;
 use std::path::Path;
 use std::time::Instant;
 
-use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use sampleio::{Durability, HeaderSpec, PositionalWriter};
 
@@ -247,16 +246,7 @@ where
     let pool = crate::render::thread_pool(settings.threads)?;
     let pixel_count = settings.width as u64 * settings.height as u64;
     let spp = settings.spp;
-    let bar = if settings.progress {
-        let bar = ProgressBar::new(pixel_count * spp as u64);
-        bar.set_style(
-            ProgressStyle::with_template("dump [{elapsed_precise}] {wide_bar} {percent}% of the samples (eta {eta})")
-                .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        bar
-    } else {
-        ProgressBar::hidden()
-    };
+    let bar = crate::progress::StepProgress::begin(settings.progress, "dump", pixel_count * spp as u64, "samples");
     let start = Instant::now();
     let width = settings.width as u64;
     let total_values = pixel_count * spp as u64 * values_per_sample as u64;
@@ -297,7 +287,7 @@ where
             }
         }
         writer.write_records_at(first_sample, &slot.records)?;
-        bar.inc(count as u64);
+        bar.advance(count as u64);
         Ok(())
     };
     // One set of buffers per worker, reused for all its pieces (fresh memory per piece costs
@@ -323,7 +313,7 @@ where
         return Err(output_error(error));
     }
     let final_path = writer.finish(target.durability).map_err(output_error)?;
-    bar.finish_and_clear();
+    bar.finish();
     let bytes = std::fs::metadata(&final_path).map(|m| m.len()).unwrap_or(0);
     let seconds = start.elapsed().as_secs_f64();
     let samples = pixel_count * spp as u64;

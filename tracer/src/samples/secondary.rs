@@ -374,18 +374,8 @@ pub fn ambient_occlusion_frame(
     let lights = LightSampler::new(scene);
     let integrator = super::integrator(scene, accel, &lights, settings);
     let pool = crate::render::thread_pool(settings.threads)?;
-    let bar = if settings.progress {
-        let bar = indicatif::ProgressBar::new(settings.height as u64);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template(
-                "ambient occlusion [{elapsed_precise}] {wide_bar} {pos}/{len} rows (eta {eta})",
-            )
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        bar
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
+    let bar =
+        crate::progress::StepProgress::begin(settings.progress, "ambient occlusion", settings.height as u64, "rows");
     let start = std::time::Instant::now();
     let rows: Vec<Vec<(f32, Vec3, Vec3)>> = pool.install(|| {
         use rayon::prelude::*;
@@ -412,12 +402,12 @@ pub fn ambient_occlusion_frame(
                         (visible as f32 / spp, normal.normalize_or_zero(), albedo)
                     })
                     .collect();
-                bar.inc(1);
+                bar.advance(1);
                 row
             })
             .collect()
     });
-    bar.finish_and_clear();
+    bar.finish();
     let pixels: Vec<(f32, Vec3, Vec3)> = rows.into_iter().flatten().collect();
     Ok(AmbientOcclusionFrame {
         width: settings.width,
