@@ -334,6 +334,19 @@ pub fn with_expected_progress<T>(
     expected_s: Option<f64>,
     work: impl FnOnce() -> T,
 ) -> T {
+    let current = std::sync::Mutex::new(message.to_string());
+    with_changing_progress(bar, &current, expected_s, work)
+}
+
+/// [`with_expected_progress`] for a step that changes its own message as it goes (the probes'
+/// precompute names each of its steps): the bar shows `message`'s current text with the stage.
+pub fn with_changing_progress<T>(
+    bar: &indicatif::ProgressBar,
+    message: &std::sync::Mutex<String>,
+    expected_s: Option<f64>,
+    work: impl FnOnce() -> T,
+) -> T {
+    let text = || message.lock().unwrap_or_else(|e| e.into_inner()).clone();
     let finished = std::sync::atomic::AtomicBool::new(false);
     let start = std::time::Instant::now();
     let result = std::thread::scope(|scope| {
@@ -341,7 +354,7 @@ pub fn with_expected_progress<T>(
             while !finished.load(std::sync::atomic::Ordering::Relaxed) {
                 let stage = recon::progress::describe();
                 let elapsed = start.elapsed().as_secs_f64();
-                bar.set_message(step_message(message, &stage, elapsed, expected_s));
+                bar.set_message(step_message(&text(), &stage, elapsed, expected_s));
                 std::thread::park_timeout(std::time::Duration::from_millis(200));
             }
         });
@@ -352,7 +365,7 @@ pub fn with_expected_progress<T>(
     });
     // The ticker is joined: nothing sets a stale stage after this.
     recon::progress::end();
-    bar.set_message(message.to_string());
+    bar.set_message(text());
     result
 }
 
@@ -377,6 +390,9 @@ fn step_message(message: &str, stage: &str, elapsed: f64, expected_s: Option<f64
 mod tests {
     use super::*;
 
+    /// The stage tests of this module one at a time (they share the process-wide stage).
+    static STAGE_TESTS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
     #[test]
     fn a_step_without_a_stage_shows_its_time_and_what_is_left_of_the_expected() {
         assert_eq!(step_message("oidn, 4 spp", "", 0.4, Some(9.0)), "oidn, 4 spp", "nothing in the first second");
@@ -391,12 +407,14 @@ mod tests {
     #[test]
     fn a_reconstruction_stage_shows_in_the_bar_while_it_runs() {
         let bar = indicatif::ProgressBar::hidden();
+        let _alone = STAGE_TESTS.lock().unwrap_or_else(|e| e.into_inner());
         let seen = with_stage_progress(&bar, "ilfr, 4 spp", || {
-            recon::progress::begin("gather", 4, "rows");
-            recon::progress::advance(1);
             // The ticker updates five times a second.
             let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
             while !bar.message().contains("gather") && std::time::Instant::now() < deadline {
+                // Begun again each time: the stage is process-wide and other tests end theirs.
+                recon::progress::begin("gather", 4, "rows");
+                recon::progress::advance(1);
                 std::thread::sleep(std::time::Duration::from_millis(20));
             }
             bar.message()
@@ -404,5 +422,25 @@ mod tests {
         assert!(seen.starts_with("ilfr, 4 spp: gather 1/4 rows"), "{seen}");
         // The stage was left open: the finished run's bar no longer shows it.
         assert_eq!(bar.message(), "ilfr, 4 spp");
+    }
+
+    #[test]
+    fn a_step_that_renames_itself_shows_its_current_name_with_the_stage() {
+        let bar = indicatif::ProgressBar::hidden();
+        let message = std::sync::Mutex::new(String::from("layout"));
+        let _alone = STAGE_TESTS.lock().unwrap_or_else(|e| e.into_inner());
+        let seen = with_changing_progress(&bar, &message, None, || {
+            *message.lock().unwrap() = "transport".into();
+            let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+            while !bar.message().contains("traced") && std::time::Instant::now() < deadline {
+                // Begun again each time: the stage is process-wide and other tests end theirs.
+                recon::progress::begin("traced", 10, "receivers");
+                recon::progress::advance(3);
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            bar.message()
+        });
+        assert!(seen.starts_with("transport: traced 3/10 receivers"), "{seen}");
+        assert_eq!(bar.message(), "transport", "the last name, without the ended stage");
     }
 }

@@ -814,19 +814,26 @@ pub(crate) fn obtain(
             Err(e) => return Err(e.into()),
         }
     }
-    let pre = pool
-        .install(|| {
+    // Each step's name, with its receivers or probes done and the time left where it counts
+    // them (`shading::progress`).
+    let message = std::sync::Mutex::new(String::from("precompute"));
+    let build = || {
+        pool.install(|| {
             Precompute::build(scene, settings, &mut |stage| {
-                bar.set_message(match stage {
+                let name = match stage {
                     Stage::Layout(Step::Surfels) => "receivers (surfels)",
                     Stage::Layout(Step::Placement) => "voxels, flood fill and probe placement",
                     Stage::Layout(Step::Radius) => "support radius",
                     Stage::Layout(Step::Coverage) => "coverage",
                     Stage::Transport => "transport of every receiver (the long step)",
                     Stage::Relight => "relight rays",
-                })
+                };
+                *message.lock().unwrap_or_else(|e| e.into_inner()) = name.to_string();
+                bar.set_message(name);
             })
         })
+    };
+    let pre = crate::common::with_changing_progress(bar, &message, None, build)
         .with_context(|| format!("precompute on {}", scene.source.display()))?;
     bar.set_message("writing the cache");
     probes::cache::write(cache, &key, &pre)?;

@@ -113,6 +113,7 @@ impl RelightTable {
         }
         sh.iter_mut().for_each(|v| *v *= weight);
         type PerProbe = (Vec<(u32, u32)>, Vec<(u32, f32)>, u64, u64, f32);
+        shading::progress::begin("traced", probes.len() as u64, "probes");
         let per_probe: Vec<PerProbe> = probes
             .par_iter()
             .map(|p| {
@@ -146,9 +147,11 @@ impl RelightTable {
                     ranges.push((start, senders.len() as u32));
                 }
                 let back_fraction = if hits > 0 { back as f32 / hits as f32 } else { 0.0 };
+                shading::progress::advance(1);
                 (ranges, senders, escaped, holes, back_fraction)
             })
             .collect();
+        shading::progress::end();
         let mut table = RelightTable {
             rays,
             coefficients: nc,

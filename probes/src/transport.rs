@@ -259,22 +259,28 @@ impl<'a> TransportContext<'a> {
     /// The transport of every surfel, hidden ones (see [`TransportContext::hidden`]) left empty
     /// (no probes, no directions traced past the voxel test); and how many were hidden.
     pub fn all_valid(&self, surfels: &Surfels, grid: &VoxelGrid) -> (Vec<Transport>, usize) {
+        // The precompute's long step: receivers done, for the caller's progress bar.
+        shading::progress::begin("traced", surfels.surfels.len() as u64, "receivers");
         let out: Vec<(Transport, bool)> = surfels
             .surfels
             .par_iter()
             .enumerate()
             .map(|(i, s)| {
-                if Self::hidden(grid, s.position, s.normal, None) {
-                    return (Transport::empty(), true);
-                }
-                let t = self.receiver(i as u32, s.position, s.normal);
-                if Self::hidden(grid, s.position, s.normal, Some(&t)) {
+                let result = if Self::hidden(grid, s.position, s.normal, None) {
                     (Transport::empty(), true)
                 } else {
-                    (t, false)
-                }
+                    let t = self.receiver(i as u32, s.position, s.normal);
+                    if Self::hidden(grid, s.position, s.normal, Some(&t)) {
+                        (Transport::empty(), true)
+                    } else {
+                        (t, false)
+                    }
+                };
+                shading::progress::advance(1);
+                result
             })
             .collect();
+        shading::progress::end();
         let hidden = out.iter().filter(|(_, h)| *h).count();
         (out.into_iter().map(|(t, _)| t).collect(), hidden)
     }
