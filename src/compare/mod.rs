@@ -462,7 +462,7 @@ fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
                     let ratio = if speedup >= 1.0 { format!("{speedup:.2}× faster") } else { format!("{:.2}× slower", 1.0 / speedup.max(1e-12)) };
                     let judged = match (difference, run.speedup_range) {
                         (Some(Difference::Unclear), Some([lo, hi])) => format!(
-                            "no clear difference ({ratio} by the median times; the repeated timings allow {lo:.2}× to {hi:.2}×)"
+                            "no clear difference ({ratio} by the median times; the repeated timings allow a speedup of {lo:.2}× to {hi:.2}×)"
                         ),
                         _ => ratio,
                     };
