@@ -10,7 +10,8 @@
 //!    crosses Π (`light_space`).
 //! 3. The light reconstruction there, over the `light` samples reprojected exactly like camera
 //!    samples (the light's rectangle is their lens), with radius R·ρ (ρ the receiver's
-//!    `density`, Appendix B), finds the covering surface as seen from the light: each of its
+//!    `density`, Appendix B), finds the covering surface as seen from the light (a surface in
+//!    front of p also at the rim of its silhouette, `query::covering_blocker`): each of its
 //!    samples carries the light's radiance if it reaches p (its depth at t̂ is not in front of
 //!    p's, "L = 0 for light samples that end before the receiver") and 0 otherwise; the tent
 //!    filter of those values is the light arriving from (ũ, ṽ).
@@ -33,7 +34,7 @@ use sampleio::SampleFile;
 
 use super::coverage::tent_filter;
 use super::light_space::{decode_octahedral, lambertian_direct, LightSpace};
-use super::query::{covering_surface, QueryStats, Scene, Scratch};
+use super::query::{covering_blocker, covering_surface, QueryStats, Scene, Scratch};
 use super::reprojection::{reproject, LensTime, LensTimeSample};
 use super::samples::LensTimeSamples;
 use crate::error::Error;
@@ -341,22 +342,28 @@ pub fn reconstruct_with_shadow(
     let relative = rho.map_or(1.0, |d| d / scene.light_samples.median_density);
     let light_scene = Scene { radius: scene.light.radius * relative, ..*scene.light };
     stats.shaded += 1;
+    let plane = ReceiverPlane::new(space, in_light, normal, light_u, light_v);
+    let reaches = |i: u32, footprint: f32| {
+        let light_sample = &scene.light_samples.samples[i as usize];
+        reproject(light_sample, light_lens, light_at, scene.light.z_near).is_some_and(|end| {
+            let depth = plane.depth_at([end.x, end.y], in_light[2]);
+            end.z >= depth - SHADOW_BIAS_RELATIVE * depth - SHADOW_BIAS_FOOTPRINTS * footprint
+        })
+    };
+    // A surface in front of p keeps the rim of its silhouette (`query::takes_rim`).
+    let first_footprint = light_scene.radius * scene.light_samples.median_density;
+    let blocks = |i: u32| !reaches(i, first_footprint);
     let Some(light_radius) =
-        covering_surface(&light_scene, light_screen, light_at, &mut scratch.light, &mut stats.light)
+        covering_blocker(&light_scene, light_screen, light_at, &blocks, &mut scratch.light, &mut stats.light)
     else {
         stats.blocked += 1;
         return Some(value); // no light sample within 16R: no light (counted as blocked)
     };
     let footprint = light_radius * scene.light_samples.median_density;
-    let plane = ReceiverPlane::new(space, in_light, normal, light_u, light_v);
     scratch.values.clear();
     let mut any_lit = false;
     for &i in &scratch.light.covering {
-        let light_sample = &scene.light_samples.samples[i as usize];
-        let reaches = reproject(light_sample, light_lens, light_at, scene.light.z_near).is_some_and(|end| {
-            let depth = plane.depth_at([end.x, end.y], in_light[2]);
-            end.z >= depth - SHADOW_BIAS_RELATIVE * depth - SHADOW_BIAS_FOOTPRINTS * footprint
-        });
+        let reaches = reaches(i, footprint);
         any_lit |= reaches;
         scratch.values.push(if reaches { scene.light_samples.radiance[i as usize] } else { [0.0; 3] });
     }
