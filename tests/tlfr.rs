@@ -260,14 +260,52 @@ fn a_huge_aperture_spreads_the_square_as_the_thin_lens_does() {
 /// The lamp-and-blocker scene of the soft-shadow tests; the lamp moves by `lamp_motion` over the
 /// shutter.
 fn lamp_and_blocker(lamp_motion: [f32; 3]) -> Scene {
+    lamp_and_blocker_at(lamp_motion, 1.0)
+}
+
+/// `lamp_and_blocker` with every length (positions, motion) multiplied by `scale`: the same
+/// image, since the lamp's radiance subtends the same solid angles.
+fn lamp_and_blocker_at(lamp_motion: [f32; 3], scale: f32) -> Scene {
+    let at = |p: [f32; 3]| p.map(|v| v * scale);
+    let all = |points: &[[f32; 3]]| points.iter().map(|&p| at(p)).collect::<Vec<_>>();
     SceneToml::new(1, None)
-        .camera([0.3, 1.6, 1.2], [0.0; 3], 60.0, "")
+        .camera(at([0.3, 1.6, 1.2]), [0.0; 3], 60.0, "")
         .emitter("lamp", [4.0; 3], "")
         .diffuse("grey", [0.5; 3])
-        .polygon("lamp", &LAMP, &format!("motion = {lamp_motion:?}\n"))
-        .polygon("grey", &[[-0.2, 0.8, -0.2], [0.2, 0.8, -0.2], [0.2, 0.8, 0.2], [-0.2, 0.8, 0.2]], "")
-        .polygon("grey", &FLOOR, "")
+        .polygon("lamp", &all(&LAMP), &format!("motion = {:?}\n", at(lamp_motion)))
+        .polygon("grey", &all(&[[-0.2, 0.8, -0.2], [0.2, 0.8, -0.2], [0.2, 0.8, 0.2], [-0.2, 0.8, 0.2]]), "")
+        .polygon("grey", &all(&FLOOR), "")
         .scene()
+}
+
+/// Stiff cases of the soft-shadow reconstruction with the light query's rim rule: the lamp scene
+/// at 1e-6 and 1e9 of its size gives the unit scene's image (mean within 1 %, error against the
+/// unit scene's converged image below the box filter's of the same samples, as at unit scale),
+/// and a 1×1 image from 1 spp is finite.
+#[test]
+fn soft_shadows_keep_their_image_at_extreme_scales_and_on_one_pixel() {
+    let reference = common::render(&lamp_and_blocker([0.0; 3]), 32, 32, 1024, 11);
+    let keep = vec![true; 32 * 32];
+    let unit = soft_shadow_run(&lamp_and_blocker([0.0; 3]), (32, 32), 4, &reference.beauty, &keep);
+    for scale in [1e-6, 1e9] {
+        let run = soft_shadow_run(&lamp_and_blocker_at([0.0; 3], scale), (32, 32), 4, &reference.beauty, &keep);
+        assert!(
+            (run.tlfr_mean / unit.tlfr_mean - 1.0).abs() < 0.01,
+            "scale {scale}: mean {} against {} at unit scale",
+            run.tlfr_mean,
+            unit.tlfr_mean
+        );
+        assert!(
+            run.tlfr_error < run.box_error,
+            "scale {scale}: {} against the box's {}",
+            run.tlfr_error,
+            run.box_error
+        );
+    }
+    let one = lamp_and_blocker([0.0; 3]);
+    let pixel = common::render(&one, 1, 1, 64, 11);
+    let run = soft_shadow_run(&one, (1, 1), 1, &pixel.beauty, &[true]);
+    assert!(run.output.image.pixels.iter().flatten().all(|v| v.is_finite() && *v >= 0.0));
 }
 
 /// Reconstructs the soft shadows of `scene` from 4 spp at 32² and returns the image with the
