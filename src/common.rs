@@ -393,6 +393,25 @@ mod tests {
     /// The stage tests of this module one at a time (they share the process-wide stage).
     static STAGE_TESTS: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
+    /// Runs stage `stage` (`done` of `total` units) until the bar's message names it (at most
+    /// 10 s) and returns that message. The stage is begun again on every wait: it is
+    /// process-wide, and other tests end theirs.
+    fn bar_once_showing(
+        bar: &indicatif::ProgressBar,
+        stage: &'static str,
+        total: u64,
+        unit: &'static str,
+        done: u64,
+    ) -> String {
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+        while !bar.message().contains(stage) && std::time::Instant::now() < deadline {
+            recon::progress::begin(stage, total, unit);
+            recon::progress::advance(done);
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        bar.message()
+    }
+
     #[test]
     fn a_step_without_a_stage_shows_its_time_and_what_is_left_of_the_expected() {
         assert_eq!(step_message("oidn, 4 spp", "", 0.4, Some(9.0)), "oidn, 4 spp", "nothing in the first second");
@@ -410,14 +429,7 @@ mod tests {
         let _alone = STAGE_TESTS.lock().unwrap_or_else(|e| e.into_inner());
         let seen = with_stage_progress(&bar, "ilfr, 4 spp", || {
             // The ticker updates five times a second.
-            let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
-            while !bar.message().contains("gather") && std::time::Instant::now() < deadline {
-                // Begun again each time: the stage is process-wide and other tests end theirs.
-                recon::progress::begin("gather", 4, "rows");
-                recon::progress::advance(1);
-                std::thread::sleep(std::time::Duration::from_millis(20));
-            }
-            bar.message()
+            bar_once_showing(&bar, "gather", 4, "rows", 1)
         });
         assert!(seen.starts_with("ilfr, 4 spp: gather 1/4 rows"), "{seen}");
         // The stage was left open: the finished run's bar no longer shows it.
@@ -431,14 +443,7 @@ mod tests {
         let _alone = STAGE_TESTS.lock().unwrap_or_else(|e| e.into_inner());
         let seen = with_changing_progress(&bar, &message, None, || {
             *message.lock().unwrap() = "transport".into();
-            let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
-            while !bar.message().contains("traced") && std::time::Instant::now() < deadline {
-                // Begun again each time: the stage is process-wide and other tests end theirs.
-                recon::progress::begin("traced", 10, "receivers");
-                recon::progress::advance(3);
-                std::thread::sleep(std::time::Duration::from_millis(20));
-            }
-            bar.message()
+            bar_once_showing(&bar, "traced", 10, "receivers", 3)
         });
         assert!(seen.starts_with("transport: traced 3/10 receivers"), "{seen}");
         assert_eq!(bar.message(), "transport", "the last name, without the ended stage");
