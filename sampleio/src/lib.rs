@@ -68,4 +68,4 @@ pub use needs::{FieldNeed, Needs, OCTAHEDRAL, REAL};
 pub use output::check_output_target;
 pub use positional_writer::PositionalWriter;
 pub use reader::SampleFile;
-pub use writer::{encode_record, Durability, SampleWriter, UnencodableValue};
+pub use writer::{encode_record, encode_records, Durability, SampleWriter, UnencodableValue};

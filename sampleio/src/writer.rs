@@ -85,6 +85,46 @@ pub fn encode_record(header: &Header, values: &[f32], record: &mut [u8]) -> std:
     Ok(())
 }
 
+/// Encodes consecutive samples' values (`header.values_per_sample()` per sample) into
+/// consecutive records, as [`encode_record`] does one by one; on a value no field can hold, the
+/// index of its sample among these and the value. A record of `f32` fields only, packed in
+/// header order, is the values' little-endian bytes, written in one pass.
+pub fn encode_records(
+    header: &Header,
+    values: &[f32],
+    records: &mut [u8],
+) -> std::result::Result<(), (usize, UnencodableValue)> {
+    let per_sample = header.values_per_sample();
+    let record_size = header.record_size as usize;
+    if per_sample == 0 || record_size == 0 {
+        return Ok(());
+    }
+    if packed_f32(header) {
+        for (value, bytes) in values.iter().zip(records.chunks_exact_mut(4)) {
+            bytes.copy_from_slice(&value.to_le_bytes());
+        }
+        return Ok(());
+    }
+    for (at, (values, record)) in values.chunks_exact(per_sample).zip(records.chunks_exact_mut(record_size)).enumerate()
+    {
+        encode_record(header, values, record).map_err(|bad| (at, bad))?;
+    }
+    Ok(())
+}
+
+/// Whether every field is `f32` and the record is the fields' components back to back with no
+/// padding: then a record's bytes are its values' little-endian bytes in order.
+fn packed_f32(header: &Header) -> bool {
+    let mut offset = 0u32;
+    for field in &header.fields {
+        if field.ty != FieldType::F32 || field.offset != offset {
+            return false;
+        }
+        offset = offset.saturating_add(field.components.saturating_mul(4));
+    }
+    offset == header.record_size
+}
+
 /// Whether a finished file is made durable before the writer reports success.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Durability {

@@ -290,3 +290,62 @@ fn records_pushed_in_runs_give_the_same_file_as_samples_pushed_one_by_one() {
     assert_eq!((bad.field.as_str(), bad.component, bad.ty), ("count", 1, FieldType::U16));
     assert!(bad.at(&path, 9).to_string().contains("bad.lfrs"));
 }
+
+/// The header a writer of `spec` lays out (the writer is dropped, leaving no file).
+fn header_of(dir: &Path, spec: HeaderSpec) -> sampleio::Header {
+    SampleWriter::create(&dir.join("layout.lfrs"), spec).unwrap().header().clone()
+}
+
+proptest::proptest! {
+    /// `encode_records` (one pass over a packed all-`f32` record, else record by record) gives
+    /// the bytes of `encode_record` applied to each sample in turn, and on a value no field
+    /// can hold, the first such sample's index and the same error.
+    #[test]
+    fn encoding_many_records_matches_encoding_them_one_by_one(
+        fields in proptest::collection::vec((0usize..5, 1u32..4), 1..5),
+        samples in 0usize..6,
+        seed in 0u64..1 << 32,
+        all_f32 in proptest::bool::ANY,
+    ) {
+        let dir = tempfile::tempdir().unwrap();
+        let types = [FieldType::F32, FieldType::F16, FieldType::U8, FieldType::U16, FieldType::U32];
+        let mut spec = HeaderSpec::new(SampleKind::LensTime, 1, 1, 1);
+        for (i, (ty, components)) in fields.iter().enumerate() {
+            let ty = if all_f32 { FieldType::F32 } else { types[*ty] };
+            spec = spec.field(FieldSpec::new(format!("f{i}"), ty, *components));
+        }
+        let header = header_of(dir.path(), spec);
+        let per_sample = header.values_per_sample();
+        let size = header.record_size as usize;
+        // Mostly small non-negative values; now and then one an integer field cannot hold.
+        let mut state = seed;
+        let values: Vec<f32> = (0..samples * per_sample)
+            .map(|_| {
+                state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                match state >> 58 {
+                    0 => -3.0,
+                    1 => f32::NAN,
+                    2 => f32::INFINITY,
+                    r => (r as f32) * 1.37,
+                }
+            })
+            .collect();
+        let mut expected = vec![0u8; samples * size];
+        let mut expected_error = None;
+        for (at, (v, record)) in values.chunks_exact(per_sample).zip(expected.chunks_exact_mut(size)).enumerate() {
+            if let Err(bad) = encode_record(&header, v, record) {
+                expected_error = Some((at, bad));
+                break;
+            }
+        }
+        let mut records = vec![0u8; samples * size];
+        match (sampleio::encode_records(&header, &values, &mut records), expected_error) {
+            (Ok(()), None) => proptest::prop_assert_eq!(records, expected),
+            (Err((at, bad)), Some((expected_at, expected_bad))) => {
+                proptest::prop_assert_eq!(at, expected_at);
+                proptest::prop_assert_eq!(format!("{bad:?}"), format!("{expected_bad:?}"));
+            }
+            (got, wanted) => proptest::prop_assert!(false, "got {got:?}, expected {wanted:?}"),
+        }
+    }
+}

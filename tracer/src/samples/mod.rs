@@ -144,7 +144,7 @@ const PIECES: Pieces = Pieces { piece_values: 1 << 16, pieces_per_thread: 16 };
 #[derive(Default)]
 struct PieceBuffers {
     values: Vec<f32>,
-    /// One record's selected values (only with a field selection).
+    /// The piece's selected values, record after record (only with a field selection).
     selected: Vec<f32>,
     records: Vec<u8>,
 }
@@ -268,24 +268,20 @@ where
         slot.records.clear();
         slot.records.resize(count * record_size, 0);
         let first_sample = piece.first_sample(spp);
-        if values_per_sample > 0 {
-            for (at, (values, record)) in
-                slot.values.chunks_exact(values_per_sample).zip(slot.records.chunks_exact_mut(record_size)).enumerate()
-            {
-                let values = match &selected_ranges {
-                    None => values,
-                    Some(ranges) => {
-                        slot.selected.clear();
-                        for range in ranges {
-                            slot.selected.extend_from_slice(&values[range.clone()]);
-                        }
-                        &slot.selected
+        let encoded = match &selected_ranges {
+            None => &slot.values,
+            Some(ranges) => {
+                slot.selected.clear();
+                for values in slot.values.chunks_exact(values_per_sample.max(1)) {
+                    for range in ranges {
+                        slot.selected.extend_from_slice(&values[range.clone()]);
                     }
-                };
-                sampleio::encode_record(&header, values, record)
-                    .map_err(|bad| bad.at(path, first_sample + at as u64))?;
+                }
+                &slot.selected
             }
-        }
+        };
+        sampleio::encode_records(&header, encoded, &mut slot.records)
+            .map_err(|(at, bad)| bad.at(path, first_sample + at as u64))?;
         writer.write_records_at(first_sample, &slot.records)?;
         bar.advance(count as u64);
         Ok(())
