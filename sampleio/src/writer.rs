@@ -72,15 +72,38 @@ impl UnencodableValue {
 /// they are. `values` must hold `header.values_per_sample()` values and `record` the record
 /// size (the caller checks; extra values are ignored).
 pub fn encode_record(header: &Header, values: &[f32], record: &mut [u8]) -> std::result::Result<(), UnencodableValue> {
-    let mut values = values.iter();
+    let mut first = 0usize;
     for field in &header.fields {
-        for component in 0..field.components {
-            let Some(&value) = values.next() else { return Ok(()) };
-            let range = field.component_range(component as usize);
-            if !field.ty.encode(value, &mut record[range]) {
-                return Err(UnencodableValue { field: field.name.clone(), component, value, ty: field.ty });
+        // A field's components, or as many as `values` still holds.
+        let end = (first + field.components as usize).min(values.len());
+        let field_values = &values[first.min(end)..end];
+        let start = field.offset as usize;
+        let bytes = &mut record[start..start + field_values.len() * field.ty.size()];
+        match field.ty {
+            FieldType::F32 => {
+                for (value, out) in field_values.iter().zip(bytes.chunks_exact_mut(4)) {
+                    out.copy_from_slice(&value.to_le_bytes());
+                }
+            }
+            FieldType::F16 => {
+                for (value, out) in field_values.iter().zip(bytes.chunks_exact_mut(2)) {
+                    out.copy_from_slice(&half::f16::from_f32(*value).to_le_bytes());
+                }
+            }
+            ty => {
+                for (component, (value, out)) in field_values.iter().zip(bytes.chunks_exact_mut(ty.size())).enumerate()
+                {
+                    if !ty.encode(*value, out) {
+                        let component = component as u32;
+                        return Err(UnencodableValue { field: field.name.clone(), component, value: *value, ty });
+                    }
+                }
             }
         }
+        if field_values.len() < field.components as usize {
+            return Ok(());
+        }
+        first = end;
     }
     Ok(())
 }

@@ -296,10 +296,35 @@ fn header_of(dir: &Path, spec: HeaderSpec) -> sampleio::Header {
     SampleWriter::create(&dir.join("layout.lfrs"), spec).unwrap().header().clone()
 }
 
+/// The oracle of the encoders: each value on its own through `FieldType::encode`, at its
+/// field's offset plus its component times the type's size; the first value no field can hold
+/// as (sample, field, component).
+fn encode_value_by_value(
+    header: &sampleio::Header,
+    values: &[f32],
+    records: &mut [u8],
+) -> Result<(), (usize, String, u32)> {
+    let per_sample = header.values_per_sample();
+    let size = header.record_size as usize;
+    for (sample, (values, record)) in values.chunks_exact(per_sample).zip(records.chunks_exact_mut(size)).enumerate() {
+        let mut values = values.iter();
+        for field in &header.fields {
+            for component in 0..field.components {
+                let start = field.offset as usize + component as usize * field.ty.size();
+                let value = *values.next().unwrap();
+                if !field.ty.encode(value, &mut record[start..start + field.ty.size()]) {
+                    return Err((sample, field.name.clone(), component));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 proptest::proptest! {
-    /// `encode_records` (one pass over a packed all-`f32` record, else record by record) gives
-    /// the bytes of `encode_record` applied to each sample in turn, and on a value no field
-    /// can hold, the first such sample's index and the same error.
+    /// `encode_records` (one pass over a packed all-`f32` record, else record by record) and
+    /// `encode_record` on each sample in turn give the bytes of encoding value by value, and on
+    /// a value no field can hold, the first such sample's index, field and component.
     #[test]
     fn encoding_many_records_matches_encoding_them_one_by_one(
         fields in proptest::collection::vec((0usize..5, 1u32..4), 1..5),
@@ -331,19 +356,24 @@ proptest::proptest! {
             })
             .collect();
         let mut expected = vec![0u8; samples * size];
-        let mut expected_error = None;
-        for (at, (v, record)) in values.chunks_exact(per_sample).zip(expected.chunks_exact_mut(size)).enumerate() {
+        let expected_error = encode_value_by_value(&header, &values, &mut expected).err();
+        let mut one_by_one = vec![0u8; samples * size];
+        let mut one_by_one_error = None;
+        for (at, (v, record)) in values.chunks_exact(per_sample).zip(one_by_one.chunks_exact_mut(size)).enumerate() {
             if let Err(bad) = encode_record(&header, v, record) {
-                expected_error = Some((at, bad));
+                one_by_one_error = Some((at, bad.field, bad.component));
                 break;
             }
+        }
+        proptest::prop_assert_eq!(&one_by_one_error, &expected_error);
+        if expected_error.is_none() {
+            proptest::prop_assert_eq!(&one_by_one, &expected);
         }
         let mut records = vec![0u8; samples * size];
         match (sampleio::encode_records(&header, &values, &mut records), expected_error) {
             (Ok(()), None) => proptest::prop_assert_eq!(records, expected),
-            (Err((at, bad)), Some((expected_at, expected_bad))) => {
-                proptest::prop_assert_eq!(at, expected_at);
-                proptest::prop_assert_eq!(format!("{bad:?}"), format!("{expected_bad:?}"));
+            (Err((at, bad)), Some((expected_at, field, component))) => {
+                proptest::prop_assert_eq!((at, bad.field, bad.component), (expected_at, field, component));
             }
             (got, wanted) => proptest::prop_assert!(false, "got {got:?}, expected {wanted:?}"),
         }
