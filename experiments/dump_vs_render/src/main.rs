@@ -28,10 +28,21 @@ fn main() {
     let lights = tracer::lights::LightSampler::new(&scene);
     let integrator = tracer::samples::integrator(&scene, &accel, &lights, &settings);
     let pool = thread_pool(2).unwrap();
-    let path = std::path::PathBuf::from("/tmp/dvr.lfrs");
+    let path = std::path::PathBuf::from(std::env::var("DVR_PATH").unwrap_or("/tmp/dvr.lfrs".into()));
     let only = args.get(5).cloned();
-    let names =
-        ["open", "average", "render", "dump", "rows-trace-only", "tiles-trace-only", "dump-1thread", "render-1thread"];
+    let names = [
+        "open",
+        "average",
+        "render",
+        "dump",
+        "rows-trace-only",
+        "tiles-trace-only",
+        "dump-1thread",
+        "render-1thread",
+        "rows-values",
+        "dump-own-closure",
+        "dump-replace",
+    ];
     let mut times: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
     let trace_pixel = |x: u32, y: u32, sink: &mut f32| {
         for index in 0..spp {
@@ -43,6 +54,32 @@ fn main() {
     };
     tracer::samples::lens_time::dump(&scene, &accel, &settings, &fields, tracer::samples::DumpTarget::scratch(&path))
         .unwrap();
+    // The values of a full lens-time record of a scene with lens, motion and glossy materials
+    // (x, y, u, v, t, z, motion, radiance, depth_gradient, bandwidth), as the dump computes them.
+    let lens_time_values = |x: u32, y: u32, samples: std::ops::Range<u32>, values: &mut Vec<f32>| {
+        for index in samples {
+            let mut sampler = Sampler::new(settings.seed, x, y, index);
+            let cs = integrator.camera_sample(x, y, &mut sampler);
+            let p = integrator.trace_camera_sample(&cs, &mut sampler, &mut NoRecording);
+            values.extend_from_slice(&[cs.film.x, cs.film.y, cs.lens.x, -cs.lens.y, cs.time]);
+            match p.first_hit {
+                Some(hit) => {
+                    values.push(hit.depth);
+                    let motion = scene.meshes[hit.mesh as usize].motion;
+                    values.extend_from_slice(&scene.camera.vector_to_camera_space(motion).to_array());
+                    values.extend_from_slice(&p.radiance().to_array());
+                    values.extend_from_slice(&[0.0, 0.0]);
+                    values.push(tracer::samples::secondary::bandwidth(&hit.bsdf));
+                }
+                None => {
+                    values.push(f32::INFINITY);
+                    values.extend_from_slice(&[0.0; 3]);
+                    values.extend_from_slice(&p.radiance().to_array());
+                    values.extend_from_slice(&[0.0; 3]);
+                }
+            }
+        }
+    };
     for _ in 0..repeats {
         for (k, name) in names.iter().enumerate() {
             if only.as_deref().is_some_and(|o| o != *name) {
@@ -70,15 +107,17 @@ fn main() {
                 "render-1thread" => {
                     tracer::render(&scene, &accel, &RenderSettings { threads: 1, ..settings.clone() }).unwrap();
                 }
-                "dump" => {
-                    tracer::samples::lens_time::dump(
-                        &scene,
-                        &accel,
-                        &settings,
-                        &fields,
-                        tracer::samples::DumpTarget::scratch(&path),
-                    )
-                    .unwrap();
+                "dump" | "dump-replace" => {
+                    // `dump` starts from no file; `dump-replace` renames over the previous one.
+                    if *name == "dump" {
+                        let _ = std::fs::remove_file(&path);
+                    }
+                    let target = tracer::samples::DumpTarget::scratch(&path);
+                    let report = tracer::samples::lens_time::dump(&scene, &accel, &settings, &fields, target).unwrap();
+                    eprintln!(
+                        "{name}: {:.4} s, of which the parallel pass {:.4} s",
+                        report.seconds, report.trace_seconds
+                    );
                 }
                 "dump-1thread" => {
                     tracer::samples::lens_time::dump(
@@ -106,6 +145,37 @@ fn main() {
                             .sum()
                     });
                     std::hint::black_box(s);
+                }
+                "rows-values" => {
+                    let rows: Vec<u32> = (0..size).collect();
+                    let s: f32 = pool.install(|| {
+                        rows.par_chunks(2)
+                            .map(|r| {
+                                let mut values: Vec<f32> = Vec::with_capacity(2 * size as usize * spp as usize * 15);
+                                for &y in r {
+                                    for x in 0..size {
+                                        lens_time_values(x, y, 0..spp, &mut values);
+                                    }
+                                }
+                                values.iter().sum::<f32>()
+                            })
+                            .sum()
+                    });
+                    std::hint::black_box(s);
+                }
+                "dump-own-closure" => {
+                    let layout = tracer::samples::lens_time::LensTimeLayout::for_scene(&scene);
+                    let spec = layout.header(&scene, &settings);
+                    let target = tracer::samples::DumpTarget::scratch(&path);
+                    tracer::samples::write_samples(
+                        target,
+                        spec,
+                        &fields,
+                        &settings,
+                        layout.values_per_sample(),
+                        |x, y, samples, values| lens_time_values(x, y, samples, values),
+                    )
+                    .unwrap();
                 }
                 "tiles-trace-only" => {
                     let tiles: Vec<(u32, u32)> =
