@@ -76,3 +76,39 @@ fn a_reconstruction_beyond_the_machine_is_refused_before_any_work() {
     let fits = lfr(&["reconstruct", "--samples", samples, "--locations", "4", "--out", out], Some("100000000"));
     assert!(fits.status.success(), "{}", String::from_utf8_lossy(&fits.stderr));
 }
+
+/// `compare` with `probes` counts the largest probes method's precompute, compression and
+/// image beside its images: a receiver budget the machine cannot hold is refused before the
+/// reference is traced, naming the method, while the same comparison without it fits.
+#[test]
+fn a_comparison_with_probes_counts_their_memory_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("cmp");
+    let out = out.to_str().unwrap();
+    let cache = dir.path().join("cache");
+    let base = ["compare", "--effect", "indirect", "--width", "16", "--height", "16", "--spp", "1", "--quiet"];
+    let base: Vec<&str> = base.into_iter().chain(["--cache-dir", cache.to_str().unwrap()]).collect();
+    let big = "box,probes:receivers=20000000";
+    let mut args = base.to_vec();
+    args.extend_from_slice(&["--methods", big, "--out", out]);
+    let start = Instant::now();
+    let refused = lfr(&args, Some("8589934592"));
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success(), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(
+        stderr.contains("needs about")
+            && stderr.contains("8.0 GiB is available")
+            && stderr.contains("probes:receivers=20000000")
+            && stderr.contains("receivers"),
+        "{stderr}"
+    );
+    assert!(start.elapsed() < Duration::from_secs(60), "refused at once, not after tracing");
+    assert!(!std::path::Path::new(out).exists() && !cache.exists(), "nothing written");
+    // Without the probes the same comparison's images fit in the same memory: the refusal was
+    // the probes' estimate.
+    let mut args = base.to_vec();
+    args.extend_from_slice(&["--methods", "box", "--reference-spp", "4", "--pt-max-spp", "2", "--out", out]);
+    let fits = lfr(&args, Some("8589934592"));
+    assert!(fits.status.success(), "{}", String::from_utf8_lossy(&fits.stderr));
+}

@@ -140,15 +140,34 @@ fn resolve_methods(names: &[String], effect: Effect) -> Result<Vec<Registered>> 
 
 /// Refuses a comparison whose images would not fit in memory, before anything is traced: one
 /// render at a time (`tracer::memory::RENDER_BYTES_PER_PIXEL`), the reference and its halves,
-/// every run's image and its FLIP copy, and the frames and guide buffers kept per input spp.
-fn check_memory(args: &CompareArgs, methods: &[Registered], width: u32, height: u32) -> Result<()> {
+/// every run's image and its FLIP copy, and the frames and guide buffers kept per input spp;
+/// with `probes` methods, the largest of their precomputes, compressions and images
+/// (`probes::memory`: they run one at a time, beside the images kept).
+fn check_memory(
+    args: &CompareArgs,
+    methods: &[Registered],
+    probe_methods: &[probes_method::ProbesMethod],
+    (width, height): (u32, u32),
+    threads: usize,
+) -> Result<()> {
     let ladder_runs = ladder(args.pt_max_spp, &args.spp).len() as u64;
     let rays = args.recon_rays.as_ref().map_or(3, Vec::len) as u64;
-    let method_runs = methods.len() as u64 * args.spp.len() as u64 * rays;
+    let method_runs = (methods.len() + probe_methods.len()) as u64 * args.spp.len() as u64 * rays;
     let inputs = args.spp.len() as u64;
     let per_pixel = tracer::memory::RENDER_BYTES_PER_PIXEL + 3 * 12 + 24 * (ladder_runs + method_runs) + 100 * inputs;
+    let images = width as u64 * height as u64 * per_pixel;
     let what = format!("a comparison at {width}x{height} with {} runs", ladder_runs + method_runs);
-    tracer::memory::check(&what, width as u64 * height as u64 * per_pixel)?;
+    let largest_probes = probe_methods
+        .iter()
+        .map(|method| (method, probes_method::memory_estimate(method, (width, height), threads)))
+        .max_by_key(|(_, estimate)| estimate.total());
+    match largest_probes {
+        None => tracer::memory::check(&what, images)?,
+        Some((method, estimate)) => {
+            let what = estimate.describe(&format!("{what}, its images and {}", method.name));
+            tracer::memory::check(&what, images + estimate.total())?
+        }
+    }
     Ok(())
 }
 
@@ -587,7 +606,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         Some(r) => r,
         None => default_ao_radius(&scene),
     };
-    check_memory(args, &methods, width, height)?;
+    check_memory(args, &methods, &probe_methods, (width, height), args.trace.run.thread_count()?)?;
     // Every check that does not need a traced image comes before the first one is traced.
     let cache = reference::cache_dir(args.cache_dir.as_deref());
     reference::check_cache_dir(&cache)?;

@@ -23,6 +23,7 @@ use anyhow::{bail, Context, Result};
 use probes::cache::CacheKey;
 use probes::cpca::{CpcaSettings, Precision};
 use probes::image::ImageSettings;
+use probes::memory::MemoryEstimate;
 use probes::placement::{CandidateRule, PlacementSettings};
 use probes::precompute::PrecomputeSettings;
 use probes::surfels::SurfelSettings;
@@ -234,6 +235,18 @@ fn read_seconds(file: &Path) -> Option<f64> {
 fn write_seconds(file: &Path, seconds: f64) -> Result<()> {
     let path = seconds_path(file);
     std::fs::write(&path, format!("{seconds}\n")).with_context(|| format!("writing {}", path.display()))
+}
+
+/// What `run` holds at its peak for `method` at `width` x `height` on `threads` workers
+/// (`probes::memory`): the precompute or its cache read, CPCA and the projected bounce when
+/// the method uses them, and the image with its kept lookups.
+pub fn memory_estimate(method: &ProbesMethod, (width, height): (u32, u32), threads: usize) -> MemoryEstimate {
+    let mut estimate = MemoryEstimate::precompute(&method.precompute, threads);
+    if let Some(cpca) = &method.cpca {
+        let projected = method.projected_bounces.then_some(MAX_PROJECTED);
+        estimate = estimate.with_cpca(&method.precompute, cpca, threads, projected);
+    }
+    estimate.with_image(width, height, method.pixel_samples)
 }
 
 /// Runs `method` on `scene` (set up for `--effect indirect`): the precompute from the cache or
