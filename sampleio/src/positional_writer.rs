@@ -234,6 +234,26 @@ mod tests {
         }
     }
 
+    /// Finishing over an existing file replaces it, synced or not (an unsynced scratch file
+    /// removes the old one before the rename), and leaves nothing beside it.
+    #[test]
+    fn finishing_replaces_an_existing_file_either_way() {
+        let dir = tempfile::tempdir().unwrap();
+        let expected = streamed(&dir.path().join("streamed.lfrs"));
+        let path = dir.path().join("again.lfrs");
+        for durability in [Durability::Unsynced, Durability::Synced, Durability::Unsynced] {
+            std::fs::write(&path, b"an older file").unwrap();
+            let writer = PositionalWriter::create(&path, spec()).unwrap();
+            let bytes: Vec<u8> = (0..105).flat_map(record).collect();
+            writer.write_records_at(0, &bytes).unwrap();
+            writer.finish(durability).unwrap();
+            assert_eq!(std::fs::read(&path).unwrap(), expected, "{durability:?}");
+            let mut names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+            names.sort();
+            assert_eq!(names, ["again.lfrs", "streamed.lfrs"], "{durability:?}");
+        }
+    }
+
     /// A sample never written, a sample written twice, a run past the end or of a partial
     /// record: a clear error, and no file at the destination or beside it.
     #[test]

@@ -155,7 +155,8 @@ pub enum Durability {
     /// that outlives the process (what `lfr dump` writes).
     Synced,
     /// Renamed into place from the page cache, not synced: a scratch file the same process reads
-    /// back and removes (`lfr compare`'s inputs). A crash still never leaves a half-written file
+    /// back and removes (`lfr compare`'s inputs). A file already at the path (the process's own
+    /// earlier scratch file) is removed first. A crash still never leaves a half-written file
     /// under the name; a power cut may lose the file.
     Unsynced,
 }
@@ -220,6 +221,12 @@ pub(crate) fn rename_into_place(file: File, tmp: &Path, path: &Path, durability:
         file.sync_all().map_err(|e| SampleError::io(tmp, "sync", e))?;
     }
     drop(file);
+    if durability == Durability::Unsynced {
+        // A scratch file replaces only this process's own earlier scratch file. Removing that
+        // first keeps the rename from replacing a file, which on ext4 (`auto_da_alloc`) starts
+        // writing the new file's blocks out at once; unsynced, the pages may stay in memory.
+        let _ = fs::remove_file(path);
+    }
     fs::rename(tmp, path).map_err(|e| SampleError::io(path, "rename into place", e))?;
     if durability == Durability::Synced {
         if let Some(dir) = path.parent() {
