@@ -201,7 +201,9 @@ fn main() {
             times[k].push(start.elapsed().as_secs_f64());
         }
     }
-    if only.is_some() {
+    if let Some(only) = &only {
+        let k = names.iter().position(|n| n == only).expect("a mode");
+        println!("{only}: median {:.4} s of {}", median(times[k].clone()), times[k].len());
         return;
     }
     let base = median(times[2].clone());
