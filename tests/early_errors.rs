@@ -115,3 +115,25 @@ fn a_bad_mtl_line_is_named_by_render() {
     assert!(message.contains(&expected), "expected {expected:?} in {message}");
     assert!(!out.exists());
 }
+
+/// An effect the scene lacks the means for is refused before tracing, and the message says how
+/// to give it: an aperture on the command line, motion or an area light in a .toml scene. The
+/// aperture given as the message says is then accepted.
+#[test]
+fn a_scene_without_the_effects_means_is_refused_with_how_to_give_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("cmp");
+    let bunny = format!("{}/stanford-bunny/bunny.ply", shared_scenes().display());
+    let scene = ["--scene", bunny.as_str()];
+    let with = |effect: &'static str| -> Vec<&str> { scene.iter().copied().chain(["--effect", effect]).collect() };
+    expect_early_compare_error(&out, &with("dof"), &["bunny.ply", "aperture", "--aperture-radius"]);
+    expect_early_compare_error(&out, &with("dof-motion"), &["aperture", "--aperture-radius"]);
+    expect_early_compare_error(&out, &with("motion"), &["moving geometry", "`motion`", "scene-format.md"]);
+    expect_early_compare_error(&out, &with("soft-shadow"), &["area light", "`emission`", "scene-format.md"]);
+    let mut args = vec!["compare", "--out", out.to_str().unwrap(), "--width", "8", "--height", "8", "--quiet"];
+    args.extend_from_slice(&["--spp", "1", "--reference-spp", "2", "--pt-max-spp", "1", "--methods", "box"]);
+    args.extend_from_slice(&with("dof"));
+    args.extend_from_slice(&["--aperture-radius", "0.01", "--cache-dir", dir.path().to_str().unwrap()]);
+    let given = lfr(&args);
+    assert!(given.status.success(), "{}", String::from_utf8_lossy(&given.stderr));
+}

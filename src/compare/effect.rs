@@ -32,10 +32,18 @@ pub fn prepare_scene(effect: Effect, scene: &mut Scene, max_bounces: Option<u32>
     let needs_lens = matches!(effect, Effect::Dof | Effect::DofMotion);
     let needs_motion = matches!(effect, Effect::Motion | Effect::DofMotion);
     if needs_lens && !scene.camera.has_lens() {
-        bail!("{source}: --effect {} needs a camera with an aperture (camera.aperture_radius > 0)", effect.name());
+        bail!(
+            "{source}: --effect {} needs a camera with an aperture (camera.aperture_radius > 0): give one with \
+             --aperture-radius R (and --focus-distance D), or in a .toml scene's [camera] (docs/scene-format.md)",
+            effect.name()
+        );
     }
     if needs_motion && !scene.has_motion() {
-        bail!("{source}: --effect {} needs moving geometry (a mesh with `motion`)", effect.name());
+        bail!(
+            "{source}: --effect {} needs moving geometry: give a mesh a `motion` in a .toml scene that includes \
+             this file (docs/scene-format.md, [[mesh]])",
+            effect.name()
+        );
     }
     match effect {
         Effect::Dof => scene.meshes.iter_mut().for_each(|m| m.motion = Vec3::ZERO),
@@ -44,7 +52,10 @@ pub fn prepare_scene(effect: Effect, scene: &mut Scene, max_bounces: Option<u32>
             let emissive =
                 scene.meshes.iter().any(|m| scene.materials[m.material as usize].emission.max_element() > 0.0);
             if !emissive {
-                bail!("{source}: --effect soft-shadow needs an area light (an emissive mesh)");
+                bail!(
+                    "{source}: --effect soft-shadow needs an area light (an emissive mesh): give a mesh an \
+                     emissive material in a .toml scene (docs/scene-format.md, [[material]] `emission`)"
+                );
             }
             // The light samples need the brightest emitter to be planar; checked here, before
             // the reference and the ladder are traced, rather than when the inputs are dumped.

@@ -214,6 +214,23 @@ pub struct Scene {
     pub file_cameras: Vec<FileCamera>,
 }
 
+/// The names of the scene files directly inside `dir` (by extension), sorted, at most five.
+fn scene_files_in(dir: &Path) -> Vec<String> {
+    let Ok(entries) = std::fs::read_dir(dir) else { return Vec::new() };
+    let mut names: Vec<String> = entries
+        .filter_map(|entry| entry.ok())
+        .map(|entry| entry.path())
+        .filter(|p| {
+            let ext = p.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
+            p.is_file() && matches!(ext.as_deref(), Some("toml" | "gltf" | "glb" | "obj" | "ply"))
+        })
+        .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .collect();
+    names.sort();
+    names.truncate(5);
+    names
+}
+
 impl Scene {
     /// An empty scene with a default camera.
     pub fn empty(source: impl Into<PathBuf>) -> Scene {
@@ -328,6 +345,18 @@ impl Scene {
                 ply::load(path, &mut scene, &ply::PlyOptions::default())?;
                 scene.camera = Camera::framing(&scene.bounds(), scene.aspect());
                 scene
+            }
+            _ if path.is_dir() => {
+                let found = scene_files_in(path);
+                let hint = match found.is_empty() {
+                    true => "none is directly inside it".to_string(),
+                    false => format!("inside it: {}", found.join(", ")),
+                };
+                return Err(SceneError::new(
+                    path,
+                    "path",
+                    format!("a directory: name a scene file (.toml, .gltf, .glb, .obj or .ply); {hint}"),
+                ));
             }
             _ => {
                 return Err(SceneError::new(
@@ -592,6 +621,26 @@ impl Scene {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A directory given as the scene is named as one, with the scene files inside it (not
+    /// other files) as the hint; an empty one says so.
+    #[test]
+    fn a_directory_is_refused_naming_the_scene_files_inside() {
+        let dir = tempfile::tempdir().unwrap();
+        for name in ["notes.txt", "bunny.OBJ", "a.toml", "textures"] {
+            match name.contains('.') {
+                true => std::fs::write(dir.path().join(name), b"").unwrap(),
+                false => std::fs::create_dir(dir.path().join(name)).unwrap(),
+            }
+        }
+        let error = Scene::load(dir.path()).unwrap_err();
+        assert_eq!(error.field, "path");
+        assert!(error.message.contains("a directory") && error.message.contains("a.toml, bunny.OBJ"), "{error}");
+        assert!(!error.message.contains("notes.txt") && !error.message.contains("textures"), "{error}");
+        let empty = tempfile::tempdir().unwrap();
+        let error = Scene::load(empty.path()).unwrap_err();
+        assert!(error.message.contains("none is directly inside it"), "{error}");
+    }
 
     /// The warnings about energy-gaining base colours of a scene with `materials`
     /// (factor, texture RGBA8 if any) after validation.
