@@ -936,7 +936,7 @@ fn check_memory(what: &str, estimate: &MemoryEstimate) -> Result<()> {
 
 /// The estimate of a relit frame (`relight`, `animate`): the precompute or its cache, CPCA and
 /// the projected bounce when asked for, and the image.
-fn frame_estimate(
+pub(crate) fn frame_estimate(
     settings: &PrecomputeSettings,
     cpca: Option<&CpcaSettings>,
     projected: bool,

@@ -237,16 +237,12 @@ fn write_seconds(file: &Path, seconds: f64) -> Result<()> {
     std::fs::write(&path, format!("{seconds}\n")).with_context(|| format!("writing {}", path.display()))
 }
 
-/// What `run` holds at its peak for `method` at `width` x `height` on `threads` workers
-/// (`probes::memory`): the precompute or its cache read, CPCA and the projected bounce when
-/// the method uses them, and the image with its kept lookups.
+/// What `run` holds at its peak for `method` at `width` x `height` on `threads` workers: a
+/// relit frame's estimate (`crate::probes::frame_estimate`: the precompute or its cache read,
+/// CPCA and the projected bounce when the method uses them, the image with its lookups).
 pub fn memory_estimate(method: &ProbesMethod, (width, height): (u32, u32), threads: usize) -> MemoryEstimate {
-    let mut estimate = MemoryEstimate::precompute(&method.precompute, threads);
-    if let Some(cpca) = &method.cpca {
-        let projected = method.projected_bounces.then_some(MAX_PROJECTED);
-        estimate = estimate.with_cpca(&method.precompute, cpca, threads, projected);
-    }
-    estimate.with_image(width, height, method.pixel_samples)
+    let image = ImageSettings { width, height, light_samples: 0, pixel_samples: method.pixel_samples, seed: 0 };
+    crate::probes::frame_estimate(&method.precompute, method.cpca.as_ref(), method.projected_bounces, &image, threads)
 }
 
 /// Runs `method` on `scene` (set up for `--effect indirect`): the precompute from the cache or
