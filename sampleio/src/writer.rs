@@ -79,25 +79,10 @@ pub fn encode_record(header: &Header, values: &[f32], record: &mut [u8]) -> std:
         let field_values = &values[first.min(end)..end];
         let start = field.offset as usize;
         let bytes = &mut record[start..start + field_values.len() * field.ty.size()];
-        match field.ty {
-            FieldType::F32 => {
-                for (value, out) in field_values.iter().zip(bytes.chunks_exact_mut(4)) {
-                    out.copy_from_slice(&value.to_le_bytes());
-                }
-            }
-            FieldType::F16 => {
-                for (value, out) in field_values.iter().zip(bytes.chunks_exact_mut(2)) {
-                    out.copy_from_slice(&half::f16::from_f32(*value).to_le_bytes());
-                }
-            }
-            ty => {
-                for (component, (value, out)) in field_values.iter().zip(bytes.chunks_exact_mut(ty.size())).enumerate()
-                {
-                    if !ty.encode(*value, out) {
-                        let component = component as u32;
-                        return Err(UnencodableValue { field: field.name.clone(), component, value: *value, ty });
-                    }
-                }
+        for (component, (value, out)) in field_values.iter().zip(bytes.chunks_exact_mut(field.ty.size())).enumerate() {
+            if !field.ty.encode(*value, out) {
+                let (component, value, ty) = (component as u32, *value, field.ty);
+                return Err(UnencodableValue { field: field.name.clone(), component, value, ty });
             }
         }
         if field_values.len() < field.components as usize {
