@@ -214,6 +214,10 @@ pub struct Scene {
     pub file_cameras: Vec<FileCamera>,
 }
 
+/// The file extensions `Scene::load` reads (lower case), and how its errors list them.
+const SCENE_EXTENSIONS: [&str; 5] = ["toml", "gltf", "glb", "obj", "ply"];
+const SCENE_FORMATS: &str = ".toml, .gltf, .glb, .obj or .ply";
+
 /// The names of the scene files directly inside `dir` (by extension), sorted, at most five.
 fn scene_files_in(dir: &Path) -> Vec<String> {
     let Ok(entries) = std::fs::read_dir(dir) else { return Vec::new() };
@@ -222,7 +226,7 @@ fn scene_files_in(dir: &Path) -> Vec<String> {
         .map(|entry| entry.path())
         .filter(|p| {
             let ext = p.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
-            p.is_file() && matches!(ext.as_deref(), Some("toml" | "gltf" | "glb" | "obj" | "ply"))
+            p.is_file() && ext.is_some_and(|ext| SCENE_EXTENSIONS.contains(&ext.as_str()))
         })
         .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
         .collect();
@@ -355,14 +359,14 @@ impl Scene {
                 return Err(SceneError::new(
                     path,
                     "path",
-                    format!("a directory: name a scene file (.toml, .gltf, .glb, .obj or .ply); {hint}"),
+                    format!("a directory: name a scene file ({SCENE_FORMATS}); {hint}"),
                 ));
             }
             _ => {
                 return Err(SceneError::new(
                     path,
                     "extension",
-                    "unknown scene format (expected .toml, .gltf, .glb, .obj or .ply)",
+                    format!("unknown scene format (expected {SCENE_FORMATS})"),
                 ))
             }
         };
