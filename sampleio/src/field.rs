@@ -131,6 +131,22 @@ fn le2(bytes: &[u8]) -> [u8; 2] {
     [bytes[0], bytes[1]]
 }
 
+/// `N` values of `S` bytes each from `record[start..]`, converted by `convert`: sizes known at
+/// compile time, so one bounds check covers them all.
+#[inline(always)]
+fn read_array<const N: usize, const S: usize>(
+    record: &[u8],
+    start: usize,
+    convert: impl Fn([u8; S]) -> f32,
+) -> [f32; N] {
+    let bytes = &record[start..start + N * S];
+    std::array::from_fn(|c| {
+        let mut value = [0u8; S];
+        value.copy_from_slice(&bytes[c * S..c * S + S]);
+        convert(value)
+    })
+}
+
 impl fmt::Display for FieldType {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
@@ -178,6 +194,25 @@ impl Field {
     #[inline]
     pub fn decode_from(&self, record: &[u8], component: usize) -> f32 {
         self.ty.decode(&record[self.component_range(component)])
+    }
+
+    /// Components `0..N` of this field in `record` at once: what `N` calls of
+    /// [`Self::decode_from`] give, with one type dispatch and one bounds check for the `N`
+    /// (the per-record form for loops that read whole vectors, such as the box filter's).
+    ///
+    /// # Panics
+    /// If the `N` components lie outside `record`.
+    #[inline]
+    pub fn decode_array_from<const N: usize>(&self, record: &[u8]) -> [f32; N] {
+        debug_assert!(N <= self.components as usize, "{N} components of a field of {}", self.components);
+        let start = self.offset as usize;
+        match self.ty {
+            FieldType::F32 => read_array(record, start, f32::from_le_bytes),
+            FieldType::F16 => read_array(record, start, |b| half::f16::from_le_bytes(b).to_f32()),
+            FieldType::U32 => read_array(record, start, |b| u32::from_le_bytes(b) as f32),
+            FieldType::U16 => read_array(record, start, |b| f32::from(u16::from_le_bytes(b))),
+            FieldType::U8 => read_array(record, start, |b: [u8; 1]| f32::from(b[0])),
+        }
     }
 
     /// Byte range of component `component` inside the record.
@@ -286,6 +321,32 @@ mod tests {
         assert_eq!(u32::from_le_bytes(b), 4_294_967_040);
         assert!(!FieldType::U32.encode(4_294_967_296.0, &mut b));
         assert!(!FieldType::U32.encode(f32::INFINITY, &mut b));
+    }
+
+    proptest::proptest! {
+        /// The whole-vector read gives what the per-component read gives, bit for bit (NaN
+        /// payloads included), for every type, component count and offset, on any bytes.
+        #[test]
+        fn reading_a_vector_at_once_is_reading_each_component(
+            type_index in 0usize..5,
+            components in 1u32..=4,
+            slot in 0u32..4,
+            bytes in proptest::collection::vec(proptest::num::u8::ANY, 64),
+        ) {
+            let ty = [FieldType::F32, FieldType::F16, FieldType::U32, FieldType::U16, FieldType::U8][type_index];
+            let offset = slot * ty.size() as u32;
+            let field = Field { name: "v".into(), ty, components, offset, meaning: String::new(), unit: String::new() };
+            let record = &bytes[..field.end() as usize];
+            let one_by_one = |n: usize| (0..n).map(|c| field.decode_from(record, c).to_bits()).collect::<Vec<_>>();
+            let bits = |values: &[f32]| values.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            proptest::prop_assert_eq!(bits(&field.decode_array_from::<1>(record)), one_by_one(1));
+            if components >= 3 {
+                proptest::prop_assert_eq!(bits(&field.decode_array_from::<3>(record)), one_by_one(3));
+            }
+            if components == 4 {
+                proptest::prop_assert_eq!(bits(&field.decode_array_from::<4>(record)), one_by_one(4));
+            }
+        }
     }
 
     #[test]

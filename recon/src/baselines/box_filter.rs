@@ -154,7 +154,7 @@ enum Estimator<'a> {
 impl Estimator<'_> {
     /// The value of the sample whose record is `record`.
     fn value(&self, record: &[u8]) -> [f32; 3] {
-        let vec3 = |field: &Field| [0, 1, 2].map(|c| field.decode_from(record, c));
+        let vec3 = |field: &Field| field.decode_array_from::<3>(record);
         match self {
             Estimator::Weighted { weight, radiance } => {
                 let (w, l) = (vec3(weight), vec3(radiance));
