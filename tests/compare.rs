@@ -325,8 +325,11 @@ fn bad_input_fails_cleanly_without_results() {
 
 /// Every effect runs, and `box` (the samples read back through `sampleio`) scores what path
 /// tracing scores at the same spp: exactly for the effects whose samples are the render's own
-/// camera samples (ao, the lens-time effects), up to noise for the indirect ones, whose secondary
-/// rays draw their random numbers differently.
+/// camera samples (ao, the lens-time effects), and within 0.01 dB for the indirect ones, whose
+/// secondary rays continue the camera paths with the same random numbers but store the weight
+/// or albedo at o as f16. (Their paths are the camera paths' only up to three bounces, where
+/// Russian roulette has not begun: beyond, the secondary path's roulette weighs its own
+/// throughput; docs/sample-format.md.)
 #[test]
 fn every_effect_runs_and_box_matches_path_tracing() {
     let dir = tempfile::tempdir().unwrap();
@@ -336,11 +339,13 @@ fn every_effect_runs_and_box_matches_path_tracing() {
         ("dof", "scenes/monkeys-defocus-motion.toml", true),
         ("motion", "scenes/monkeys-defocus-motion.toml", true),
         ("dof-motion", "scenes/monkeys-defocus-motion.toml", true),
+        ("indirect", "scenes/cornell.toml", false),
         ("glossy", "scenes/monkeys.toml", false),
     ];
     for (effect, scene, exact) in cases {
         let out = dir.path().join(effect);
-        let result = lfr(&[
+        let cache = dir.path().join("cache");
+        let mut args = vec![
             "compare",
             "--effect",
             effect,
@@ -362,8 +367,12 @@ fn every_effect_runs_and_box_matches_path_tracing() {
             "--out",
             out.to_str().unwrap(),
             "--cache-dir",
-            dir.path().join("cache").to_str().unwrap(),
-        ]);
+            cache.to_str().unwrap(),
+        ];
+        if !exact {
+            args.extend(["--max-bounces", "3"]);
+        }
+        let result = lfr(&args);
         assert!(result.status.success(), "{effect}: {}", String::from_utf8_lossy(&result.stderr));
         let results: Value = serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
         check_schema(&results);
@@ -375,7 +384,7 @@ fn every_effect_runs_and_box_matches_path_tracing() {
         if exact {
             assert_eq!(pt, boxed, "{effect}: box must reproduce path tracing at equal spp");
         } else {
-            assert!((pt - boxed).abs() < 2.0, "{effect}: box {boxed} dB vs path tracing {pt} dB");
+            assert!((pt - boxed).abs() < 0.01, "{effect}: box {boxed} dB vs path tracing {pt} dB");
         }
     }
 }

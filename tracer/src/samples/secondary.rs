@@ -615,6 +615,55 @@ fn push_miss(values: &mut Vec<f32>, layout: &SecondaryLayout, environment: Vec3)
 mod tests {
     use super::*;
 
+    /// The indirect dump's samples continue the camera paths: the secondary path draws the
+    /// camera path's dimensions, so per sample `weight · radiance` (here `albedo`, all
+    /// Lambertian) is the camera path's `indirect` up to float rounding wherever Russian
+    /// roulette does not decide (paths of at most three bounces). Beyond, the secondary path's
+    /// roulette weighs survival by its own throughput from h, not the camera path's (which
+    /// also holds o's albedo): a better estimate of the radiance the reconstructions reuse at
+    /// other receivers, at more rays (docs/sample-format.md, "Russian roulette").
+    #[test]
+    fn an_indirect_sample_is_the_camera_paths_indirect_light() {
+        let path = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/cornell.toml"));
+        let scene = crate::Scene::load(path).unwrap();
+        let accel = crate::Accel::build(&scene).unwrap();
+        let (width, height, spp) = (24, 24, 8);
+        let settings =
+            RenderSettings { width, height, spp, seed: 3, max_bounces: 3, ..RenderSettings::from_scene(&scene) };
+        let lights = LightSampler::new(&scene);
+        let integrator = super::super::integrator(&scene, &accel, &lights, &settings);
+        let layout = SecondaryLayout::for_scene(&scene, SecondaryKind::Indirect);
+        let offset_of = |name: &str| {
+            let mut offset = 0;
+            for field in layout.fields() {
+                if field.name == name {
+                    return offset;
+                }
+                offset += field.components as usize;
+            }
+            panic!("no field {name}")
+        };
+        let (radiance, albedo) = (offset_of("radiance"), offset_of("albedo"));
+        let (mut compared, mut lit) = (0, 0);
+        let mut values = Vec::new();
+        for (x, y, index) in (0..height).flat_map(|y| (0..width).flat_map(move |x| (0..spp).map(move |i| (x, y, i)))) {
+            let camera_path = integrator.trace(x, y, &mut Sampler::new(settings.seed, x, y, index), &mut NoRecording);
+            values.clear();
+            trace_secondary(&integrator, &layout, x, y, &mut Sampler::new(settings.seed, x, y, index), &mut values);
+            let value =
+                Vec3::from_slice(&values[albedo..albedo + 3]) * Vec3::from_slice(&values[radiance..radiance + 3]);
+            let scale = camera_path.indirect.max_element().max(1e-6);
+            assert!(
+                (value - camera_path.indirect).abs().max_element() <= 1e-4 * scale,
+                "pixel ({x}, {y}) sample {index}: dump {value} against the camera path's {}",
+                camera_path.indirect
+            );
+            compared += 1;
+            lit += usize::from(camera_path.indirect.max_element() > 0.0);
+        }
+        assert!(lit > compared / 2, "{lit} of {compared} samples carry indirect light");
+    }
+
     /// The octahedral quantiser's rounding against `f32::round`: every value within eight ulps
     /// of each tie k + 1/2 and of each integer up to 65534, and the ends of the range.
     #[test]
