@@ -481,6 +481,9 @@ fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
             let summary = match best {
                 Some(run) => {
                     let speedup = run.speedup.unwrap_or(0.0);
+                    // The sentence gives path tracing's time to this PSNR: it says "extrapolated"
+                    // only when that reading is (the run's flag also covers its equal-time PSNR).
+                    let extrapolated = time_to_psnr(&curve, run.psnr_db).is_some_and(|r| r.extrapolated);
                     let rays = if run.recon_rays > 0 { format!(" with {} reconstruction rays", run.recon_rays) } else { String::new() };
                     let ratio = if speedup >= 1.0 { format!("{speedup:.2}× faster") } else { format!("{:.2}× slower", 1.0 / speedup.max(1e-12)) };
                     let judged = match (difference, run.speedup_range) {
@@ -495,7 +498,7 @@ fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
                         run.psnr_db,
                         run.total_s,
                         speedup * run.total_s,
-                        if run.verdict_extrapolated { " (PT curve extrapolated at 10 dB per decade)" } else { "" }
+                        if extrapolated { " (PT curve extrapolated at 10 dB per decade)" } else { "" }
                     )
                 }
                 None if mine.iter().any(|r| !r.valid) => {
@@ -1175,6 +1178,25 @@ mod tests {
         assert!((lo - 9.0 / 1.1).abs() < 1e-9 && (hi - 11.0 / 0.9).abs() < 1e-9, "{lo} {hi}");
         assert_eq!(verdicts[1].difference, Some("faster"));
         assert!(verdicts[1].summary.contains("10.00× faster"), "{}", verdicts[1].summary);
+    }
+
+    /// `box` reaches path tracing's PSNR at the ladder's last rung, a little slower: the time to
+    /// that PSNR is measured (the rung's), so the sentence does not call it extrapolated, while
+    /// the run's equal-time PSNR, read beyond the ladder's last time, is flagged in the table.
+    #[test]
+    fn the_summary_says_extrapolated_only_when_its_reading_is() {
+        let mut runs = vec![
+            run("pt", 8, 0.5, 18.0, true),
+            run("pt", 16, 1.0, 21.0, true),
+            run("box", 16, 1.05, 21.0, true),
+            run("better", 16, 1.0, 24.0, true),
+        ];
+        let verdicts = verdicts(&mut runs);
+        assert!(runs[2].verdict_extrapolated, "box's equal-time PSNR lies beyond the ladder");
+        assert!((runs[2].speedup.unwrap() - 1.0 / 1.05).abs() < 1e-9);
+        assert!(!verdicts[0].summary.contains("extrapolated"), "{}", verdicts[0].summary);
+        // 3 dB beyond the last rung: path tracing's time to it is extrapolated.
+        assert!(verdicts[1].summary.contains("extrapolated"), "{}", verdicts[1].summary);
     }
 
     /// Found on soft-shadow.toml at 96×72: path tracing's 1 spp had one slow repetition (11.7 ms
