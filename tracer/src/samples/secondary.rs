@@ -272,6 +272,14 @@ impl SecondaryLayout {
     pub fn values_per_sample(&self) -> usize {
         self.fields().iter().map(|f| f.components as usize).sum()
     }
+
+    /// Where the field `name`'s first value lies among a sample's values (the fields'
+    /// components in record order); `None` when the layout has no such field.
+    pub fn value_offset(&self, name: &str) -> Option<usize> {
+        let fields = self.fields();
+        let index = fields.iter().position(|f| f.name == name)?;
+        Some(fields[..index].iter().map(|f| f.components as usize).sum())
+    }
 }
 
 /// The five f16 fields of a BSDF (`shading::Bsdf`, roughness for α) at the point `at`.
@@ -373,16 +381,8 @@ pub fn ambient_occlusion_frame(
         return Err(RenderError::Settings(format!("the ambient-occlusion radius must be positive, got {radius}")));
     }
     let layout = SecondaryLayout::for_scene(scene, SecondaryKind::AmbientOcclusion);
-    let offset_of = |name: &str| {
-        let mut offset = 0;
-        for field in layout.fields() {
-            if field.name == name {
-                return offset;
-            }
-            offset += field.components as usize;
-        }
-        unreachable!("ao samples always have {name}")
-    };
+    let offset_of =
+        |name: &str| layout.value_offset(name).unwrap_or_else(|| unreachable!("ao samples always have {name}"));
     let (distance_at, normal_at) = (offset_of("distance"), offset_of("origin_normal"));
     let values_per_sample = layout.values_per_sample();
     let lights = LightSampler::new(scene);
@@ -633,17 +633,7 @@ mod tests {
         let lights = LightSampler::new(&scene);
         let integrator = super::super::integrator(&scene, &accel, &lights, &settings);
         let layout = SecondaryLayout::for_scene(&scene, SecondaryKind::Indirect);
-        let offset_of = |name: &str| {
-            let mut offset = 0;
-            for field in layout.fields() {
-                if field.name == name {
-                    return offset;
-                }
-                offset += field.components as usize;
-            }
-            panic!("no field {name}")
-        };
-        let (radiance, albedo) = (offset_of("radiance"), offset_of("albedo"));
+        let (radiance, albedo) = (layout.value_offset("radiance").unwrap(), layout.value_offset("albedo").unwrap());
         let (mut compared, mut lit) = (0, 0);
         let mut values = Vec::new();
         for (x, y, index) in (0..height).flat_map(|y| (0..width).flat_map(move |x| (0..spp).map(move |i| (x, y, i)))) {
