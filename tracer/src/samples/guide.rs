@@ -120,6 +120,12 @@ fn continuation(
     })
 }
 
+/// The camera ray through `film` at the lens centre and time 0 (the guide buffers are static
+/// and pinhole), with the image's field of view computed once by the integrator.
+fn pinhole_ray(integrator: &Integrator, film: Vec2) -> PathStart {
+    integrator.camera_path_start(&crate::camera::CameraSample { film, lens: Vec2::ZERO, time: 0.0 })
+}
+
 /// One additional eye ray of pixel (x, y): sample `index` of the eye-ray stream. `direct_only`
 /// is the integrator limited to one bounce, so a BSDF-sampled ray only collects emission.
 fn eye_ray(
@@ -134,7 +140,7 @@ fn eye_ray(
     let mut sampler = Sampler::new(hash_combine(settings.seed, EYE_RAY_STREAM), x, y, index);
     let [jitter_x, jitter_y] = sampler.next_2d();
     let film = Vec2::new(x as f32 + jitter_x, y as f32 + jitter_y);
-    let (origin, direction) = scene.camera.generate_ray(film, Vec2::ZERO, settings.width, settings.height);
+    let PathStart { origin, direction, .. } = pinhole_ray(integrator, film);
     let Some(hit) = integrator.accel.intersect(origin, direction, 0.0, f32::INFINITY, 0.0) else {
         return EyeRay { film, direct: scene.environment, ..EyeRay::default() };
     };
@@ -172,7 +178,7 @@ fn guide_pixel(
     let scene = integrator.scene;
     let eye_rays = (0..settings.spp - 1).map(|k| eye_ray(integrator, direct_only, settings, x, y, k)).collect();
     let film = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
-    let (origin, direction) = scene.camera.generate_ray(film, Vec2::ZERO, settings.width, settings.height);
+    let PathStart { origin, direction, .. } = pinhole_ray(integrator, film);
     let Some(hit) = integrator.accel.intersect(origin, direction, 0.0, f32::INFINITY, 0.0) else {
         return GuidePixel {
             normal: Vec3::ZERO,

@@ -221,8 +221,7 @@ pub fn dump<'a>(
             let time = camera_sample.time;
             let from = light.point(lu, lv, time);
             out.extend_from_slice(&[lu, lv]);
-            let (origin, direction) =
-                scene.camera.generate_ray(camera_sample.film, camera_sample.lens, settings.width, settings.height);
+            let crate::integrator::PathStart { origin, direction, .. } = integrator.camera_path_start(&camera_sample);
             let visible = accel.intersect(origin, direction, 0.0, f32::INFINITY, time).map(|hit| {
                 let surface = crate::integrator::SurfacePoint::new(
                     scene,

@@ -445,8 +445,7 @@ fn trace_secondary(
     let scene = integrator.scene;
     let camera_sample = integrator.camera_sample(x, y, sampler);
     let time = camera_sample.time;
-    let (origin, direction) =
-        scene.camera.generate_ray(camera_sample.film, camera_sample.lens, integrator.width(), integrator.height());
+    let PathStart { origin, direction, .. } = integrator.camera_path_start(&camera_sample);
     values.extend_from_slice(&[camera_sample.film.x, camera_sample.film.y]);
     if layout.lens {
         values.extend_from_slice(&[camera_sample.lens.x, -camera_sample.lens.y]);
