@@ -226,7 +226,9 @@ pub fn markdown(results: &Results) -> String {
          preprocess and reconstruct as the method reports them; total = their sum. Path tracing's time is its render. \
          Each run was timed several times, alternating over the runs (\"timed\": repetitions and ± half the range over \
          the median); the times shown are the median repetition's, and the speedup's range pairs the fastest with the \
-         slowest repetitions. A verdict whose range holds 1 says \"no clear difference\".\n\
+         slowest repetitions. A verdict whose range holds 1 says \"no clear difference\". The repetitions all ran in \
+         this one process; the same command run again can measure a ratio a little differently (on a shared two-core \
+         machine the same ratio moved by 5-15 % between runs), so read a verdict within about a tenth of 1 as a tie.\n\
          - **INVALID**: the output had NaN or infinite pixels; they are scored as worst-case errors and the run is \
          excluded from the verdicts.\n\
          \nFull definitions: `docs/compare.md` in the lfr repository.",
