@@ -31,6 +31,7 @@ use super::{camera_header, write_samples, DumpReport, DumpTarget, FieldSelection
 use crate::accel::Accel;
 use crate::camera::{depth_gradient, Camera, CameraSample};
 use crate::error::RenderError;
+use crate::integrator::{PathStart, SurfacePoint};
 use crate::lights::{triangle_at, LightSampler};
 use crate::render::RenderSettings;
 use crate::sampler::Sampler;
@@ -221,15 +222,10 @@ pub fn dump<'a>(
             let time = camera_sample.time;
             let from = light.point(lu, lv, time);
             out.extend_from_slice(&[lu, lv]);
-            let crate::integrator::PathStart { origin, direction, .. } = integrator.camera_path_start(&camera_sample);
+            let PathStart { origin, direction, .. } = integrator.camera_path_start(&camera_sample);
             let visible = accel.intersect(origin, direction, 0.0, f32::INFINITY, time).map(|hit| {
-                let surface = crate::integrator::SurfacePoint::new(
-                    scene,
-                    &hit,
-                    -direction,
-                    time,
-                    integrator.camera_cone().width_at(hit.distance),
-                );
+                let surface =
+                    SurfacePoint::new(scene, &hit, -direction, time, integrator.camera_cone().width_at(hit.distance));
                 (surface.position, surface.geometric_normal)
             });
             let Some((p, p_normal)) = visible else {

@@ -352,9 +352,10 @@ impl Scene {
             }
             _ if path.is_dir() => {
                 let found = scene_files_in(path);
-                let hint = match found.is_empty() {
-                    true => "none is directly inside it".to_string(),
-                    false => format!("inside it: {}", found.join(", ")),
+                let hint = if found.is_empty() {
+                    "none is directly inside it".to_string()
+                } else {
+                    format!("inside it: {}", found.join(", "))
                 };
                 return Err(SceneError::new(
                     path,
@@ -632,9 +633,10 @@ mod tests {
     fn a_directory_is_refused_naming_the_scene_files_inside() {
         let dir = tempfile::tempdir().unwrap();
         for name in ["notes.txt", "bunny.OBJ", "a.toml", "textures"] {
-            match name.contains('.') {
-                true => std::fs::write(dir.path().join(name), b"").unwrap(),
-                false => std::fs::create_dir(dir.path().join(name)).unwrap(),
+            if name.contains('.') {
+                std::fs::write(dir.path().join(name), b"").unwrap();
+            } else {
+                std::fs::create_dir(dir.path().join(name)).unwrap();
             }
         }
         let error = Scene::load(dir.path()).unwrap_err();
