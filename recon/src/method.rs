@@ -217,6 +217,11 @@ pub trait Method: Send + Sync + std::fmt::Debug {
     fn sample_needs(&self, _effect: Effect) -> Option<Vec<&'static sampleio::Needs>> {
         None
     }
+    /// Whether this instance, with its options, reconstructs `effect`, beyond the method's
+    /// declared effects (`crate::registry`): an option may narrow them. Checked before any run.
+    fn handles(&self, _effect: Effect) -> bool {
+        true
+    }
     /// `Err(reason)` when a dependency is missing; checked once before any run.
     fn available(&self) -> Result<(), Error> {
         Ok(())

@@ -42,9 +42,9 @@ impl Registered {
         &self.name
     }
 
-    /// Whether it reconstructs `effect`.
+    /// Whether it reconstructs `effect`: one of its declared effects that its options keep.
     pub fn supports(&self, effect: Effect) -> bool {
-        self.spec.effects.contains(&effect)
+        self.spec.effects.contains(&effect) && self.method.handles(effect)
     }
 }
 
@@ -125,6 +125,14 @@ const ROBUST: OptionSpec = OptionSpec {
     default: "spread",
     help: "splats far brighter than their neighbours: their excess shared with the neighbours (energy kept), \
            dropped, or left alone (the paper)",
+};
+const GRAIN: OptionSpec = OptionSpec {
+    key: "grain",
+    kind: OptionKind::Choice(&["keep", "filter"]),
+    default: "keep",
+    help: "the final gather's per-pixel grain in diffuse indirect light: kept (the paper) or taken out by one \
+           edge-aware À-Trous level on the primary hits' normals and positions, light divided by albedo (beyond \
+           the paper; --effect indirect)",
 };
 const QUALITY: OptionSpec = OptionSpec {
     key: "quality",
@@ -246,7 +254,7 @@ pub const METHODS: &[MethodSpec] = &[
     MethodSpec {
         name: "ilfr",
         effects: INDIRECT_AND_AO,
-        options: &[CONFLICT, SHRINK, ROBUST, SMALL],
+        options: &[CONFLICT, SHRINK, ROBUST, SMALL, GRAIN],
         description: "indirect light field reconstruction (Lehtinen et al. 2012)",
         build: |options| Ok(Box::new(Ilfr { choices: ilfr_choices(options) })),
     },
@@ -309,6 +317,7 @@ fn ilfr_choices(options: &Options) -> IlfrChoices {
             Some("keep") => Some(false),
             _ => defaults.merge_small_surfaces,
         },
+        filter_grain: options.choice("grain").map_or(defaults.filter_grain, |c| c == "filter"),
     }
 }
 
@@ -431,6 +440,14 @@ mod tests {
         );
         let settings = choices.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Indirect);
         assert_eq!(settings.robust.mode, RobustMode::Spread, "the default");
+        assert!(!settings.filter_grain, "the paper's gather keeps its grain by default");
+        let grain = ilfr_choices(&spec("ilfr").unwrap().parse_options("grain=filter").unwrap());
+        assert!(grain.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Indirect).filter_grain);
+        assert!(spec("ilfr").unwrap().parse_options("grain=maybe").is_err());
+        let filtered = find("ilfr:grain=filter").unwrap().unwrap();
+        assert!(filtered.supports(Effect::Indirect), "diffuse indirect light");
+        assert!(!filtered.supports(Effect::Glossy) && !filtered.supports(Effect::Ao), "refused before any run");
+        assert!(find("ilfr").unwrap().unwrap().supports(Effect::Glossy));
         for (option, mode) in [("robust=clamp", RobustMode::Clamp), ("robust=off", RobustMode::Off)] {
             let choices = ilfr_choices(&spec("ilfr-recursive").unwrap().parse_options(option).unwrap());
             let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Glossy);

@@ -37,7 +37,9 @@
 //!   are consecutive blocks of one scrambled Sobol' sequence per pixel (`gather`,
 //!   `directions`, `bsdf_rays`); ambient occlusion skips §2.5's small-surface
 //!   rule by default, which on Sponza turned more real occluders visible than it spared
-//!   spurious ones (`surfaces::SurfaceParams::merge_small_surfaces`, `method`).
+//!   spurious ones (`surfaces::SurfaceParams::merge_small_surfaces`, `method`); on request
+//!   (`ilfr:grain=filter`), an edge-aware filter of the final gather's per-pixel grain in
+//!   diffuse indirect light (`grain`).
 //! - ✓ Section 4, recursive filtering: at every secondary hit 16 rays reconstruct the incident
 //!   light, and the sample's radiance becomes `secondary_direct` + the reflected mean before the
 //!   final gather (cosine rays × `secondary_albedo` in diffuse files; h's own BSDF through
@@ -56,6 +58,7 @@ pub mod directions;
 pub mod disc;
 pub mod filter;
 pub mod gather;
+pub mod grain;
 pub mod lens;
 pub mod method;
 pub mod neighbours;
