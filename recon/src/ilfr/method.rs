@@ -257,7 +257,7 @@ fn run_ilfr(name: &str, inputs: &Inputs, settings: IlfrSettings) -> Result<Outpu
     Ok(Output {
         image: result.image,
         preprocess_s: result.timings.preprocess_s(),
-        recon_s: result.timings.recursive_s + result.timings.reconstruct_s,
+        recon_s: result.timings.recursive_s + result.timings.reconstruct_s + result.timings.grain_s,
         external_peak_rss_mb: None,
         notes,
         stats,
@@ -331,6 +331,8 @@ pub struct Timings {
     /// Recursive filtering (§4), all passes.
     pub recursive_s: f64,
     pub reconstruct_s: f64,
+    /// The grain filter after the gather (`grain=filter`; 0 without).
+    pub grain_s: f64,
 }
 
 impl Timings {
@@ -390,6 +392,7 @@ impl Reconstructed {
             ("shrinking_s", t.shrinking_s),
             ("recursive_s", t.recursive_s),
             ("gather_s", t.reconstruct_s),
+            ("grain_filter_s", t.grain_s),
         ]
         .into_iter()
         .map(|(name, value)| (name.to_string(), value))
@@ -405,8 +408,14 @@ impl Reconstructed {
         let mut notes = vec![
             format!(
                 "time: read {:.3} s, splat sizing {:.3} s, hierarchy {:.3} s, shrinking {:.3} s, recursive filtering {:.3} s, \
-                 reconstruction {:.3} s",
-                t.read_s, t.sizing_s, t.hierarchy_s, t.shrinking_s, t.recursive_s, t.reconstruct_s
+                 reconstruction {:.3} s{}",
+                t.read_s,
+                t.sizing_s,
+                t.hierarchy_s,
+                t.shrinking_s,
+                t.recursive_s,
+                t.reconstruct_s,
+                if settings.filter_grain { format!(", grain filter {:.3} s", t.grain_s) } else { String::new() }
             ),
             format!(
                 "{} samples: {hit} splats, {escaped} escaped, {no_ray} without a secondary ray, {camera_miss} camera misses; \
@@ -577,16 +586,18 @@ pub fn reconstruct_samples(
         GatherTarget::Visibility { ao_radius } => gather(samples, &reconstructor, Some(ao_radius), &gather_settings),
     };
     let (image, gathered) = gathered.map_err(failed)?;
+    let reconstruct_s = start.elapsed().as_secs_f64();
+    let start = Instant::now();
     let image = match target {
         GatherTarget::Indirect if settings.filter_grain => {
             super::grain::filter_grain(samples, &image).map_err(failed)?
         }
         _ => image,
     };
-    let reconstruct_s = start.elapsed().as_secs_f64();
+    let grain_s = start.elapsed().as_secs_f64();
     Ok(Reconstructed {
         image,
-        timings: Timings { read_s: 0.0, sizing_s, hierarchy_s, shrinking_s, recursive_s, reconstruct_s },
+        timings: Timings { read_s: 0.0, sizing_s, hierarchy_s, shrinking_s, recursive_s, reconstruct_s, grain_s },
         splats: bvh.len(),
         sizing: sized.stats,
         shrinking,
