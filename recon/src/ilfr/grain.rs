@@ -4,8 +4,8 @@
 //! Why: the error that more reconstruction rays remove is mostly per-pixel grain of the final
 //! gather (Eq. 3 with N rays per pixel), not the reconstruction's bias (Cornell 64², 16 spp:
 //! 128 → 512 rays lift 32.95 → 37.47 dB). Taking it out with a filter that costs milliseconds
-//! buys the PSNR of more rays at the time of fewer (measured in docs/ilfr.md, "The final
-//! gather's grain").
+//! buys the PSNR of more rays at the time of fewer (measured in docs/ilfr.md, "Issue 23: the
+//! final gather's grain, filtered").
 //!
 //! What: the pixel's indirect light divided by its primary hits' mean albedo (so textures are
 //! not blurred; channels with albedo below 1e-3 are left as they are), one level of the
@@ -256,6 +256,21 @@ mod tests {
         }
         // The miss's 3.0 never reaches the surface pixels next to it.
         assert!((filtered.pixels[(6 * width + 4) as usize][0] - 0.1).abs() < 1e-6);
+    }
+
+    /// A 1×1 image (no neighbour, no pixel spacing: the position term is off) and an image of
+    /// camera misses only come back unchanged; a pixel at 1e9 scale keeps its finite value.
+    #[test]
+    fn a_single_pixel_and_an_all_miss_image_come_back_unchanged() {
+        let single = samples(1, 1, |_, _| Some(([1e9, -1e9, 3e8], [0.0, 1.0, 0.0], [0.4, 0.5, 0.6])));
+        let gathered = image(1, 1, |_, _| [0.2, 0.3, 0.4]);
+        let filtered = filter_grain(&single, &gathered).unwrap();
+        for c in 0..3 {
+            assert!((filtered.pixels[0][c] - gathered.pixels[0][c]).abs() <= 1e-6, "{:?}", filtered.pixels);
+        }
+        let misses = samples(5, 3, |_, _| None);
+        let gathered = image(5, 3, |x, y| [x as f32, y as f32, 1.0]);
+        assert_eq!(filter_grain(&misses, &gathered).unwrap().pixels, gathered.pixels);
     }
 
     #[test]
