@@ -39,14 +39,14 @@ fn pixel_guide(samples: &IndirectSamples, albedo: &[[f32; 3]]) -> (GuideBuffers,
     };
     let mut mean_albedo = vec![[0.0f32; 3]; pixel_count];
     for (pixel, pixel_albedo) in mean_albedo.iter_mut().enumerate() {
-        let hits: Vec<usize> =
-            (pixel * spp..(pixel + 1) * spp).filter(|&i| samples.class[i] != SampleClass::CameraMiss).collect();
-        if hits.is_empty() {
+        let hits = || (pixel * spp..(pixel + 1) * spp).filter(|&i| samples.class[i] != SampleClass::CameraMiss);
+        let count = hits().count();
+        if count == 0 {
             continue;
         }
         let mean = |values: &[[f32; 3]]| -> [f32; 3] {
-            let sum = hits.iter().fold([0.0f64; 3], |s, &i| std::array::from_fn(|c| s[c] + values[i][c] as f64));
-            std::array::from_fn(|c| (sum[c] / hits.len() as f64) as f32)
+            let sum = hits().fold([0.0f64; 3], |s, i| std::array::from_fn(|c| s[c] + values[i][c] as f64));
+            std::array::from_fn(|c| (sum[c] / count as f64) as f32)
         };
         let normal = mean(&samples.primary_normal);
         let length = normal.iter().map(|v| v * v).sum::<f32>().sqrt();
