@@ -273,6 +273,22 @@ mod tests {
         assert_eq!(filter_grain(&misses, &gathered).unwrap().pixels, gathered.pixels);
     }
 
+    /// Non-finite gathered values and a scene at 1e-6 scale: the output stays finite, and on
+    /// the tiny plane constant light comes back (the position term is scale-free).
+    #[test]
+    fn non_finite_values_and_a_tiny_scene_stay_finite() {
+        let tiny = samples(9, 7, |x, y| Some(([x as f32 * 1e-8, y as f32 * 1e-8, 1e-6], [0.0, 0.0, 1.0], [0.5; 3])));
+        let constant = filter_grain(&tiny, &image(9, 7, |_, _| [0.3; 3])).unwrap();
+        assert!(constant.pixels.iter().all(|p| p.iter().all(|v| (v - 0.3).abs() < 1e-6)), "{:?}", constant.pixels);
+        let bad = image(9, 7, |x, y| match (x, y) {
+            (2, 2) => [f32::NAN; 3],
+            (5, 3) => [f32::INFINITY; 3],
+            _ => [0.3; 3],
+        });
+        let filtered = filter_grain(&tiny, &bad).unwrap();
+        assert!(filtered.pixels.iter().all(|p| p.iter().all(|v| v.is_finite())), "{:?}", filtered.pixels);
+    }
+
     #[test]
     fn a_glossy_file_is_refused_naming_the_file() {
         let mut s = samples(4, 4, floor);
