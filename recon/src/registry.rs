@@ -293,7 +293,7 @@ fn tlfr_gi(options: &Options) -> Result<GiMode, Error> {
     }
 }
 
-/// The `conflict` and `shrink` options of the ILFR methods.
+/// The `conflict`, `shrink`, `robust`, `small` and `grain` options of the ILFR methods.
 fn ilfr_choices(options: &Options) -> IlfrChoices {
     let defaults = IlfrChoices::default();
     IlfrChoices {

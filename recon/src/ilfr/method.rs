@@ -116,7 +116,7 @@ impl Method for Ilfr {
 
     /// With `grain=filter`, diffuse indirect light only ([`super::grain`]).
     fn handles(&self, effect: Effect) -> bool {
-        !self.choices.filter_grain || effect == Effect::Indirect
+        grain_choice_handles(self.choices.filter_grain, effect)
     }
 
     fn sample_needs(&self, effect: Effect) -> Option<Vec<&'static sampleio::Needs>> {
@@ -227,7 +227,7 @@ fn run_ilfr(name: &str, inputs: &Inputs, settings: IlfrSettings) -> Result<Outpu
         Effect::Ao if settings.recursive_passes == 0 => GatherTarget::Visibility { ao_radius: inputs.ao_radius },
         other => return Err(MethodError::Unsupported(format!("{name} does not reconstruct {}", other.name()))),
     };
-    if settings.filter_grain && inputs.effect != Effect::Indirect {
+    if !grain_choice_handles(settings.filter_grain, inputs.effect) {
         let message = format!("{name}: grain=filter applies to --effect indirect only, not {}", inputs.effect.name());
         return Err(MethodError::Unsupported(message));
     }
@@ -274,6 +274,12 @@ pub enum GatherTarget {
     /// Radiance along camera rays through the pixel and the lens (§3.4; the input rays are
     /// camera rays, [`super::lens`]).
     Lens(super::lens::LensCamera),
+}
+
+/// Whether the grain choice leaves `effect` to the method: the grain filter
+/// ([`super::grain`]) only takes diffuse indirect light.
+fn grain_choice_handles(filter_grain: bool, effect: Effect) -> bool {
+    !filter_grain || effect == Effect::Indirect
 }
 
 /// How [`reconstruct_samples`] runs.
