@@ -7,6 +7,13 @@
 //!
 //! The order of the walk is a property of the point set alone (ties broken by index), not of
 //! the tree, so a brute-force sort gives the same sequence bit for bit.
+//!
+//! Callers mostly need a few nearest points (splat sizing k = 12, the robust radiance's jury
+//! of 12), so [`KdTree::walk`] first finds the `expected` nearest by a bounded depth-first
+//! search (nearer child first, a node skipped once its box cannot beat the worst kept point),
+//! which touches a handful of leaves, and only when the caller wants more than those does it
+//! continue with the incremental heap walk ([`KdTree::walk_incremental`], the simple version
+//! and the tests' oracle), which yields the same order, past the points already given.
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -68,9 +75,100 @@ impl KdTree {
     }
 
     /// Calls `visit(index, metric distance²)` for every point except `skip`, in increasing order of
-    /// (metric distance² from `query`, index), until `visit` returns false. The metric is
-    /// [`metric_distance_squared`] with the query's unit `normal` and α = sqrt(1 + `alpha_squared_minus_one`) ≥ 1.
+    /// (metric distance² from `query`, index), until `visit` returns false: the sequence of
+    /// [`KdTree::walk_incremental`], bit for bit. `expected` is how many points the caller
+    /// likely takes: they come from a bounded depth-first search, cheaper than the heap walk,
+    /// which runs only when `visit` asks for more.
+    #[allow(clippy::too_many_arguments)]
     pub fn walk(
+        &self,
+        query: [f32; 3],
+        normal: [f32; 3],
+        alpha_squared_minus_one: f32,
+        skip: u32,
+        expected: usize,
+        scratch: &mut WalkScratch,
+        mut visit: impl FnMut(u32, f32) -> bool,
+    ) {
+        self.nearest(query, normal, alpha_squared_minus_one, skip, expected, scratch);
+        for &(key, id) in &scratch.nearest {
+            if !visit(id, key) {
+                return;
+            }
+        }
+        if scratch.nearest.len() < expected {
+            return; // the search kept every other point
+        }
+        let mut given = 0usize;
+        self.walk_incremental(query, normal, alpha_squared_minus_one, skip, &mut scratch.heap, |id, key| {
+            given += 1;
+            given <= expected || visit(id, key)
+        });
+    }
+
+    /// The `count` first points of the walk's order into `scratch.nearest`, sorted by
+    /// (metric distance², index): a depth-first search that opens the nearer child first and
+    /// skips a subtree whose box lower bound exceeds the worst point kept once `count` are kept
+    /// (a bound equal to it may still hold a point with a smaller index, so it is opened).
+    fn nearest(
+        &self,
+        query: [f32; 3],
+        normal: [f32; 3],
+        alpha_squared_minus_one: f32,
+        skip: u32,
+        count: usize,
+        scratch: &mut WalkScratch,
+    ) {
+        debug_assert!(alpha_squared_minus_one >= 0.0);
+        let kept = &mut scratch.nearest;
+        kept.clear();
+        scratch.stack.clear();
+        if self.nodes.is_empty() || count == 0 {
+            return;
+        }
+        scratch.stack.push((0.0, 0));
+        while let Some((bound, slot)) = scratch.stack.pop() {
+            if kept.len() == count && bound > kept[count - 1].0 {
+                continue;
+            }
+            let mut node = &self.nodes[slot as usize];
+            // Down the nearer child, the farther one stacked with its bound.
+            while node.left != 0 {
+                let (left, right) = (&self.nodes[node.left as usize], &self.nodes[node.right as usize]);
+                let (left_bound, right_bound) = (box_lower_bound(left, query), box_lower_bound(right, query));
+                let (near, far, far_bound) = if left_bound <= right_bound {
+                    (left, node.right, right_bound)
+                } else {
+                    (right, node.left, left_bound)
+                };
+                if kept.len() < count || far_bound <= kept[count - 1].0 {
+                    scratch.stack.push((far_bound, far));
+                }
+                node = near;
+            }
+            for slot in node.start..node.end {
+                let id = self.ids[slot as usize];
+                if id == skip {
+                    continue;
+                }
+                let key =
+                    metric_distance_squared(sub(self.points[slot as usize], query), normal, alpha_squared_minus_one);
+                let at = kept.partition_point(|&(k, i)| k.total_cmp(&key).then(i.cmp(&id)).is_lt());
+                if at == count {
+                    continue; // full, and every kept point comes first
+                }
+                if kept.len() == count {
+                    kept.pop();
+                }
+                kept.insert(at, (key, id));
+            }
+        }
+    }
+
+    /// The walk by a heap of nodes and points ordered by (lower bound or distance, node before
+    /// point, index): emits a point only when nothing closer can remain. The simple version of
+    /// [`KdTree::walk`] and its oracle.
+    pub fn walk_incremental(
         &self,
         query: [f32; 3],
         normal: [f32; 3],
@@ -154,6 +252,14 @@ fn build_node(points: &[[f32; 3]], ids: &mut [u32], offset: u32, nodes: &mut Vec
     index
 }
 
+/// The buffers of [`KdTree::walk`], kept across queries of one thread.
+#[derive(Debug, Default)]
+pub struct WalkScratch {
+    heap: BinaryHeap<Entry>,
+    nearest: Vec<(f32, u32)>,
+    stack: Vec<(f32, u32)>,
+}
+
 /// A heap entry of the walk: a node with its lower bound or a point with its distance. The heap
 /// pops the smallest (key, node before point, index) first.
 #[derive(Clone, Copy, Debug)]
@@ -210,7 +316,7 @@ mod tests {
         for (query, normal, alpha) in [(5usize, [0.0, 0.0, 1.0], 3.0f32), (123, [0.6, 0.0, 0.8], 1.0)] {
             let a = alpha * alpha - 1.0;
             let mut walked = Vec::new();
-            tree.walk(points[query], normal, a, query as u32, &mut heap, |i, key| {
+            tree.walk_incremental(points[query], normal, a, query as u32, &mut heap, |i, key| {
                 walked.push((key, i));
                 true
             });
@@ -244,11 +350,73 @@ mod tests {
         let tree = KdTree::build(&same);
         let mut heap = BinaryHeap::new();
         let mut order = Vec::new();
-        tree.walk([1.0, 2.0, 3.0], [0.0, 0.0, 1.0], 8.0, 10, &mut heap, |i, _| {
+        tree.walk_incremental([1.0, 2.0, 3.0], [0.0, 0.0, 1.0], 8.0, 10, &mut heap, |i, _| {
             order.push(i);
             true
         });
         let expected: Vec<u32> = (0..50).filter(|&i| i != 10).collect();
         assert_eq!(order, expected, "equal distances come in index order");
+        for wanted in [0, 1, 7, 12, 49, 60] {
+            let mut order = Vec::new();
+            tree.walk([1.0, 2.0, 3.0], [0.0, 0.0, 1.0], 8.0, 10, 12, &mut WalkScratch::default(), |i, _| {
+                order.push(i);
+                order.len() < wanted
+            });
+            let count = wanted.clamp(1, 49);
+            assert_eq!(
+                order,
+                expected[..count],
+                "ties in index order through the search and the heap, {wanted} wanted"
+            );
+        }
+        let mut nothing = Vec::new();
+        KdTree::build(&[]).walk([0.0; 3], [0.0, 0.0, 1.0], 8.0, 0, 12, &mut WalkScratch::default(), |i, _| {
+            nothing.push(i);
+            true
+        });
+        assert!(nothing.is_empty());
+    }
+
+    /// The walk (bounded search, then the heap walk past what it gave) against the heap walk
+    /// alone, for every split of the work: prefix sizes from 0 to past the point count, visitors
+    /// stopping before, at and after the prefix, clustered points with duplicates and ties.
+    #[test]
+    fn the_walk_gives_the_incremental_walks_order_for_any_prefix() {
+        let mut points = random_points(500, 11);
+        points.extend_from_within(0..40); // exact duplicates: equal keys, told apart by index
+        points.extend((0..60).map(|i| [2.0, 2.0, 0.001 * (i % 3) as f32])); // a tight cluster
+        let tree = KdTree::build(&points);
+        let mut heap = BinaryHeap::new();
+        let mut scratch = WalkScratch::default();
+        let mut rng = Lcg(3);
+        for query in [0usize, 17, 499, 505, 560, 599] {
+            let z = rng.uniform() * 2.0 - 1.0;
+            let r = (1.0 - z * z).sqrt();
+            let normal = [r, 0.0, z];
+            for alpha in [1.0f32, 3.0] {
+                let a = alpha * alpha - 1.0;
+                let mut all = Vec::new();
+                tree.walk_incremental(points[query], normal, a, query as u32, &mut heap, |i, key| {
+                    all.push((key.to_bits(), i));
+                    true
+                });
+                assert_eq!(all.len(), points.len() - 1);
+                for expected in [0usize, 1, 5, 12, 16, 64, 599, 700] {
+                    for stop_after in [1usize, 4, 12, 13, 40, 599, usize::MAX] {
+                        let mut got = Vec::new();
+                        tree.walk(points[query], normal, a, query as u32, expected, &mut scratch, |i, key| {
+                            got.push((key.to_bits(), i));
+                            got.len() < stop_after
+                        });
+                        let count = stop_after.min(all.len());
+                        assert_eq!(
+                            got,
+                            all[..count],
+                            "query {query}, α {alpha}, expected {expected}, stop {stop_after}"
+                        );
+                    }
+                }
+            }
+        }
     }
 }

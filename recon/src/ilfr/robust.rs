@@ -35,11 +35,9 @@
 //! radiances (not from radiances already changed), and the excess is distributed in the order of
 //! the splats, so the result is a pure function of the input.
 
-use std::collections::BinaryHeap;
-
 use rayon::prelude::*;
 
-use super::neighbours::{Entry, KdTree};
+use super::neighbours::{KdTree, WalkScratch};
 use super::splats::SplatPoints;
 use crate::error::Error;
 
@@ -169,31 +167,43 @@ pub fn robust_radiance(
     let tree = KdTree::build(points.position);
     let alpha_squared_minus_one = params.alpha * params.alpha - 1.0;
     let log_threshold = params.lobe_threshold.ln();
-    let wanted =
-        if params.mode == RobustMode::Spread { params.neighbours.max(params.spread) } else { params.neighbours };
+    // The first `wanted` neighbours in the lobe, in the walk's order (the jury is their first
+    // `neighbours`; the sharers of `Spread` all of them).
+    let in_lobe = |i: usize, wanted: usize, scratch: &mut WalkScratch, found: &mut Vec<u32>| {
+        found.clear();
+        let kappa = points.kappa.map_or(0.0, |k| k[i]);
+        let direction = points.direction[i];
+        let mut visited = 0usize;
+        let expected = wanted + 4;
+        tree.walk(
+            points.position[i],
+            points.normal[i],
+            alpha_squared_minus_one,
+            i as u32,
+            expected,
+            scratch,
+            |j, _| {
+                visited += 1;
+                let w = points.direction[j as usize];
+                let cosine = direction[0] * w[0] + direction[1] * w[1] + direction[2] * w[2];
+                if kappa * (cosine - 1.0) >= log_threshold {
+                    found.push(j);
+                }
+                found.len() < wanted && visited < params.max_candidates
+            },
+        );
+    };
     let verdicts: Vec<Verdict> = (0..n)
         .into_par_iter()
         .map_init(
-            || (BinaryHeap::<Entry>::new(), Vec::<u32>::new()),
-            |(heap, found), i| {
+            || (WalkScratch::default(), Vec::<u32>::new()),
+            |(scratch, found), i| {
                 let own = radiance[i];
                 let y = luminance(own);
                 if !(y.is_finite() && y > 0.0 && own.iter().all(|c| c.is_finite() && *c >= 0.0)) {
                     return Verdict { judged: false, excess: None };
                 }
-                found.clear();
-                let kappa = points.kappa.map_or(0.0, |k| k[i]);
-                let direction = points.direction[i];
-                let mut visited = 0usize;
-                tree.walk(points.position[i], points.normal[i], alpha_squared_minus_one, i as u32, heap, |j, _| {
-                    visited += 1;
-                    let w = points.direction[j as usize];
-                    let cosine = direction[0] * w[0] + direction[1] * w[1] + direction[2] * w[2];
-                    if kappa * (cosine - 1.0) >= log_threshold {
-                        found.push(j);
-                    }
-                    found.len() < wanted && visited < params.max_candidates
-                });
+                in_lobe(i, params.neighbours, scratch, found);
                 if found.len() < params.neighbours {
                     return Verdict { judged: false, excess: None };
                 }
@@ -207,7 +217,13 @@ pub fn robust_radiance(
                 }
                 let keep = threshold as f64 / y as f64;
                 let excess = own.map(|c| c as f64 * (1.0 - keep));
-                let sharers = if params.mode == RobustMode::Spread { found.clone() } else { Vec::new() };
+                // Only an outlier needs its sharers: the same walk, on to `spread` of them.
+                let sharers = if params.mode == RobustMode::Spread {
+                    in_lobe(i, params.neighbours.max(params.spread), scratch, found);
+                    found.clone()
+                } else {
+                    Vec::new()
+                };
                 Verdict { judged: true, excess: Some((excess, sharers)) }
             },
         )

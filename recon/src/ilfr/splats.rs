@@ -18,11 +18,9 @@
 //! Each radius is a pure function of the input (the walk's order is (distance, index)), so the
 //! result is bit-identical for any number of threads and equal to the brute-force definition.
 
-use std::collections::BinaryHeap;
-
 use rayon::prelude::*;
 
-use super::neighbours::{sub, Entry, KdTree};
+use super::neighbours::{sub, KdTree, WalkScratch};
 use crate::error::Error;
 
 /// The parameters of splat sizing; `Default` is the paper's (k = 12, α = 3, τ = 0.5) with the
@@ -242,11 +240,14 @@ pub fn size_splats(points: &SplatPoints, params: &SplatParams) -> Result<Splats,
     let per_hit: Vec<(f32, SplatStatus, u32)> = (0..points.len())
         .into_par_iter()
         .map_init(
-            || (BinaryHeap::<Entry>::new(), Vec::new()),
-            |(heap, list), i| {
+            || (WalkScratch::default(), Vec::new()),
+            |(scratch, list), i| {
                 let mut selector = setup.selector(points, i, list);
                 let query = points.position[i];
-                tree.walk(query, points.normal[i], alpha_squared_minus_one, i as u32, heap, |j, _| {
+                // k in the lobe: k others, a few more where hits coincide; a narrow lobe
+                // continues past them.
+                let expected = params.k + 4;
+                tree.walk(query, points.normal[i], alpha_squared_minus_one, i as u32, expected, scratch, |j, _| {
                     let j = j as usize;
                     selector.offer(distance(points.position[j], query), points.direction[j])
                 });
