@@ -74,6 +74,12 @@ impl KdTree {
         self.points.is_empty()
     }
 
+    /// The input indices in the tree's leaf order: neighbouring entries are near in space, so
+    /// queries taken in this order walk the same nodes one after another (cache-friendly).
+    pub fn leaf_order(&self) -> &[u32] {
+        &self.ids
+    }
+
     /// Calls `visit(index, metric distance²)` for every point except `skip`, in increasing order of
     /// (metric distance² from `query`, index), until `visit` returns false: the sequence of
     /// [`KdTree::walk_incremental`], bit for bit. `expected` is how many points the caller
@@ -153,12 +159,17 @@ impl KdTree {
                 }
                 let key =
                     metric_distance_squared(sub(self.points[slot as usize], query), normal, alpha_squared_minus_one);
-                let at = kept.partition_point(|&(k, i)| k.total_cmp(&key).then(i.cmp(&id)).is_lt());
-                if at == count {
-                    continue; // full, and every kept point comes first
-                }
+                // Keys are finite sums of squares (never −0), so `<` is the walk's total order.
+                let before = |&(k, i): &(f32, u32)| k < key || (k == key && i < id);
                 if kept.len() == count {
+                    if before(&kept[count - 1]) {
+                        continue; // full, and every kept point comes first
+                    }
                     kept.pop();
+                }
+                let mut at = kept.len();
+                while at > 0 && !before(&kept[at - 1]) {
+                    at -= 1;
                 }
                 kept.insert(at, (key, id));
             }

@@ -193,11 +193,15 @@ pub fn robust_radiance(
             },
         );
     };
-    let verdicts: Vec<Verdict> = (0..n)
-        .into_par_iter()
+    // Judged in the tree's leaf order (neighbouring splats walk the same nodes), each verdict a
+    // pure function of its splat, put back in input order.
+    let in_leaf_order: Vec<Verdict> = tree
+        .leaf_order()
+        .par_iter()
         .map_init(
             || (WalkScratch::default(), Vec::<u32>::new()),
-            |(scratch, found), i| {
+            |(scratch, found), &i| {
+                let i = i as usize;
                 let own = radiance[i];
                 let y = luminance(own);
                 if !(y.is_finite() && y > 0.0 && own.iter().all(|c| c.is_finite() && *c >= 0.0)) {
@@ -228,6 +232,10 @@ pub fn robust_radiance(
             },
         )
         .collect();
+    let mut verdicts: Vec<Verdict> = (0..n).map(|_| Verdict { judged: false, excess: None }).collect();
+    for (&i, verdict) in tree.leaf_order().iter().zip(in_leaf_order) {
+        verdicts[i as usize] = verdict;
+    }
 
     let mut stats = RobustStats::default();
     let mut out: Vec<[f64; 3]> = radiance.iter().map(|l| l.map(|c| c as f64)).collect();

@@ -237,11 +237,15 @@ pub fn size_splats(points: &SplatPoints, params: &SplatParams) -> Result<Splats,
     let setup = Setup::new(points, params);
     let tree = KdTree::build(points.position);
     let alpha_squared_minus_one = params.alpha * params.alpha - 1.0;
-    let per_hit: Vec<(f32, SplatStatus, u32)> = (0..points.len())
-        .into_par_iter()
+    // Queried in the tree's leaf order (neighbouring queries walk the same nodes), each result
+    // a pure function of its hit, put back in input order.
+    let in_leaf_order: Vec<(f32, SplatStatus, u32)> = tree
+        .leaf_order()
+        .par_iter()
         .map_init(
             || (WalkScratch::default(), Vec::new()),
-            |(scratch, list), i| {
+            |(scratch, list), &i| {
+                let i = i as usize;
                 let mut selector = setup.selector(points, i, list);
                 let query = points.position[i];
                 // k in the lobe: k others, a few more where hits coincide; a narrow lobe
@@ -255,6 +259,10 @@ pub fn size_splats(points: &SplatPoints, params: &SplatParams) -> Result<Splats,
             },
         )
         .collect();
+    let mut per_hit = vec![(0.0, SplatStatus::Isolated, 0); points.len()];
+    for (&i, result) in tree.leaf_order().iter().zip(in_leaf_order) {
+        per_hit[i as usize] = result;
+    }
     Ok(setup.assemble(per_hit))
 }
 
