@@ -180,28 +180,7 @@ impl DiscBvh {
                 BuildRef { centre: d.centre, lo, hi, id: i as u32 }
             })
             .collect();
-        let mut nodes = Vec::with_capacity(discs.len() / 2 + 1);
-        if !refs.is_empty() {
-            nodes.push(Node { lo: [0.0; 3], hi: [0.0; 3], first: 0, count: 0 });
-            // (node, start, end) still to split.
-            let mut work = vec![(0usize, 0usize, refs.len())];
-            while let Some((node, start, end)) = work.pop() {
-                match split(&mut refs[start..end]) {
-                    None => {
-                        nodes[node] =
-                            Node { lo: [0.0; 3], hi: [0.0; 3], first: start as u32, count: (end - start) as u32 }
-                    }
-                    Some(mid) => {
-                        let first = nodes.len();
-                        nodes[node] = Node { lo: [0.0; 3], hi: [0.0; 3], first: first as u32, count: 0 };
-                        nodes.push(nodes[node]);
-                        nodes.push(nodes[node]);
-                        work.push((first + 1, start + mid, end));
-                        work.push((first, start, start + mid));
-                    }
-                }
-            }
-        }
+        let nodes = if refs.is_empty() { Vec::new() } else { build_subtree(&mut refs, 0) };
         let mut bvh = DiscBvh {
             nodes,
             discs: refs.iter().map(|r| discs[r.id as usize]).collect(),
@@ -524,6 +503,68 @@ fn box_overlaps(node: &Node, origin: [f32; 3], inverse: [f32; 3], t_min: f32, t_
     near <= far + BOX_SLACK * (far.abs() + near.abs())
 }
 
+/// Subtrees over at least this many discs split their two halves on two threads.
+const PARALLEL_BUILD_MIN: usize = 4096;
+
+/// The nodes of the subtree over `refs`, whose first disc goes to slot `start`: its root, then
+/// the descendants in the order the sequential build ([`build_sequential`]) allocates them — a
+/// split node's two children as a pair, depth first, the left subtree's before the right's —
+/// with inner nodes' `first` counted from the root's position. Large subtrees build their two
+/// halves in parallel and are joined by shifting those indices, so the layout is the
+/// sequential build's, node for node, for any number of threads.
+fn build_subtree(refs: &mut [BuildRef], start: usize) -> Vec<Node> {
+    if refs.len() < PARALLEL_BUILD_MIN {
+        return build_sequential(refs, start);
+    }
+    let Some(mid) = split(refs) else {
+        return vec![Node { lo: [0.0; 3], hi: [0.0; 3], first: start as u32, count: refs.len() as u32 }];
+    };
+    let (left_refs, right_refs) = refs.split_at_mut(mid);
+    let (left, right) = rayon::join(|| build_subtree(left_refs, start), || build_subtree(right_refs, start + mid));
+    // Positions: root 0, the pair 1 and 2, left[1..] from 3, right[1..] after them.
+    let shift = |node: &Node, by: usize| {
+        if node.count == 0 {
+            Node { first: node.first + by as u32, ..*node }
+        } else {
+            *node
+        }
+    };
+    let right_shift = left.len() + 1;
+    let mut nodes = Vec::with_capacity(1 + left.len() + right.len());
+    nodes.push(Node { lo: [0.0; 3], hi: [0.0; 3], first: 1, count: 0 });
+    nodes.push(shift(&left[0], 2));
+    nodes.push(shift(&right[0], right_shift));
+    nodes.extend(left[1..].iter().map(|n| shift(n, 2)));
+    nodes.extend(right[1..].iter().map(|n| shift(n, right_shift)));
+    nodes
+}
+
+/// The subtree over `refs` (first disc at slot `start`) on one thread, root at index 0: a stack
+/// of nodes still to split, each split appending its children as a pair.
+fn build_sequential(refs: &mut [BuildRef], start: usize) -> Vec<Node> {
+    let mut nodes = Vec::with_capacity(refs.len() / 2 + 1);
+    nodes.push(Node { lo: [0.0; 3], hi: [0.0; 3], first: 0, count: 0 });
+    // (node, start, end) still to split.
+    let mut work = vec![(0usize, 0usize, refs.len())];
+    while let Some((node, begin, end)) = work.pop() {
+        match split(&mut refs[begin..end]) {
+            None => {
+                let first = (start + begin) as u32;
+                nodes[node] = Node { lo: [0.0; 3], hi: [0.0; 3], first, count: (end - begin) as u32 }
+            }
+            Some(mid) => {
+                let first = nodes.len();
+                nodes[node] = Node { lo: [0.0; 3], hi: [0.0; 3], first: first as u32, count: 0 };
+                nodes.push(nodes[node]);
+                nodes.push(nodes[node]);
+                work.push((first + 1, begin + mid, end));
+                work.push((first, begin, begin + mid));
+            }
+        }
+    }
+    nodes
+}
+
 /// Chooses a split of `refs` by binned SAH and partitions it; `None` makes a leaf.
 fn split(refs: &mut [BuildRef]) -> Option<usize> {
     let n = refs.len();
@@ -694,6 +735,36 @@ mod tests {
             assert_eq!(*disc, discs[id as usize]);
         }
         assert!(bvh.nodes.iter().all(|n| n.count as usize <= MAX_LEAF));
+    }
+
+    /// The parallel build against the sequential one (its oracle): the same nodes in the same
+    /// places and the same disc order, on one thread and on four.
+    #[test]
+    fn the_parallel_build_lays_out_the_sequential_builds_nodes() {
+        let discs = random_discs(40_000, 21);
+        let refs = || -> Vec<BuildRef> {
+            discs
+                .iter()
+                .enumerate()
+                .map(|(i, d)| {
+                    let (lo, hi) = d.bounds();
+                    BuildRef { centre: d.centre, lo, hi, id: i as u32 }
+                })
+                .collect()
+        };
+        let layout = |nodes: &[Node], refs: &[BuildRef]| -> (Vec<(u32, u32)>, Vec<u32>) {
+            (nodes.iter().map(|n| (n.first, n.count)).collect(), refs.iter().map(|r| r.id).collect())
+        };
+        let mut sequential_refs = refs();
+        let sequential = build_sequential(&mut sequential_refs, 0);
+        let expected = layout(&sequential, &sequential_refs);
+        assert!(sequential.len() > 4 * 40_000 / MAX_LEAF, "a deep tree: {}", sequential.len());
+        for threads in [1, 4] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let mut parallel_refs = refs();
+            let parallel = pool.install(|| build_subtree(&mut parallel_refs, 0));
+            assert!(layout(&parallel, &parallel_refs) == expected, "{threads} threads");
+        }
     }
 
     #[test]
