@@ -159,8 +159,9 @@ impl KdTree {
                 }
                 let key =
                     metric_distance_squared(sub(self.points[slot as usize], query), normal, alpha_squared_minus_one);
-                // Keys are finite sums of squares (never −0), so `<` is the walk's total order.
-                let before = |&(k, i): &(f32, u32)| k < key || (k == key && i < id);
+                // The walk's total order (a NaN key, from an overflow, included); a NaN worst
+                // key never prunes a subtree above.
+                let before = |&(k, i): &(f32, u32)| k.total_cmp(&key).then(i.cmp(&id)).is_lt();
                 if kept.len() == count {
                     if before(&kept[count - 1]) {
                         continue; // full, and every kept point comes first
