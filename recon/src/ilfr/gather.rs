@@ -109,6 +109,50 @@ pub fn gather(
     ao_radius: Option<f32>,
     settings: &GatherSettings,
 ) -> Result<(Image, GatherStats), Error> {
+    gather_with_spread(samples, reconstructor, ao_radius, settings).map(|(image, stats, _)| (image, stats))
+}
+
+/// The luminance of the radiance of a pixel's supported rays at its Lambertian hits: Σ y, Σ y²
+/// and how many, for the variance of the pixel's estimate.
+#[derive(Clone, Copy, Debug, Default)]
+struct RaySpread {
+    sum: f64,
+    sum_squares: f64,
+    count: u32,
+}
+
+impl RaySpread {
+    fn add(&mut self, l: [f32; 3]) {
+        let y = super::robust::luminance(l) as f64;
+        if y.is_finite() {
+            self.sum += y;
+            self.sum_squares += y * y;
+            self.count += 1;
+        }
+    }
+
+    /// The variance of the rays' mean luminance (sample variance / count); +inf with fewer than
+    /// two rays (unknown).
+    fn variance_of_mean(&self) -> f32 {
+        if self.count < 2 {
+            return f32::INFINITY;
+        }
+        let n = self.count as f64;
+        let mean = self.sum / n;
+        let variance = ((self.sum_squares / n - mean * mean) * n / (n - 1.0)).max(0.0);
+        (variance / n) as f32
+    }
+}
+
+/// [`gather`], and for indirect light each pixel's [`RaySpread::variance_of_mean`]: the
+/// variance of its gathered irradiance's luminance from the spread of its rays (+inf where
+/// unknown; empty for ambient occlusion).
+pub fn gather_with_spread(
+    samples: &IndirectSamples,
+    reconstructor: &Reconstructor,
+    ao_radius: Option<f32>,
+    settings: &GatherSettings,
+) -> Result<(Image, GatherStats, Vec<f32>), Error> {
     let content = |message: &str| Error::sample_content(&samples.path, message);
     let albedo = match ao_radius {
         None => {
@@ -143,14 +187,16 @@ pub fn gather(
     }
     let per_hit = rays_per_hit(settings.rays_per_pixel, spp);
     crate::progress::begin("gather", height as u64, "rows");
-    let rows: Vec<(Vec<[f32; 3]>, GatherStats)> = (0..height)
+    let rows: Vec<(Vec<[f32; 3]>, Vec<f32>, GatherStats)> = (0..height)
         .into_par_iter()
         .map(|y| {
             let mut scratch = Scratch::default();
             let mut stats = GatherStats::default();
             let mut sky = Vec::new();
+            let mut variance = Vec::with_capacity(width as usize);
             let row = (0..width)
                 .map(|x| {
+                    let mut spread = RaySpread::default();
                     let first = (y as usize * width as usize + x as usize) * spp as usize;
                     let sky_spacing = match ao_radius {
                         None => sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky),
@@ -171,7 +217,7 @@ pub fn gather(
                                 (&sky, min_cosine),
                                 (per_hit, settings),
                                 &mut scratch,
-                                &mut stats,
+                                (&mut stats, &mut spread),
                             ),
                             Some(ao_radius) => visibility_at(
                                 samples,
@@ -187,15 +233,27 @@ pub fn gather(
                             sum[c] += value[c] as f64;
                         }
                     }
+                    if ao_radius.is_none() {
+                        variance.push(spread.variance_of_mean());
+                    }
                     sum.map(|s| (s / spp as f64) as f32)
                 })
                 .collect();
             crate::progress::advance(1);
-            (row, stats)
+            (row, variance, stats)
         })
         .collect();
     crate::progress::end();
-    Ok(assemble_rows(width, height, rows))
+    let mut variance = Vec::new();
+    let rows = rows
+        .into_iter()
+        .map(|(row, row_variance, stats)| {
+            variance.extend(row_variance);
+            (row, stats)
+        })
+        .collect();
+    let (image, stats) = assemble_rows(width, height, rows);
+    Ok((image, stats, variance))
 }
 
 /// The image and the summed counts of rows gathered in parallel, in row order.
@@ -316,7 +374,7 @@ fn indirect_at(
     sky: (&[SkySample], Option<f32>),
     (per_hit, settings): (u32, &GatherSettings),
     scratch: &mut Scratch,
-    stats: &mut GatherStats,
+    (stats, spread): (&mut GatherStats, &mut RaySpread),
 ) -> [f32; 3] {
     let class = samples.class[i];
     if class == SampleClass::CameraMiss {
@@ -338,6 +396,7 @@ fn indirect_at(
                     reconstructor.radiance_or_sky(&ray, sky, scratch, &mut stats.reconstruct, &mut stats.fallbacks)
                 {
                     add(l, [1.0; 3]);
+                    spread.add(l);
                 }
             }
             albedo
@@ -402,6 +461,23 @@ fn visibility_at(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The variance of the mean from Σ y, Σ y²: the unbiased sample variance over the count,
+    /// computed directly for four rays; fewer than two rays are unknown; non-finite radiance
+    /// is not counted.
+    #[test]
+    fn a_pixels_spread_is_the_variance_of_its_rays_mean() {
+        let mut spread = RaySpread::default();
+        assert_eq!(spread.variance_of_mean(), f32::INFINITY);
+        spread.add([2.0; 3]);
+        assert_eq!(spread.variance_of_mean(), f32::INFINITY, "one ray: unknown");
+        spread.add([f32::NAN; 3]);
+        for y in [4.0, 6.0, 8.0] {
+            spread.add([y; 3]); // grey: luminance y
+        }
+        // y = 2, 4, 6, 8: mean 5, unbiased variance (9 + 1 + 1 + 9) / 3 = 20/3, of the mean 5/3.
+        assert!((spread.variance_of_mean() - 5.0 / 3.0).abs() < 1e-5, "{}", spread.variance_of_mean());
+    }
 
     #[test]
     fn rays_per_hit_rounds_up_and_gives_every_hit_one() {

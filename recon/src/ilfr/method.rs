@@ -20,7 +20,7 @@ use sampleio::SampleFile;
 use super::bvh::DiscBvh;
 use super::disc::Disc;
 use super::filter::SplatShading;
-use super::gather::{gather, rays_per_hit, GatherSettings, GatherStats};
+use super::gather::{gather, gather_with_spread, rays_per_hit, GatherSettings, GatherStats};
 use super::lens::gather_lens;
 use super::lens::read_primary_rays;
 use super::reconstruct::Reconstructor;
@@ -598,17 +598,27 @@ pub fn reconstruct_samples(
         pixel_stratified: settings.pixel_stratified,
         ..GatherSettings::default()
     };
+    // The pixels' variances are empty unless the indirect light's grain is filtered.
     let gathered = match target {
-        GatherTarget::Lens(camera) => gather_lens(samples, &reconstructor, &camera, &gather_settings),
-        GatherTarget::Indirect => gather(samples, &reconstructor, None, &gather_settings),
-        GatherTarget::Visibility { ao_radius } => gather(samples, &reconstructor, Some(ao_radius), &gather_settings),
+        GatherTarget::Lens(camera) => {
+            gather_lens(samples, &reconstructor, &camera, &gather_settings).map(|(i, s)| (i, s, Vec::new()))
+        }
+        GatherTarget::Indirect if settings.filter_grain => {
+            gather_with_spread(samples, &reconstructor, None, &gather_settings)
+        }
+        GatherTarget::Indirect => {
+            gather(samples, &reconstructor, None, &gather_settings).map(|(i, s)| (i, s, Vec::new()))
+        }
+        GatherTarget::Visibility { ao_radius } => {
+            gather(samples, &reconstructor, Some(ao_radius), &gather_settings).map(|(i, s)| (i, s, Vec::new()))
+        }
     };
-    let (image, gathered) = gathered.map_err(failed)?;
+    let (image, gathered, variance) = gathered.map_err(failed)?;
     let reconstruct_s = start.elapsed().as_secs_f64();
     let start = Instant::now();
     let image = match target {
         GatherTarget::Indirect if settings.filter_grain => {
-            super::grain::filter_grain(samples, &image).map_err(failed)?
+            super::grain::filter_grain(samples, &image, &variance).map_err(failed)?
         }
         _ => image,
     };
