@@ -138,6 +138,25 @@ fn resolve_methods(names: &[String], effect: Effect) -> Result<Vec<Registered>> 
     Ok(methods)
 }
 
+/// Refuses, before anything is traced, a method whose options leave out glossy reflections
+/// (`ilfr:grain=filter`) in an indirect comparison of a scene with glossy materials: that
+/// scene's indirect light holds glossy reflections (its sample files carry `weight`), which
+/// such a method would blur.
+fn refuse_narrowed_on_glossy_scene(methods: &[Registered], effect: Effect, glossy_scene: bool) -> Result<()> {
+    if effect != Effect::Indirect || !glossy_scene {
+        return Ok(());
+    }
+    match methods.iter().find(|m| m.spec.effects.contains(&Effect::Glossy) && !m.method.handles(Effect::Glossy)) {
+        Some(m) => bail!(
+            "--methods: {} applies to diffuse indirect light, and this scene has glossy materials, whose \
+             reflections it would blur; use {} or a diffuse scene",
+            m.name(),
+            m.spec.name
+        ),
+        None => Ok(()),
+    }
+}
+
 /// Refuses a comparison whose images would not fit in memory, before anything is traced: one
 /// render at a time (`tracer::memory::RENDER_BYTES_PER_PIXEL`), the reference and its halves,
 /// every run's image and its FLIP copy, and the frames and guide buffers kept per input spp;
@@ -598,6 +617,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         scene.camera.focus_distance = distance;
     }
     let max_bounces = prepare_scene(effect, &mut scene, args.trace.size.max_bounces)?;
+    refuse_narrowed_on_glossy_scene(&methods, effect, tracer::samples::secondary::scene_is_glossy(&scene))?;
     let (width, height) =
         (args.trace.size.width.unwrap_or(scene.width), args.trace.size.height.unwrap_or(scene.height));
     if width == 0 || height == 0 || width > MAX_COMPARE_SIDE || height > MAX_COMPARE_SIDE {
@@ -1266,5 +1286,16 @@ mod tests {
         assert!(error.contains("magic") && error.contains("box"), "{error}");
         let methods = resolve_methods(&["box".into(), "box".into(), " ".into()], Effect::Indirect).unwrap();
         assert_eq!(methods.len(), 1);
+    }
+
+    /// `ilfr:grain=filter` on a glossy scene's indirect light is refused by name before
+    /// tracing; plain `ilfr`, and the filter on a diffuse scene, are not.
+    #[test]
+    fn a_grain_filter_on_a_glossy_scene_is_refused_before_tracing() {
+        let methods = resolve_methods(&["ilfr".into(), "ilfr:grain=filter".into()], Effect::Indirect).unwrap();
+        let error = refuse_narrowed_on_glossy_scene(&methods, Effect::Indirect, true).unwrap_err().to_string();
+        assert!(error.contains("ilfr:grain=filter") && error.contains("glossy"), "{error}");
+        assert!(refuse_narrowed_on_glossy_scene(&methods, Effect::Indirect, false).is_ok());
+        assert!(refuse_narrowed_on_glossy_scene(&methods[..1], Effect::Indirect, true).is_ok());
     }
 }
