@@ -130,9 +130,10 @@ const GRAIN: OptionSpec = OptionSpec {
     key: "grain",
     kind: OptionKind::Choice(&["keep", "filter"]),
     default: "keep",
-    help: "the final gather's per-pixel grain in diffuse indirect light: kept (the paper) or taken out by one \
-           edge-aware À-Trous level on the primary hits' normals and positions, light divided by albedo (beyond \
-           the paper; --effect indirect)",
+    help: "the final gather's per-pixel grain in diffuse indirect light: kept (the paper) or taken out by three \
+           edge-aware À-Trous levels on the primary hits' normals and positions and on luminance in units of each \
+           pixel's standard error from its rays, light divided by albedo (beyond the paper; --effect indirect, \
+           diffuse scenes)",
 };
 const QUALITY: OptionSpec = OptionSpec {
     key: "quality",
