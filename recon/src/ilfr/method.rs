@@ -1050,6 +1050,15 @@ pub(crate) mod tests {
         assert_eq!(bits(&one), bits(&two));
         assert_eq!(one.gather, two.gather);
         assert!(one.image.pixels.iter().flatten().all(|v| v.is_finite()));
+        // The grain filter (variances from the gather, levels over rows in parallel) too.
+        let filtered = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let settings = IlfrSettings { filter_grain: true, ..settings(32) };
+            pool.install(|| reconstruct_samples(&samples, GatherTarget::Indirect, &settings).unwrap())
+        };
+        let (one_filtered, three_filtered) = (filtered(1), filtered(3));
+        assert_eq!(bits(&one_filtered), bits(&three_filtered));
+        assert_ne!(bits(&one_filtered), bits(&one), "the filter ran");
     }
 
     /// Stiff inputs: a 1×1 image at 1 spp still gives the furnace's exact albedo × L, and a
