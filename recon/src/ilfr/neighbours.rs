@@ -46,6 +46,23 @@ struct Node {
     right: u32,
 }
 
+/// Whose neighbours a walk yields: the point `position` (not itself in the tree, or skipped as
+/// `skip`), its unit `normal` and the metric's α² − 1 ≥ 0 ([`metric_distance_squared`]).
+#[derive(Clone, Copy, Debug)]
+pub struct MetricQuery {
+    pub position: [f32; 3],
+    pub normal: [f32; 3],
+    pub alpha_squared_minus_one: f32,
+    /// The index of a point the walk leaves out (the query's own); `u32::MAX` for none.
+    pub skip: u32,
+}
+
+impl MetricQuery {
+    fn key(&self, point: [f32; 3]) -> f32 {
+        metric_distance_squared(sub(point, self.position), self.normal, self.alpha_squared_minus_one)
+    }
+}
+
 /// A kd-tree over a fixed set of points.
 #[derive(Clone, Debug)]
 pub struct KdTree {
@@ -80,23 +97,19 @@ impl KdTree {
         &self.ids
     }
 
-    /// Calls `visit(index, metric distance²)` for every point except `skip`, in increasing order of
-    /// (metric distance² from `query`, index), until `visit` returns false: the sequence of
-    /// [`KdTree::walk_incremental`], bit for bit. `expected` is how many points the caller
-    /// likely takes: they come from a bounded depth-first search, cheaper than the heap walk,
-    /// which runs only when `visit` asks for more.
-    #[allow(clippy::too_many_arguments)]
+    /// Calls `visit(index, metric distance²)` for every point except `query.skip`, in
+    /// increasing order of (metric distance² from the query, index), until `visit` returns
+    /// false: the sequence of [`KdTree::walk_incremental`], bit for bit. `expected` is how many
+    /// points the caller likely takes: they come from a bounded depth-first search, cheaper
+    /// than the heap walk, which runs only when `visit` asks for more.
     pub fn walk(
         &self,
-        query: [f32; 3],
-        normal: [f32; 3],
-        alpha_squared_minus_one: f32,
-        skip: u32,
+        query: &MetricQuery,
         expected: usize,
         scratch: &mut WalkScratch,
         mut visit: impl FnMut(u32, f32) -> bool,
     ) {
-        self.nearest(query, normal, alpha_squared_minus_one, skip, expected, scratch);
+        self.nearest(query, expected, scratch);
         for &(key, id) in &scratch.nearest {
             if !visit(id, key) {
                 return;
@@ -106,7 +119,7 @@ impl KdTree {
             return; // the search kept every other point
         }
         let mut given = 0usize;
-        self.walk_incremental(query, normal, alpha_squared_minus_one, skip, &mut scratch.heap, |id, key| {
+        self.walk_incremental(query, &mut scratch.heap, |id, key| {
             given += 1;
             given <= expected || visit(id, key)
         });
@@ -116,16 +129,8 @@ impl KdTree {
     /// (metric distance², index): a depth-first search that opens the nearer child first and
     /// skips a subtree whose box lower bound exceeds the worst point kept once `count` are kept
     /// (a bound equal to it may still hold a point with a smaller index, so it is opened).
-    fn nearest(
-        &self,
-        query: [f32; 3],
-        normal: [f32; 3],
-        alpha_squared_minus_one: f32,
-        skip: u32,
-        count: usize,
-        scratch: &mut WalkScratch,
-    ) {
-        debug_assert!(alpha_squared_minus_one >= 0.0);
+    fn nearest(&self, query: &MetricQuery, count: usize, scratch: &mut WalkScratch) {
+        debug_assert!(query.alpha_squared_minus_one >= 0.0);
         let kept = &mut scratch.nearest;
         kept.clear();
         scratch.stack.clear();
@@ -141,7 +146,8 @@ impl KdTree {
             // Down the nearer child, the farther one stacked with its bound.
             while node.left != 0 {
                 let (left, right) = (&self.nodes[node.left as usize], &self.nodes[node.right as usize]);
-                let (left_bound, right_bound) = (box_lower_bound(left, query), box_lower_bound(right, query));
+                let (left_bound, right_bound) =
+                    (box_lower_bound(left, query.position), box_lower_bound(right, query.position));
                 let (near, far, far_bound) = if left_bound <= right_bound {
                     (left, node.right, right_bound)
                 } else {
@@ -154,11 +160,10 @@ impl KdTree {
             }
             for slot in node.start..node.end {
                 let id = self.ids[slot as usize];
-                if id == skip {
+                if id == query.skip {
                     continue;
                 }
-                let key =
-                    metric_distance_squared(sub(self.points[slot as usize], query), normal, alpha_squared_minus_one);
+                let key = query.key(self.points[slot as usize]);
                 // The walk's total order (a NaN key, from an overflow, included); a NaN worst
                 // key never prunes a subtree above.
                 let before = |&(k, i): &(f32, u32)| k.total_cmp(&key).then(i.cmp(&id)).is_lt();
@@ -182,14 +187,11 @@ impl KdTree {
     /// [`KdTree::walk`] and its oracle.
     pub fn walk_incremental(
         &self,
-        query: [f32; 3],
-        normal: [f32; 3],
-        alpha_squared_minus_one: f32,
-        skip: u32,
+        query: &MetricQuery,
         heap: &mut BinaryHeap<Entry>,
         mut visit: impl FnMut(u32, f32) -> bool,
     ) {
-        debug_assert!(alpha_squared_minus_one >= 0.0);
+        debug_assert!(query.alpha_squared_minus_one >= 0.0);
         heap.clear();
         if self.nodes.is_empty() {
             return;
@@ -206,16 +208,15 @@ impl KdTree {
             if node.left == 0 {
                 for slot in node.start..node.end {
                     let id = self.ids[slot as usize];
-                    if id == skip {
+                    if id == query.skip {
                         continue;
                     }
-                    let d = sub(self.points[slot as usize], query);
-                    let key = metric_distance_squared(d, normal, alpha_squared_minus_one);
+                    let key = query.key(self.points[slot as usize]);
                     heap.push(Entry { key, is_point: true, order: id, slot });
                 }
             } else {
                 for child in [node.left, node.right] {
-                    let key = box_lower_bound(&self.nodes[child as usize], query);
+                    let key = box_lower_bound(&self.nodes[child as usize], query.position);
                     heap.push(Entry { key, is_point: false, order: child, slot: child });
                 }
             }
@@ -328,7 +329,8 @@ mod tests {
         for (query, normal, alpha) in [(5usize, [0.0, 0.0, 1.0], 3.0f32), (123, [0.6, 0.0, 0.8], 1.0)] {
             let a = alpha * alpha - 1.0;
             let mut walked = Vec::new();
-            tree.walk_incremental(points[query], normal, a, query as u32, &mut heap, |i, key| {
+            let q = MetricQuery { position: points[query], normal, alpha_squared_minus_one: a, skip: query as u32 };
+            tree.walk_incremental(&q, &mut heap, |i, key| {
                 walked.push((key, i));
                 true
             });
@@ -362,7 +364,9 @@ mod tests {
         let tree = KdTree::build(&same);
         let mut heap = BinaryHeap::new();
         let mut order = Vec::new();
-        tree.walk_incremental([1.0, 2.0, 3.0], [0.0, 0.0, 1.0], 8.0, 10, &mut heap, |i, _| {
+        let q =
+            MetricQuery { position: [1.0, 2.0, 3.0], normal: [0.0, 0.0, 1.0], alpha_squared_minus_one: 8.0, skip: 10 };
+        tree.walk_incremental(&q, &mut heap, |i, _| {
             order.push(i);
             true
         });
@@ -370,7 +374,7 @@ mod tests {
         assert_eq!(order, expected, "equal distances come in index order");
         for wanted in [0, 1, 7, 12, 49, 60] {
             let mut order = Vec::new();
-            tree.walk([1.0, 2.0, 3.0], [0.0, 0.0, 1.0], 8.0, 10, 12, &mut WalkScratch::default(), |i, _| {
+            tree.walk(&q, 12, &mut WalkScratch::default(), |i, _| {
                 order.push(i);
                 order.len() < wanted
             });
@@ -382,7 +386,7 @@ mod tests {
             );
         }
         let mut nothing = Vec::new();
-        KdTree::build(&[]).walk([0.0; 3], [0.0, 0.0, 1.0], 8.0, 0, 12, &mut WalkScratch::default(), |i, _| {
+        KdTree::build(&[]).walk(&q, 12, &mut WalkScratch::default(), |i, _| {
             nothing.push(i);
             true
         });
@@ -408,7 +412,8 @@ mod tests {
             for alpha in [1.0f32, 3.0] {
                 let a = alpha * alpha - 1.0;
                 let mut all = Vec::new();
-                tree.walk_incremental(points[query], normal, a, query as u32, &mut heap, |i, key| {
+                let q = MetricQuery { position: points[query], normal, alpha_squared_minus_one: a, skip: query as u32 };
+                tree.walk_incremental(&q, &mut heap, |i, key| {
                     all.push((key.to_bits(), i));
                     true
                 });
@@ -416,7 +421,7 @@ mod tests {
                 for expected in [0usize, 1, 5, 12, 16, 64, 599, 700] {
                     for stop_after in [1usize, 4, 12, 13, 40, 599, usize::MAX] {
                         let mut got = Vec::new();
-                        tree.walk(points[query], normal, a, query as u32, expected, &mut scratch, |i, key| {
+                        tree.walk(&q, expected, &mut scratch, |i, key| {
                             got.push((key.to_bits(), i));
                             got.len() < stop_after
                         });

@@ -37,7 +37,7 @@
 
 use rayon::prelude::*;
 
-use super::neighbours::{KdTree, WalkScratch};
+use super::neighbours::{KdTree, MetricQuery, WalkScratch};
 use super::splats::SplatPoints;
 use crate::error::Error;
 
@@ -175,23 +175,21 @@ pub fn robust_radiance(
         let direction = points.direction[i];
         let mut visited = 0usize;
         let expected = wanted + 4;
-        tree.walk(
-            points.position[i],
-            points.normal[i],
+        let query = MetricQuery {
+            position: points.position[i],
+            normal: points.normal[i],
             alpha_squared_minus_one,
-            i as u32,
-            expected,
-            scratch,
-            |j, _| {
-                visited += 1;
-                let w = points.direction[j as usize];
-                let cosine = direction[0] * w[0] + direction[1] * w[1] + direction[2] * w[2];
-                if kappa * (cosine - 1.0) >= log_threshold {
-                    found.push(j);
-                }
-                found.len() < wanted && visited < params.max_candidates
-            },
-        );
+            skip: i as u32,
+        };
+        tree.walk(&query, expected, scratch, |j, _| {
+            visited += 1;
+            let w = points.direction[j as usize];
+            let cosine = direction[0] * w[0] + direction[1] * w[1] + direction[2] * w[2];
+            if kappa * (cosine - 1.0) >= log_threshold {
+                found.push(j);
+            }
+            found.len() < wanted && visited < params.max_candidates
+        });
     };
     // Judged in the tree's leaf order (neighbouring splats walk the same nodes), each verdict a
     // pure function of its splat, put back in input order.

@@ -20,7 +20,7 @@
 
 use rayon::prelude::*;
 
-use super::neighbours::{sub, KdTree, WalkScratch};
+use super::neighbours::{sub, KdTree, MetricQuery, WalkScratch};
 use crate::error::Error;
 
 /// The parameters of splat sizing; `Default` is the paper's (k = 12, α = 3, τ = 0.5) with the
@@ -251,7 +251,9 @@ pub fn size_splats(points: &SplatPoints, params: &SplatParams) -> Result<Splats,
                 // k in the lobe: k others, a few more where hits coincide; a narrow lobe
                 // continues past them.
                 let expected = params.k + 4;
-                tree.walk(query, points.normal[i], alpha_squared_minus_one, i as u32, expected, scratch, |j, _| {
+                let metric =
+                    MetricQuery { position: query, normal: points.normal[i], alpha_squared_minus_one, skip: i as u32 };
+                tree.walk(&metric, expected, scratch, |j, _| {
                     let j = j as usize;
                     selector.offer(distance(points.position[j], query), points.direction[j])
                 });
