@@ -23,6 +23,8 @@
 //!   in the harness's reference.
 //! - A pixel is the mean over its spp records (sample i belongs to pixel i / spp), a camera miss
 //!   giving 0 indirect light (the box value: its radiance is zero) or visibility 1.
+//! - Beyond the paper, for `grain=filter` ([`super::grain`]): each pixel's variance of the mean
+//!   luminance of its supported rays' radiance at Lambertian hits ([`gather_with_spread`]).
 //!
 //! Directions: the 2D Sobol' (0, 2)-sequence, Owen-scrambled by a hash of (seed, pixel), hit k
 //! of the pixel taking block k of it ([`GatherSettings::pixel_stratified`]; a hash of (seed,
