@@ -146,7 +146,7 @@ impl RaySpread {
     }
 }
 
-/// [`gather`], and for indirect light each pixel's [`RaySpread::variance_of_mean`]: the
+/// [`gather`], and for indirect light each pixel's `RaySpread::variance_of_mean`: the
 /// variance of its gathered irradiance's luminance from the spread of its rays (+inf where
 /// unknown; empty for ambient occlusion).
 pub fn gather_with_spread(
