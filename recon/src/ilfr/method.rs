@@ -20,7 +20,7 @@ use sampleio::SampleFile;
 use super::bvh::DiscBvh;
 use super::disc::Disc;
 use super::filter::SplatShading;
-use super::gather::{gather, gather_with_spread, rays_per_hit, GatherSettings, GatherStats};
+use super::gather::{gather_with_spread, rays_per_hit, GatherSettings, GatherStats};
 use super::lens::gather_lens;
 use super::lens::read_primary_rays;
 use super::reconstruct::Reconstructor;
@@ -598,19 +598,14 @@ pub fn reconstruct_samples(
         pixel_stratified: settings.pixel_stratified,
         ..GatherSettings::default()
     };
-    // The pixels' variances are empty unless the indirect light's grain is filtered.
+    // With each pixel's variance (indirect light only), for the grain filter.
     let gathered = match target {
         GatherTarget::Lens(camera) => {
             gather_lens(samples, &reconstructor, &camera, &gather_settings).map(|(i, s)| (i, s, Vec::new()))
         }
-        GatherTarget::Indirect if settings.filter_grain => {
-            gather_with_spread(samples, &reconstructor, None, &gather_settings)
-        }
-        GatherTarget::Indirect => {
-            gather(samples, &reconstructor, None, &gather_settings).map(|(i, s)| (i, s, Vec::new()))
-        }
+        GatherTarget::Indirect => gather_with_spread(samples, &reconstructor, None, &gather_settings),
         GatherTarget::Visibility { ao_radius } => {
-            gather(samples, &reconstructor, Some(ao_radius), &gather_settings).map(|(i, s)| (i, s, Vec::new()))
+            gather_with_spread(samples, &reconstructor, Some(ao_radius), &gather_settings)
         }
     };
     let (image, gathered, variance) = gathered.map_err(failed)?;
