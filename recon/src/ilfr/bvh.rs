@@ -927,11 +927,15 @@ mod tests {
         let ray = Ray { time: 0.0, origin: [0.0, 0.0, 5.0], direction: [0.0, 0.0, -1.0] };
         empty.collect_hits(&ray, 0.0, f32::INFINITY, &mut stack, &mut out);
         assert!(out.is_empty());
-        let same = vec![Disc::new([0.0; 3], [0.0, 0.0, 1.0], 1.0); 100];
-        let bvh = DiscBvh::build(&same).unwrap();
-        bvh.collect_hits(&ray, 0.0, f32::INFINITY, &mut stack, &mut out);
-        assert_eq!(out.len(), 100);
-        assert!(bvh.nodes.iter().all(|n| n.count as usize <= MAX_LEAF));
+        // 100 coincident discs, and 5000 (past PARALLEL_BUILD_MIN: the parallel build's split
+        // by order, joined as the sequential one would lay it out).
+        for n in [100, 5000] {
+            let same = vec![Disc::new([0.0; 3], [0.0, 0.0, 1.0], 1.0); n];
+            let bvh = DiscBvh::build(&same).unwrap();
+            bvh.collect_hits(&ray, 0.0, f32::INFINITY, &mut stack, &mut out);
+            assert_eq!(out.len(), n);
+            assert!(bvh.nodes.iter().all(|node| node.count as usize <= MAX_LEAF));
+        }
         // Bad input names the disc.
         let mut bad = random_discs(10, 1);
         bad[4].centre[2] = f32::NAN;
