@@ -101,19 +101,6 @@ pub fn rays_per_hit(rays_per_pixel: u32, spp: u32) -> u32 {
     rays_per_pixel.div_ceil(spp.max(1)).max(1)
 }
 
-/// Gathers from `samples` with the splats of `reconstructor` the indirect light towards the
-/// camera, or with `ao_radius` the ambient visibility within it. Errors name the file and the
-/// field: a glossy file (`weight`, gap G1), an `indirect` file without `albedo`, an AO target on
-/// a file without `distance` and the reverse.
-pub fn gather(
-    samples: &IndirectSamples,
-    reconstructor: &Reconstructor,
-    ao_radius: Option<f32>,
-    settings: &GatherSettings,
-) -> Result<(Image, GatherStats), Error> {
-    gather_with_spread(samples, reconstructor, ao_radius, settings).map(|(image, stats, _)| (image, stats))
-}
-
 /// The luminance of the radiance of a pixel's supported rays at its Lambertian hits: Σ y, Σ y²
 /// and how many, for the variance of the pixel's estimate.
 #[derive(Clone, Copy, Debug, Default)]
@@ -146,9 +133,12 @@ impl RaySpread {
     }
 }
 
-/// [`gather`], and for indirect light each pixel's `RaySpread::variance_of_mean`: the
-/// variance of its gathered irradiance's luminance from the spread of its rays (+inf where
-/// unknown; empty for ambient occlusion).
+/// Gathers from `samples` with the splats of `reconstructor` the indirect light towards the
+/// camera, or with `ao_radius` the ambient visibility within it; for indirect light also each
+/// pixel's `RaySpread::variance_of_mean`, the variance of its gathered irradiance's luminance
+/// from the spread of its rays (+inf where unknown; empty for ambient occlusion). Errors name
+/// the file and the field: a glossy file (`weight`, gap G1), an `indirect` file without
+/// `albedo`, an AO target on a file without `distance` and the reverse.
 pub fn gather_with_spread(
     samples: &IndirectSamples,
     reconstructor: &Reconstructor,

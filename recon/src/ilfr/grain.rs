@@ -32,7 +32,7 @@ use rayon::prelude::*;
 
 use super::robust::luminance;
 use super::samples::{IndirectSamples, SampleClass};
-use crate::baselines::atrous::B3;
+use crate::baselines::atrous::{AtrousParams, B3};
 use crate::error::Error;
 use crate::gif::guide::GuideBuffers;
 use crate::image::Image;
@@ -94,8 +94,6 @@ pub fn check_input(samples: &IndirectSamples) -> Result<&[[f32; 3]], Error> {
 pub const LEVELS: u32 = 3;
 /// σ_l of the luminance term, in standard errors of the centre pixel's estimate.
 pub const SIGMA_LUMINANCE: f32 = 2.0;
-/// σ_n of the normal term (as the À-Trous baseline's).
-const SIGMA_NORMAL: f32 = 0.2;
 /// Weights below e^-80 count as zero.
 const MAX_EXPONENT: f32 = 80.0;
 
@@ -142,6 +140,8 @@ pub fn filter_grain(samples: &IndirectSamples, image: &Image, variance: &[f32]) 
     // spacing (one pixel, or all hits in one point): the position term is off.
     let inverse_sigma_position =
         crate::baselines::atrous::default_sigma_position(&guide, LEVELS).map_or(0.0, |sigma| 1.0 / sigma);
+    // σ_n: the À-Trous baseline's default.
+    let inverse_sigma_normal = 1.0 / AtrousParams::default().sigma_normal;
     let surface: Vec<bool> = guide.depth.iter().map(|&d| d != 0.0).collect();
     for level in 0..LEVELS {
         let step = 1isize << level;
@@ -177,7 +177,7 @@ pub fn filter_grain(samples: &IndirectSamples, image: &Image, variance: &[f32]) 
                             let squared = |u: [f32; 3], v: [f32; 3], inverse: f32| -> f32 {
                                 (0..3).map(|c| ((u[c] - v[c]) * inverse).powi(2)).sum()
                             };
-                            let exponent = squared(guide.normal[p], guide.normal[q], 1.0 / SIGMA_NORMAL)
+                            let exponent = squared(guide.normal[p], guide.normal[q], inverse_sigma_normal)
                                 + squared(guide.position[p], guide.position[q], inverse_sigma_position)
                                 + (centre - luminance(current[q])).abs() * inverse_scale;
                             // `<` is false for NaN: such a tap does not count.
