@@ -31,6 +31,12 @@
 //! sample index) per hit without it), mapped by the concentric disk map and lifted to the
 //! hemisphere (Malley) — or, at glossy hits, through each lobe's sampling map (`bsdf_rays`). Each pixel is a pure
 //! function of the input, so the image is bit-identical for any number of threads.
+//!
+//! Order of work (speed only): the image is gathered in 16 × 16-pixel tiles; a tile's rays are
+//! all drawn first and reconstructed in the order of their directions
+//! ([`trace_in_direction_order`]), so that consecutive walks of the splat hierarchy reuse the
+//! nodes in the cache, and each hit's estimate is then formed from its own rays in their own
+//! order — the pixels of a ray-by-ray gather bit for bit (tested against one).
 
 use rayon::prelude::*;
 use shading::sampling::hash_u32;
@@ -38,7 +44,9 @@ use shading::sampling::hash_u32;
 use super::bsdf_rays::{bsdf_rays, single_lobe, WeightedRay};
 use super::directions::cosine_rays;
 use super::disc::Ray;
-use super::reconstruct::{ReconstructStats, Reconstructor, Scratch, SkyFallbacks, SkySample};
+use std::ops::Range;
+
+use super::reconstruct::{or_sky, ReconstructStats, Reconstructor, Scratch, SkyFallbacks, SkySample};
 use super::samples::{IndirectSamples, PrimaryShading, SampleClass};
 use crate::error::Error;
 use crate::image::Image;
@@ -178,74 +186,197 @@ pub fn gather_with_spread(
         return Err(Error::sample_content(&samples.path, message));
     }
     let per_hit = rays_per_hit(settings.rays_per_pixel, spp);
-    crate::progress::begin("gather", height as u64, "rows");
-    let rows: Vec<(Vec<[f32; 3]>, Vec<f32>, GatherStats)> = (0..height)
+    let (tiles_x, tiles_y) = (width.div_ceil(TILE), height.div_ceil(TILE));
+    crate::progress::begin("gather", tiles_x as u64 * tiles_y as u64, "tiles");
+    let tiles: Vec<TileGather> = (0..tiles_x * tiles_y)
         .into_par_iter()
-        .map(|y| {
-            let mut scratch = Scratch::default();
-            let mut stats = GatherStats::default();
-            let mut sky = Vec::new();
-            let mut variance = Vec::with_capacity(width as usize);
-            let row = (0..width)
-                .map(|x| {
-                    let mut spread = RaySpread::default();
-                    let first = (y as usize * width as usize + x as usize) * spp as usize;
-                    let sky_spacing = match ao_radius {
-                        None => sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky),
-                        Some(_) => None,
-                    };
-                    let min_cosine = sky_spacing.map(|spacing| {
-                        let angle = (settings.sky_spacing_factor * spacing).min(std::f32::consts::PI);
-                        angle.cos()
-                    });
-                    let mut sum = [0.0f64; 3];
-                    for i in first..first + spp as usize {
-                        let value = match ao_radius {
-                            None => indirect_at(
-                                samples,
-                                i,
-                                albedo.map(|a| a[i]).unwrap_or([0.0; 3]),
-                                reconstructor,
-                                (&sky, min_cosine),
-                                (per_hit, settings),
-                                &mut scratch,
-                                (&mut stats, &mut spread),
-                            ),
-                            Some(ao_radius) => visibility_at(
-                                samples,
-                                i,
-                                ao_radius,
-                                reconstructor,
-                                (per_hit, settings),
-                                &mut scratch,
-                                &mut stats,
-                            ),
-                        };
-                        for c in 0..3 {
-                            sum[c] += value[c] as f64;
-                        }
-                    }
-                    if ao_radius.is_none() {
-                        variance.push(spread.variance_of_mean());
-                    }
-                    sum.map(|s| (s / spp as f64) as f32)
-                })
-                .collect();
+        .map(|t| {
+            let (x0, y0) = ((t % tiles_x) * TILE, (t / tiles_x) * TILE);
+            let tile = Tile { xs: x0..(x0 + TILE).min(width), ys: y0..(y0 + TILE).min(height) };
+            let gathered = gather_tile(samples, reconstructor, (albedo, ao_radius), &tile, (per_hit, settings));
             crate::progress::advance(1);
-            (row, variance, stats)
+            gathered
         })
         .collect();
     crate::progress::end();
-    let mut variance = Vec::new();
-    let rows = rows
-        .into_iter()
-        .map(|(row, row_variance, stats)| {
-            variance.extend(row_variance);
-            (row, stats)
+    let pixel_count = width as usize * height as usize;
+    let mut pixels = vec![[0.0f32; 3]; pixel_count];
+    let mut variance = if ao_radius.is_none() { vec![f32::INFINITY; pixel_count] } else { Vec::new() };
+    let mut stats = GatherStats::default();
+    for (t, tile) in tiles.iter().enumerate() {
+        let (x0, y0) = ((t as u32 % tiles_x) * TILE, (t as u32 / tiles_x) * TILE);
+        let tile_width = (x0 + TILE).min(width) - x0;
+        for (k, value) in tile.pixels.iter().enumerate() {
+            let (x, y) = (x0 + k as u32 % tile_width, y0 + k as u32 / tile_width);
+            let p = y as usize * width as usize + x as usize;
+            pixels[p] = *value;
+            if let Some(v) = tile.variance.get(k) {
+                variance[p] = *v;
+            }
+        }
+        stats.add(&tile.stats);
+    }
+    Ok((Image::from_pixels(width, height, pixels), stats, variance))
+}
+
+/// Pixels per side of the square tiles the gather works in: a tile's rays are reconstructed in
+/// direction order ([`trace_in_direction_order`]).
+const TILE: u32 = 16;
+
+/// The pixels of one tile.
+struct Tile {
+    xs: Range<u32>,
+    ys: Range<u32>,
+}
+
+impl Tile {
+    /// Its pixels, row by row.
+    fn pixels(&self) -> impl Iterator<Item = (u32, u32)> + '_ {
+        self.ys.clone().flat_map(move |y| self.xs.clone().map(move |x| (x, y)))
+    }
+}
+
+/// A tile's pixels row by row, their variances (indirect light only) and its counts.
+struct TileGather {
+    pixels: Vec<[f32; 3]>,
+    variance: Vec<f32>,
+    stats: GatherStats,
+}
+
+/// Gathers one tile: every reconstruction ray of its primary hits is generated first, the rays
+/// are reconstructed in direction order, and then each hit's estimate is formed from its own
+/// rays in their order — each ray's result is a pure function of the ray, so the pixels are
+/// those of a gather ray by ray, bit for bit.
+fn gather_tile(
+    samples: &IndirectSamples,
+    reconstructor: &Reconstructor,
+    (albedo, ao_radius): (Option<&Vec<[f32; 3]>>, Option<f32>),
+    tile: &Tile,
+    (per_hit, settings): (u32, &GatherSettings),
+) -> TileGather {
+    let spp = samples.spp.max(1) as usize;
+    let width = samples.width as usize;
+    let hits = || {
+        tile.pixels().flat_map(move |(x, y)| {
+            let first = (y as usize * width + x as usize) * spp;
+            first..first + spp
         })
+    };
+    // Every hit's weighted rays, in hit order; `ends[h]` is where hit h's rays end.
+    let (mut rays, mut ends) = (Vec::new(), Vec::new());
+    for i in hits() {
+        if samples.class[i] != SampleClass::CameraMiss {
+            match (&samples.primary_shading, ao_radius) {
+                (Some(shading), None) => rays.extend(weighted_rays(samples, shading, i, per_hit, settings)),
+                _ => rays.extend(
+                    hit_rays(samples, i, per_hit, settings).map(|ray| WeightedRay { ray: Some(ray), weight: [1.0; 3] }),
+                ),
+            }
+        }
+        ends.push(rays.len());
+    }
+    let mut scratch = Scratch::default();
+    let mut stats = GatherStats::default();
+    let mut pixels = Vec::with_capacity(tile.xs.len() * tile.ys.len());
+    let mut variance = Vec::new();
+    match ao_radius {
+        None => {
+            let found = trace_in_direction_order(&rays, |ray| {
+                reconstructor.radiance(ray, &mut scratch, &mut stats.reconstruct).map(|f| f.radiance)
+            });
+            let mut sky = Vec::new();
+            let mut begin = 0;
+            for (pixel, (x, y)) in tile.pixels().enumerate() {
+                let sky_spacing = sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky);
+                let min_cosine = sky_spacing.map(|spacing| {
+                    let angle = (settings.sky_spacing_factor * spacing).min(std::f32::consts::PI);
+                    angle.cos()
+                });
+                let mut spread = RaySpread::default();
+                let mut sum = [0.0f64; 3];
+                let first = (y as usize * width + x as usize) * spp;
+                for (k, i) in (first..first + spp).enumerate() {
+                    let end = ends[pixel * spp + k];
+                    let value = indirect_at(
+                        samples,
+                        i,
+                        albedo.map(|a| a[i]).unwrap_or([0.0; 3]),
+                        (&rays[begin..end], &found[begin..end]),
+                        (&sky, min_cosine),
+                        (&mut stats, &mut spread),
+                    );
+                    begin = end;
+                    for c in 0..3 {
+                        sum[c] += value[c] as f64;
+                    }
+                }
+                variance.push(spread.variance_of_mean());
+                pixels.push(sum.map(|s| (s / spp as f64) as f32));
+            }
+        }
+        Some(ao_radius) => {
+            let visible = trace_in_direction_order(&rays, |ray| {
+                reconstructor.visibility(ray, ao_radius, &mut scratch, &mut stats.reconstruct)
+            });
+            let mut begin = 0;
+            for (pixel, (x, y)) in tile.pixels().enumerate() {
+                let mut sum = 0.0f64;
+                let first = (y as usize * width + x as usize) * spp;
+                for (k, i) in (first..first + spp).enumerate() {
+                    let end = ends[pixel * spp + k];
+                    sum += visibility_at(samples, i, &visible[begin..end], per_hit, &mut stats) as f64;
+                    begin = end;
+                }
+                pixels.push([(sum / spp as f64) as f32; 3]);
+            }
+        }
+    }
+    TileGather { pixels, variance, stats }
+}
+
+/// `trace` of every ray that exists among `rays` (`None` entries give `T::default()`),
+/// called in the order of the rays' directions on a Morton curve over the octahedral map
+/// (ties by position), so that consecutive walks of the splat hierarchy meet the same nodes in
+/// the cache; the results come back in the rays' own order.
+fn trace_in_direction_order<T: Clone + Default>(rays: &[WeightedRay], mut trace: impl FnMut(&Ray) -> T) -> Vec<T> {
+    let mut order: Vec<u64> = rays
+        .iter()
+        .enumerate()
+        .filter_map(|(k, w)| w.ray.map(|ray| ((direction_key(ray.direction) as u64) << 32) | k as u64))
         .collect();
-    let (image, stats) = assemble_rows(width, height, rows);
-    Ok((image, stats, variance))
+    order.sort_unstable();
+    let mut out = vec![T::default(); rays.len()];
+    for key in order {
+        let k = key as u32 as usize;
+        if let Some(ray) = &rays[k].ray {
+            out[k] = trace(ray);
+        }
+    }
+    out
+}
+
+/// A 32-bit Morton code of a unit direction's octahedral map (16 bits per coordinate); a NaN
+/// or zero direction gets the key of +z.
+fn direction_key(d: [f32; 3]) -> u32 {
+    let norm = d[0].abs() + d[1].abs() + d[2].abs();
+    let (mut u, mut v) = if norm > 0.0 { (d[0] / norm, d[1] / norm) } else { (0.0, 0.0) };
+    if d[2] < 0.0 {
+        let (pu, pv) = (u, v);
+        u = (1.0 - pv.abs()) * pu.signum();
+        v = (1.0 - pu.abs()) * pv.signum();
+    }
+    // [-1, 1] → [0, 65535]; `as` saturates and maps NaN to 0.
+    let quantize = |c: f32| ((c * 0.5 + 0.5) * 65535.0) as u32;
+    spread_bits(quantize(u)) | (spread_bits(quantize(v)) << 1)
+}
+
+/// The low 16 bits of `x` moved to the even bit positions.
+fn spread_bits(x: u32) -> u32 {
+    let mut x = x & 0xffff;
+    x = (x | (x << 8)) & 0x00ff_00ff;
+    x = (x | (x << 4)) & 0x0f0f_0f0f;
+    x = (x | (x << 2)) & 0x3333_3333;
+    (x | (x << 1)) & 0x5555_5555
 }
 
 /// The image and the summed counts of rows gathered in parallel, in row order.
@@ -357,15 +488,14 @@ fn hit_scramble(i: usize, settings: &GatherSettings) -> u32 {
     hash_u32(settings.seed ^ hash_u32(i as u32 ^ 0x6a09_e667))
 }
 
-#[allow(clippy::too_many_arguments)]
+/// Primary hit `i`'s indirect light from its weighted `rays` and what the reconstruction
+/// found along each (`found`, the same length; a sky sample where it found nothing).
 fn indirect_at(
     samples: &IndirectSamples,
     i: usize,
     albedo: [f32; 3],
-    reconstructor: &Reconstructor,
+    (rays, found): (&[WeightedRay], &[Option<[f32; 3]>]),
     sky: (&[SkySample], Option<f32>),
-    (per_hit, settings): (u32, &GatherSettings),
-    scratch: &mut Scratch,
     (stats, spread): (&mut GatherStats, &mut RaySpread),
 ) -> [f32; 3] {
     let class = samples.class[i];
@@ -374,47 +504,27 @@ fn indirect_at(
     }
     stats.primary_hits += 1;
     let (mut sum, mut supported) = ([0.0f64; 3], 0u32);
-    let mut add = |l: [f32; 3], weight: [f32; 3]| {
-        for c in 0..3 {
-            sum[c] += (weight[c] * l[c]) as f64;
-        }
-        supported += 1;
-    };
-    let scale = match &samples.primary_shading {
-        // Lambertian o (all-diffuse files): cosine rays, the albedo as their common weight.
-        None => {
-            for ray in hit_rays(samples, i, per_hit, settings) {
-                if let Some(l) =
-                    reconstructor.radiance_or_sky(&ray, sky, scratch, &mut stats.reconstruct, &mut stats.fallbacks)
-                {
-                    add(l, [1.0; 3]);
-                    spread.add(l);
-                }
+    let lambertian = samples.primary_shading.is_none();
+    for (weighted, found) in rays.iter().zip(found) {
+        let Some(ray) = weighted.ray else {
+            // Below the surface (glossy o only): a supported sample of value 0, as the tracer
+            // counts it.
+            supported += 1;
+            continue;
+        };
+        if let Some(l) = or_sky(*found, ray.direction, sky, &mut stats.fallbacks) {
+            for c in 0..3 {
+                sum[c] += (weighted.weight[c] * l[c]) as f64;
             }
-            albedo
-        }
-        // o's own BSDF: directions and weights f·cos/p from it (`bsdf_rays`).
-        Some(shading) => {
-            for weighted in weighted_rays(samples, shading, i, per_hit, settings) {
-                match weighted.ray {
-                    // Below the surface: a sample of value 0, as the tracer counts it.
-                    None => add([0.0; 3], [0.0; 3]),
-                    Some(ray) => {
-                        if let Some(l) = reconstructor.radiance_or_sky(
-                            &ray,
-                            sky,
-                            scratch,
-                            &mut stats.reconstruct,
-                            &mut stats.fallbacks,
-                        ) {
-                            add(l, weighted.weight);
-                        }
-                    }
-                }
+            supported += 1;
+            if lambertian {
+                spread.add(l);
             }
-            [1.0; 3]
         }
-    };
+    }
+    // Lambertian o (all-diffuse files): cosine rays, the albedo as their common weight; else
+    // o's own BSDF's weights f·cos/p (`bsdf_rays`), already applied.
+    let scale = if lambertian { albedo } else { [1.0; 3] };
     if supported > 0 {
         return [0, 1, 2].map(|c| scale[c] * (sum[c] / supported as f64) as f32);
     }
@@ -430,29 +540,200 @@ fn indirect_at(
     }
 }
 
-fn visibility_at(
-    samples: &IndirectSamples,
-    i: usize,
-    ao_radius: f32,
-    reconstructor: &Reconstructor,
-    (per_hit, settings): (u32, &GatherSettings),
-    scratch: &mut Scratch,
-    stats: &mut GatherStats,
-) -> [f32; 3] {
+/// Primary hit `i`'s ambient visibility, the mean of its `per_hit` rays' (`visible`).
+fn visibility_at(samples: &IndirectSamples, i: usize, visible: &[f32], per_hit: u32, stats: &mut GatherStats) -> f32 {
     if samples.class[i] == SampleClass::CameraMiss {
-        return [1.0; 3];
+        return 1.0;
     }
     stats.primary_hits += 1;
-    let mut sum = 0.0f64;
-    for ray in hit_rays(samples, i, per_hit, settings) {
-        sum += reconstructor.visibility(&ray, ao_radius, scratch, &mut stats.reconstruct) as f64;
-    }
-    [(sum / per_hit as f64) as f32; 3]
+    let sum: f64 = visible.iter().map(|&v| v as f64).sum();
+    (sum / per_hit as f64) as f32
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ilfr::bvh::DiscBvh;
+    use crate::ilfr::directions::normalize;
+    use crate::ilfr::disc::Disc;
+    use crate::ilfr::filter::SplatShading;
+    use crate::ilfr::method::tests::box_samples;
+    use crate::ilfr::surfaces::SurfaceParams;
+    use crate::lcg::Lcg;
+    use sampleio::SampleKind;
+
+    /// The gather written ray by ray, pixel by pixel, each ray reconstructed where it is drawn
+    /// (the gather before its tiles, kept as the oracle of the tiled, direction-ordered one):
+    /// the indirect light and variances, or with `ao_radius` the visibility.
+    fn gather_ray_by_ray(
+        samples: &IndirectSamples,
+        reconstructor: &Reconstructor,
+        ao_radius: Option<f32>,
+        settings: &GatherSettings,
+    ) -> (Vec<[f32; 3]>, Vec<f32>, GatherStats) {
+        let spp = samples.spp as usize;
+        let per_hit = rays_per_hit(settings.rays_per_pixel, samples.spp);
+        let (mut scratch, mut stats, mut sky) = (Scratch::default(), GatherStats::default(), Vec::new());
+        let (mut pixels, mut variances) = (Vec::new(), Vec::new());
+        for y in 0..samples.height {
+            for x in 0..samples.width {
+                let spacing = sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky);
+                let min_cosine = spacing.map(|s| (settings.sky_spacing_factor * s).min(std::f32::consts::PI).cos());
+                let (mut pixel, mut spread) = ([0.0f64; 3], RaySpread::default());
+                let first = (y * samples.width + x) as usize * spp;
+                for i in first..first + spp {
+                    if samples.class[i] == SampleClass::CameraMiss {
+                        let miss = if ao_radius.is_some() { 1.0 } else { 0.0 };
+                        pixel = pixel.map(|v| v + miss);
+                        continue;
+                    }
+                    stats.primary_hits += 1;
+                    let value = match ao_radius {
+                        Some(radius) => {
+                            let mut sum = 0.0f64;
+                            for ray in hit_rays(samples, i, per_hit, settings) {
+                                sum +=
+                                    reconstructor.visibility(&ray, radius, &mut scratch, &mut stats.reconstruct) as f64;
+                            }
+                            [(sum / per_hit as f64) as f32; 3]
+                        }
+                        None => {
+                            let (mut sum, mut supported) = ([0.0f64; 3], 0u32);
+                            for ray in hit_rays(samples, i, per_hit, settings) {
+                                let found = reconstructor.radiance_or_sky(
+                                    &ray,
+                                    (&sky, min_cosine),
+                                    &mut scratch,
+                                    &mut stats.reconstruct,
+                                    &mut stats.fallbacks,
+                                );
+                                if let Some(l) = found {
+                                    (0..3).for_each(|c| sum[c] += l[c] as f64);
+                                    supported += 1;
+                                    spread.add(l);
+                                }
+                            }
+                            let albedo = samples.albedo.as_ref().unwrap()[i];
+                            assert!(supported > 0, "the oracle's scene supports every hit");
+                            [0, 1, 2].map(|c| albedo[c] * (sum[c] / supported as f64) as f32)
+                        }
+                    };
+                    (0..3).for_each(|c| pixel[c] += value[c] as f64);
+                }
+                pixels.push(pixel.map(|v| (v / spp as f64) as f32));
+                variances.push(spread.variance_of_mean());
+            }
+        }
+        (pixels, variances, stats)
+    }
+
+    /// Splats on the floor, walls and ceiling of the box of `box_samples`, with random normals
+    /// tilted up to ~25°, radii and radiance, plus a cloud of small splats inside it: rays meet
+    /// stacked surfaces, small ones and (through gaps, the ceiling being open) the sky.
+    fn cluttered_box() -> (Vec<Disc>, Vec<[f32; 3]>, Vec<[f32; 3]>) {
+        let mut rng = Lcg(99);
+        let (mut discs, mut radiance, mut direction) = (Vec::new(), Vec::new(), Vec::new());
+        for k in 0..1500 {
+            let (u, v) = (rng.uniform() * 2.0 - 1.0, rng.uniform() * 2.0 - 1.0);
+            let (centre, normal) = match k % 6 {
+                0 => ([u, v, 0.0], [0.0, 0.0, 1.0]),
+                1 => ([-1.0, u, 1.0 + v], [1.0, 0.0, 0.0]),
+                2 => ([1.0, u, 1.0 + v], [-1.0, 0.0, 0.0]),
+                3 => ([u, -1.0, 1.0 + v], [0.0, 1.0, 0.0]),
+                4 => ([u, 1.0, 1.0 + v], [0.0, -1.0, 0.0]),
+                _ => ([0.6 * u, 0.6 * v, 0.3 + 1.2 * rng.uniform()], [u, v, 1.0]),
+            };
+            let tilt = [rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5].map(|t| 0.9 * t);
+            let normal = [0, 1, 2].map(|a| normal[a] + tilt[a]);
+            let radius = if k % 6 == 5 { 0.03 + 0.05 * rng.uniform() } else { 0.05 + 0.15 * rng.uniform() };
+            discs.push(Disc::new(centre, normal, radius));
+            radiance.push([rng.uniform(), 2.0 * rng.uniform(), 0.5]);
+            direction.push([0.0, 0.0, -1.0]);
+        }
+        (discs, radiance, direction)
+    }
+
+    /// The tiled gather (rays reconstructed in direction order, tiles in parallel) gives the
+    /// ray-by-ray gather's pixels, variances and counts bit for bit: indirect light and ambient
+    /// occlusion, an image whose sides are not multiples of the tile, 1 and 3 threads.
+    #[test]
+    fn the_tiled_gather_is_the_ray_by_ray_gather_bit_for_bit() {
+        let (discs, radiance, direction) = cluttered_box();
+        let bvh = DiscBvh::build(&discs).unwrap();
+        let shading = SplatShading { radiance: &radiance, direction: &direction, kappa: None };
+        let reconstructor = Reconstructor { bvh: &bvh, shading, surfaces: SurfaceParams::default() };
+        let settings = GatherSettings { rays_per_pixel: 12, seed: 5, ..GatherSettings::default() };
+        let indirect = box_samples(21, 3, SampleKind::Indirect, Some(1.5), |h| [h[2], 1.0, 0.25]);
+        let ao = box_samples(21, 3, SampleKind::Ao, Some(1.5), |_| [0.0; 3]);
+        for (samples, ao_radius) in [(&indirect, None), (&ao, Some(0.7f32))] {
+            let (pixels, variances, stats) = gather_ray_by_ray(samples, &reconstructor, ao_radius, &settings);
+            assert!(stats.fallbacks.sky_rays > 0 || ao_radius.is_some(), "some rays take the sky: {stats:?}");
+            assert!(stats.reconstruct.merged_small_surfaces > 0, "small surfaces occur: {stats:?}");
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                let (image, tiled_stats, tiled_variances) =
+                    pool.install(|| gather_with_spread(samples, &reconstructor, ao_radius, &settings)).unwrap();
+                assert_eq!(image.pixels, pixels, "{ao_radius:?}, {threads} threads");
+                assert_eq!(tiled_stats, stats, "{ao_radius:?}, {threads} threads");
+                if ao_radius.is_none() {
+                    assert_eq!(
+                        tiled_variances.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                        variances.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+                    );
+                } else {
+                    assert!(tiled_variances.is_empty());
+                }
+            }
+        }
+    }
+
+    /// Every existing ray is traced once, in non-decreasing direction key, and its result comes
+    /// back at its own position; missing rays give the default.
+    #[test]
+    fn rays_are_traced_in_direction_order_and_come_back_in_their_own() {
+        let mut rng = Lcg(3);
+        let rays: Vec<WeightedRay> = (0..500)
+            .map(|k| {
+                let d = normalize([rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5]);
+                let ray = (k % 7 != 0).then_some(Ray { time: 0.0, origin: [k as f32, 0.0, 0.0], direction: d });
+                WeightedRay { ray, weight: [1.0; 3] }
+            })
+            .collect();
+        let mut keys = Vec::new();
+        let out = trace_in_direction_order(&rays, |ray| {
+            keys.push(direction_key(ray.direction));
+            Some(ray.origin[0])
+        });
+        assert_eq!(keys.len(), rays.iter().filter(|w| w.ray.is_some()).count());
+        assert!(keys.windows(2).all(|w| w[0] <= w[1]), "traced in key order");
+        for (k, (w, o)) in rays.iter().zip(&out).enumerate() {
+            assert_eq!(*o, w.ray.map(|_| k as f32), "ray {k}");
+        }
+    }
+
+    /// The key is a Morton code of the octahedral map: the six axis directions get six keys,
+    /// directions a hair apart get nearly the same map coordinates, and NaN gets +z's key.
+    #[test]
+    fn direction_keys_keep_near_directions_near() {
+        let axes =
+            [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]];
+        let mut keys: Vec<u32> = axes.iter().map(|&d| direction_key(d)).collect();
+        keys.sort();
+        keys.dedup();
+        assert_eq!(keys.len(), 6);
+        // The even and odd bits are the two quantised map coordinates (65535 per 2 units).
+        let coordinates = |key: u32| {
+            let gather = |k: u32| (0..16).fold(0i32, |c, bit| c | (((k >> (2 * bit)) & 1) << bit) as i32);
+            (gather(key), gather(key >> 1))
+        };
+        for (a, b) in [([0.3, 0.5, 0.8], [0.3001, 0.5, 0.8]), ([0.3, -0.5, -0.8], [0.3, -0.5001, -0.8])] {
+            let ((ua, va), (ub, vb)) =
+                (coordinates(direction_key(normalize(a))), coordinates(direction_key(normalize(b))));
+            assert!((ua - ub).abs() <= 8 && (va - vb).abs() <= 8, "{a:?} {b:?}: ({ua}, {va}) vs ({ub}, {vb})");
+        }
+        assert_eq!(direction_key([f32::NAN; 3]), direction_key([0.0, 0.0, 1.0]));
+        assert_eq!(spread_bits(0xffff), 0x5555_5555);
+    }
 
     /// The variance of the mean from Σ y, Σ y²: the unbiased sample variance over the count,
     /// computed directly for four rays; fewer than two rays are unknown; non-finite radiance

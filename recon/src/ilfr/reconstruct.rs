@@ -124,16 +124,8 @@ impl Reconstructor<'_> {
         stats: &mut ReconstructStats,
         fallbacks: &mut SkyFallbacks,
     ) -> Option<[f32; 3]> {
-        if let Some(f) = self.radiance(ray, scratch, stats) {
-            return Some(f.radiance);
-        }
-        let from_sky = min_cosine.and_then(|c| nearest_sky(sky, ray.direction, c));
-        if from_sky.is_some() {
-            fallbacks.sky_rays += 1;
-        } else {
-            fallbacks.unsupported_rays += 1;
-        }
-        from_sky
+        let found = self.radiance(ray, scratch, stats).map(|f| f.radiance);
+        or_sky(found, ray.direction, (sky, min_cosine), fallbacks)
     }
 
     /// Ambient visibility along `ray` within `ao_radius`: 1 when the nearest apparent surface
@@ -166,6 +158,26 @@ impl SkyFallbacks {
         self.sky_rays += other.sky_rays;
         self.unsupported_rays += other.unsupported_rays;
     }
+}
+
+/// `found` (the radiance a reconstruction ray met), or where it met nothing the nearest sky
+/// sample's within the cosine `min_cosine` of `direction`, counted in `fallbacks`.
+pub fn or_sky(
+    found: Option<[f32; 3]>,
+    direction: [f32; 3],
+    (sky, min_cosine): (&[SkySample], Option<f32>),
+    fallbacks: &mut SkyFallbacks,
+) -> Option<[f32; 3]> {
+    if found.is_some() {
+        return found;
+    }
+    let from_sky = min_cosine.and_then(|c| nearest_sky(sky, direction, c));
+    if from_sky.is_some() {
+        fallbacks.sky_rays += 1;
+    } else {
+        fallbacks.unsupported_rays += 1;
+    }
+    from_sky
 }
 
 /// The radiance of the sky sample whose direction is nearest to `query` (unit), if its cosine
