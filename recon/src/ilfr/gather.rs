@@ -34,7 +34,7 @@
 //!
 //! Order of work (speed only): the image is gathered in 16 × 16-pixel tiles; a tile's rays are
 //! all drawn first and reconstructed in the order of their directions
-//! ([`trace_in_direction_order`]), so that consecutive walks of the splat hierarchy reuse the
+//! (`trace_in_direction_order`), so that consecutive walks of the splat hierarchy reuse the
 //! nodes in the cache, and each hit's estimate is then formed from its own rays in their own
 //! order — the pixels of a ray-by-ray gather bit for bit (tested against one).
 
