@@ -206,6 +206,15 @@ pub fn group_end(ray: &Ray, candidates: &[Candidate], start: usize, test: Confli
 /// Vertices per footprint ellipse in the hull test.
 const FOOTPRINT_VERTICES: usize = 32;
 
+/// (sin φ_k, cos φ_k) of the footprint vertices' angles φ_k = 2πk / [`FOOTPRINT_VERTICES`],
+/// computed once.
+fn footprint_directions() -> &'static [(f32, f32); FOOTPRINT_VERTICES] {
+    static DIRECTIONS: std::sync::OnceLock<[(f32, f32); FOOTPRINT_VERTICES]> = std::sync::OnceLock::new();
+    DIRECTIONS.get_or_init(|| {
+        std::array::from_fn(|k| (k as f32 * std::f32::consts::TAU / FOOTPRINT_VERTICES as f32).sin_cos())
+    })
+}
+
 /// Whether the ray passes inside the convex hull of the footprints of `members` (discs with radii
 /// × `scale`, projected along the ray onto the st plane); see the module documentation.
 pub fn inside_footprint_hull(ray: &Ray, members: &[Candidate], scale: f32) -> bool {
@@ -218,28 +227,36 @@ pub fn inside_footprint_hull(ray: &Ray, members: &[Candidate], scale: f32) -> bo
     }
     let d = ray.direction;
     let (u, v) = perpendicular_frame(d);
-    let mut angles: Vec<f32> = Vec::with_capacity(members.len() * FOOTPRINT_VERTICES);
-    for c in members {
+    // The small surfaces' (≤ 3 splats) vertices fit on the stack.
+    let mut stack_angles = [0.0f32; 3 * FOOTPRINT_VERTICES];
+    let mut heap_angles = Vec::new();
+    let angles: &mut [f32] = if members.len() <= 3 {
+        &mut stack_angles[..members.len() * FOOTPRINT_VERTICES]
+    } else {
+        heap_angles.resize(members.len() * FOOTPRINT_VERTICES, 0.0);
+        &mut heap_angles
+    };
+    let directions = footprint_directions();
+    for (m, c) in members.iter().enumerate() {
         let rho = scale * c.radius;
         // Tangents of the disc: t1 ⟂ n and d (projects at full length), t2 = n × t1.
         let normal_cross_ray = cross(c.normal, d);
         let t1 = if length(normal_cross_ray) > 1e-6 { normalize(normal_cross_ray) } else { u };
         let t2 = cross(c.normal, t1);
         let centre = sub(c.centre, ray.origin);
-        for k in 0..FOOTPRINT_VERTICES {
-            let phi = k as f32 * std::f32::consts::TAU / FOOTPRINT_VERTICES as f32;
-            let (sin, cos) = phi.sin_cos();
+        for (k, &(sin, cos)) in directions.iter().enumerate() {
             let q = [0, 1, 2].map(|a| centre[a] + rho * (cos * t1[a] + sin * t2[a]));
             let (x, y) = (dot(q, u), dot(q, v));
             if x == 0.0 && y == 0.0 {
                 return true;
             }
-            angles.push(y.atan2(x));
+            angles[m * FOOTPRINT_VERTICES + k] = y.atan2(x);
         }
     }
     // Outside iff every vertex lies in an open half-plane through the origin: a gap > π between
-    // consecutive directions.
-    angles.sort_by(|a, b| a.total_cmp(b));
+    // consecutive directions. (Values equal under `total_cmp` are equal bit for bit, so any
+    // sort gives the same sequence.)
+    angles.sort_unstable_by(|a, b| a.total_cmp(b));
     let wrap = angles[0] + std::f32::consts::TAU - angles[angles.len() - 1];
     let largest_gap = angles.windows(2).map(|w| w[1] - w[0]).fold(wrap, f32::max);
     largest_gap <= std::f32::consts::PI
@@ -686,5 +703,15 @@ mod tests {
         assert!(inside_footprint_hull(&RAY, &around, 0.1));
         let aside = [at(1.0, 0.0), at(2.0, 1.0), at(2.0, -1.0)];
         assert!(!inside_footprint_hull(&RAY, &aside, 0.1));
+        // More than three splats (their vertices go to the heap): a square around the ray holds
+        // it, the same square moved aside does not, and with a fifth splat on the far side again
+        // does.
+        let square = [at(1.0, 1.0), at(-1.0, 1.0), at(-1.0, -1.0), at(1.0, -1.0)];
+        assert!(inside_footprint_hull(&RAY, &square, 0.1));
+        let moved = square.map(|c| Candidate { centre: [c.centre[0] + 3.0, c.centre[1], c.centre[2]], ..c });
+        assert!(!inside_footprint_hull(&RAY, &moved, 0.1));
+        let mut closed = moved.to_vec();
+        closed.push(at(-2.0, 0.0));
+        assert!(inside_footprint_hull(&RAY, &closed, 0.1));
     }
 }
