@@ -186,13 +186,14 @@ pub fn gather_with_spread(
         return Err(Error::sample_content(&samples.path, message));
     }
     let per_hit = rays_per_hit(settings.rays_per_pixel, spp);
-    let (tiles_x, tiles_y) = (width.div_ceil(TILE), height.div_ceil(TILE));
+    let side = tile_side(spp as u64 * per_hit as u64);
+    let (tiles_x, tiles_y) = (width.div_ceil(side), height.div_ceil(side));
     crate::progress::begin("gather", tiles_x as u64 * tiles_y as u64, "tiles");
     let tiles: Vec<TileGather> = (0..tiles_x * tiles_y)
         .into_par_iter()
         .map(|t| {
-            let (x0, y0) = ((t % tiles_x) * TILE, (t / tiles_x) * TILE);
-            let tile = Tile { xs: x0..(x0 + TILE).min(width), ys: y0..(y0 + TILE).min(height) };
+            let (x0, y0) = ((t % tiles_x) * side, (t / tiles_x) * side);
+            let tile = Tile { xs: x0..(x0 + side).min(width), ys: y0..(y0 + side).min(height) };
             let gathered = gather_tile(samples, reconstructor, (albedo, ao_radius), &tile, (per_hit, settings));
             crate::progress::advance(1);
             gathered
@@ -204,8 +205,8 @@ pub fn gather_with_spread(
     let mut variance = if ao_radius.is_none() { vec![f32::INFINITY; pixel_count] } else { Vec::new() };
     let mut stats = GatherStats::default();
     for (t, tile) in tiles.iter().enumerate() {
-        let (x0, y0) = ((t as u32 % tiles_x) * TILE, (t as u32 / tiles_x) * TILE);
-        let tile_width = (x0 + TILE).min(width) - x0;
+        let (x0, y0) = ((t as u32 % tiles_x) * side, (t as u32 / tiles_x) * side);
+        let tile_width = (x0 + side).min(width) - x0;
         for (k, value) in tile.pixels.iter().enumerate() {
             let (x, y) = (x0 + k as u32 % tile_width, y0 + k as u32 / tile_width);
             let p = y as usize * width as usize + x as usize;
@@ -220,8 +221,19 @@ pub fn gather_with_spread(
 }
 
 /// Pixels per side of the square tiles the gather works in: a tile's rays are reconstructed in
-/// direction order ([`trace_in_direction_order`]).
+/// direction order ([`trace_in_direction_order`]); 16 unless that would hold more than
+/// [`MAX_TILE_RAYS`] rays.
 const TILE: u32 = 16;
+
+/// The most rays a tile holds at once (≈ 4 MB of rays and results), so that the tiles' memory
+/// stays bounded at any number of rays per pixel.
+const MAX_TILE_RAYS: u64 = 1 << 16;
+
+/// The side of the gather's tiles for `rays_per_pixel`: [`TILE`], or less (at least 1) so
+/// that a tile holds at most [`MAX_TILE_RAYS`] rays where a pixel has fewer than that.
+fn tile_side(rays_per_pixel: u64) -> u32 {
+    ((MAX_TILE_RAYS / rays_per_pixel.max(1)).isqrt() as u32).clamp(1, TILE)
+}
 
 /// The pixels of one tile.
 struct Tile {
@@ -655,7 +667,8 @@ mod tests {
 
     /// The tiled gather (rays reconstructed in direction order, tiles in parallel) gives the
     /// ray-by-ray gather's pixels, variances and counts bit for bit: indirect light and ambient
-    /// occlusion, an image whose sides are not multiples of the tile, 1 and 3 threads.
+    /// occlusion, images whose sides are not multiples of the tile (16 and, at 3000 rays per
+    /// pixel, 4 pixels), 1 and 3 threads.
     #[test]
     fn the_tiled_gather_is_the_ray_by_ray_gather_bit_for_bit() {
         let (discs, radiance, direction) = cluttered_box();
@@ -665,14 +678,20 @@ mod tests {
         let settings = GatherSettings { rays_per_pixel: 12, seed: 5, ..GatherSettings::default() };
         let indirect = box_samples(21, 3, SampleKind::Indirect, Some(1.5), |h| [h[2], 1.0, 0.25]);
         let ao = box_samples(21, 3, SampleKind::Ao, Some(1.5), |_| [0.0; 3]);
-        for (samples, ao_radius) in [(&indirect, None), (&ao, Some(0.7f32))] {
-            let (pixels, variances, stats) = gather_ray_by_ray(samples, &reconstructor, ao_radius, &settings);
+        // Many rays per pixel: tiles 4 pixels wide (`tile_side(3000)`), 7 not a multiple of it.
+        let many = box_samples(7, 3, SampleKind::Indirect, Some(1.5), |h| [h[2], 1.0, 0.25]);
+        let many_settings = GatherSettings { rays_per_pixel: 3000, ..settings };
+        for (samples, ao_radius, settings) in
+            [(&indirect, None, settings), (&ao, Some(0.7f32), settings), (&many, None, many_settings)]
+        {
+            let settings = &settings;
+            let (pixels, variances, stats) = gather_ray_by_ray(samples, &reconstructor, ao_radius, settings);
             assert!(stats.fallbacks.sky_rays > 0 || ao_radius.is_some(), "some rays take the sky: {stats:?}");
             assert!(stats.reconstruct.merged_small_surfaces > 0, "small surfaces occur: {stats:?}");
             for threads in [1, 3] {
                 let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
                 let (image, tiled_stats, tiled_variances) =
-                    pool.install(|| gather_with_spread(samples, &reconstructor, ao_radius, &settings)).unwrap();
+                    pool.install(|| gather_with_spread(samples, &reconstructor, ao_radius, settings)).unwrap();
                 assert_eq!(image.pixels, pixels, "{ao_radius:?}, {threads} threads");
                 assert_eq!(tiled_stats, stats, "{ao_radius:?}, {threads} threads");
                 if ao_radius.is_none() {
@@ -684,6 +703,27 @@ mod tests {
                     assert!(tiled_variances.is_empty());
                 }
             }
+        }
+    }
+
+    /// Tiles are 16 pixels wide up to 256 rays per pixel, then narrower so that they hold at
+    /// most 2^16 rays, and one pixel wide past that.
+    #[test]
+    fn tiles_hold_a_bounded_number_of_rays() {
+        assert_eq!(tile_side(0), 16);
+        assert_eq!(tile_side(32), 16);
+        assert_eq!(tile_side(256), 16);
+        assert_eq!(tile_side(257), 15);
+        assert_eq!(tile_side(3000), 4);
+        assert_eq!(tile_side(1 << 16), 1);
+        assert_eq!(tile_side(u64::MAX), 1);
+        for rays in [1u64, 100, 300, 1000, 5000, 20000, 1 << 16] {
+            let side = tile_side(rays) as u64;
+            assert!(side * side * rays <= MAX_TILE_RAYS, "{rays} rays per pixel: side {side}");
+            assert!(
+                (side + 1) * (side + 1) * rays > MAX_TILE_RAYS || side == 16,
+                "{rays}: side {side} could be larger"
+            );
         }
     }
 
