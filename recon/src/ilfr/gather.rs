@@ -232,7 +232,8 @@ const MAX_TILE_RAYS: u64 = 1 << 16;
 /// The side of the gather's tiles for `rays_per_pixel`: [`TILE`], or less (at least 1) so
 /// that a tile holds at most [`MAX_TILE_RAYS`] rays where a pixel has fewer than that.
 fn tile_side(rays_per_pixel: u64) -> u32 {
-    ((MAX_TILE_RAYS / rays_per_pixel.max(1)).isqrt() as u32).clamp(1, TILE)
+    let rays = rays_per_pixel.max(1);
+    (1..=TILE).rev().find(|&side| (side as u64 * side as u64).saturating_mul(rays) <= MAX_TILE_RAYS).unwrap_or(1)
 }
 
 /// The pixels of one tile.
