@@ -506,8 +506,12 @@ fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
                     let rays = if run.recon_rays > 0 { format!(" with {} reconstruction rays", run.recon_rays) } else { String::new() };
                     let ratio = if speedup >= 1.0 { format!("{speedup:.2}× faster") } else { format!("{:.2}× slower", 1.0 / speedup.max(1e-12)) };
                     let judged = match (difference, run.speedup_range) {
-                        (Some(Difference::Unclear), Some([lo, hi])) => format!(
+                        (Some(Difference::Unclear), Some([lo, hi])) if lo <= 1.0 && 1.0 <= hi => format!(
                             "no clear difference ({ratio} by the median times; the repeated timings allow a speedup of {lo:.2}× to {hi:.2}×)"
+                        ),
+                        (Some(Difference::Unclear), _) => format!(
+                            "no clear difference ({ratio} by the median times, within the {:.0} % by which the same command's speedups move between runs)",
+                            100.0 * timing::BETWEEN_RUNS_NOISE
                         ),
                         _ => ratio,
                     };
@@ -1043,6 +1047,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         },
         flip_available,
         peak_rss_per_run: per_run_peak,
+        between_runs_noise: timing::BETWEEN_RUNS_NOISE,
         runs,
         skipped,
         verdicts,

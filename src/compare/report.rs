@@ -274,6 +274,7 @@ mod tests {
             },
             flip_available: false,
             peak_rss_per_run: true,
+            between_runs_noise: 0.1,
             runs: vec![run("pt", &[]), run("ilfr", &["time: read 0.1 s", "warning: 3 samples dropped"])],
             skipped: Vec::new(),
             verdicts: Vec::new(),

@@ -25,6 +25,9 @@ pub struct Results {
     pub flip_available: bool,
     /// Whether each run's peak memory is its own (false: the process's since start).
     pub peak_rss_per_run: bool,
+    /// Speedups within this relative distance of 1 are "no clear difference" whatever the
+    /// repetitions' spread (`timing::BETWEEN_RUNS_NOISE`, docs/compare.md).
+    pub between_runs_noise: f64,
     pub runs: Vec<Run>,
     pub skipped: Vec<Skipped>,
     pub verdicts: Vec<Verdict>,
@@ -127,8 +130,8 @@ pub struct Verdict {
     pub best_speedup: Option<f64>,
     /// That run's `speedup_range`.
     pub best_speedup_range: Option<[f64; 2]>,
-    /// `"faster"`, `"slower"` or `"no clear difference"` (the range holds 1); null without a
-    /// verdict.
+    /// `"faster"`, `"slower"` or `"no clear difference"` (the range holds 1, or the speedup lies
+    /// within `between_runs_noise` of 1); null without a verdict.
     pub difference: Option<&'static str>,
     pub best_speedup_input_spp: Option<u32>,
     pub best_speedup_recon_rays: Option<u32>,

@@ -62,11 +62,24 @@ pub enum Difference {
     Unclear,
 }
 
+/// How far (relative) the same `lfr compare` command's speedups move between processes on a
+/// shared machine, beyond what one process's alternating repetitions can see: measured at 5-15 %
+/// (max/min of the same configuration's ratio over four processes, docs/compare.md "Where `box`
+/// stands"). A speedup within this distance of 1 is no clear difference whatever the spread.
+pub const BETWEEN_RUNS_NOISE: f64 = 0.10;
+
+/// Whether `speedup` lies within [`BETWEEN_RUNS_NOISE`] of 1 (either way).
+pub fn within_between_runs_noise(speedup: f64) -> bool {
+    speedup <= 1.0 + BETWEEN_RUNS_NOISE && speedup * (1.0 + BETWEEN_RUNS_NOISE) >= 1.0
+}
+
 impl Difference {
     /// `range` is the (lowest, highest) speedup the repetitions allow; `speedup` the median's.
+    /// Unclear when the range holds 1 or the speedup lies within [`BETWEEN_RUNS_NOISE`] of 1.
     pub fn of(speedup: f64, range: Option<(f64, f64)>) -> Difference {
         match range {
             Some((lo, hi)) if lo <= 1.0 && 1.0 <= hi => Difference::Unclear,
+            _ if within_between_runs_noise(speedup) => Difference::Unclear,
             _ if speedup >= 1.0 => Difference::Faster,
             _ => Difference::Slower,
         }
@@ -121,7 +134,25 @@ mod tests {
         assert_eq!(Difference::of(1.23, Some((0.9, 1.5))), Difference::Unclear);
         assert_eq!(Difference::of(1.23, Some((1.1, 1.5))), Difference::Faster);
         assert_eq!(Difference::of(0.5, Some((0.4, 0.6))), Difference::Slower);
-        assert_eq!(Difference::of(1.0, None), Difference::Faster);
-        assert_eq!(Difference::of(0.99, None), Difference::Slower);
+        assert_eq!(Difference::of(1.2, None), Difference::Faster);
+        assert_eq!(Difference::of(0.8, None), Difference::Slower);
+    }
+
+    /// Within 10 % of 1 either way (1.1× faster, 1.1× slower) a speedup is no clear difference
+    /// even when tight repetitions exclude 1; just outside it is judged.
+    #[test]
+    fn a_speedup_within_the_between_runs_noise_is_no_clear_difference() {
+        for speedup in [1.0, 1.05, 1.1, 1.0 / 1.1, 0.95] {
+            assert_eq!(
+                Difference::of(speedup, Some((speedup * 0.99, speedup * 1.01))),
+                Difference::Unclear,
+                "{speedup}"
+            );
+            assert_eq!(Difference::of(speedup, None), Difference::Unclear, "{speedup}");
+        }
+        assert_eq!(Difference::of(1.11, Some((1.105, 1.12))), Difference::Faster);
+        assert_eq!(Difference::of(1.0 / 1.11, Some((0.89, 0.905))), Difference::Slower);
+        assert!(!within_between_runs_noise(f64::NAN));
+        assert_eq!(Difference::of(f64::NAN, None), Difference::Slower);
     }
 }
