@@ -165,7 +165,7 @@ pub fn gather_with_spread(
             if samples.radiance.is_none() {
                 return Err(content("indirect light needs the field `radiance`"));
             }
-            Some(samples.albedo.as_ref().ok_or_else(|| content("indirect light needs the field `albedo`"))?)
+            Some(samples.albedo.as_deref().ok_or_else(|| content("indirect light needs the field `albedo`"))?)
         }
         Some(ao_radius) => {
             if !(ao_radius.is_finite() && ao_radius > 0.0) {
@@ -194,7 +194,7 @@ pub fn gather_with_spread(
         .map(|t| {
             let (x0, y0) = ((t % tiles_x) * side, (t / tiles_x) * side);
             let tile = Tile { xs: x0..(x0 + side).min(width), ys: y0..(y0 + side).min(height) };
-            let gathered = gather_tile(samples, reconstructor, (albedo, ao_radius), &tile, (per_hit, settings));
+            let gathered = gather_tile(samples, reconstructor, (albedo, ao_radius), tile, (per_hit, settings));
             crate::progress::advance(1);
             gathered
         })
@@ -204,18 +204,15 @@ pub fn gather_with_spread(
     let mut pixels = vec![[0.0f32; 3]; pixel_count];
     let mut variance = if ao_radius.is_none() { vec![f32::INFINITY; pixel_count] } else { Vec::new() };
     let mut stats = GatherStats::default();
-    for (t, tile) in tiles.iter().enumerate() {
-        let (x0, y0) = ((t as u32 % tiles_x) * side, (t as u32 / tiles_x) * side);
-        let tile_width = (x0 + side).min(width) - x0;
-        for (k, value) in tile.pixels.iter().enumerate() {
-            let (x, y) = (x0 + k as u32 % tile_width, y0 + k as u32 / tile_width);
+    for gathered in &tiles {
+        for (k, (x, y)) in gathered.tile.pixels().enumerate() {
             let p = y as usize * width as usize + x as usize;
-            pixels[p] = *value;
-            if let Some(v) = tile.variance.get(k) {
+            pixels[p] = gathered.pixels[k];
+            if let Some(v) = gathered.variance.get(k) {
                 variance[p] = *v;
             }
         }
-        stats.add(&tile.stats);
+        stats.add(&gathered.stats);
     }
     Ok((Image::from_pixels(width, height, pixels), stats, variance))
 }
@@ -249,8 +246,9 @@ impl Tile {
     }
 }
 
-/// A tile's pixels row by row, their variances (indirect light only) and its counts.
+/// A tile, its pixels row by row, their variances (indirect light only) and its counts.
 struct TileGather {
+    tile: Tile,
     pixels: Vec<[f32; 3]>,
     variance: Vec<f32>,
     stats: GatherStats,
@@ -263,8 +261,8 @@ struct TileGather {
 fn gather_tile(
     samples: &IndirectSamples,
     reconstructor: &Reconstructor,
-    (albedo, ao_radius): (Option<&Vec<[f32; 3]>>, Option<f32>),
-    tile: &Tile,
+    (albedo, ao_radius): (Option<&[[f32; 3]]>, Option<f32>),
+    tile: Tile,
     (per_hit, settings): (u32, &GatherSettings),
 ) -> TileGather {
     let spp = samples.spp.max(1) as usize;
@@ -344,7 +342,7 @@ fn gather_tile(
             }
         }
     }
-    TileGather { pixels, variance, stats }
+    TileGather { tile, pixels, variance, stats }
 }
 
 /// `trace` of every ray that exists among `rays` (`None` entries give `T::default()`),
