@@ -448,7 +448,8 @@ fn time_range(run: &Run) -> (f64, f64) {
 
 /// Fills in each run's verdicts from the PT curve and sums up each method. The speedup uses
 /// the median repetitions; its range pairs the method's slowest repetition with path tracing's
-/// fastest curve and the other way round, and a range that holds 1 is no clear difference.
+/// fastest curve and the other way round, and a range that holds 1 — or a speedup within
+/// `timing::BETWEEN_RUNS_NOISE` of 1 — is no clear difference.
 fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
     let curve = pt_curve(runs, |r| r.total_s);
     let fast_curve = pt_curve(runs, |r| time_range(r).0);
@@ -506,10 +507,10 @@ fn verdicts(runs: &mut [Run]) -> Vec<Verdict> {
                     let rays = if run.recon_rays > 0 { format!(" with {} reconstruction rays", run.recon_rays) } else { String::new() };
                     let ratio = if speedup >= 1.0 { format!("{speedup:.2}× faster") } else { format!("{:.2}× slower", 1.0 / speedup.max(1e-12)) };
                     let judged = match (difference, run.speedup_range) {
-                        (Some(Difference::Unclear), Some([lo, hi])) if lo <= 1.0 && 1.0 <= hi => format!(
+                        (Some(Difference::Unclear), Some([lo, hi])) => format!(
                             "no clear difference ({ratio} by the median times; the repeated timings allow a speedup of {lo:.2}× to {hi:.2}×)"
                         ),
-                        (Some(Difference::Unclear), _) => format!(
+                        (Some(Difference::WithinNoise), _) => format!(
                             "no clear difference ({ratio} by the median times, within the {:.0} % by which the same command's speedups move between runs)",
                             100.0 * timing::BETWEEN_RUNS_NOISE
                         ),

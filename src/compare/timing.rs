@@ -60,6 +60,8 @@ pub enum Difference {
     Slower,
     /// The range of speedups the repetitions allow contains 1.
     Unclear,
+    /// The range excludes 1, but the speedup lies within [`BETWEEN_RUNS_NOISE`] of 1.
+    WithinNoise,
 }
 
 /// How far (relative) the same `lfr compare` command's speedups move between processes on a
@@ -75,11 +77,10 @@ pub fn within_between_runs_noise(speedup: f64) -> bool {
 
 impl Difference {
     /// `range` is the (lowest, highest) speedup the repetitions allow; `speedup` the median's.
-    /// Unclear when the range holds 1 or the speedup lies within [`BETWEEN_RUNS_NOISE`] of 1.
     pub fn of(speedup: f64, range: Option<(f64, f64)>) -> Difference {
         match range {
             Some((lo, hi)) if lo <= 1.0 && 1.0 <= hi => Difference::Unclear,
-            _ if within_between_runs_noise(speedup) => Difference::Unclear,
+            _ if within_between_runs_noise(speedup) => Difference::WithinNoise,
             _ if speedup >= 1.0 => Difference::Faster,
             _ => Difference::Slower,
         }
@@ -89,7 +90,7 @@ impl Difference {
         match self {
             Difference::Faster => "faster",
             Difference::Slower => "slower",
-            Difference::Unclear => "no clear difference",
+            Difference::Unclear | Difference::WithinNoise => "no clear difference",
         }
     }
 }
@@ -143,12 +144,10 @@ mod tests {
     #[test]
     fn a_speedup_within_the_between_runs_noise_is_no_clear_difference() {
         for speedup in [1.0, 1.05, 1.1, 1.0 / 1.1, 0.95] {
-            assert_eq!(
-                Difference::of(speedup, Some((speedup * 0.99, speedup * 1.01))),
-                Difference::Unclear,
-                "{speedup}"
-            );
-            assert_eq!(Difference::of(speedup, None), Difference::Unclear, "{speedup}");
+            let tight = Difference::of(speedup, Some((speedup * 0.99, speedup * 1.01)));
+            assert_eq!(tight.name(), "no clear difference", "{speedup}");
+            assert_eq!(tight == Difference::WithinNoise, speedup != 1.0, "{speedup}: only 1 lies in the range");
+            assert_eq!(Difference::of(speedup, None), Difference::WithinNoise, "{speedup}");
         }
         assert_eq!(Difference::of(1.11, Some((1.105, 1.12))), Difference::Faster);
         assert_eq!(Difference::of(1.0 / 1.11, Some((0.89, 0.905))), Difference::Slower);
