@@ -186,14 +186,12 @@ pub fn gather_with_spread(
         return Err(Error::sample_content(&samples.path, message));
     }
     let per_hit = rays_per_hit(settings.rays_per_pixel, spp);
-    let side = tile_side(spp as u64 * per_hit as u64);
-    let (tiles_x, tiles_y) = (width.div_ceil(side), height.div_ceil(side));
-    crate::progress::begin("gather", tiles_x as u64 * tiles_y as u64, "tiles");
-    let tiles: Vec<TileGather> = (0..tiles_x * tiles_y)
+    let layout = TileLayout::of(samples, per_hit);
+    crate::progress::begin("gather", layout.count() as u64, "tiles");
+    let tiles: Vec<TileGather> = (0..layout.count())
         .into_par_iter()
         .map(|t| {
-            let (x0, y0) = ((t % tiles_x) * side, (t / tiles_x) * side);
-            let tile = Tile { xs: x0..(x0 + side).min(width), ys: y0..(y0 + side).min(height) };
+            let tile = layout.tile(t);
             let gathered = gather_tile(samples, reconstructor, (albedo, ao_radius), tile, (per_hit, settings));
             crate::progress::advance(1);
             gathered
@@ -233,6 +231,32 @@ fn tile_side(rays_per_pixel: u64) -> u32 {
     (1..=TILE).rev().find(|&side| (side as u64 * side as u64).saturating_mul(rays) <= MAX_TILE_RAYS).unwrap_or(1)
 }
 
+/// How the gather cuts the image into tiles: `side` × `side` pixels, row by row.
+struct TileLayout {
+    width: u32,
+    height: u32,
+    side: u32,
+}
+
+impl TileLayout {
+    /// The layout for `samples` with `per_hit` rays per primary hit ([`tile_side`]).
+    fn of(samples: &IndirectSamples, per_hit: u32) -> TileLayout {
+        let side = tile_side(samples.spp.max(1) as u64 * per_hit as u64);
+        TileLayout { width: samples.width, height: samples.height, side }
+    }
+
+    fn count(&self) -> u32 {
+        self.width.div_ceil(self.side) * self.height.div_ceil(self.side)
+    }
+
+    /// Tile `t`, counted row by row.
+    fn tile(&self, t: u32) -> Tile {
+        let tiles_x = self.width.div_ceil(self.side);
+        let (x0, y0) = ((t % tiles_x) * self.side, (t / tiles_x) * self.side);
+        Tile { xs: x0..(x0 + self.side).min(self.width), ys: y0..(y0 + self.side).min(self.height) }
+    }
+}
+
 /// The pixels of one tile.
 struct Tile {
     xs: Range<u32>,
@@ -267,25 +291,7 @@ fn gather_tile(
 ) -> TileGather {
     let spp = samples.spp.max(1) as usize;
     let width = samples.width as usize;
-    let hits = || {
-        tile.pixels().flat_map(move |(x, y)| {
-            let first = (y as usize * width + x as usize) * spp;
-            first..first + spp
-        })
-    };
-    // Every hit's weighted rays, in hit order; `ends[h]` is where hit h's rays end.
-    let (mut rays, mut ends) = (Vec::new(), Vec::new());
-    for i in hits() {
-        if samples.class[i] != SampleClass::CameraMiss {
-            match (&samples.primary_shading, ao_radius) {
-                (Some(shading), None) => rays.extend(weighted_rays(samples, shading, i, per_hit, settings)),
-                _ => rays.extend(
-                    hit_rays(samples, i, per_hit, settings).map(|ray| WeightedRay { ray: Some(ray), weight: [1.0; 3] }),
-                ),
-            }
-        }
-        ends.push(rays.len());
-    }
+    let (rays, ends) = tile_rays(samples, &tile, ao_radius.is_some(), (per_hit, settings));
     let mut scratch = Scratch::default();
     let mut stats = GatherStats::default();
     let mut pixels = Vec::with_capacity(tile.xs.len() * tile.ys.len());
@@ -345,20 +351,54 @@ fn gather_tile(
     TileGather { tile, pixels, variance, stats }
 }
 
-/// `trace` of every ray that exists among `rays` (`None` entries give `T::default()`),
-/// called in the order of the rays' directions on a Morton curve over the octahedral map
-/// (ties by position), so that consecutive walks of the splat hierarchy meet the same nodes in
-/// the cache; the results come back in the rays' own order.
-fn trace_in_direction_order<T: Clone + Default>(rays: &[WeightedRay], mut trace: impl FnMut(&Ray) -> T) -> Vec<T> {
+/// The weighted rays of every primary hit of `tile` (its pixels row by row, each pixel's hits in
+/// order; for ambient occlusion `ao`, cosine rays at every hit), and where each hit's rays end
+/// in that list (camera misses have none).
+fn tile_rays(
+    samples: &IndirectSamples,
+    tile: &Tile,
+    ao: bool,
+    (per_hit, settings): (u32, &GatherSettings),
+) -> (Vec<WeightedRay>, Vec<usize>) {
+    let spp = samples.spp.max(1) as usize;
+    let width = samples.width as usize;
+    let (mut rays, mut ends) = (Vec::new(), Vec::new());
+    for (x, y) in tile.pixels() {
+        let first = (y as usize * width + x as usize) * spp;
+        for i in first..first + spp {
+            if samples.class[i] != SampleClass::CameraMiss {
+                match (&samples.primary_shading, ao) {
+                    (Some(shading), false) => rays.extend(weighted_rays(samples, shading, i, per_hit, settings)),
+                    _ => rays.extend(
+                        hit_rays(samples, i, per_hit, settings)
+                            .map(|ray| WeightedRay { ray: Some(ray), weight: [1.0; 3] }),
+                    ),
+                }
+            }
+            ends.push(rays.len());
+        }
+    }
+    (rays, ends)
+}
+
+/// The positions of the rays that exist among `rays`, in the order of their directions on a
+/// Morton curve over the octahedral map (ties by position): consecutive walks of the splat
+/// hierarchy then meet the same nodes in the cache.
+fn direction_order(rays: &[WeightedRay]) -> impl Iterator<Item = usize> {
     let mut order: Vec<u64> = rays
         .iter()
         .enumerate()
         .filter_map(|(k, w)| w.ray.map(|ray| ((direction_key(ray.direction) as u64) << 32) | k as u64))
         .collect();
     order.sort_unstable();
+    order.into_iter().map(|key| key as u32 as usize)
+}
+
+/// `trace` of every ray that exists among `rays` (`None` entries give `T::default()`),
+/// called in [`direction_order`]; the results come back in the rays' own order.
+fn trace_in_direction_order<T: Clone + Default>(rays: &[WeightedRay], mut trace: impl FnMut(&Ray) -> T) -> Vec<T> {
     let mut out = vec![T::default(); rays.len()];
-    for key in order {
-        let k = key as u32 as usize;
+    for k in direction_order(rays) {
         if let Some(ray) = &rays[k].ray {
             out[k] = trace(ray);
         }
@@ -401,24 +441,19 @@ pub(super) fn assemble_rows(width: u32, height: u32, rows: Vec<(Vec<[f32; 3]>, G
     (Image::from_pixels(width, height, pixels), stats)
 }
 
-/// Every ray the gather of the `indirect` target reconstructs, primary hit by primary hit in
-/// file order (`None` where a BSDF direction points below the surface and nothing is traced):
-/// for benchmarks that trace the same rays with another engine.
+/// Every ray the gather of the `indirect` target reconstructs (none where a BSDF direction
+/// points below the surface), in the order the gather reconstructs them — tile by tile, each
+/// tile's in [`direction_order`] — so that a benchmark tracing the same rays with another
+/// engine gets the same coherence.
 pub fn reconstruction_rays(samples: &IndirectSamples, settings: &GatherSettings) -> Vec<Ray> {
     let per_hit = rays_per_hit(settings.rays_per_pixel, samples.spp.max(1));
-    let mut rays = Vec::new();
-    for i in 0..samples.len() {
-        if samples.class[i] == SampleClass::CameraMiss {
-            continue;
-        }
-        match &samples.primary_shading {
-            None => rays.extend(hit_rays(samples, i, per_hit, settings)),
-            Some(shading) => {
-                rays.extend(weighted_rays(samples, shading, i, per_hit, settings).filter_map(|w| w.ray));
-            }
-        }
+    let layout = TileLayout::of(samples, per_hit);
+    let mut out = Vec::new();
+    for t in 0..layout.count() {
+        let (rays, _) = tile_rays(samples, &layout.tile(t), false, (per_hit, settings));
+        out.extend(direction_order(&rays).filter_map(|k| rays[k].ray));
     }
-    rays
+    out
 }
 
 /// The sky samples of the pixels within `radius` of (x, y) into `out`, and the angular spacing
@@ -703,6 +738,32 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The benchmark's replay holds every ray the gather draws, hit by hit, once (the same
+    /// multiset), and within each tile in non-decreasing direction key.
+    #[test]
+    fn the_replayed_rays_are_the_gathers_in_its_order() {
+        let samples = box_samples(21, 3, SampleKind::Indirect, Some(1.5), |h| [h[2], 1.0, 0.25]);
+        let settings = GatherSettings { rays_per_pixel: 12, seed: 5, ..GatherSettings::default() };
+        let replayed = reconstruction_rays(&samples, &settings);
+        let per_hit = rays_per_hit(settings.rays_per_pixel, samples.spp);
+        let by_hit: Vec<Ray> = (0..samples.len()).flat_map(|i| hit_rays(&samples, i, per_hit, &settings)).collect();
+        let bits = |rays: &[Ray]| {
+            let mut b: Vec<_> =
+                rays.iter().map(|r| (r.origin.map(f32::to_bits), r.direction.map(f32::to_bits))).collect();
+            b.sort();
+            b
+        };
+        assert_eq!(bits(&replayed), bits(&by_hit));
+        // 21² pixels in 16-pixel tiles: 16², 5 × 16, 16 × 5 and 5² pixels, 12 rays each.
+        let mut start = 0;
+        for pixels in [256, 80, 80, 25] {
+            let tile = &replayed[start..start + pixels * 12];
+            assert!(tile.windows(2).all(|w| direction_key(w[0].direction) <= direction_key(w[1].direction)));
+            start += pixels * 12;
+        }
+        assert_eq!(start, replayed.len());
     }
 
     /// Tiles are 16 pixels wide up to 256 rays per pixel, then narrower so that they hold at
