@@ -9,6 +9,7 @@ use crate::error::Error;
 use crate::gif::filtered_indirect::{FilterOptions, FilteredIndirect};
 use crate::ilfr::method::{Ilfr, IlfrChoices, IlfrDof, IlfrRecursive};
 use crate::ilfr::robust::RobustMode;
+use crate::ilfr::shrink::Trim;
 use crate::ilfr::surfaces::ConflictTest;
 use crate::method::{Effect, Method};
 use crate::options::{OptionKind, OptionSpec, Options};
@@ -111,6 +112,14 @@ const SHRINK: OptionSpec = OptionSpec {
     kind: OptionKind::Choice(&["all-rays", "hit-rays"]),
     default: "all-rays",
     help: "which input rays shrink the splats they cross (§2.3.1): all, or only those that hit (the authors' code)",
+};
+const TRIM: OptionSpec = OptionSpec {
+    key: "trim",
+    kind: OptionKind::Choice(&["auto", "disc", "wedges"]),
+    default: "auto",
+    help: "what an input ray that crosses a splat trims (§2.3.1): the whole disc to the ray's distance (the paper), \
+           or only the disc's 45° wedges towards the crossing, as far as a straight edge through it needs (beyond \
+           the paper), or (auto) wedges for indirect light and glossy reflections, the whole disc otherwise",
 };
 const SMALL: OptionSpec = OptionSpec {
     key: "small",
@@ -255,14 +264,14 @@ pub const METHODS: &[MethodSpec] = &[
     MethodSpec {
         name: "ilfr",
         effects: INDIRECT_AND_AO,
-        options: &[CONFLICT, SHRINK, ROBUST, SMALL, GRAIN],
+        options: &[CONFLICT, SHRINK, TRIM, ROBUST, SMALL, GRAIN],
         description: "indirect light field reconstruction (Lehtinen et al. 2012)",
         build: |options| Ok(Box::new(Ilfr { choices: ilfr_choices(options) })),
     },
     MethodSpec {
         name: "ilfr-recursive",
         effects: INDIRECT,
-        options: &[PASSES, CONFLICT, SHRINK, ROBUST],
+        options: &[PASSES, CONFLICT, SHRINK, TRIM, ROBUST],
         description: "indirect light field reconstruction with recursive filtering at the secondary hits (Lehtinen \
                       et al. 2012 §4)",
         build: |options| {
@@ -273,7 +282,7 @@ pub const METHODS: &[MethodSpec] = &[
     MethodSpec {
         name: "ilfr-dof",
         effects: DEFOCUS_AND_MOTION,
-        options: &[CONFLICT, SHRINK],
+        options: &[CONFLICT, SHRINK, TRIM],
         description: "indirect light field reconstruction's machinery on camera rays: defocus and motion blur \
                       (Lehtinen et al. 2012 §3.4)",
         build: |options| Ok(Box::new(IlfrDof { choices: ilfr_choices(options) })),
@@ -294,7 +303,7 @@ fn tlfr_gi(options: &Options) -> Result<GiMode, Error> {
     }
 }
 
-/// The `conflict`, `shrink`, `robust`, `small` and `grain` options of the ILFR methods.
+/// The `conflict`, `shrink`, `trim`, `robust`, `small` and `grain` options of the ILFR methods.
 fn ilfr_choices(options: &Options) -> IlfrChoices {
     let defaults = IlfrChoices::default();
     IlfrChoices {
@@ -307,6 +316,11 @@ fn ilfr_choices(options: &Options) -> IlfrChoices {
         shrink_with_escaped_rays: options
             .choice("shrink")
             .map_or(defaults.shrink_with_escaped_rays, |c| c == "all-rays"),
+        trim: match options.choice("trim") {
+            Some("wedges") => Some(Trim::Wedges),
+            Some("disc") => Some(Trim::Disc),
+            _ => defaults.trim,
+        },
         robust: match options.choice("robust") {
             Some("clamp") => RobustMode::Clamp,
             Some("off") => RobustMode::Off,
@@ -469,6 +483,19 @@ mod tests {
             let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), effect);
             assert_eq!(applied.surfaces.merge_small_surfaces, merge, "{option} for {effect:?}");
         }
+        for (option, effect, trim) in [
+            ("trim=auto", Effect::Ao, Trim::Disc),
+            ("trim=auto", Effect::Indirect, Trim::Wedges),
+            ("conflict=auto", Effect::Glossy, Trim::Wedges),
+            ("trim=auto", Effect::Dof, Trim::Disc),
+            ("trim=wedges", Effect::Ao, Trim::Wedges),
+            ("trim=disc", Effect::Glossy, Trim::Disc),
+        ] {
+            let choices = ilfr_choices(&spec("ilfr").unwrap().parse_options(option).unwrap());
+            let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), effect);
+            assert_eq!(applied.shrink.trim, trim, "{option} for {effect:?}");
+        }
+        assert_eq!(find("ilfr-dof:trim=disc").unwrap().unwrap().name(), "ilfr-dof:trim=disc");
         let gi = |text: &str| tlfr_gi(&spec("tlfr").unwrap().parse_options(text).unwrap()).unwrap();
         assert_eq!(gi(""), GiMode::Whole);
         assert_eq!(gi("gi=split"), GiMode::Split { radius: GI_RADIUS.default.parse().unwrap() });
@@ -510,6 +537,7 @@ mod tests {
             ("ilfr-recursive:passes=0", "at least 1"),
             ("ilfr:conflict=maybe", "off-plane"),
             ("ilfr:shrink=some", "hit-rays"),
+            ("ilfr:trim=some", "wedges"),
             ("ilfr:small=some", "keep"),
         ] {
             let error = find(spec).err().unwrap_or_else(|| panic!("{spec} must fail")).to_string();

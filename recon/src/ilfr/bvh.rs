@@ -17,13 +17,15 @@
 //!   disc records in leaf order (issue 23). The binary walk of before,
 //!   [`DiscBvh::for_each_hit_binary`], is kept as its oracle: the same hits bit for bit.
 //! - "the bounding boxes of the BVH nodes are recomputed to accommodate the new sizes"
-//!   (§2.3.1): [`DiscBvh::set_radii`] (bottom-up refit, same topology).
+//!   (§2.3.1): [`DiscBvh::set_radii`] (bottom-up refit, same topology); splats trimmed wedge by
+//!   wedge (issue 23): [`DiscBvh::set_wedge_radii`], boxed by their wedges, a hit kept only
+//!   within the radius of the wedge it lands in.
 //!
 //! Boxes are padded by a small scene-relative margin so that rounding in the box test can never
 //! drop a disc that [`intersect`] accepts: the walk returns exactly the set a scan of all discs
 //! returns (tested bit for bit).
 
-use super::disc::{intersect, intersect_placed, Disc, DiscHit, Ray};
+use super::disc::{intersect, intersect_placed, wedge_at, wedge_extent, Disc, DiscHit, Ray, WEDGES};
 use crate::error::Error;
 
 /// Discs per leaf at most.
@@ -92,6 +94,9 @@ pub struct SplatHit {
     /// Its position in leaf order ([`DiscBvh::disc_at`]).
     pub slot: u32,
     pub hit: DiscHit,
+    /// The radius in force where the ray meets the disc: the disc's, or that of the wedge it
+    /// meets when shrinking trimmed wedges ([`DiscBvh::set_wedge_radii`]).
+    pub radius: f32,
 }
 
 /// Counts of one walk, for statistics.
@@ -114,6 +119,9 @@ pub struct DiscBvh {
     wide: Vec<WideNode>,
     /// The discs' compact records, in leaf order.
     records: Vec<DiscRecord>,
+    /// Per slot, the radius of each wedge ([`wedge_at`]) where shrinking trimmed wedges one by
+    /// one; empty where every disc is whole (its record's radius, the largest wedge's, bounds it).
+    wedges: Vec<[f32; WEDGES]>,
 }
 
 struct BuildRef {
@@ -188,6 +196,7 @@ impl DiscBvh {
             pad: BOX_SLACK * largest,
             wide: Vec::new(),
             records: Vec::new(),
+            wedges: Vec::new(),
         };
         bvh.refit();
         Ok(bvh)
@@ -211,6 +220,7 @@ impl DiscBvh {
         self.nodes.len() * size_of::<Node>()
             + self.wide.len() * size_of::<WideNode>()
             + self.discs.len() * (size_of::<Disc>() + size_of::<u32>() + size_of::<DiscRecord>())
+            + self.wedges.len() * size_of::<[f32; WEDGES]>()
     }
 
     /// The disc at `slot` in leaf order, and its input index.
@@ -218,13 +228,28 @@ impl DiscBvh {
         (&self.discs[slot as usize], self.ids[slot as usize])
     }
 
-    /// The disc at `slot` in leaf order placed at `time`: (centre then, unit normal, radius),
-    /// read from the compact record the walk has just tested (the full disc only if it moves).
+    /// The disc at `slot` in leaf order placed at `time`: (centre then, unit normal), read from
+    /// the compact record the walk has just tested (the full disc only if it moves). Its radius
+    /// where a ray meets it is the hit's ([`SplatHit::radius`]).
     #[inline]
-    pub fn placed_at(&self, slot: u32, time: f32) -> ([f32; 3], [f32; 3], f32) {
+    pub fn placed_at(&self, slot: u32, time: f32) -> ([f32; 3], [f32; 3]) {
         let record = &self.records[slot as usize];
         let centre = if record.moving != 0 { self.discs[slot as usize].centre_at(time) } else { record.centre };
-        (centre, record.normal, record.radius)
+        (centre, record.normal)
+    }
+
+    /// The radius in force where `ray` meets the disc at `slot` (`hit`, found with the disc's
+    /// whole radius): the disc's, or its wedge's when wedges are trimmed; the ray misses the
+    /// disc unless `hit.spatial` is below it.
+    #[inline]
+    fn radius_at_hit(&self, slot: u32, record_radius: f32, ray: &Ray, hit: &DiscHit) -> f32 {
+        match self.wedges.get(slot as usize) {
+            None => record_radius,
+            Some(wedges) => {
+                let (centre, normal) = self.placed_at(slot, ray.time);
+                wedges[wedge_at(centre, normal, ray, hit.t)]
+            }
+        }
     }
 
     /// The discs in leaf order with their input indices.
@@ -254,8 +279,55 @@ impl DiscBvh {
         for (slot, disc) in self.discs.iter_mut().enumerate() {
             disc.radius = radius_by_id[self.ids[slot] as usize];
         }
+        self.wedges.clear();
         self.refit();
         Ok(())
+    }
+
+    /// Replaces every disc by one whose wedges ([`wedge_at`]) have their own radii (by input
+    /// index; finite, ≥ 0): a ray meets it iff it meets the disc within its wedge's radius. The
+    /// disc's radius becomes the largest wedge's (its box), and the boxes are refitted.
+    pub fn set_wedge_radii(&mut self, wedge_radii_by_id: &[[f32; WEDGES]]) -> Result<(), Error> {
+        if wedge_radii_by_id.len() != self.discs.len() {
+            let message =
+                format!("splat hierarchy: {} wedge radii for {} discs", wedge_radii_by_id.len(), self.discs.len());
+            return Err(Error::size_mismatch("wedge radii and discs", message));
+        }
+        if let Some(i) = wedge_radii_by_id.iter().position(|w| !w.iter().all(|r| r.is_finite() && *r >= 0.0)) {
+            let message =
+                format!("splat hierarchy: wedge radii {i} are {:?}, not all finite and ≥ 0", wedge_radii_by_id[i]);
+            return Err(Error::parameter("wedge_radii_by_id", message));
+        }
+        self.wedges = self.ids.iter().map(|&id| wedge_radii_by_id[id as usize]).collect();
+        for (disc, wedges) in self.discs.iter_mut().zip(&self.wedges) {
+            disc.radius = wedges.iter().copied().fold(0.0, f32::max);
+        }
+        self.refit();
+        Ok(())
+    }
+
+    /// By input index, the radius of each wedge ([`wedge_at`]): the disc's radius in every wedge
+    /// of a whole disc.
+    pub fn wedge_radii(&self) -> Vec<[f32; WEDGES]> {
+        let mut wedges = vec![[0.0; WEDGES]; self.discs.len()];
+        for (slot, (id, disc)) in self.discs().enumerate() {
+            wedges[id as usize] = self.wedges.get(slot).copied().unwrap_or([disc.radius; WEDGES]);
+        }
+        wedges
+    }
+
+    /// By input index, the radius of the whole disc of the same area: the disc's radius, or the
+    /// root mean square of its wedges' radii where wedges are trimmed.
+    pub fn area_radii(&self) -> Vec<f32> {
+        if self.wedges.is_empty() {
+            return self.radii();
+        }
+        let mut radius = vec![0.0; self.discs.len()];
+        for (slot, &id) in self.ids.iter().enumerate() {
+            let wedges = &self.wedges[slot];
+            radius[id as usize] = (wedges.iter().map(|r| r * r).sum::<f32>() / WEDGES as f32).sqrt();
+        }
+        radius
     }
 
     /// Recomputes every box from the discs: children come after their parent, so a reverse
@@ -266,8 +338,8 @@ impl DiscBvh {
             let Node { first, count, .. } = self.nodes[index];
             let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
             if count > 0 {
-                for disc in &self.discs[first as usize..(first + count) as usize] {
-                    let (dlo, dhi) = disc.bounds();
+                for slot in first..first + count {
+                    let (dlo, dhi) = self.disc_bounds(slot);
                     grow(&mut lo, &mut hi, dlo, dhi);
                 }
                 for axis in 0..3 {
@@ -283,6 +355,20 @@ impl DiscBvh {
             self.nodes[index].hi = hi;
         }
         self.collapse();
+    }
+
+    /// The box of the disc at `slot`: [`Disc::bounds`], or where its wedges are trimmed the box
+    /// of its wedges ([`wedge_extent`]) swept along its motion.
+    fn disc_bounds(&self, slot: u32) -> ([f32; 3], [f32; 3]) {
+        let disc = &self.discs[slot as usize];
+        let Some(wedges) = self.wedges.get(slot as usize) else {
+            return disc.bounds();
+        };
+        let (extent_lo, extent_hi) = wedge_extent(disc.normal, wedges);
+        let (start, end) = (disc.centre_at(0.0), disc.centre_at(1.0));
+        let lo = [0, 1, 2].map(|a| start[a].min(end[a]) + extent_lo[a]);
+        let hi = [0, 1, 2].map(|a| start[a].max(end[a]) + extent_hi[a]);
+        (lo, hi)
     }
 
     /// Rebuilds the wide hierarchy from the binary one (same leaves, same boxes): every wide
@@ -385,7 +471,10 @@ impl DiscBvh {
                         intersect_placed(record.centre, record.normal, record.radius, ray, t_min, t_max)
                     };
                     if let Some(hit) = hit {
-                        visit(SplatHit { id: self.ids[slot as usize], slot, hit });
+                        let radius = self.radius_at_hit(slot, record.radius, ray, &hit);
+                        if hit.spatial < radius {
+                            visit(SplatHit { id: self.ids[slot as usize], slot, hit, radius });
+                        }
                     }
                 }
             }
@@ -423,8 +512,12 @@ impl DiscBvh {
             }
             counts.discs_tested += node.count as u64;
             for slot in node.first..node.first + node.count {
-                if let Some(hit) = intersect(&self.discs[slot as usize], ray, t_min, t_max) {
-                    visit(SplatHit { id: self.ids[slot as usize], slot, hit });
+                let disc = &self.discs[slot as usize];
+                if let Some(hit) = intersect(disc, ray, t_min, t_max) {
+                    let radius = self.radius_at_hit(slot, disc.radius, ray, &hit);
+                    if hit.spatial < radius {
+                        visit(SplatHit { id: self.ids[slot as usize], slot, hit, radius });
+                    }
                 }
             }
         }
@@ -449,7 +542,10 @@ impl DiscBvh {
         out.clear();
         for (slot, disc) in self.discs.iter().enumerate() {
             if let Some(hit) = intersect(disc, ray, t_min, t_max) {
-                out.push(SplatHit { id: self.ids[slot], slot: slot as u32, hit });
+                let radius = self.radius_at_hit(slot as u32, disc.radius, ray, &hit);
+                if hit.spatial < radius {
+                    out.push(SplatHit { id: self.ids[slot], slot: slot as u32, hit, radius });
+                }
             }
         }
     }
@@ -699,10 +795,13 @@ mod tests {
             .collect()
     }
 
-    fn sorted(hits: &[SplatHit]) -> Vec<(u32, u32, u32, u32, bool)> {
+    fn sorted(hits: &[SplatHit]) -> Vec<(u32, u32, u32, u32, bool, u32)> {
         let mut v: Vec<_> = hits
             .iter()
-            .map(|h| (h.id, h.hit.t.to_bits(), h.hit.spatial.to_bits(), h.hit.depth.to_bits(), h.hit.back_facing))
+            .map(|h| {
+                let hit = &h.hit;
+                (h.id, hit.t.to_bits(), hit.spatial.to_bits(), hit.depth.to_bits(), hit.back_facing, h.radius.to_bits())
+            })
             .collect();
         v.sort();
         v
@@ -868,6 +967,70 @@ mod tests {
         }
         bvh.collect_hits(&ray, 1.5, 2.5, &mut stack, &mut out);
         assert_eq!(out.iter().map(|h| h.id).collect::<Vec<_>>(), [3]);
+    }
+
+    #[test]
+    fn trimmed_wedges_keep_the_walk_exact() {
+        let discs = random_discs(4000, 15);
+        let rays = random_rays(2000, 16);
+        let whole = DiscBvh::build(&discs).unwrap();
+        // Every wedge at the same fraction of the radius is the disc shrunk whole: the same hits.
+        let mut rng = Lcg(3);
+        let fraction: Vec<f32> = (0..discs.len()).map(|_| rng.uniform()).collect();
+        let radii: Vec<f32> = whole.radii().iter().zip(&fraction).map(|(r, f)| r * f).collect();
+        let mut shrunk = whole.clone();
+        shrunk.set_radii(&radii).unwrap();
+        let mut uniform = whole.clone();
+        uniform.set_wedge_radii(&radii.iter().map(|&r| [r; WEDGES]).collect::<Vec<_>>()).unwrap();
+        let (mut stack, mut a, mut b) = (Vec::new(), Vec::new(), Vec::new());
+        for (ray, t_min, t_max) in &rays {
+            shrunk.collect_hits(ray, *t_min, *t_max, &mut stack, &mut a);
+            uniform.collect_hits(ray, *t_min, *t_max, &mut stack, &mut b);
+            assert_eq!(sorted(&a), sorted(&b));
+        }
+        // Wedges of their own radii (some dead, some whole): the wide walk, the binary walk and
+        // the scan agree, every hit is one of the whole disc's within the wedge radius it reports,
+        // inside the smallest wedge always kept and beyond the largest never.
+        let wedges: Vec<[f32; WEDGES]> = whole
+            .radii()
+            .iter()
+            .map(|&r| std::array::from_fn(|_| [0.0, r, r * rng.uniform()][(rng.uniform() * 3.0) as usize % 3]))
+            .collect();
+        let mut trimmed = whole.clone();
+        trimmed.set_wedge_radii(&wedges).unwrap();
+        assert_eq!(trimmed.wedge_radii(), wedges);
+        let total = assert_walk_equals_scan(&trimmed, &rays);
+        let mut kept_inside_smallest = 0;
+        let mut c = Vec::new();
+        for (ray, t_min, t_max) in &rays {
+            b.clear();
+            trimmed.for_each_hit_binary(ray, *t_min, *t_max, &mut stack, |h| b.push(h));
+            trimmed.collect_hits(ray, *t_min, *t_max, &mut stack, &mut c);
+            assert_eq!(sorted(&b), sorted(&c));
+            let walked = sorted(&c);
+            whole.collect_hits(ray, *t_min, *t_max, &mut stack, &mut a);
+            for h in &a {
+                let w = &wedges[h.id as usize];
+                let smallest = w.iter().copied().fold(f32::INFINITY, f32::min);
+                let largest = w.iter().copied().fold(0.0, f32::max);
+                let found = walked.iter().find(|x| x.0 == h.id);
+                if h.hit.spatial < smallest {
+                    assert!(found.is_some());
+                    kept_inside_smallest += 1;
+                }
+                if h.hit.spatial >= largest {
+                    assert!(found.is_none());
+                }
+                if let Some(x) = found {
+                    let radius = f32::from_bits(x.5);
+                    assert!(w.contains(&radius) && h.hit.spatial < radius);
+                    assert_eq!((x.1, x.2), (h.hit.t.to_bits(), h.hit.spatial.to_bits()));
+                }
+            }
+        }
+        assert!(total > 100 && kept_inside_smallest >= 5, "{total} {kept_inside_smallest}");
+        assert!(trimmed.set_wedge_radii(&wedges[1..]).is_err());
+        assert!(trimmed.set_wedge_radii(&vec![[f32::NAN; WEDGES]; wedges.len()]).is_err());
     }
 
     #[test]

@@ -164,6 +164,107 @@ pub fn intersect_placed(
     Some(DiscHit { t, spatial, depth: dot(d, to_centre), back_facing: cosine > 0.0 })
 }
 
+/// Wedges around a disc's centre on its tangent plane that anisotropic shrinking trims one by
+/// one ([`super::shrink::Trim::Wedges`]): eight of 45°.
+pub const WEDGES: usize = 8;
+
+/// The wedge (0 .. [`WEDGES`]) that holds the point at ray parameter `t` of `ray` on the
+/// tangent plane of the disc at `centre` with unit `normal`: the point's offset from the centre
+/// in a tangent frame fixed by the normal alone (Duff et al. 2017, "Building an Orthonormal
+/// Basis, Revisited"), classified by the signs of its two coordinates and which is larger. The
+/// offset is computed as in [`intersect_placed`], so the same ray and disc give the same wedge
+/// bit for bit wherever it is asked (shrinking and the walks).
+#[inline]
+pub fn wedge_at(centre: [f32; 3], normal: [f32; 3], ray: &Ray, t: f32) -> usize {
+    let (x, y) = tangent_coordinates(centre, normal, ray, t);
+    wedge_of(x, y)
+}
+
+/// The coordinates (x, y) in the tangent frame of [`wedge_at`] of the point at ray parameter `t`
+/// of `ray`, relative to the centre.
+#[inline]
+pub fn tangent_coordinates(centre: [f32; 3], normal: [f32; 3], ray: &Ray, t: f32) -> (f32, f32) {
+    let to_centre = sub(centre, ray.origin);
+    let d = ray.direction;
+    let offset = [t * d[0] - to_centre[0], t * d[1] - to_centre[1], t * d[2] - to_centre[2]];
+    let (tangent, bitangent) = tangent_frame(normal);
+    (dot(offset, tangent), dot(offset, bitangent))
+}
+
+/// The wedge radii that keep a disc out of the half-plane beyond a crossing: a ray crossed the
+/// disc's plane at tangent coordinates (x, y), `distance` from the centre, where no surface may
+/// be, and the disc's edge there is taken as a straight line across that direction (a
+/// silhouette, locally). A wedge whose angles φ come no nearer than δ to the crossing's angle
+/// θ keeps within distance / cos δ, the line's distance at the wedge's nearest angle; the
+/// crossing's own wedge keeps within `distance` exactly (so the ray misses it), wedges 90° or
+/// more away are not bounded (+inf).
+pub fn half_plane_wedge_radii(x: f32, y: f32, distance: f32) -> [f32; WEDGES] {
+    use std::f32::consts::{FRAC_PI_2, TAU};
+    let theta = y.atan2(x);
+    let step = TAU / WEDGES as f32;
+    let wrapped = |a: f32| {
+        let a = (a - theta).rem_euclid(TAU);
+        a.min(TAU - a)
+    };
+    let mut radii = [f32::INFINITY; WEDGES];
+    for span in 0..WEDGES {
+        let (start, end) = (span as f32 * step, (span as f32 + 1.0) * step);
+        let middle = 0.5 * (start + end);
+        // θ inside the span: no angle off; otherwise the nearer end.
+        let off = (theta - start).rem_euclid(TAU);
+        let nearest = if off <= step { 0.0 } else { wrapped(start).min(wrapped(end)) };
+        if nearest < FRAC_PI_2 - 1e-3 {
+            let wedge = wedge_of(middle.cos(), middle.sin());
+            radii[wedge] = radii[wedge].min(distance / nearest.cos());
+        }
+    }
+    radii[wedge_of(x, y)] = distance;
+    radii
+}
+
+/// The tangent frame of [`wedge_at`]: two unit vectors orthogonal to the unit `normal` and to
+/// each other, a continuous function of the normal except across n_z = 0 (Duff et al. 2017).
+#[inline]
+fn tangent_frame(normal: [f32; 3]) -> ([f32; 3], [f32; 3]) {
+    let [nx, ny, nz] = normal;
+    let sign = 1.0f32.copysign(nz);
+    let a = -1.0 / (sign + nz);
+    let b = nx * ny * a;
+    ([1.0 + sign * nx * nx * a, sign * b, -sign * nx], [b, sign + ny * ny * a, -ny])
+}
+
+/// The wedge of tangent-plane coordinates (x, y): the signs of both and whether |y| > |x|, one
+/// 45° wedge each. NaN coordinates land in wedge 0 (comparisons with NaN are false).
+#[inline]
+fn wedge_of(x: f32, y: f32) -> usize {
+    (((y < 0.0) as usize) << 2) | (((x < 0.0) as usize) << 1) | ((y.abs() > x.abs()) as usize)
+}
+
+/// The box, relative to the centre, of a disc with unit `normal` whose wedges ([`wedge_at`])
+/// have the radii `wedge_radii`: (lo ≤ 0, hi ≥ 0). Each wedge, a 45° sector of radius r, lies in
+/// the quadrilateral of the centre, its two rim points and the meeting point of the rim's
+/// tangents there (r / cos 22.5° out along its middle), whose corners bound it; at most 8 %
+/// larger than the exact box along a wedge's middle.
+pub fn wedge_extent(normal: [f32; 3], wedge_radii: &[f32; WEDGES]) -> ([f32; 3], [f32; 3]) {
+    let (tangent, bitangent) = tangent_frame(normal);
+    let (mut lo, mut hi) = ([0.0f32; 3], [0.0f32; 3]);
+    let step = std::f32::consts::TAU / WEDGES as f32;
+    let apex = 1.0 / (0.5 * step).cos();
+    for span in 0..WEDGES {
+        let (start, middle, end) = (span as f32 * step, (span as f32 + 0.5) * step, (span as f32 + 1.0) * step);
+        let radius = wedge_radii[wedge_of(middle.cos(), middle.sin())];
+        for (angle, reach) in [(start, radius), (middle, radius * apex), (end, radius)] {
+            let (sin, cos) = angle.sin_cos();
+            for axis in 0..3 {
+                let offset = reach * (cos * tangent[axis] + sin * bitangent[axis]);
+                lo[axis] = lo[axis].min(offset);
+                hi[axis] = hi[axis].max(offset);
+            }
+        }
+    }
+    (lo, hi)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -314,6 +415,119 @@ mod tests {
             for axis in 0..3 {
                 assert!(reach_lo[axis] >= lo[axis] - 1e-5 && reach_hi[axis] <= hi[axis] + 1e-5);
                 assert!(reach_lo[axis] - lo[axis] < 1e-4 && hi[axis] - reach_hi[axis] < 1e-4);
+            }
+        }
+    }
+
+    /// Our own frame of the tangent plane (not [`tangent_frame`]'s), and the ray that meets the
+    /// disc's plane at angle `angle` and distance `reach` from the centre, from 1 unit off the
+    /// plane on the normal's side.
+    fn own_frame(n: [f32; 3]) -> ([f32; 3], [f32; 3]) {
+        let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+        let u = normalize([
+            helper[1] * n[2] - helper[2] * n[1],
+            helper[2] * n[0] - helper[0] * n[2],
+            helper[0] * n[1] - helper[1] * n[0],
+        ]);
+        (u, [n[1] * u[2] - n[2] * u[1], n[2] * u[0] - n[0] * u[2], n[0] * u[1] - n[1] * u[0]])
+    }
+
+    fn ray_to(disc: &Disc, (u, v): ([f32; 3], [f32; 3]), angle: f32, reach: f32) -> (Ray, f32) {
+        let point = [0, 1, 2].map(|a| disc.centre[a] + reach * (angle.cos() * u[a] + angle.sin() * v[a]));
+        let origin = [0, 1, 2].map(|a| point[a] + disc.normal[a]);
+        (Ray { time: 0.0, origin, direction: disc.normal.map(|c| -c) }, 1.0)
+    }
+
+    #[test]
+    fn the_wedges_are_eight_runs_of_45_degrees_round_the_centre() {
+        // Round the centre in our own frame, the wedge changes exactly 8 times, each wedge is one
+        // run of 45° (± the step), and every wedge index appears once: whatever the normal,
+        // including normals along the axes and with n_z = 0 or negative.
+        let mut rng = Lcg(5);
+        let mut normals: Vec<[f32; 3]> =
+            vec![[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.6, 0.8, 0.0]];
+        normals.extend((0..40).map(|_| [rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5]));
+        let steps = 7200;
+        for n in normals {
+            let disc = Disc::new([rng.uniform(), rng.uniform(), rng.uniform()], n, 1.0);
+            let frame = own_frame(disc.normal);
+            let wedges: Vec<usize> = (0..steps)
+                .map(|k| {
+                    let (ray, t) = ray_to(&disc, frame, (k as f32 + 0.5) / steps as f32 * std::f32::consts::TAU, 0.7);
+                    wedge_at(disc.centre, disc.normal, &ray, t)
+                })
+                .collect();
+            let changes: Vec<usize> = (0..steps).filter(|&k| wedges[k] != wedges[(k + 1) % steps]).collect();
+            assert_eq!(changes.len(), WEDGES, "normal {n:?}");
+            for (i, &k) in changes.iter().enumerate() {
+                let run = (changes[(i + 1) % WEDGES] + steps - k) % steps;
+                assert!((run as i64 - steps as i64 / 8).abs() <= 2, "normal {n:?}: a run of {run} steps");
+            }
+            let mut seen = [false; WEDGES];
+            changes.iter().for_each(|&k| seen[wedges[k]] = true);
+            assert!(seen.iter().all(|&s| s), "normal {n:?}");
+        }
+    }
+
+    #[test]
+    fn the_wedge_box_holds_every_point_of_the_trimmed_disc_and_little_more() {
+        let mut rng = Lcg(9);
+        for case in 0..60 {
+            let n = [rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5 + 1e-3];
+            let disc = Disc::new([0.0; 3], n, 1.0);
+            let radii: [f32; WEDGES] =
+                std::array::from_fn(|w| if case % 3 == 0 && w % 2 == 0 { 0.0 } else { rng.uniform() });
+            let (lo, hi) = wedge_extent(disc.normal, &radii);
+            let frame = own_frame(disc.normal);
+            let (mut reach_lo, mut reach_hi) = ([0.0f32; 3], [0.0f32; 3]);
+            for k in 0..7200 {
+                let angle = k as f32 / 7200.0 * std::f32::consts::TAU;
+                let (ray, t) = ray_to(&disc, frame, angle, 1e-3);
+                let r = radii[wedge_at(disc.centre, disc.normal, &ray, t)] * 0.9999;
+                for axis in 0..3 {
+                    let x = r * (angle.cos() * frame.0[axis] + angle.sin() * frame.1[axis]);
+                    assert!(x >= lo[axis] - 1e-5 && x <= hi[axis] + 1e-5, "case {case}, angle {angle}");
+                    reach_lo[axis] = reach_lo[axis].min(x);
+                    reach_hi[axis] = reach_hi[axis].max(x);
+                }
+            }
+            // No more than the 8 % of the tangents' meeting point beyond the largest wedge.
+            let largest = radii.iter().copied().fold(0.0, f32::max);
+            for axis in 0..3 {
+                assert!(reach_lo[axis] - lo[axis] <= 0.083 * largest + 1e-4, "case {case}: {lo:?} {reach_lo:?}");
+                assert!(hi[axis] - reach_hi[axis] <= 0.083 * largest + 1e-4, "case {case}: {hi:?} {reach_hi:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn half_plane_wedges_stay_inside_the_half_plane_and_keep_the_far_side() {
+        // For random crossings, every point the trimmed wedges keep lies on the near side of the
+        // line through the crossing across its direction (the crossing itself excluded), and
+        // every point 90° or more from the crossing's direction keeps the whole radius.
+        let mut rng = Lcg(21);
+        let n = normalize([0.3, -0.2, 0.9]);
+        let disc = Disc::new([0.0; 3], n, 1.0);
+        let (u, v) = own_frame(disc.normal);
+        for _ in 0..200 {
+            let (angle, distance) = (rng.uniform() * std::f32::consts::TAU, 0.05 + 0.9 * rng.uniform());
+            let (crossing, t) = ray_to(&disc, (u, v), angle, distance);
+            let (x, y) = tangent_coordinates(disc.centre, disc.normal, &crossing, t);
+            assert!(((x * x + y * y).sqrt() - distance).abs() < 1e-5);
+            let radii = half_plane_wedge_radii(x, y, distance);
+            assert_eq!(radii[wedge_at(disc.centre, disc.normal, &crossing, t)], distance);
+            for k in 0..2000 {
+                let phi = k as f32 / 2000.0 * std::f32::consts::TAU;
+                let (ray, t) = ray_to(&disc, (u, v), phi, 1e-3);
+                let bound = radii[wedge_at(disc.centre, disc.normal, &ray, t)].min(1.0);
+                // Along the crossing's direction, the kept point farthest out at this angle.
+                let along = bound * 0.9999 * (phi - angle).cos();
+                assert!(along < distance, "crossing {angle} at {distance}: angle {phi} keeps {bound}");
+                let off = (phi - angle).rem_euclid(std::f32::consts::TAU);
+                let away = off.min(std::f32::consts::TAU - off);
+                if away >= std::f32::consts::FRAC_PI_2 + std::f32::consts::FRAC_PI_4 {
+                    assert_eq!(bound, 1.0, "crossing {angle}: angle {phi} was trimmed");
+                }
             }
         }
     }

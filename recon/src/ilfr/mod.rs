@@ -32,7 +32,10 @@
 //!   f·cos/p from o's own BSDF (read from the file, the tracer's `shading::Bsdf`), split between
 //!   the lobes with multi-sample MIS: `bsdf_rays`.
 //! - Beyond the paper (issue 23): splats far brighter than their neighbours in the lobe keep a
-//!   bounded radiance and share the excess with them, power kept (`robust`); the final gather's
+//!   bounded radiance and share the excess with them, power kept (`robust`); for indirect light
+//!   and glossy reflections a blocked input ray trims only the 45° wedges of a splat towards
+//!   it, as far as a straight edge through the crossing needs, so that trimmed rim splats leave
+//!   no holes (`shrink::Trim::Wedges`, `disc::half_plane_wedge_radii`, `bvh`); the final gather's
 //!   directions of a pixel's primary hits (cosine rays, and each BSDF lobe's at glossy hits)
 //!   are consecutive blocks of one scrambled Sobol' sequence per pixel (`gather`,
 //!   `directions`, `bsdf_rays`); ambient occlusion skips §2.5's small-surface

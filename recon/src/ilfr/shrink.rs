@@ -15,6 +15,10 @@
 //! - "Finally, the bounding boxes of the BVH nodes are recomputed": the refit
 //!   ([`DiscBvh::set_radii`]) at the end of [`shrink_splats`].
 //!
+//! - Beyond the paper (issue 23, [`Trim::Wedges`]): each of a splat's eight 45° wedges keeps its
+//!   own radius, and a blocking ray bounds only the wedges towards it, by
+//!   [`half_plane_wedge_radii`] (the crossing's own wedge to s_i exactly).
+//!
 //! The result is min(r_i, min of the s_i of the rays that block i), independent of the order in
 //! which rays are processed, so the rays run in parallel with an atomic minimum on the radius's
 //! bits (non-negative floats order like their bit patterns): exact and the same for any thread
@@ -26,7 +30,7 @@ use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use rayon::prelude::*;
 
 use super::bvh::{DiscBvh, SplatHit};
-use super::disc::{dot, length, Ray};
+use super::disc::{dot, half_plane_wedge_radii, length, tangent_coordinates, Ray, WEDGES};
 use super::samples::{IndirectSamples, SampleClass};
 use crate::error::Error;
 
@@ -58,11 +62,26 @@ pub struct ShrinkParams {
     /// the glossy monkeys, −0.2 dB on Cornell, ±0 on Sponza, and silhouettes that overhang the
     /// sky in the lens mode; docs/ilfr.md, "Issue 23").
     pub escaped_rays: bool,
+    /// What a blocked ray trims: the whole disc (the paper) or the wedge it crosses.
+    pub trim: Trim,
+}
+
+/// What a ray that crosses a splat it should not trims.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Trim {
+    /// The paper: the disc's radius falls to the ray's distance from its centre, all round.
+    Disc,
+    /// Beyond the paper: the disc's eight 45° wedges ([`super::disc::wedge_at`]) are trimmed
+    /// one by one, each only as far as a straight edge through the crossing, across its
+    /// direction, needs ([`half_plane_wedge_radii`]): the crossing's wedge to the ray's
+    /// distance, wedges facing away not at all. A rim splat trimmed on its outer side then
+    /// leaves no hole on its inner side (docs/ilfr.md, "Issue 23: trimming wedges").
+    Wedges,
 }
 
 impl Default for ShrinkParams {
     fn default() -> Self {
-        ShrinkParams { relative_epsilon: 1e-3, scene_epsilon: 1e-5, escaped_rays: true }
+        ShrinkParams { relative_epsilon: 1e-3, scene_epsilon: 1e-5, escaped_rays: true, trim: Trim::Disc }
     }
 }
 
@@ -179,8 +198,21 @@ pub fn shrink_splats(bvh: &mut DiscBvh, rays: &[InputRay], params: &ShrinkParams
         }
     }
     let epsilon_floor = params.scene_epsilon * scene_diagonal(bvh, rays);
-    // Radii by slot (leaf order), as bits: fetch_min on non-negative f32 bits is the float minimum.
-    let radius_bits: Vec<AtomicU32> = bvh.discs().map(|(_, d)| AtomicU32::new(d.radius.to_bits())).collect();
+    // Radii by slot (leaf order) and wedge (one per disc when trimming whole discs), as bits:
+    // fetch_min on non-negative f32 bits is the float minimum.
+    let wedges = match params.trim {
+        Trim::Disc => 1,
+        Trim::Wedges => WEDGES,
+    };
+    // Each starts from what the disc has now (a disc trimmed by wedges before and shrunk whole
+    // starts from its smallest wedge).
+    let now = bvh.wedge_radii();
+    let initial = |id: u32, wedge: usize| match params.trim {
+        Trim::Disc => now[id as usize].iter().copied().fold(f32::INFINITY, f32::min),
+        Trim::Wedges => now[id as usize][wedge],
+    };
+    let radius_bits: Vec<AtomicU32> =
+        bvh.discs().flat_map(|(id, _)| (0..wedges).map(move |w| AtomicU32::new(initial(id, w).to_bits()))).collect();
     let crossings = AtomicU64::new(0);
     let (short_rays, blocked_rays) = rays
         .par_iter()
@@ -190,9 +222,24 @@ pub fn shrink_splats(bvh: &mut DiscBvh, rays: &[InputRay], params: &ShrinkParams
                 return (1usize, 0usize);
             };
             let mut count = 0u64;
+            let geometric = Ray { time: ray.time, origin: ray.origin, direction: ray.direction };
             for_each_blocker(bvh, ray, window, stack, |hit| {
                 // s ≥ 0 (a square root of a sum of squares, never −0).
-                radius_bits[hit.slot as usize].fetch_min(hit.hit.spatial.to_bits(), Ordering::Relaxed);
+                let first = hit.slot as usize * wedges;
+                match params.trim {
+                    Trim::Disc => {
+                        radius_bits[first].fetch_min(hit.hit.spatial.to_bits(), Ordering::Relaxed);
+                    }
+                    Trim::Wedges => {
+                        let (centre, normal) = bvh.placed_at(hit.slot, ray.time);
+                        let (x, y) = tangent_coordinates(centre, normal, &geometric, hit.hit.t);
+                        for (w, r) in half_plane_wedge_radii(x, y, hit.hit.spatial).into_iter().enumerate() {
+                            if r.is_finite() {
+                                radius_bits[first + w].fetch_min(r.to_bits(), Ordering::Relaxed);
+                            }
+                        }
+                    }
+                }
                 count += 1;
             });
             crossings.fetch_add(count, Ordering::Relaxed);
@@ -207,22 +254,28 @@ pub fn shrink_splats(bvh: &mut DiscBvh, rays: &[InputRay], params: &ShrinkParams
         epsilon_floor,
         ..ShrinkStats::default()
     };
-    let mut radius_by_id = vec![0.0f32; bvh.len()];
-    for ((id, disc), bits) in bvh.discs().zip(&radius_bits) {
-        let radius = f32::from_bits(bits.load(Ordering::Relaxed));
-        if radius < disc.radius {
-            stats.shrunk_splats += 1;
-            stats.dead_splats += (radius == 0.0) as usize;
+    let mut radii_by_id = vec![[0.0f32; WEDGES]; bvh.len()];
+    for ((id, _), bits) in bvh.discs().zip(radius_bits.chunks_exact(wedges)) {
+        let radii = &mut radii_by_id[id as usize][..wedges];
+        for (radius, bits) in radii.iter_mut().zip(bits) {
+            *radius = f32::from_bits(bits.load(Ordering::Relaxed));
         }
-        radius_by_id[id as usize] = radius;
+        if radii.iter().enumerate().any(|(w, &r)| r < initial(id, w)) {
+            stats.shrunk_splats += 1;
+            stats.dead_splats += radii.iter().all(|&r| r == 0.0) as usize;
+        }
     }
-    bvh.set_radii(&radius_by_id)?;
+    match params.trim {
+        Trim::Disc => bvh.set_radii(&radii_by_id.iter().map(|r| r[0]).collect::<Vec<_>>())?,
+        Trim::Wedges => bvh.set_wedge_radii(&radii_by_id)?,
+    }
     Ok(stats)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ilfr::disc::{half_plane_wedge_radii, tangent_coordinates, WEDGES};
     use crate::ilfr::disc::{intersect, Disc};
     use crate::lcg::Lcg;
 
@@ -374,35 +427,96 @@ mod tests {
         (discs, rays, aside)
     }
 
-    /// The definition by brute force: every ray against every disc.
-    fn shrunk_by_brute_force(discs: &[Disc], rays: &[InputRay], params: &ShrinkParams, floor: f32) -> Vec<f32> {
-        let mut radius: Vec<f32> = discs.iter().map(|d| d.radius).collect();
-        for ray in rays {
+    /// The definition by brute force: every ray against every disc; each disc's wedge radii
+    /// (all equal when trimming whole discs).
+    fn shrunk_by_brute_force(
+        discs: &[Disc],
+        rays: &[InputRay],
+        params: &ShrinkParams,
+        floor: f32,
+    ) -> Vec<[f32; WEDGES]> {
+        let mut radii: Vec<[f32; WEDGES]> = discs.iter().map(|d| [d.radius; WEDGES]).collect();
+        for ray in rays.iter().filter(|r| params.escaped_rays || r.length.is_finite()) {
             let Some((t0, t1)) = blocking_window(ray, floor, params) else { continue };
+            let geometric = Ray { time: ray.time, origin: ray.origin, direction: ray.direction };
             for (i, disc) in discs.iter().enumerate() {
                 if Some(i as u32) == ray.own_splat {
                     continue;
                 }
-                if let Some(hit) =
-                    intersect(disc, &Ray { time: ray.time, origin: ray.origin, direction: ray.direction }, t0, t1)
-                {
-                    radius[i] = radius[i].min(hit.spatial);
+                if let Some(hit) = intersect(disc, &geometric, t0, t1) {
+                    let bound = match params.trim {
+                        Trim::Disc => [hit.spatial; WEDGES],
+                        Trim::Wedges => {
+                            let (x, y) = tangent_coordinates(disc.centre_at(ray.time), disc.normal, &geometric, hit.t);
+                            half_plane_wedge_radii(x, y, hit.spatial)
+                        }
+                    };
+                    for (r, b) in radii[i].iter_mut().zip(bound) {
+                        *r = r.min(b);
+                    }
                 }
             }
         }
-        radius
+        radii
+    }
+
+    fn same_bits(a: &[[f32; WEDGES]], b: &[[f32; WEDGES]]) -> bool {
+        a.len() == b.len() && a.iter().flatten().zip(b.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits())
+    }
+
+    const BOTH_TRIMS: [Trim; 2] = [Trim::Disc, Trim::Wedges];
+
+    #[test]
+    fn a_blocking_ray_trims_the_wedges_towards_it_only() {
+        // Splat 1 (radius 1, 0.3 off the ray) blocks the ray from the origin to its hit at z = 2.
+        // Trimming wedges, the two wedges that meet at the ray's side fall to 0.3 (the ray just
+        // misses), the two next to them to 0.3 / cos 45°, and the four facing away keep radius 1:
+        // a ray 0.6 from the centre on the far side still meets the disc (it would miss the
+        // whole-disc trim's radius 0.3); the box and `radii` keep the largest wedge, the area
+        // their mean square.
+        let discs = [Disc::new([0.0, 0.0, 2.0], [0.0, 0.0, -1.0], 0.5), Disc::new([0.3, 0.0, 1.0], UP, 1.0)];
+        let ray = InputRay { time: 0.0, origin: [0.0; 3], direction: UP, length: 2.0, own_splat: Some(0) };
+        let far_side = Ray { time: 0.0, origin: [0.9, 0.0, 0.0], direction: UP };
+        let blocked = Ray { time: 0.0, origin: [0.0; 3], direction: UP };
+        let met = |bvh: &DiscBvh, r: &Ray| {
+            let mut hits = Vec::new();
+            bvh.collect_hits(r, 0.0, 1.5, &mut Vec::new(), &mut hits);
+            hits.iter().map(|h| (h.id, h.radius)).collect::<Vec<_>>()
+        };
+        let params = ShrinkParams { trim: Trim::Wedges, ..ShrinkParams::default() };
+        let mut bvh = DiscBvh::build(&discs).unwrap();
+        let stats = shrink_splats(&mut bvh, &[ray], &params).unwrap();
+        assert_eq!((stats.shrunk_splats, stats.crossings, stats.dead_splats), (1, 1, 0));
+        let mut wedges = bvh.wedge_radii()[1];
+        wedges.sort_by(f32::total_cmp);
+        let expected = [0.3, 0.3, 0.3 * 2.0f32.sqrt(), 0.3 * 2.0f32.sqrt(), 1.0, 1.0, 1.0, 1.0];
+        assert!(wedges.iter().zip(expected).all(|(a, b)| (a - b).abs() < 1e-6), "{wedges:?}");
+        assert_eq!(bvh.radii()[1], 1.0);
+        assert!((bvh.area_radii()[1] - ((4.0 + 2.0 * 0.09 + 2.0 * 0.18) / 8.0f32).sqrt()).abs() < 1e-6);
+        assert!(met(&bvh, &blocked).is_empty());
+        assert_eq!(met(&bvh, &far_side), vec![(1, 1.0)]);
+        // The paper's trim: the whole disc falls to 0.3, and the far-side ray misses too.
+        let mut whole = DiscBvh::build(&discs).unwrap();
+        shrink_splats(&mut whole, &[ray], &ShrinkParams::default()).unwrap();
+        assert!(met(&whole, &blocked).is_empty() && met(&whole, &far_side).is_empty());
     }
 
     #[test]
     fn after_shrinking_no_input_ray_is_blocked() {
+        for trim in BOTH_TRIMS {
+            no_input_ray_is_blocked_after_shrinking(ShrinkParams { trim, ..ShrinkParams::default() });
+        }
+    }
+
+    fn no_input_ray_is_blocked_after_shrinking(params: ShrinkParams) {
         let (discs, rays, aside) = two_planes();
-        let params = ShrinkParams::default();
         let mut bvh = DiscBvh::build(&discs).unwrap();
         let stats = shrink_splats(&mut bvh, &rays, &params).unwrap();
-        let radii = bvh.radii();
         // Equal to the brute-force definition, bit for bit.
         let expected = shrunk_by_brute_force(&discs, &rays, &params, stats.epsilon_floor);
-        assert!(radii.iter().zip(&expected).all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert!(same_bits(&bvh.wedge_radii(), &expected), "{params:?}");
+        let radii: Vec<f32> =
+            bvh.wedge_radii().iter().map(|w| w.iter().copied().fold(f32::INFINITY, f32::min)).collect();
         // Something happened, and only to upper-plane splats bordering the gap.
         assert!(stats.shrunk_splats > 10 && stats.blocked_rays > 10, "{stats:?}");
         for (i, (r, d)) in radii.iter().zip(&discs).enumerate() {
@@ -450,20 +564,22 @@ mod tests {
                 }
             })
             .collect();
-        let params = ShrinkParams::default();
-        let run = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-            let mut bvh = DiscBvh::build(&discs).unwrap();
-            let stats = pool.install(|| shrink_splats(&mut bvh, &rays, &params).unwrap());
-            (bvh.radii(), stats)
-        };
-        let (one, stats) = run(1);
-        let (two, stats_two) = run(2);
-        assert!(one.iter().zip(&two).all(|(a, b)| a.to_bits() == b.to_bits()));
-        assert_eq!(stats, stats_two);
-        let expected = shrunk_by_brute_force(&discs, &rays, &params, stats.epsilon_floor);
-        assert!(one.iter().zip(&expected).all(|(a, b)| a.to_bits() == b.to_bits()));
-        assert!(stats.shrunk_splats > 100, "{stats:?}");
+        for trim in BOTH_TRIMS {
+            let params = ShrinkParams { trim, ..ShrinkParams::default() };
+            let run = |threads: usize| {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                let mut bvh = DiscBvh::build(&discs).unwrap();
+                let stats = pool.install(|| shrink_splats(&mut bvh, &rays, &params).unwrap());
+                (bvh.wedge_radii(), stats)
+            };
+            let (one, stats) = run(1);
+            let (two, stats_two) = run(2);
+            assert!(same_bits(&one, &two), "{trim:?}");
+            assert_eq!(stats, stats_two);
+            let expected = shrunk_by_brute_force(&discs, &rays, &params, stats.epsilon_floor);
+            assert!(same_bits(&one, &expected), "{trim:?}");
+            assert!(stats.shrunk_splats > 100, "{stats:?}");
+        }
     }
 
     /// `cargo test --release -p recon --lib ilfr::shrink -- --ignored --nocapture`

@@ -121,7 +121,8 @@ pub fn prepare_candidates(
     out.clear();
     let mut dropped = 0;
     for h in hits {
-        let (centre, normal, radius) = bvh.placed_at(h.slot, time);
+        let (centre, normal) = bvh.placed_at(h.slot, time);
+        let radius = h.radius;
         if params.backface_near_field_cull && h.hit.back_facing && h.hit.depth < radius {
             dropped += 1;
             continue;
