@@ -18,8 +18,9 @@ use anyhow::{anyhow, bail, Context, Result};
 use rayon::prelude::*;
 use recon::ilfr::gather::reconstruction_rays;
 use recon::ilfr::method::GatherTarget;
-use recon::ilfr::method::{reconstruct_samples, IlfrSettings};
+use recon::ilfr::method::{reconstruct_samples, IlfrChoices, IlfrSettings};
 use recon::ilfr::samples::read_indirect;
+use recon::method::Effect;
 use sampleio::SampleFile;
 use serde::Serialize;
 use tracer::render::thread_pool;
@@ -107,7 +108,9 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
             let samples = read_indirect(&file).map_err(|e| anyhow!("{e}"))?;
             drop(file);
             let read_s = start.elapsed().as_secs_f64();
-            let ilfr = IlfrSettings { recon_rays: args.recon_rays, seed, ..IlfrSettings::default() };
+            // What `ilfr` does by default for indirect light (its per-effect choices applied).
+            let ilfr = IlfrChoices::default()
+                .apply(IlfrSettings { recon_rays: args.recon_rays, seed, ..IlfrSettings::default() }, Effect::Indirect);
             let result = pool
                 .install(|| reconstruct_samples(&samples, GatherTarget::Indirect, &ilfr))
                 .map_err(|e| anyhow!("{e}"))?;

@@ -197,9 +197,13 @@ pub fn tangent_coordinates(centre: [f32; 3], normal: [f32; 3], ray: &Ray, t: f32
 /// silhouette, locally). A wedge whose angles φ come no nearer than δ to the crossing's angle
 /// θ keeps within distance / cos δ, the line's distance at the wedge's nearest angle; the
 /// crossing's own wedge keeps within `distance` exactly (so the ray misses it), wedges 90° or
-/// more away are not bounded (+inf).
+/// more away are not bounded (+inf). A crossing through the centre (`distance` 0, no direction)
+/// bounds every wedge to 0, as the paper's rule does.
 pub fn half_plane_wedge_radii(x: f32, y: f32, distance: f32) -> [f32; WEDGES] {
     use std::f32::consts::{FRAC_PI_2, TAU};
+    if distance.is_nan() || distance <= 0.0 {
+        return [0.0; WEDGES];
+    }
     let theta = y.atan2(x);
     let step = TAU / WEDGES as f32;
     let wrapped = |a: f32| {
@@ -530,5 +534,7 @@ mod tests {
                 }
             }
         }
+        // Through the centre there is no edge direction: the whole disc goes, as in the paper.
+        assert_eq!(half_plane_wedge_radii(0.0, 0.0, 0.0), [0.0; WEDGES]);
     }
 }

@@ -62,7 +62,7 @@ pub struct ShrinkParams {
     /// the glossy monkeys, −0.2 dB on Cornell, ±0 on Sponza, and silhouettes that overhang the
     /// sky in the lens mode; docs/ilfr.md, "Issue 23").
     pub escaped_rays: bool,
-    /// What a blocked ray trims: the whole disc (the paper) or the wedge it crosses.
+    /// What a blocked ray trims: the whole disc (the paper) or the disc's wedges towards it.
     pub trim: Trim,
 }
 
