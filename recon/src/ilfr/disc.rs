@@ -245,24 +245,37 @@ fn wedge_of(x: f32, y: f32) -> usize {
 }
 
 /// The box, relative to the centre, of a disc with unit `normal` whose wedges ([`wedge_at`])
-/// have the radii `wedge_radii`: (lo ≤ 0, hi ≥ 0). Each wedge, a 45° sector of radius r, lies in
-/// the quadrilateral of the centre, its two rim points and the meeting point of the rim's
-/// tangents there (r / cos 22.5° out along its middle), whose corners bound it; at most 8 %
-/// larger than the exact box along a wedge's middle.
+/// have the radii `wedge_radii`: (lo ≤ 0, hi ≥ 0). Exact: along each axis a wedge, a 45° sector
+/// of radius r, reaches farthest at one of its two rim ends or, where the rim's extreme along
+/// that axis falls inside the wedge's angles, there (r·sqrt(1 − n_a²), as in [`Disc::bounds`]).
 pub fn wedge_extent(normal: [f32; 3], wedge_radii: &[f32; WEDGES]) -> ([f32; 3], [f32; 3]) {
+    use std::f32::consts::{PI, TAU};
     let (tangent, bitangent) = tangent_frame(normal);
     let (mut lo, mut hi) = ([0.0f32; 3], [0.0f32; 3]);
-    let step = std::f32::consts::TAU / WEDGES as f32;
-    let apex = 1.0 / (0.5 * step).cos();
+    let step = TAU / WEDGES as f32;
+    let point = |angle: f32, reach: f32, axis: usize| {
+        let (sin, cos) = angle.sin_cos();
+        reach * (cos * tangent[axis] + sin * bitangent[axis])
+    };
     for span in 0..WEDGES {
-        let (start, middle, end) = (span as f32 * step, (span as f32 + 0.5) * step, (span as f32 + 1.0) * step);
+        let (start, end) = (span as f32 * step, (span as f32 + 1.0) * step);
+        let middle = 0.5 * (start + end);
         let radius = wedge_radii[wedge_of(middle.cos(), middle.sin())];
-        for (angle, reach) in [(start, radius), (middle, radius * apex), (end, radius)] {
-            let (sin, cos) = angle.sin_cos();
-            for axis in 0..3 {
-                let offset = reach * (cos * tangent[axis] + sin * bitangent[axis]);
-                lo[axis] = lo[axis].min(offset);
-                hi[axis] = hi[axis].max(offset);
+        let inside = |angle: f32| (angle - start).rem_euclid(TAU) <= step;
+        for axis in 0..3 {
+            for angle in [start, end] {
+                lo[axis] = lo[axis].min(point(angle, radius, axis));
+                hi[axis] = hi[axis].max(point(angle, radius, axis));
+            }
+            // The rim's extreme along the axis: cos φ t_a + sin φ b_a is largest at
+            // φ = atan2(b_a, t_a), with value sqrt(t_a² + b_a²), and smallest half a turn on.
+            let farthest = bitangent[axis].atan2(tangent[axis]);
+            let reach = radius * (1.0 - normal[axis] * normal[axis]).max(0.0).sqrt();
+            if inside(farthest) {
+                hi[axis] = hi[axis].max(reach);
+            }
+            if inside(farthest + PI) {
+                lo[axis] = lo[axis].min(-reach);
             }
         }
     }
@@ -474,7 +487,7 @@ mod tests {
     }
 
     #[test]
-    fn the_wedge_box_holds_every_point_of_the_trimmed_disc_and_little_more() {
+    fn the_wedge_box_holds_every_point_of_the_trimmed_disc_and_no_more() {
         let mut rng = Lcg(9);
         for case in 0..60 {
             let n = [rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5 + 1e-3];
@@ -495,11 +508,19 @@ mod tests {
                     reach_hi[axis] = reach_hi[axis].max(x);
                 }
             }
-            // No more than the 8 % of the tangents' meeting point beyond the largest wedge.
-            let largest = radii.iter().copied().fold(0.0, f32::max);
+            // Tight: no farther than the sampling's resolution beyond the farthest point sampled.
             for axis in 0..3 {
-                assert!(reach_lo[axis] - lo[axis] <= 0.083 * largest + 1e-4, "case {case}: {lo:?} {reach_lo:?}");
-                assert!(hi[axis] - reach_hi[axis] <= 0.083 * largest + 1e-4, "case {case}: {hi:?} {reach_hi:?}");
+                assert!(reach_lo[axis] - lo[axis] <= 1e-3, "case {case}: {lo:?} {reach_lo:?}");
+                assert!(hi[axis] - reach_hi[axis] <= 1e-3, "case {case}: {hi:?} {reach_hi:?}");
+            }
+            // Equal wedges: the whole disc's box.
+            let r = radii[0];
+            let (whole_lo, whole_hi) = Disc { radius: r, ..disc }.bounds();
+            let (equal_lo, equal_hi) = wedge_extent(disc.normal, &[r; WEDGES]);
+            for axis in 0..3 {
+                assert!(
+                    (whole_lo[axis] - equal_lo[axis]).abs() <= 1e-6 && (whole_hi[axis] - equal_hi[axis]).abs() <= 1e-6
+                );
             }
         }
     }
