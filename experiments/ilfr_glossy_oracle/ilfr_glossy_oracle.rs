@@ -22,7 +22,8 @@
 //!
 //! Copy to examples/ of the root crate, then
 //! cargo run --release --example ilfr_glossy_oracle -- SCENE GLOSSY_FILE REFERENCE_EXR RAYS MAX_BOUNCES [VARIANTS]
-//! VARIANTS, comma-separated: noshrink, hitrays (shrink with hit rays only), norobust (robust=off), dump (raw f32 images to /tmp/glossy/)
+//! VARIANTS, comma-separated: noshrink, hitrays (shrink with hit rays only), disc (trim whole discs, the paper;
+//! the default since session 27 trims wedges), norobust (robust=off), dump (raw f32 images to /tmp/glossy/)
 
 use std::path::Path;
 
@@ -150,6 +151,9 @@ fn main() -> anyhow::Result<()> {
     }
     if variant.contains("hitrays") {
         choices.shrink_with_escaped_rays = false;
+    }
+    if variant.contains("disc") {
+        choices.trim = Some(recon::ilfr::shrink::Trim::Disc);
     }
     let settings = choices.apply(IlfrSettings { recon_rays: rays, seed: 1, ..IlfrSettings::default() }, Effect::Glossy);
     let shrink = !variant.contains("noshrink");
