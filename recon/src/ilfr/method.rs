@@ -753,8 +753,16 @@ pub(crate) mod tests {
         s
     }
 
+    /// What `ilfr` runs for indirect light by default (its per-effect choices: the wedges'
+    /// trimming among them), with `rays` reconstruction rays per pixel.
     pub(crate) fn settings(rays: u32) -> IlfrSettings {
-        IlfrSettings { recon_rays: rays, ..IlfrSettings::default() }
+        IlfrChoices::default().apply(IlfrSettings { recon_rays: rays, ..IlfrSettings::default() }, Effect::Indirect)
+    }
+
+    /// What `ilfr` runs for ambient occlusion by default (the whole-disc trimming, the plain
+    /// event line, no small-surface rule).
+    fn ao_settings(rays: u32) -> IlfrSettings {
+        IlfrChoices::default().apply(IlfrSettings { recon_rays: rays, ..IlfrSettings::default() }, Effect::Ao)
     }
 
     #[test]
@@ -1023,13 +1031,14 @@ pub(crate) mod tests {
         // A floor under a 6 × 6 ceiling 5 units up; radius 1: nothing occludes.
         let open = box_samples(6, 2, SampleKind::Ao, Some(5.0), |_| [0.0; 3]);
         assert!(open.class.contains(&SampleClass::Hit) && open.class.contains(&SampleClass::Escaped));
-        let result = reconstruct_samples(&open, GatherTarget::Visibility { ao_radius: 1.0 }, &settings(64)).unwrap();
+        let result = reconstruct_samples(&open, GatherTarget::Visibility { ao_radius: 1.0 }, &ao_settings(64)).unwrap();
         assert!(result.image.pixels.iter().all(|p| *p == [1.0; 3]), "{:?}", result.image.pixels);
         // Radius 10 under the same ceiling: rays reaching it are occluded, rays leaving beside
         // it are not. The visible fraction over the image against the same by brute force
         // (stratified cosine directions from every pixel centre, traced to the ceiling).
         let dense = box_samples(16, 4, SampleKind::Ao, Some(5.0), |_| [0.0; 3]);
-        let result = reconstruct_samples(&dense, GatherTarget::Visibility { ao_radius: 10.0 }, &settings(64)).unwrap();
+        let result =
+            reconstruct_samples(&dense, GatherTarget::Visibility { ao_radius: 10.0 }, &ao_settings(64)).unwrap();
         let mean = result.image.pixels.iter().map(|p| p[0] as f64).sum::<f64>() / 256.0;
         let mut visible = 0usize;
         let n = 64;
@@ -1050,7 +1059,8 @@ pub(crate) mod tests {
         assert!((mean - expected).abs() < 0.03, "reconstructed {mean}, expected {expected}");
         // Inside a closed box, radius beyond its diagonal: everything occluded.
         let closed = box_samples(6, 4, SampleKind::Ao, None, |_| [0.0; 3]);
-        let result = reconstruct_samples(&closed, GatherTarget::Visibility { ao_radius: 5.0 }, &settings(64)).unwrap();
+        let result =
+            reconstruct_samples(&closed, GatherTarget::Visibility { ao_radius: 5.0 }, &ao_settings(64)).unwrap();
         assert!(result.image.pixels.iter().all(|p| *p == [0.0; 3]), "{:?}", result.image.pixels);
     }
 

@@ -564,6 +564,7 @@ mod tests {
                 }
             })
             .collect();
+        let mut kept = Vec::new();
         for trim in BOTH_TRIMS {
             let params = ShrinkParams { trim, ..ShrinkParams::default() };
             let run = |threads: usize| {
@@ -579,7 +580,14 @@ mod tests {
             let expected = shrunk_by_brute_force(&discs, &rays, &params, stats.epsilon_floor);
             assert!(same_bits(&one, &expected), "{trim:?}");
             assert!(stats.shrunk_splats > 100, "{stats:?}");
+            kept.push(one);
         }
+        // Wedges never keep less than the whole-disc rule (every wedge at least its radius) and,
+        // here, keep more area.
+        let (disc, wedges) = (&kept[0], &kept[1]);
+        assert!(disc.iter().zip(wedges).all(|(d, w)| w.iter().all(|&r| r >= d[0])));
+        let area = |radii: &[[f32; WEDGES]]| radii.iter().flatten().map(|r| (r * r) as f64).sum::<f64>();
+        assert!(area(wedges) > 1.1 * area(disc), "{} {}", area(wedges), area(disc));
     }
 
     /// `cargo test --release -p recon --lib ilfr::shrink -- --ignored --nocapture`
