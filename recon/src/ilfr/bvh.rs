@@ -70,19 +70,28 @@ const EMPTY_WIDE: WideNode =
     WideNode { lo: [[f32::NAN; WIDTH]; 3], hi: [[f32::NAN; WIDTH]; 3], first: [0; WIDTH], count: [EMPTY_LANE; WIDTH] };
 
 /// What the disc test reads, 32 bytes per disc in leaf order (a leaf of 8 is 4 cache lines);
-/// `moving` sends the test to the full [`Disc`] (its centre depends on the ray's time).
+/// `moving` sends the test to the full [`Disc`] (its centre depends on the ray's time);
+/// `trimmed` says its wedges' radii differ (only then is a hit's wedge looked up).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C, align(16))]
 struct DiscRecord {
     centre: [f32; 3],
     radius: f32,
     normal: [f32; 3],
-    moving: u32,
+    moving: u16,
+    trimmed: u16,
 }
 
 impl DiscRecord {
-    fn of(disc: &Disc) -> DiscRecord {
-        DiscRecord { centre: disc.centre, radius: disc.radius, normal: disc.normal, moving: disc.moves() as u32 }
+    fn of(disc: &Disc, wedges: Option<&[f32; WEDGES]>) -> DiscRecord {
+        let trimmed = wedges.is_some_and(|w| w.iter().any(|&r| r != disc.radius));
+        DiscRecord {
+            centre: disc.centre,
+            radius: disc.radius,
+            normal: disc.normal,
+            moving: disc.moves() as u16,
+            trimmed: trimmed as u16,
+        }
     }
 }
 
@@ -242,14 +251,13 @@ impl DiscBvh {
     /// whole radius): the disc's, or its wedge's when wedges are trimmed; the ray misses the
     /// disc unless `hit.spatial` is below it.
     #[inline]
-    fn radius_at_hit(&self, slot: u32, record_radius: f32, ray: &Ray, hit: &DiscHit) -> f32 {
-        match self.wedges.get(slot as usize) {
-            None => record_radius,
-            Some(wedges) => {
-                let (centre, normal) = self.placed_at(slot, ray.time);
-                wedges[wedge_at(centre, normal, ray, hit.t)]
-            }
+    fn radius_at_hit(&self, slot: u32, ray: &Ray, hit: &DiscHit) -> f32 {
+        let record = &self.records[slot as usize];
+        if record.trimmed == 0 {
+            return record.radius;
         }
+        let (centre, normal) = self.placed_at(slot, ray.time);
+        self.wedges[slot as usize][wedge_at(centre, normal, ray, hit.t)]
     }
 
     /// The discs in leaf order with their input indices.
@@ -376,7 +384,8 @@ impl DiscBvh {
     /// largest box area first (ties by the lower index), so the collapse is a pure function of
     /// the binary tree. Also refreshes the compact disc records.
     fn collapse(&mut self) {
-        self.records = self.discs.iter().map(DiscRecord::of).collect();
+        self.records =
+            self.discs.iter().enumerate().map(|(slot, disc)| DiscRecord::of(disc, self.wedges.get(slot))).collect();
         self.wide.clear();
         if self.nodes.is_empty() {
             return;
@@ -471,7 +480,7 @@ impl DiscBvh {
                         intersect_placed(record.centre, record.normal, record.radius, ray, t_min, t_max)
                     };
                     if let Some(hit) = hit {
-                        let radius = self.radius_at_hit(slot, record.radius, ray, &hit);
+                        let radius = self.radius_at_hit(slot, ray, &hit);
                         if hit.spatial < radius {
                             visit(SplatHit { id: self.ids[slot as usize], slot, hit, radius });
                         }
@@ -514,7 +523,7 @@ impl DiscBvh {
             for slot in node.first..node.first + node.count {
                 let disc = &self.discs[slot as usize];
                 if let Some(hit) = intersect(disc, ray, t_min, t_max) {
-                    let radius = self.radius_at_hit(slot, disc.radius, ray, &hit);
+                    let radius = self.radius_at_hit(slot, ray, &hit);
                     if hit.spatial < radius {
                         visit(SplatHit { id: self.ids[slot as usize], slot, hit, radius });
                     }
@@ -542,7 +551,7 @@ impl DiscBvh {
         out.clear();
         for (slot, disc) in self.discs.iter().enumerate() {
             if let Some(hit) = intersect(disc, ray, t_min, t_max) {
-                let radius = self.radius_at_hit(slot as u32, disc.radius, ray, &hit);
+                let radius = self.radius_at_hit(slot as u32, ray, &hit);
                 if hit.spatial < radius {
                     out.push(SplatHit { id: self.ids[slot], slot: slot as u32, hit, radius });
                 }
