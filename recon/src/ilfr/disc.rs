@@ -200,30 +200,42 @@ pub fn tangent_coordinates(centre: [f32; 3], normal: [f32; 3], ray: &Ray, t: f32
 /// more away are not bounded (+inf). A crossing through the centre (`distance` 0, no direction)
 /// bounds every wedge to 0, as the paper's rule does.
 pub fn half_plane_wedge_radii(x: f32, y: f32, distance: f32) -> [f32; WEDGES] {
-    use std::f32::consts::{FRAC_PI_2, TAU};
-    if distance.is_nan() || distance <= 0.0 {
+    let length = (x * x + y * y).sqrt();
+    if distance.is_nan() || distance <= 0.0 || !(length > 0.0) {
         return [0.0; WEDGES];
     }
-    let theta = y.atan2(x);
-    let step = TAU / WEDGES as f32;
-    let wrapped = |a: f32| {
-        let a = (a - theta).rem_euclid(TAU);
-        a.min(TAU - a)
-    };
+    // The crossing's direction u; per span, u inside it (between its two edge directions, no
+    // angle off: cos δ = 1) or cos δ = u · the nearer edge direction.
+    let u = [x / length, y / length];
     let mut radii = [f32::INFINITY; WEDGES];
-    for span in 0..WEDGES {
-        let (start, end) = (span as f32 * step, (span as f32 + 1.0) * step);
-        let middle = 0.5 * (start + end);
-        // θ inside the span: no angle off; otherwise the nearer end.
-        let off = (theta - start).rem_euclid(TAU);
-        let nearest = if off <= step { 0.0 } else { wrapped(start).min(wrapped(end)) };
-        if nearest < FRAC_PI_2 - 1e-3 {
-            let wedge = wedge_of(middle.cos(), middle.sin());
-            radii[wedge] = radii[wedge].min(distance / nearest.cos());
+    for &(start, end, wedge) in wedge_spans() {
+        let cos_off = if inside_span(start, end, u) {
+            1.0
+        } else {
+            (u[0] * start[0] + u[1] * start[1]).max(u[0] * end[0] + u[1] * end[1])
+        };
+        // Within 90° (less a milliradian): bounded by the edge line's distance at that angle.
+        if cos_off > 1e-3 {
+            radii[wedge] = radii[wedge].min(distance / cos_off);
         }
     }
     radii[wedge_of(x, y)] = distance;
     radii
+}
+
+/// The wedges as spans of angle, computed once: (the unit direction where the span starts,
+/// where it ends, counter-clockwise, 45° on; the wedge index [`wedge_of`] gives its interior).
+fn wedge_spans() -> &'static [([f32; 2], [f32; 2], usize); WEDGES] {
+    static SPANS: std::sync::OnceLock<[([f32; 2], [f32; 2], usize); WEDGES]> = std::sync::OnceLock::new();
+    SPANS.get_or_init(|| {
+        let step = std::f32::consts::TAU / WEDGES as f32;
+        let direction = |a: f32| [a.cos(), a.sin()];
+        std::array::from_fn(|span| {
+            let (start, end) = (span as f32 * step, (span as f32 + 1.0) * step);
+            let middle = direction(0.5 * (start + end));
+            (direction(start), direction(end), wedge_of(middle[0], middle[1]))
+        })
+    })
 }
 
 /// The tangent frame of [`wedge_at`]: two unit vectors orthogonal to the unit `normal` and to
@@ -249,37 +261,36 @@ fn wedge_of(x: f32, y: f32) -> usize {
 /// of radius r, reaches farthest at one of its two rim ends or, where the rim's extreme along
 /// that axis falls inside the wedge's angles, there (r·sqrt(1 − n_a²), as in [`Disc::bounds`]).
 pub fn wedge_extent(normal: [f32; 3], wedge_radii: &[f32; WEDGES]) -> ([f32; 3], [f32; 3]) {
-    use std::f32::consts::{PI, TAU};
     let (tangent, bitangent) = tangent_frame(normal);
     let (mut lo, mut hi) = ([0.0f32; 3], [0.0f32; 3]);
-    let step = TAU / WEDGES as f32;
-    let point = |angle: f32, reach: f32, axis: usize| {
-        let (sin, cos) = angle.sin_cos();
-        reach * (cos * tangent[axis] + sin * bitangent[axis])
-    };
-    for span in 0..WEDGES {
-        let (start, end) = (span as f32 * step, (span as f32 + 1.0) * step);
-        let middle = 0.5 * (start + end);
-        let radius = wedge_radii[wedge_of(middle.cos(), middle.sin())];
-        let inside = |angle: f32| (angle - start).rem_euclid(TAU) <= step;
+    for &(start, end, wedge) in wedge_spans() {
+        let radius = wedge_radii[wedge];
         for axis in 0..3 {
-            for angle in [start, end] {
-                lo[axis] = lo[axis].min(point(angle, radius, axis));
-                hi[axis] = hi[axis].max(point(angle, radius, axis));
+            // The rim's point in direction (c, s) of the tangent plane, along the axis.
+            let (t, b) = (tangent[axis], bitangent[axis]);
+            for [c, s] in [start, end] {
+                lo[axis] = lo[axis].min(radius * (c * t + s * b));
+                hi[axis] = hi[axis].max(radius * (c * t + s * b));
             }
-            // The rim's extreme along the axis: cos φ t_a + sin φ b_a is largest at
-            // φ = atan2(b_a, t_a), with value sqrt(t_a² + b_a²), and smallest half a turn on.
-            let farthest = bitangent[axis].atan2(tangent[axis]);
+            // The rim's extreme along the axis: c·t_a + s·b_a is largest in the direction
+            // (t_a, b_a), with value sqrt(t_a² + b_a²) = sqrt(1 − n_a²), smallest opposite.
             let reach = radius * (1.0 - normal[axis] * normal[axis]).max(0.0).sqrt();
-            if inside(farthest) {
+            if inside_span(start, end, [t, b]) {
                 hi[axis] = hi[axis].max(reach);
             }
-            if inside(farthest + PI) {
+            if inside_span(start, end, [-t, -b]) {
                 lo[axis] = lo[axis].min(-reach);
             }
         }
     }
     (lo, hi)
+}
+
+/// Whether direction `u` (any length) of the tangent plane lies in the span from `start`
+/// counter-clockwise to `end` (less than half a turn apart), edges included.
+#[inline]
+fn inside_span(start: [f32; 2], end: [f32; 2], u: [f32; 2]) -> bool {
+    start[0] * u[1] - start[1] * u[0] >= 0.0 && u[0] * end[1] - u[1] * end[0] >= 0.0
 }
 
 #[cfg(test)]
