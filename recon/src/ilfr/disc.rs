@@ -201,7 +201,7 @@ pub fn tangent_coordinates(centre: [f32; 3], normal: [f32; 3], ray: &Ray, t: f32
 /// bounds every wedge to 0, as the paper's rule does.
 pub fn half_plane_wedge_radii(x: f32, y: f32, distance: f32) -> [f32; WEDGES] {
     let length = (x * x + y * y).sqrt();
-    if distance.is_nan() || distance <= 0.0 || !(length > 0.0) {
+    if distance.is_nan() || distance <= 0.0 || length.is_nan() || length <= 0.0 {
         return [0.0; WEDGES];
     }
     // The crossing's direction u; per span, u inside it (between its two edge directions, no
@@ -223,10 +223,13 @@ pub fn half_plane_wedge_radii(x: f32, y: f32, distance: f32) -> [f32; WEDGES] {
     radii
 }
 
-/// The wedges as spans of angle, computed once: (the unit direction where the span starts,
-/// where it ends, counter-clockwise, 45° on; the wedge index [`wedge_of`] gives its interior).
-fn wedge_spans() -> &'static [([f32; 2], [f32; 2], usize); WEDGES] {
-    static SPANS: std::sync::OnceLock<[([f32; 2], [f32; 2], usize); WEDGES]> = std::sync::OnceLock::new();
+/// A wedge as a span of angle: the unit direction where it starts, where it ends
+/// (counter-clockwise, 45° on), and the wedge index [`wedge_of`] gives its interior.
+type WedgeSpan = ([f32; 2], [f32; 2], usize);
+
+/// The wedges' spans, computed once.
+fn wedge_spans() -> &'static [WedgeSpan; WEDGES] {
+    static SPANS: std::sync::OnceLock<[WedgeSpan; WEDGES]> = std::sync::OnceLock::new();
     SPANS.get_or_init(|| {
         let step = std::f32::consts::TAU / WEDGES as f32;
         let direction = |a: f32| [a.cos(), a.sin()];
