@@ -569,7 +569,21 @@ mod tests {
                 }
             }
         }
-        // Through the centre there is no edge direction: the whole disc goes, as in the paper.
+        // Through the centre there is no edge direction: the whole disc goes, as in the paper;
+        // so do non-finite crossings (no NaN radius ever reaches the hierarchy).
         assert_eq!(half_plane_wedge_radii(0.0, 0.0, 0.0), [0.0; WEDGES]);
+        assert_eq!(half_plane_wedge_radii(f32::NAN, 0.3, 0.3), [0.0; WEDGES]);
+        assert_eq!(half_plane_wedge_radii(0.3, 0.0, f32::NAN), [0.0; WEDGES]);
+        // Scale-free: at 1e-6 and 1e9 the radii are the unit case's times the scale.
+        let unit = half_plane_wedge_radii(0.6, -0.8, 1.0);
+        for scale in [1e-6f32, 1e9] {
+            let scaled = half_plane_wedge_radii(0.6 * scale, -0.8 * scale, scale);
+            for (a, b) in unit.iter().zip(scaled) {
+                assert!(
+                    a.is_infinite() && b.is_infinite() || ((b / scale) - a).abs() <= 1e-5 * a,
+                    "{unit:?} {scaled:?}"
+                );
+            }
+        }
     }
 }
