@@ -424,15 +424,7 @@ mod tests {
         for _ in 0..50 {
             let disc = Disc::new([next(), next(), next()], [next(), next(), next() + 0.01], 0.5 + next().abs());
             let (lo, hi) = disc.bounds();
-            // Two tangent vectors.
-            let n = disc.normal;
-            let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
-            let u = normalize([
-                helper[1] * n[2] - helper[2] * n[1],
-                helper[2] * n[0] - helper[0] * n[2],
-                helper[0] * n[1] - helper[1] * n[0],
-            ]);
-            let v = [n[1] * u[2] - n[2] * u[1], n[2] * u[0] - n[0] * u[2], n[0] * u[1] - n[1] * u[0]];
+            let (u, v) = own_frame(disc.normal);
             let mut reach_lo = [f32::INFINITY; 3];
             let mut reach_hi = [f32::NEG_INFINITY; 3];
             for k in 0..3600 {
