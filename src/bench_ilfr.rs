@@ -18,7 +18,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use rayon::prelude::*;
 use recon::ilfr::gather::reconstruction_rays;
 use recon::ilfr::method::GatherTarget;
-use recon::ilfr::method::{reconstruct_samples, IlfrChoices, IlfrSettings};
+use recon::ilfr::method::{reconstruct_samples, IlfrChoices};
 use recon::ilfr::samples::read_indirect;
 use recon::method::Effect;
 use sampleio::SampleFile;
@@ -109,8 +109,7 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
             drop(file);
             let read_s = start.elapsed().as_secs_f64();
             // What `ilfr` does by default for indirect light (its per-effect choices applied).
-            let ilfr = IlfrChoices::default()
-                .apply(IlfrSettings { recon_rays: args.recon_rays, seed, ..IlfrSettings::default() }, Effect::Indirect);
+            let ilfr = IlfrChoices::defaults_for(Effect::Indirect, args.recon_rays, seed);
             let result = pool
                 .install(|| reconstruct_samples(&samples, GatherTarget::Indirect, &ilfr))
                 .map_err(|e| anyhow!("{e}"))?;

@@ -108,6 +108,12 @@ pub fn trim_for(effect: Effect) -> Trim {
 }
 
 impl IlfrChoices {
+    /// What `ilfr` runs for `effect` by default, with `recon_rays` reconstruction rays per pixel
+    /// and `seed`: the default settings with the default choices applied.
+    pub fn defaults_for(effect: Effect, recon_rays: u32, seed: u32) -> IlfrSettings {
+        IlfrChoices::default().apply(IlfrSettings { recon_rays, seed, ..IlfrSettings::default() }, effect)
+    }
+
     /// `settings` with these choices, for `effect`.
     pub fn apply(&self, settings: IlfrSettings, effect: Effect) -> IlfrSettings {
         let conflict_test = self.conflict_test.unwrap_or_else(|| conflict_test_for(effect));
@@ -756,13 +762,13 @@ pub(crate) mod tests {
     /// What `ilfr` runs for indirect light by default (its per-effect choices: the wedges'
     /// trimming among them), with `rays` reconstruction rays per pixel.
     pub(crate) fn settings(rays: u32) -> IlfrSettings {
-        IlfrChoices::default().apply(IlfrSettings { recon_rays: rays, ..IlfrSettings::default() }, Effect::Indirect)
+        IlfrChoices::defaults_for(Effect::Indirect, rays, IlfrSettings::default().seed)
     }
 
     /// What `ilfr` runs for ambient occlusion by default (the whole-disc trimming, the plain
     /// event line, no small-surface rule).
     fn ao_settings(rays: u32) -> IlfrSettings {
-        IlfrChoices::default().apply(IlfrSettings { recon_rays: rays, ..IlfrSettings::default() }, Effect::Ao)
+        IlfrChoices::defaults_for(Effect::Ao, rays, IlfrSettings::default().seed)
     }
 
     #[test]
