@@ -541,6 +541,42 @@ mod tests {
     }
 
     #[test]
+    fn wedges_at_1e_minus_6_and_1e9_scale_trim_the_same_splats_and_block_no_ray() {
+        // The two-plane scene scaled: the same splats are trimmed (a few may differ by rounding
+        // at the window's ends), every wedge radius stays finite and within the disc, and no
+        // input ray is blocked afterwards.
+        let (discs, rays, _) = two_planes();
+        let params = ShrinkParams { trim: Trim::Wedges, ..ShrinkParams::default() };
+        let shrunk = |scale: f32| {
+            let discs: Vec<Disc> =
+                discs.iter().map(|d| Disc::new(d.centre.map(|c| c * scale), d.normal, d.radius * scale)).collect();
+            let rays: Vec<InputRay> = rays
+                .iter()
+                .map(|r| InputRay { origin: r.origin.map(|c| c * scale), length: r.length * scale, ..*r })
+                .collect();
+            let mut bvh = DiscBvh::build(&discs).unwrap();
+            let stats = shrink_splats(&mut bvh, &rays, &params).unwrap();
+            let mut stack = Vec::new();
+            for ray in &rays {
+                if let Some(window) = blocking_window(ray, stats.epsilon_floor, &params) {
+                    for_each_blocker(&bvh, ray, window, &mut stack, |hit| {
+                        panic!("scale {scale}: {ray:?} blocked by {hit:?}")
+                    });
+                }
+            }
+            let wedges = bvh.wedge_radii();
+            assert!(wedges.iter().zip(&discs).all(|(w, d)| w.iter().all(|&r| r.is_finite() && r <= d.radius)));
+            stats.shrunk_splats
+        };
+        let unit = shrunk(1.0);
+        assert!(unit > 10);
+        for scale in [1e-6f32, 1e9] {
+            let scaled = shrunk(scale);
+            assert!(scaled.abs_diff(unit) <= unit / 50, "scale {scale}: {scaled} shrunk, {unit} at unit scale");
+        }
+    }
+
+    #[test]
     fn random_scenes_match_the_definition_for_any_thread_count() {
         // Random discs and random rays between random points, some escaping.
         let mut rng = Lcg(17);
