@@ -146,6 +146,16 @@ struct PixelSum {
 }
 
 impl PixelSum {
+    /// `sums` (one of this pixel's sums) over its valid samples of `spp`; zero when none is.
+    fn mean(&self, spp: u32, sums: [f64; 3]) -> Vec3 {
+        let valid = (spp - self.invalid) as f64;
+        if valid > 0.0 {
+            Vec3::new((sums[0] / valid) as f32, (sums[1] / valid) as f32, (sums[2] / valid) as f32)
+        } else {
+            Vec3::ZERO
+        }
+    }
+
     /// Adds one sample (dropping it, and counting it invalid, when its radiance is not finite).
     fn add(&mut self, sample: &PathSample) {
         let radiance = sample.radiance();
@@ -178,15 +188,7 @@ struct TileResult {
     rays: u64,
 }
 
-/// Renders one tile as a wavefront: for each sample index, the paths of all the tile's pixels
-/// advance together, one ray at a time: every live path's closest-hit ray is traced, then every
-/// hit is shaded, then every shadow ray is traced. Each phase runs one kind of work over
-/// independent paths, so the vertex data of all hits can be loaded ahead of shading with their
-/// cache misses overlapping (`preload_vertices`), which a single path's chain of dependent
-/// loads does not allow.
-///
-/// Each path takes the same steps as `Integrator::trace_ray`, so the image is bit-identical
-/// to tracing the paths one at a time.
+/// Renders one tile as a wavefront ([`trace_pixels`] over the tile's pixels, row by row).
 fn render_tile<R: RayRecorder>(
     integrator: &Integrator,
     settings: &RenderSettings,
@@ -197,7 +199,29 @@ fn render_tile<R: RayRecorder>(
 ) -> TileResult {
     let x1 = (x0 + TILE).min(settings.width);
     let y1 = (y0 + TILE).min(settings.height);
-    let pixel_count = ((x1 - x0) * (y1 - y0)) as usize;
+    let tile: Vec<(u32, u32)> = (y0..y1).flat_map(|y| (x0..x1).map(move |x| (x, y))).collect();
+    let (pixels, rays) = trace_pixels(integrator, settings, samples, &tile, recorder);
+    TileResult { x0, y0, width: x1 - x0, pixels, rays }
+}
+
+/// Traces samples `samples` of each of `pixels` as a wavefront: for each sample index, the
+/// paths of all the pixels advance together, one ray at a time: every live path's closest-hit
+/// ray is traced, then every hit is shaded, then every shadow ray is traced. Each phase runs one
+/// kind of work over independent paths, so the vertex data of all hits can be loaded ahead of
+/// shading with their cache misses overlapping (`preload_vertices`), which a single path's
+/// chain of dependent loads does not allow. Returns each pixel's sums and the rays traced.
+///
+/// Each path takes the same steps as `Integrator::trace_ray`, and its random numbers depend
+/// only on (seed, pixel, sample index), so a pixel's sums are bit-identical to tracing its
+/// paths one at a time, whatever other pixels share the wavefront.
+fn trace_pixels<R: RayRecorder>(
+    integrator: &Integrator,
+    settings: &RenderSettings,
+    samples: std::ops::Range<u32>,
+    pixel_list: &[(u32, u32)],
+    recorder: &mut R,
+) -> (Vec<PixelSum>, u64) {
+    let pixel_count = pixel_list.len();
     let mut pixels = vec![PixelSum::default(); pixel_count];
     let mut rays = 0u64;
     let mut paths: Vec<PathState> = Vec::with_capacity(pixel_count);
@@ -206,12 +230,10 @@ fn render_tile<R: RayRecorder>(
     let mut shadows: Vec<(usize, ShadowTest)> = Vec::with_capacity(pixel_count);
     for index in samples {
         paths.clear();
-        for py in y0..y1 {
-            for px in x0..x1 {
-                let mut sampler = Sampler::new(settings.seed, px, py, index);
-                let camera_sample = integrator.camera_sample(px, py, &mut sampler);
-                paths.push(integrator.start_path(&integrator.camera_path_start(&camera_sample), sampler));
-            }
+        for &(px, py) in pixel_list {
+            let mut sampler = Sampler::new(settings.seed, px, py, index);
+            let camera_sample = integrator.camera_sample(px, py, &mut sampler);
+            paths.push(integrator.start_path(&integrator.camera_path_start(&camera_sample), sampler));
         }
         loop {
             live.clear();
@@ -247,7 +269,7 @@ fn render_tile<R: RayRecorder>(
             acc.add(&sample);
         }
     }
-    TileResult { x0, y0, width: x1 - x0, pixels, rays }
+    (pixels, rays)
 }
 
 fn tiles(settings: &RenderSettings) -> Vec<(u32, u32)> {
@@ -436,6 +458,57 @@ pub fn render_shard_with_lights(
     Ok(frame)
 }
 
+/// The means of one pixel's samples, from [`render_pixels`]: the same values as the pixel's
+/// `beauty`, `direct` and `indirect` in a [`render`] of the whole image.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelMeans {
+    pub beauty: Vec3,
+    pub direct: Vec3,
+    pub indirect: Vec3,
+}
+
+/// Renders only `pixels` (each inside the `settings.width` × `settings.height` image, any
+/// order, repeats allowed) at `settings.spp`; bit-identical to those pixels of [`render`] with
+/// the same settings, for any thread count. For estimating an image's error at a sparse set of
+/// pixels with many more samples than the whole image could afford.
+pub fn render_pixels(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &RenderSettings,
+    pixels: &[(u32, u32)],
+) -> Result<Vec<PixelMeans>, RenderError> {
+    settings.validate()?;
+    if let Some(&(x, y)) = pixels.iter().find(|&&(x, y)| x >= settings.width || y >= settings.height) {
+        return Err(RenderError::Settings(format!(
+            "pixel ({x}, {y}) is outside the {}x{} image",
+            settings.width, settings.height
+        )));
+    }
+    let lights = LightSampler::new(scene);
+    let integrator = Integrator::new(scene, accel, &lights, settings.max_bounces, settings.width, settings.height);
+    let group = (TILE * TILE) as usize;
+    let bar = crate::progress::StepProgress::begin(settings.progress, "render pixels", pixels.len() as u64, "pixels");
+    let pool = thread_pool(settings.threads)?;
+    let groups: Vec<Vec<PixelMeans>> = pool.install(|| {
+        pixels
+            .par_chunks(group)
+            .map(|chunk| {
+                let (sums, _) = trace_pixels(&integrator, settings, 0..settings.spp, chunk, &mut NoRecording);
+                bar.advance(chunk.len() as u64);
+                sums.iter()
+                    .map(|acc| PixelMeans {
+                        beauty: acc.mean(settings.spp, acc.sum),
+                        direct: acc.mean(settings.spp, acc.direct),
+                        indirect: acc.mean(settings.spp, acc.indirect),
+                    })
+                    .collect()
+            })
+            .collect()
+    });
+    bar.finish();
+    Ok(groups.into_iter().flatten().collect())
+}
+
 /// Traces the same paths as `render` and returns every ray, in a deterministic order (for
 /// replaying them against raw Embree in the benchmark).
 pub fn record_rays(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result<Vec<RecordedRay>, RenderError> {
@@ -502,16 +575,8 @@ fn assemble(settings: &RenderSettings, spp: u32, results: Vec<TileResult>, secon
                 }
                 frame.beauty[p] = Vec3::from(mean);
                 frame.variance[p] = Vec3::from(variance);
-                frame.direct[p] = Vec3::new(
-                    (acc.direct[0] / valid) as f32,
-                    (acc.direct[1] / valid) as f32,
-                    (acc.direct[2] / valid) as f32,
-                );
-                frame.indirect[p] = Vec3::new(
-                    (acc.indirect[0] / valid) as f32,
-                    (acc.indirect[1] / valid) as f32,
-                    (acc.indirect[2] / valid) as f32,
-                );
+                frame.direct[p] = acc.mean(spp, acc.direct);
+                frame.indirect[p] = acc.mean(spp, acc.indirect);
             }
             if acc.hits > 0 {
                 let h = acc.hits as f32;

@@ -346,6 +346,20 @@ fn ambient_occlusion_directions_below_the_geometric_surface_are_occluded() {
         "the AO image is the dump's samples: {mean} against {}",
         1.0 - fraction
     );
+    // A list of pixels (scattered, repeated, 1 and 2 threads) reads the same visibility as the
+    // whole image, bit for bit; a pixel outside it is refused.
+    let pixels: Vec<(u32, u32)> =
+        (0..40u32).map(|i| ((i * 5) % 16, (i * 3 + i / 7) % 16)).chain([(15, 15), (0, 0)]).collect();
+    for threads in [1, 2] {
+        let settings = RenderSettings { threads, ..settings.clone() };
+        let visibility =
+            tracer::samples::secondary::ambient_occlusion_pixels(&scene, &accel, &settings, 1.0, &pixels).unwrap();
+        for (&(x, y), v) in pixels.iter().zip(&visibility) {
+            assert_eq!(v.to_bits(), frame.visibility[(y * 16 + x) as usize].to_bits(), "({x}, {y}), {threads} threads");
+        }
+    }
+    let outside = tracer::samples::secondary::ambient_occlusion_pixels(&scene, &accel, &settings, 1.0, &[(0, 16)]);
+    assert!(outside.unwrap_err().to_string().contains("(0, 16) is outside the 16x16 image"));
 }
 
 #[test]

@@ -166,3 +166,36 @@ fn wavefront_render_equals_one_path_at_a_time_with_lens_motion_environment_and_g
     assert!(scene.has_motion() && scene.camera.has_lens());
     assert_wavefront_matches_path_at_a_time(&scene, 20, 17, 4, 9);
 }
+
+/// `render_pixels` traces a sparse list of pixels: each pixel's means must be those of the
+/// whole-image render bit for bit (the pixel's random numbers depend on nothing else), in the
+/// list's order, with repeats, and for 1 and 2 threads; a pixel outside the image is refused.
+#[test]
+fn rendering_a_list_of_pixels_equals_those_pixels_of_the_whole_image() {
+    let scene = scene_from_toml(include_str!("../../scenes/cornell.toml"));
+    let accel = Accel::build(&scene).expect("accelerator builds");
+    let (width, height) = (21u32, 18u32);
+    let settings =
+        RenderSettings { width, height, spp: 3, seed: 7, max_bounces: scene.max_bounces, threads: 2, progress: false };
+    let frame = tracer::render(&scene, &accel, &settings).expect("render");
+    // Scattered over several tiles (an odd stride), the last pixel, a repeat, unsorted; more
+    // than one 256-pixel group so the parallel split is exercised.
+    let mut pixels: Vec<(u32, u32)> = (0..300u32).map(|i| ((i * 7) % width, (i * 11 + i / 5) % height)).collect();
+    pixels.extend([(width - 1, height - 1), (0, 0), (0, 0)]);
+    for threads in [1, 2] {
+        let settings = RenderSettings { threads, ..settings.clone() };
+        let means = tracer::render::render_pixels(&scene, &accel, &settings, &pixels).expect("render pixels");
+        assert_eq!(means.len(), pixels.len());
+        for (&(x, y), m) in pixels.iter().zip(&means) {
+            let p = (y * width + x) as usize;
+            let bits = |v: Vec3| v.to_array().map(f32::to_bits);
+            assert_eq!(bits(m.beauty), bits(frame.beauty[p]), "beauty at ({x}, {y}), {threads} threads");
+            assert_eq!(bits(m.direct), bits(frame.direct[p]), "direct at ({x}, {y})");
+            assert_eq!(bits(m.indirect), bits(frame.indirect[p]), "indirect at ({x}, {y})");
+        }
+    }
+    assert!(frame.indirect.iter().any(|v| v.max_element() > 0.0), "not vacuous: the box has indirect light");
+    let outside = tracer::render::render_pixels(&scene, &accel, &settings, &[(3, 2), (width, 0)]).unwrap_err();
+    assert!(outside.to_string().contains(&format!("({width}, 0) is outside the {width}x{height} image")), "{outside}");
+    assert!(tracer::render::render_pixels(&scene, &accel, &settings, &[]).unwrap().is_empty());
+}

@@ -377,16 +377,9 @@ pub fn ambient_occlusion_frame(
     radius: f32,
 ) -> Result<AmbientOcclusionFrame, RenderError> {
     settings.validate()?;
-    if !(radius.is_finite() && radius > 0.0) {
-        return Err(RenderError::Settings(format!("the ambient-occlusion radius must be positive, got {radius}")));
-    }
-    let layout = SecondaryLayout::for_scene(scene, SecondaryKind::AmbientOcclusion);
-    let offset_of =
-        |name: &str| layout.value_offset(name).unwrap_or_else(|| unreachable!("ao samples always have {name}"));
-    let (distance_at, normal_at) = (offset_of("distance"), offset_of("origin_normal"));
-    let values_per_sample = layout.values_per_sample();
+    check_ao_radius(radius)?;
     let lights = LightSampler::new(scene);
-    let integrator = super::integrator(scene, accel, &lights, settings);
+    let ao = AoPixel::new(scene, accel, &lights, settings, radius);
     let pool = crate::render::thread_pool(settings.threads)?;
     let bar =
         crate::progress::StepProgress::begin(settings.progress, "ambient occlusion", settings.height as u64, "rows");
@@ -396,26 +389,7 @@ pub fn ambient_occlusion_frame(
         (0..settings.height)
             .into_par_iter()
             .map(|y| {
-                let row: Vec<(f32, Vec3, Vec3)> = (0..settings.width)
-                    .map(|x| {
-                        let (mut visible, mut normal, mut hits) = (0u32, Vec3::ZERO, 0u32);
-                        let mut values = Vec::with_capacity(values_per_sample);
-                        for index in 0..settings.spp {
-                            let mut sampler = Sampler::new(settings.seed, x, y, index);
-                            values.clear();
-                            trace_secondary(&integrator, &layout, x, y, &mut sampler, &mut values);
-                            let has_normal = values[normal_at] != 0.0 || values[normal_at + 1] != 0.0;
-                            visible += ao_visible(values[distance_at], has_normal, radius) as u32;
-                            if has_normal {
-                                normal += decode_octahedral([values[normal_at], values[normal_at + 1]]);
-                                hits += 1;
-                            }
-                        }
-                        let spp = settings.spp as f32;
-                        let albedo = if hits > 0 { Vec3::ONE } else { Vec3::ZERO };
-                        (visible as f32 / spp, normal.normalize_or_zero(), albedo)
-                    })
-                    .collect();
+                let row: Vec<(f32, Vec3, Vec3)> = (0..settings.width).map(|x| ao.trace(x, y)).collect();
                 bar.advance(1);
                 row
             })
@@ -431,6 +405,106 @@ pub fn ambient_occlusion_frame(
         albedo: pixels.iter().map(|p| p.2).collect(),
         seconds: start.elapsed().as_secs_f64(),
     })
+}
+
+/// The visibility of only `pixels` (each inside the image, any order), bit-identical to those
+/// pixels of [`ambient_occlusion_frame`] with the same settings, for any thread count.
+pub fn ambient_occlusion_pixels(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &RenderSettings,
+    radius: f32,
+    pixels: &[(u32, u32)],
+) -> Result<Vec<f32>, RenderError> {
+    settings.validate()?;
+    check_ao_radius(radius)?;
+    if let Some(&(x, y)) = pixels.iter().find(|&&(x, y)| x >= settings.width || y >= settings.height) {
+        return Err(RenderError::Settings(format!(
+            "pixel ({x}, {y}) is outside the {}x{} image",
+            settings.width, settings.height
+        )));
+    }
+    let lights = LightSampler::new(scene);
+    let ao = AoPixel::new(scene, accel, &lights, settings, radius);
+    let pool = crate::render::thread_pool(settings.threads)?;
+    let bar =
+        crate::progress::StepProgress::begin(settings.progress, "ambient occlusion", pixels.len() as u64, "pixels");
+    let visibility = pool.install(|| {
+        use rayon::prelude::*;
+        pixels
+            .par_iter()
+            .map(|&(x, y)| {
+                let visibility = ao.trace(x, y).0;
+                bar.advance(1);
+                visibility
+            })
+            .collect()
+    });
+    bar.finish();
+    Ok(visibility)
+}
+
+fn check_ao_radius(radius: f32) -> Result<(), RenderError> {
+    if radius.is_finite() && radius > 0.0 {
+        Ok(())
+    } else {
+        Err(RenderError::Settings(format!("the ambient-occlusion radius must be positive, got {radius}")))
+    }
+}
+
+/// One pixel of an ambient-occlusion image: its samples traced as `ao` secondary samples.
+struct AoPixel<'a> {
+    integrator: Integrator<'a>,
+    layout: SecondaryLayout,
+    distance_at: usize,
+    normal_at: usize,
+    spp: u32,
+    seed: u32,
+    radius: f32,
+}
+
+impl<'a> AoPixel<'a> {
+    fn new(
+        scene: &'a Scene,
+        accel: &'a Accel,
+        lights: &'a LightSampler,
+        settings: &RenderSettings,
+        radius: f32,
+    ) -> AoPixel<'a> {
+        let layout = SecondaryLayout::for_scene(scene, SecondaryKind::AmbientOcclusion);
+        let offset_of =
+            |name: &str| layout.value_offset(name).unwrap_or_else(|| unreachable!("ao samples always have {name}"));
+        let (distance_at, normal_at) = (offset_of("distance"), offset_of("origin_normal"));
+        AoPixel {
+            integrator: super::integrator(scene, accel, lights, settings),
+            layout,
+            distance_at,
+            normal_at,
+            spp: settings.spp,
+            seed: settings.seed,
+            radius,
+        }
+    }
+
+    /// Pixel (x, y)'s visibility, mean first-hit normal and albedo (1 where a surface was hit).
+    fn trace(&self, x: u32, y: u32) -> (f32, Vec3, Vec3) {
+        let (mut visible, mut normal, mut hits) = (0u32, Vec3::ZERO, 0u32);
+        let mut values = Vec::with_capacity(self.layout.values_per_sample());
+        for index in 0..self.spp {
+            let mut sampler = Sampler::new(self.seed, x, y, index);
+            values.clear();
+            trace_secondary(&self.integrator, &self.layout, x, y, &mut sampler, &mut values);
+            let has_normal = values[self.normal_at] != 0.0 || values[self.normal_at + 1] != 0.0;
+            visible += ao_visible(values[self.distance_at], has_normal, self.radius) as u32;
+            if has_normal {
+                normal += decode_octahedral([values[self.normal_at], values[self.normal_at + 1]]);
+                hits += 1;
+            }
+        }
+        let spp = self.spp as f32;
+        let albedo = if hits > 0 { Vec3::ONE } else { Vec3::ZERO };
+        (visible as f32 / spp, normal.normalize_or_zero(), albedo)
+    }
 }
 
 /// One secondary-ray sample: appends the record's values, in field order, to `values`.
