@@ -474,6 +474,23 @@ fn a_poisoned_reference_cache_is_traced_again() {
     for (x, y) in first["runs"].as_array().unwrap().iter().zip(damaged["runs"].as_array().unwrap()) {
         assert_eq!(x["psnr_db"], y["psnr_db"], "the same reference once traced again");
     }
+    // The reference's check, cached beside it: used again, and traced again (to the same
+    // estimate) once its record is edited.
+    assert_eq!(
+        (first["reference"]["check"]["from_cache"].clone(), again["reference"]["check"]["from_cache"].clone()),
+        (false.into(), true.into())
+    );
+    let check = std::fs::read_dir(&cache)
+        .unwrap()
+        .map(|entry| entry.unwrap().path())
+        .find(|path| path.to_string_lossy().ends_with(".check.json"))
+        .expect("the check is cached");
+    let record = std::fs::read_to_string(&check).unwrap();
+    assert!(record.contains("\"seconds\":"));
+    std::fs::write(&check, record.replacen("\"seconds\":", "\"seconds\":-", 1)).unwrap();
+    let rechecked = tiny_compare(&dir.path().join("e"), &cache, &["--methods", "box"]);
+    assert_eq!(rechecked["reference"]["check"]["from_cache"], false, "an edited check is not trusted");
+    assert_eq!(rechecked["reference"]["estimated_psnr_db"], first["reference"]["estimated_psnr_db"]);
 }
 
 /// ILFR runs carry their statistics as named numbers (issue 23, item 5), consistent with the
@@ -546,14 +563,19 @@ fn an_external_reference_rendered_as_shards_gives_the_same_comparison() {
             assert_eq!(a[key], b[key], "{key}: the external reference is the same image");
         }
     }
-    // One image: no halves, so no estimate of its own error.
+    // One image: no halves, so no estimate from them.
     let one = tiny_compare(
         &dir.path().join("one"),
         &cache,
         &["--methods", "box", "--repeats", "1", "--reference", half_a.to_str().unwrap()],
     );
     check_schema(&one);
-    assert!(one["reference"]["estimated_psnr_db"].is_null());
+    assert!(one["reference"]["halves_psnr_db"].is_null());
+    // The check measures its error all the same: one half has half the samples, so its squared
+    // error is about twice the two halves' mean's (−3 dB; the tiny image leaves ±1.5 dB).
+    let one_db = number(&one["reference"]["estimated_psnr_db"]);
+    let own_db = number(&own["reference"]["estimated_psnr_db"]);
+    assert!((own_db - one_db - 3.0).abs() < 1.5, "one half {one_db:.2} dB, both {own_db:.2} dB");
 
     // Refused, naming the file, before anything is written: a shard, the comparison's own seed,
     // another path length, another size, the same seed twice.

@@ -160,6 +160,41 @@ impl Tracing<'_> {
         Ok(Traced { frame, seconds: start.elapsed().as_secs_f64() })
     }
 
+    /// The effect's value at each of `pixels` only, traced at `spp` with `seed`: bit-identical
+    /// to those pixels of [`Tracing::trace`]'s colour with the same arguments. Returns the
+    /// values and the wall time.
+    pub fn trace_pixels(
+        &self,
+        spp: u32,
+        seed: u32,
+        pixels: &[(u32, u32)],
+        progress: bool,
+    ) -> Result<(Vec<[f32; 3]>, f64)> {
+        let start = Instant::now();
+        let settings = RenderSettings { progress, ..self.dump_settings(spp, seed) };
+        let values = if self.effect == Effect::Ao {
+            tracer::samples::secondary::ambient_occlusion_pixels(
+                self.scene,
+                self.accel,
+                &settings,
+                self.ao_radius,
+                pixels,
+            )?
+            .into_iter()
+            .map(|v| [v; 3])
+            .collect()
+        } else {
+            tracer::render::render_pixels(self.scene, self.accel, &settings, pixels)?
+                .into_iter()
+                .map(|m| match self.effect {
+                    Effect::Indirect | Effect::Glossy => m.indirect.to_array(),
+                    _ => m.beauty.to_array(),
+                })
+                .collect()
+        };
+        Ok((values, start.elapsed().as_secs_f64()))
+    }
+
     fn dump_settings(&self, spp: u32, seed: u32) -> RenderSettings {
         RenderSettings {
             width: self.width,

@@ -17,6 +17,7 @@ pub mod out_dir;
 pub mod plot;
 pub mod probes_method;
 pub mod reference;
+pub mod reference_check;
 pub mod report;
 pub mod results;
 pub mod timing;
@@ -40,7 +41,7 @@ use tracer::samples::FieldSelection;
 use tracer::Accel;
 
 use effect::{default_ao_radius, prepare_scene, Tracing};
-use results::{ReferenceInfo, Results, Run, Skipped, ToneMapInfo, Verdict};
+use results::{ReferenceCheckInfo, ReferenceInfo, Results, Run, Skipped, ToneMapInfo, Verdict};
 use timing::Difference;
 use verdict::{monotone_curve, psnr_at_time, time_to_psnr, CurvePoint};
 
@@ -707,10 +708,35 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         _ => "beauty",
     };
     images::write_image(&dir.join("images"), "reference", layer, &reference.image, &tone)?;
-    let estimated_psnr_db = match &reference.halves {
+    let halves_psnr_db = match &reference.halves {
         Some((a, b)) => Some(reference::estimated_psnr_db(a, b, &tone)?),
         None => None,
     };
+    let check = reference_check::check(
+        &tracing,
+        &scene_text,
+        reference.spp,
+        reference.seeds,
+        seed,
+        &cache,
+        !args.no_cache,
+        progress,
+    )?;
+    let estimate = check.estimate(&reference.image, reference.spp, &tone)?;
+    eprintln!(
+        "  reference check: {} pixels at {} spp, {:.1} s{}; the reference's own PSNR ≈ {:.1} dB ({:.1}–{:.1}){}",
+        check.pixels.len(),
+        check.spp,
+        check.seconds,
+        if check.from_cache { " (cached)" } else { "" },
+        estimate.psnr_db,
+        estimate.interval_db[0],
+        estimate.interval_db[1],
+        match halves_psnr_db {
+            Some(db) => format!(" ({db:.1} dB from its two halves)"),
+            None => String::new(),
+        }
+    );
 
     let mut skipped = Vec::new();
     let per_run_peak = memory::reset_peak();
@@ -1043,7 +1069,16 @@ pub fn run(args: &CompareArgs) -> Result<()> {
             cache_key: reference.key.clone(),
             from_cache: reference.from_cache,
             external: args.reference.iter().flatten().map(|p| p.display().to_string()).collect(),
-            estimated_psnr_db,
+            estimated_psnr_db: estimate.psnr_db,
+            halves_psnr_db,
+            check: ReferenceCheckInfo {
+                psnr_interval_db: estimate.interval_db,
+                pixels: check.pixels.len(),
+                spp: check.spp,
+                seed: check.seed,
+                seconds: check.seconds,
+                from_cache: check.from_cache,
+            },
             image: "images/reference.exr".into(),
         },
         flip_available,

@@ -49,14 +49,20 @@ fn sha256_hex(bytes: &[u8]) -> String {
     Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// SplitMix64's finaliser of `value ^ salt`, its high 32 bits: a seed or a position hashed
+/// from another, for the reference's seeds and its check's pixels.
+pub fn hashed(value: u64, salt: u64) -> u32 {
+    let mut z = value ^ salt;
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^= z >> 31;
+    (z >> 32) as u32
+}
+
 /// The two reference seeds for comparison seed `seed`: hashed, and never `seed` itself.
 pub fn reference_seeds(seed: u32) -> [u32; 2] {
     let mix = |salt: u64| {
-        let mut z = (seed as u64) ^ salt;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^= z >> 31;
-        let s = (z >> 32) as u32;
+        let s = hashed(seed as u64, salt);
         if s == seed {
             s.wrapping_add(1)
         } else {

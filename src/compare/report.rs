@@ -113,7 +113,8 @@ pub fn markdown(results: &Results) -> String {
     let _ = writeln!(md, "| threads | {} |", r.threads);
     let _ = writeln!(
         md,
-        "| reference | {} spp in {:.1} s{}; {} |",
+        "| reference | {} spp in {:.1} s{}; its own PSNR is about {:.1} dB ({:.1}–{:.1}; measured at {} pixels \
+         traced at {} spp{}) |",
         r.reference.spp,
         r.reference.seconds,
         if r.reference.from_cache {
@@ -123,9 +124,14 @@ pub fn markdown(results: &Results) -> String {
         } else {
             format!(", rendered elsewhere ({})", r.reference.external.join(", "))
         },
-        match r.reference.estimated_psnr_db {
-            Some(db) => format!("its own PSNR is about {db:.1} dB (from its two halves)"),
-            None => "its own PSNR is unknown (one image, no halves)".to_string(),
+        r.reference.estimated_psnr_db,
+        r.reference.check.psnr_interval_db[0],
+        r.reference.check.psnr_interval_db[1],
+        r.reference.check.pixels,
+        r.reference.check.spp,
+        match r.reference.halves_psnr_db {
+            Some(db) => format!("; {db:.1} dB from its two halves, which miss rare paths alike"),
+            None => String::new(),
         }
     );
     let _ = writeln!(
@@ -240,7 +246,7 @@ pub fn markdown(results: &Results) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::compare::results::{ReferenceInfo, ToneMapInfo};
+    use crate::compare::results::{ReferenceCheckInfo, ReferenceInfo, ToneMapInfo};
 
     fn run(method: &str, notes: &[&str]) -> Run {
         let mut run = Run::example(method, 4, 1.0, 30.0);
@@ -269,7 +275,16 @@ mod tests {
                 cache_key: String::new(),
                 from_cache: false,
                 external: Vec::new(),
-                estimated_psnr_db: None,
+                estimated_psnr_db: 31.5,
+                halves_psnr_db: None,
+                check: ReferenceCheckInfo {
+                    psnr_interval_db: [30.9, 32.2],
+                    pixels: 225,
+                    spp: 32,
+                    seed: 4,
+                    seconds: 0.5,
+                    from_cache: false,
+                },
                 image: String::new(),
             },
             flip_available: false,
@@ -285,6 +300,9 @@ mod tests {
         let warning = md.find("warning: 3 samples dropped").expect("the warning");
         let internal = md.find("time: read 0.1 s").expect("the internal note");
         assert!(warning < details && details < internal, "{md}");
-        assert!(md.contains("its own PSNR is unknown"), "no halves, no estimate");
+        assert!(
+            md.contains("its own PSNR is about 31.5 dB (30.9–32.2; measured at 225 pixels traced at 32 spp)"),
+            "{md}"
+        );
     }
 }

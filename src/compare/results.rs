@@ -53,11 +53,31 @@ pub struct ReferenceInfo {
     pub from_cache: bool,
     /// The files of an external reference (`--reference`); empty when traced or cached.
     pub external: Vec<String>,
-    /// PSNR of the reference itself against the truth, estimated from its two halves:
-    /// PSNR(half A, half B) + 6.02 dB. Method PSNRs near it are limited by the reference. Null
-    /// for an external reference given as one image.
-    pub estimated_psnr_db: Option<f64>,
+    /// PSNR of the reference itself against the truth, measured at the check's pixels
+    /// (`check`): PSNR(check, reference) + 10·log10((k + 1) / k), k = check spp / reference spp.
+    /// Method PSNRs near it are limited by the reference.
+    pub estimated_psnr_db: f64,
+    /// The older estimate from the reference's two halves, PSNR(half A, half B) + 6.02 dB:
+    /// optimistic where rare paths carry the light. Null for an external reference given as one
+    /// image.
+    pub halves_psnr_db: Option<f64>,
+    pub check: ReferenceCheckInfo,
     pub image: String,
+}
+
+/// The independent check of the reference's error: a sparse, stratified set of pixels (one per
+/// 4 × 4 block) traced with 4 times the reference's spp and a seed of its own.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReferenceCheckInfo {
+    /// `[low, high]` dB around `estimated_psnr_db`: the PSNR at the checked pixels' mean squared
+    /// error plus and minus two standard errors.
+    pub psnr_interval_db: [f64; 2],
+    pub pixels: usize,
+    pub spp: u32,
+    pub seed: u32,
+    /// Wall time of the check's render when it was made (also when read from the cache).
+    pub seconds: f64,
+    pub from_cache: bool,
 }
 
 #[derive(Clone, Debug, Serialize)]
