@@ -49,8 +49,7 @@ fn sha256_hex(bytes: &[u8]) -> String {
     Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// SplitMix64's finaliser of `value ^ salt`, its high 32 bits: a seed or a position hashed
-/// from another, for the reference's seeds and its check's pixels.
+/// SplitMix64's finaliser of `value ^ salt`, its high 32 bits.
 pub fn hashed(value: u64, salt: u64) -> u32 {
     let mut z = value ^ salt;
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
@@ -59,18 +58,32 @@ pub fn hashed(value: u64, salt: u64) -> u32 {
     (z >> 32) as u32
 }
 
-/// The two reference seeds for comparison seed `seed`: hashed, and never `seed` itself.
+/// What a seed derived from the comparison's is for: each purpose its own, so that no two
+/// comparisons' or purposes' seeds coincide by construction.
+#[derive(Clone, Copy, Debug)]
+pub enum SeedPurpose {
+    ReferenceHalfA = 1,
+    ReferenceHalfB = 2,
+    ReferenceCheck = 3,
+}
+
+/// The seed for `purpose` derived from comparison seed `seed`: the hash of (purpose, seed) as
+/// one 64-bit word, so distinct pairs hash distinct words (the finaliser is a bijection; only
+/// the kept high half can collide, as any two random seeds can). Before session 28 the halves'
+/// seeds hashed `seed ^ salt` with salts one bit apart, so seeds 1 and 2 got the same two
+/// reference seeds, swapped.
+pub fn derived_seed(seed: u32, purpose: SeedPurpose) -> u32 {
+    hashed((purpose as u64) << 32 | seed as u64, 0x5245_4645_5245_4e43)
+}
+
+/// The two reference seeds for comparison seed `seed`: hashed, never `seed` itself, and not
+/// each other.
 pub fn reference_seeds(seed: u32) -> [u32; 2] {
-    let mix = |salt: u64| {
-        let s = hashed(seed as u64, salt);
-        if s == seed {
-            s.wrapping_add(1)
-        } else {
-            s
-        }
-    };
-    let a = mix(0x5245_4645_5245_4e41);
-    let mut b = mix(0x5245_4645_5245_4e42);
+    let mut a = derived_seed(seed, SeedPurpose::ReferenceHalfA);
+    if a == seed {
+        a = a.wrapping_add(1);
+    }
+    let mut b = derived_seed(seed, SeedPurpose::ReferenceHalfB);
     if b == a || b == seed {
         b = a.wrapping_add(2);
     }
@@ -328,6 +341,17 @@ mod tests {
             assert!(a != seed && b != seed && a != b, "{seed}: {a} {b}");
         }
         assert_eq!(reference_seeds(5), reference_seeds(5));
-        assert_ne!(reference_seeds(5), reference_seeds(6));
+        // No two comparisons share a reference seed (seeds 1 and 2 once shared both, swapped),
+        // nor a check seed with any reference seed.
+        let mut all: Vec<u32> = (0..2000u32)
+            .flat_map(|seed| {
+                let [a, b] = reference_seeds(seed);
+                [a, b, derived_seed(seed, SeedPurpose::ReferenceCheck)]
+            })
+            .collect();
+        let count = all.len();
+        all.sort_unstable();
+        all.dedup();
+        assert_eq!(all.len(), count, "derived seeds coincide");
     }
 }
