@@ -5,7 +5,7 @@
 //! - By tiles, each pixel is taken from the shard whose tiles hold it
 //!   (`tracer::render::Shard::covers`): bit for bit one process's image.
 //! - By samples, each pixel's means are combined weighted by each shard's sample count, its
-//!   variance from the shards' sums of squares ([`merge_sample_shards`]): one process's image
+//!   variance from the shards' sums of squares (tested by `merged_sample_shards_equal_the_whole_pixel`): one process's image
 //!   within float rounding (the sums are added in another order).
 
 use std::collections::BTreeMap;

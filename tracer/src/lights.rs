@@ -16,7 +16,7 @@
 //! subtends (every such direction hits the tessellation's near side), from inside by area; the
 //! environment uniformly over the sphere. A rectangle light (a static quad of constant emission)
 //! is sampled uniformly in the solid angle it subtends from nearby points (Ureña et al. 2013,
-//! [`RectangleEmitter`]), by area from far away. `pdf_*` functions give the densities the
+//! `RectangleEmitter`), by area from far away. `pdf_*` functions give the densities the
 //! integrator needs for multiple importance sampling when a BSDF-sampled ray hits an emitter. The sampling
 //! before issue 26 stays available as [`LightStrategy::Legacy`], the oracle of the tests.
 

@@ -31,7 +31,7 @@ impl Sampler {
     /// The next two dimensions as a point in [0, 1)².
     ///
     /// By definition this is `nested_uniform_scramble` applied to the index (the shuffle) and
-    /// then to both Sobol' coordinates of the shuffled index ([`Sampler::next_2d_by_definition`]).
+    /// then to both Sobol' coordinates of the shuffled index (`Sampler::next_2d_by_definition`).
     /// Each scramble reverses its input's bits, permutes and reverses back; here the reversals
     /// that cancel are left out: the index is kept reversed, the first Sobol' dimension is the
     /// reversed index so its scramble starts from the shuffled index itself, and the second's

@@ -443,7 +443,7 @@ pub(super) fn assemble_rows(width: u32, height: u32, rows: Vec<(Vec<[f32; 3]>, G
 
 /// Every ray the gather of the `indirect` target reconstructs (none where a BSDF direction
 /// points below the surface), in the order the gather reconstructs them — tile by tile, each
-/// tile's in [`direction_order`] — so that a benchmark tracing the same rays with another
+/// tile's in `direction_order` — so that a benchmark tracing the same rays with another
 /// engine gets the same coherence.
 pub fn reconstruction_rays(samples: &IndirectSamples, settings: &GatherSettings) -> Vec<Ray> {
     let per_hit = rays_per_hit(settings.rays_per_pixel, samples.spp.max(1));

@@ -16,7 +16,7 @@
 //!   [`ConflictTest::EventLineOffPlane`], asks the event line only of pairs whose connecting line
 //!   leaves both tangent planes by more than [`COPLANAR_DEGREES`], so that neighbours of one
 //!   noisy surface never fragment it while stacked surfaces stay apart (docs/ilfr.md, "Issue 23").
-//! - §2.5 two-sided splats: "back-facing splats contribute to [visibility] similarly to
+//! - §2.5 two-sided splats: "back-facing splats contribute to \[visibility\] similarly to
 //!   front-facing splats … contribute to radiance only if all splats of the first surface are
 //!   back-facing": the flipped normal n̂ in [`conflicts`] and [`Surface::radiance_from_back_faces`]
 //!   / [`Surface::gives_radiance`]; the code's near-field rule (a back-facing splat whose centre is

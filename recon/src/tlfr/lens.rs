@@ -27,7 +27,7 @@ pub struct LensModel {
 
 impl LensModel {
     /// The model of a sample file's camera block: `coc` and the intrinsics of
-    /// `pixel_to_camera` (fx = 1 / M[0][0], fy = 1 / M[1][1], cx = −M[0][2]·fx, cy = −M[1][2]·fy).
+    /// `pixel_to_camera` (fx = 1 / `M[0][0]`, fy = 1 / `M[1][1]`, cx = −`M[0][2]`·fx, cy = −`M[1][2]`·fy).
     pub fn from_camera(camera: &Camera) -> Result<LensModel, Error> {
         let m = &camera.pixel_to_camera;
         let (sx, sy) = (m[0][0], m[1][1]);
