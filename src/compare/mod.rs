@@ -724,8 +724,8 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     )?;
     let estimate = check.estimate(&reference.image, reference.spp, &tone)?;
     eprintln!(
-        "  reference check: {} pixels at {} spp, {:.1} s{}; the reference's own PSNR ≈ {:.1} dB ({:.1}–{:.1}){}",
-        check.pixels.len(),
+        "  reference check: {} at {} spp, {:.1} s{}; the reference's own PSNR ≈ {:.1} dB ({:.1}–{:.1}){}",
+        results::pixels_text(check.pixels.len()),
         check.spp,
         check.seconds,
         if check.from_cache { " (cached)" } else { "" },

@@ -113,7 +113,7 @@ pub fn markdown(results: &Results) -> String {
     let _ = writeln!(md, "| threads | {} |", r.threads);
     let _ = writeln!(
         md,
-        "| reference | {} spp in {:.1} s{}; its own PSNR is about {:.1} dB ({:.1}–{:.1}; measured at {} pixels \
+        "| reference | {} spp in {:.1} s{}; its own PSNR is about {:.1} dB ({:.1}–{:.1}; measured at {} \
          traced at {} spp{}) |",
         r.reference.spp,
         r.reference.seconds,
@@ -127,7 +127,7 @@ pub fn markdown(results: &Results) -> String {
         r.reference.estimated_psnr_db,
         r.reference.check.psnr_interval_db[0],
         r.reference.check.psnr_interval_db[1],
-        r.reference.check.pixels,
+        super::results::pixels_text(r.reference.check.pixels),
         r.reference.check.spp,
         match r.reference.halves_psnr_db {
             Some(db) => format!("; {db:.1} dB from its two halves, which miss rare paths alike"),
@@ -304,5 +304,8 @@ mod tests {
             md.contains("its own PSNR is about 31.5 dB (30.9–32.2; measured at 225 pixels traced at 32 spp)"),
             "{md}"
         );
+        let mut one = results.clone();
+        one.reference.check.pixels = 1;
+        assert!(markdown(&one).contains("measured at 1 pixel traced"));
     }
 }

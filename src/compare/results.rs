@@ -65,6 +65,11 @@ pub struct ReferenceInfo {
     pub image: String,
 }
 
+/// "1 pixel", "920 pixels".
+pub fn pixels_text(count: usize) -> String {
+    format!("{count} pixel{}", if count == 1 { "" } else { "s" })
+}
+
 /// The independent check of the reference's error: a sparse, stratified set of pixels (one per
 /// 4 × 4 block) traced with 4 times the reference's spp and a seed of its own.
 #[derive(Clone, Debug, Serialize)]
