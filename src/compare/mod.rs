@@ -332,8 +332,27 @@ struct Scoring<'a> {
     reference: &'a Image,
     tone: ToneMap,
     layer: &'static str,
+    /// The reference's own PSNR (its check's estimate).
+    reference_psnr_db: f64,
     /// Lines are printed around it.
     bar: &'a indicatif::ProgressBar,
+}
+
+/// How close to the reference's own PSNR a run may score before its note says the reference's
+/// error is at least half of what is measured: the measured MSE is the run's plus the
+/// reference's, so a run as good as the reference reads 10·log10 2 ≈ 3 dB below it.
+const REFERENCE_LIMITED_DB: f64 = 3.010_299_956_639_812; // 10·log10 2
+
+/// The note of a run whose PSNR is within [`REFERENCE_LIMITED_DB`] of the reference's own.
+fn reference_limited_note(psnr_db: f64, reference_psnr_db: f64) -> Option<String> {
+    (psnr_db.is_finite() && psnr_db >= reference_psnr_db - REFERENCE_LIMITED_DB).then(|| {
+        format!(
+            "{}limited by the reference: {psnr_db:.2} dB is within {REFERENCE_LIMITED_DB:.1} dB of the reference's own \
+             {reference_psnr_db:.2} dB, so the reference's error is at least half of the error measured; raise \
+             --reference-spp to tell this run apart from better ones",
+            recon::method::WARNING
+        )
+    })
 }
 
 impl Scoring<'_> {
@@ -364,6 +383,7 @@ impl Scoring<'_> {
         images::write_error_map(&images, &format!("{stem}-error"), self.reference, &image, &self.tone)?;
         let (trace_s, preprocess_s, recon_s) = times;
         let mut notes = notes;
+        notes.extend(reference_limited_note(metrics.psnr_db, self.reference_psnr_db));
         if metrics.nonfinite_pixels > 0 {
             notes.push(format!(
                 "INVALID: {} pixels are NaN or infinite; they are scored as worst-case errors and the run is left out of the verdicts",
@@ -741,7 +761,8 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     let mut skipped = Vec::new();
     let per_run_peak = memory::reset_peak();
     let bar = progress_bar(progress);
-    let context = Scoring { dir, reference: &reference.image, tone, layer, bar: &bar };
+    let context =
+        Scoring { dir, reference: &reference.image, tone, layer, reference_psnr_db: estimate.psnr_db, bar: &bar };
     let mut measured: Vec<Measured> = Vec::new();
     // The input traces' timings, one per repetition; the ladder's are its runs' own.
     let mut traces: BTreeMap<TraceKey, Vec<f64>> = BTreeMap::new();
@@ -1129,7 +1150,14 @@ mod tests {
 
     fn scoring_in(dir: &Path, reference: &Image) -> Result<Measured> {
         let bar = indicatif::ProgressBar::hidden();
-        let scoring = Scoring { dir, reference, tone: ToneMap::auto(reference), layer: "beauty", bar: &bar };
+        let scoring = Scoring {
+            dir,
+            reference,
+            tone: ToneMap::auto(reference),
+            layer: "beauty",
+            reference_psnr_db: 100.0,
+            bar: &bar,
+        };
         let mut image = reference.clone();
         image.set(1, 1, [f32::NAN, 0.0, 0.0]);
         image.set(2, 1, [f32::INFINITY; 3]);
@@ -1163,6 +1191,7 @@ mod tests {
             reference: &reference,
             tone: ToneMap::auto(&reference),
             layer: "beauty",
+            reference_psnr_db: 100.0,
             bar: &bar,
         };
         let error = scoring
@@ -1172,6 +1201,22 @@ mod tests {
         let message = format!("{error:#}");
         assert!(message.contains("shrinker") && message.contains("expected 4x4, found 3x4"), "{message}");
         assert_eq!(std::fs::read_dir(dir.path().join("images")).unwrap().count(), 0, "nothing written");
+    }
+
+    /// A run is flagged once the reference's error is at least half of what is measured:
+    /// within 3 dB of the reference's own PSNR (the PSNR of MSE_run + MSE_reference with equal
+    /// parts is 10·log10 2 below the reference's), and never for a non-finite score.
+    #[test]
+    fn runs_near_the_reference_s_own_psnr_are_flagged() {
+        assert!(reference_limited_note(30.0, 36.5).is_none());
+        assert!(reference_limited_note(33.4, 36.5).is_none());
+        let note = reference_limited_note(33.6, 36.5).expect("within 3 dB");
+        assert!(note.contains("33.60 dB") && note.contains("36.50 dB") && note.contains("--reference-spp"), "{note}");
+        assert!(note.starts_with(recon::method::WARNING), "shown in the open: {note}");
+        assert!(reference_limited_note(40.0, 36.5).is_some());
+        assert!(reference_limited_note(f64::NAN, 36.5).is_none());
+        // Equal MSEs read 10·log10 2 below the reference: flagged.
+        assert!(reference_limited_note(36.5 - 10.0 * 2f64.log10(), 36.5).is_some());
     }
 
     #[test]
