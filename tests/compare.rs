@@ -311,6 +311,8 @@ fn bad_input_fails_cleanly_without_results() {
         (&["--effect", "indirect", "--reference-spp", "3"], &["--reference-spp", "even"]),
         (&["--effect", "indirect", "--threads", "100000"], &["--threads", "1024"]),
         (&["--effect", "indirect", "--methods", "gif:radius=0"], &["`gif:radius=0`", "at least 1"]),
+        (&["--effect", "indirect", "--reference-check", "0"], &["--reference-check", "`off` or a whole number"]),
+        (&["--effect", "indirect", "--reference-check", "lots"], &["--reference-check", "1..=64"]),
     ];
     for (extra, needles) in cases {
         let mut args = vec!["compare", "--out", out_arg, "--quiet", "--width", "8", "--height", "8"];
@@ -571,6 +573,30 @@ fn an_external_reference_rendered_as_shards_gives_the_same_comparison() {
     );
     check_schema(&one);
     assert!(one["reference"]["halves_psnr_db"].is_null());
+    // A reference rendered elsewhere may be too expensive to check here: `--reference-check off`
+    // leaves the halves' estimate (none for one image), `1` checks at its own spp.
+    let unchecked = tiny_compare(
+        &dir.path().join("off"),
+        &cache,
+        &["--methods", "box", "--repeats", "1", "--reference", &both, "--reference-check", "off"],
+    );
+    check_schema(&unchecked);
+    assert!(unchecked["reference"]["check"].is_null());
+    assert_eq!(unchecked["reference"]["estimated_psnr_db"], own["reference"]["halves_psnr_db"]);
+    let one_unchecked = tiny_compare(
+        &dir.path().join("one-off"),
+        &cache,
+        &["--methods", "box", "--repeats", "1", "--reference", half_a.to_str().unwrap(), "--reference-check", "off"],
+    );
+    check_schema(&one_unchecked);
+    assert!(one_unchecked["reference"]["estimated_psnr_db"].is_null());
+    let cheap = tiny_compare(
+        &dir.path().join("cheap"),
+        &cache,
+        &["--methods", "box", "--repeats", "1", "--reference", &both, "--reference-check", "1"],
+    );
+    assert_eq!(cheap["reference"]["check"]["spp"], cheap["reference"]["spp"]);
+    assert_eq!(own["reference"]["check"]["spp"].as_u64(), own["reference"]["spp"].as_u64().map(|spp| 4 * spp));
     // The check measures its error all the same: one half has half the samples, so its squared
     // error is about twice the two halves' mean's (−3 dB; the tiny image leaves ±1.5 dB).
     let one_db = number(&one["reference"]["estimated_psnr_db"]);

@@ -107,6 +107,12 @@ pub struct CompareArgs {
     /// Trace the reference even when a cached one exists (and replace it).
     #[arg(long)]
     pub no_cache: bool,
+    /// The check of the reference's own error: one pixel per 4×4 block traced with this many
+    /// times the reference's spp (1..=64; about this many sixteenths of the reference's time),
+    /// or `off` (then only the two halves estimate it: optimistic where rare paths carry the
+    /// light). For an expensive reference rendered elsewhere, `off` or 1 keeps it cheap.
+    #[arg(long, default_value = reference_check::DEFAULT_FACTOR, value_parser = reference_check::parse_factor)]
+    pub reference_check: reference_check::CheckSetting,
     /// Keep the methods' input sample files in OUT/inputs.
     #[arg(long)]
     pub keep_samples: bool,
@@ -332,8 +338,8 @@ struct Scoring<'a> {
     reference: &'a Image,
     tone: ToneMap,
     layer: &'static str,
-    /// The reference's own PSNR (its check's estimate).
-    reference_psnr_db: f64,
+    /// The reference's own PSNR (its check's estimate, else the halves'), if known.
+    reference_psnr_db: Option<f64>,
     /// Lines are printed around it.
     bar: &'a indicatif::ProgressBar,
 }
@@ -383,7 +389,9 @@ impl Scoring<'_> {
         images::write_error_map(&images, &format!("{stem}-error"), self.reference, &image, &self.tone)?;
         let (trace_s, preprocess_s, recon_s) = times;
         let mut notes = notes;
-        notes.extend(reference_limited_note(metrics.psnr_db, self.reference_psnr_db));
+        if let Some(reference_psnr_db) = self.reference_psnr_db {
+            notes.extend(reference_limited_note(metrics.psnr_db, reference_psnr_db));
+        }
         if metrics.nonfinite_pixels > 0 {
             notes.push(format!(
                 "INVALID: {} pixels are NaN or infinite; they are scored as worst-case errors and the run is left out of the verdicts",
@@ -732,37 +740,52 @@ pub fn run(args: &CompareArgs) -> Result<()> {
         Some((a, b)) => Some(reference::estimated_psnr_db(a, b, &tone)?),
         None => None,
     };
-    let check = reference_check::check(
-        &tracing,
-        &scene_text,
-        reference.spp,
-        reference.seeds,
-        seed,
-        &cache,
-        !args.no_cache,
-        progress,
-    )?;
-    let estimate = check.estimate(&reference.image, reference.spp, &tone)?;
-    eprintln!(
-        "  reference check: {} at {} spp, {:.1} s{}; the reference's own PSNR ≈ {:.1} dB ({:.1}–{:.1}){}",
-        results::pixels_text(check.pixels.len()),
-        check.spp,
-        check.seconds,
-        if check.from_cache { " (cached)" } else { "" },
-        estimate.psnr_db,
-        estimate.interval_db[0],
-        estimate.interval_db[1],
-        match halves_psnr_db {
-            Some(db) => format!(" ({db:.1} dB from its two halves)"),
-            None => String::new(),
+    let checked = match args.reference_check.0 {
+        Some(factor) => {
+            let check = reference_check::check(
+                &tracing,
+                &scene_text,
+                reference_check::CheckOf { spp: reference.spp, seeds: reference.seeds, factor },
+                seed,
+                &cache,
+                !args.no_cache,
+                progress,
+            )?;
+            let estimate = check.estimate(&reference.image, reference.spp, &tone)?;
+            eprintln!(
+                "  reference check: {} at {} spp, {:.1} s{}; the reference's own PSNR ≈ {:.1} dB ({:.1}–{:.1}){}",
+                results::pixels_text(check.pixels.len()),
+                check.spp,
+                check.seconds,
+                if check.from_cache { " (cached)" } else { "" },
+                estimate.psnr_db,
+                estimate.interval_db[0],
+                estimate.interval_db[1],
+                match halves_psnr_db {
+                    Some(db) => format!(" ({db:.1} dB from its two halves)"),
+                    None => String::new(),
+                }
+            );
+            Some((check, estimate))
         }
-    );
+        None => {
+            eprintln!(
+                "  reference check: off; {}",
+                match halves_psnr_db {
+                    Some(db) => format!("the reference's own PSNR ≈ {db:.1} dB from its two halves (an upper bound)"),
+                    None => "the reference's own PSNR is unknown (one image, no halves)".to_string(),
+                }
+            );
+            None
+        }
+    };
+    let estimated_psnr_db = checked.as_ref().map(|(_, estimate)| estimate.psnr_db).or(halves_psnr_db);
 
     let mut skipped = Vec::new();
     let per_run_peak = memory::reset_peak();
     let bar = progress_bar(progress);
     let context =
-        Scoring { dir, reference: &reference.image, tone, layer, reference_psnr_db: estimate.psnr_db, bar: &bar };
+        Scoring { dir, reference: &reference.image, tone, layer, reference_psnr_db: estimated_psnr_db, bar: &bar };
     let mut measured: Vec<Measured> = Vec::new();
     // The input traces' timings, one per repetition; the ladder's are its runs' own.
     let mut traces: BTreeMap<TraceKey, Vec<f64>> = BTreeMap::new();
@@ -1090,16 +1113,16 @@ pub fn run(args: &CompareArgs) -> Result<()> {
             cache_key: reference.key.clone(),
             from_cache: reference.from_cache,
             external: args.reference.iter().flatten().map(|p| p.display().to_string()).collect(),
-            estimated_psnr_db: estimate.psnr_db,
+            estimated_psnr_db,
             halves_psnr_db,
-            check: ReferenceCheckInfo {
+            check: checked.map(|(check, estimate)| ReferenceCheckInfo {
                 psnr_interval_db: estimate.interval_db,
                 pixels: check.pixels.len(),
                 spp: check.spp,
                 seed: check.seed,
                 seconds: check.seconds,
                 from_cache: check.from_cache,
-            },
+            }),
             image: "images/reference.exr".into(),
         },
         flip_available,
@@ -1155,7 +1178,7 @@ mod tests {
             reference,
             tone: ToneMap::auto(reference),
             layer: "beauty",
-            reference_psnr_db: 100.0,
+            reference_psnr_db: None,
             bar: &bar,
         };
         let mut image = reference.clone();
@@ -1191,7 +1214,7 @@ mod tests {
             reference: &reference,
             tone: ToneMap::auto(&reference),
             layer: "beauty",
-            reference_psnr_db: 100.0,
+            reference_psnr_db: None,
             bar: &bar,
         };
         let error = scoring

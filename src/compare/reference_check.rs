@@ -4,11 +4,11 @@
 //! optimistic on the glossy monkeys; docs/ilfr.md, "The reference's self-estimate"). Only more
 //! samples than the reference has can see that, and a whole image of them would cost more than
 //! the reference; so the check traces a sparse, stratified set of pixels — one per
-//! [`BLOCK`] × [`BLOCK`] block, at a hashed place in it — with [`SPP_FACTOR`] times the
-//! reference's samples and a seed of its own: a quarter of the reference's time. Against it, the
+//! [`BLOCK`] × [`BLOCK`] block, at a hashed place in it — with [`DEFAULT_FACTOR`] times the
+//! reference's samples (`--reference-check`) and a seed of its own: a quarter of the reference's time. Against it, the
 //! reference's mean squared error at those pixels is measured directly, in the comparison's
 //! display space: MSE(reference, check) = MSE_reference + MSE_check, the check's
-//! 1 / [`SPP_FACTOR`] of the reference's. Cached beside the reference under a hash of everything
+//! 1 / factor of the reference's. Cached beside the reference under a hash of everything
 //! that determines it; used for traced and external references alike.
 
 use std::path::Path;
@@ -28,8 +28,35 @@ use super::reference::{cache_key, derived_seed, hashed, SeedPurpose};
 /// has one too).
 pub const BLOCK: u32 = 4;
 
-/// The check traces this many times the reference's samples per pixel.
-pub const SPP_FACTOR: u32 = 4;
+/// By default the check traces this many times the reference's samples per pixel
+/// (`--reference-check`): a quarter of the reference's time.
+pub const DEFAULT_FACTOR: &str = "4";
+
+/// The largest `--reference-check` factor.
+pub const MAX_FACTOR: u32 = 64;
+
+/// `--reference-check`: the check's spp factor, or `None` for `off`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CheckSetting(pub Option<u32>);
+
+/// Parses `--reference-check`: `off` or a factor in 1..=[`MAX_FACTOR`].
+pub fn parse_factor(text: &str) -> Result<CheckSetting, String> {
+    if text == "off" {
+        return Ok(CheckSetting(None));
+    }
+    match text.parse::<u32>() {
+        Ok(factor) if (1..=MAX_FACTOR).contains(&factor) => Ok(CheckSetting(Some(factor))),
+        _ => Err(format!("expected `off` or a whole number in 1..={MAX_FACTOR}, got `{text}`")),
+    }
+}
+
+/// The reference a check is for: its spp and seeds, and the check's spp factor.
+#[derive(Clone, Copy, Debug)]
+pub struct CheckOf {
+    pub spp: u32,
+    pub seeds: [u32; 2],
+    pub factor: u32,
+}
 
 /// Bumped whenever what the check traces or how its pixels are chosen changes.
 const CHECK_VERSION: &str = "reference-check/1";
@@ -81,9 +108,9 @@ pub fn check_seed(seed: u32, taken: &[u32]) -> u32 {
     s
 }
 
-/// The check's samples per pixel for a reference of `reference_spp`.
-pub fn check_spp(reference_spp: u32) -> u32 {
-    reference_spp.saturating_mul(SPP_FACTOR).min(MAX_SPP)
+/// The check's samples per pixel for a reference of `reference_spp` and spp factor `factor`.
+pub fn check_spp(reference_spp: u32, factor: u32) -> u32 {
+    reference_spp.saturating_mul(factor).min(MAX_SPP)
 }
 
 fn key(scene_text: &[u8], tracing: &Tracing, spp: u32, seed: u32) -> String {
@@ -123,21 +150,19 @@ fn read_cached(path: &Path, key: &str, spp: u32, seed: u32, pixels: &[(u32, u32)
     }))
 }
 
-/// The check of a reference of `reference_spp` whose seeds are `reference_seeds`, for
-/// comparison seed `seed`: from the cache in `dir` when `use_cache`, else traced and stored.
-#[allow(clippy::too_many_arguments)]
+/// The check of `reference`, for comparison seed `seed`: from the cache in `dir` when
+/// `use_cache`, else traced and stored.
 pub fn check(
     tracing: &Tracing,
     scene_text: &[u8],
-    reference_spp: u32,
-    reference_seeds: [u32; 2],
+    reference: CheckOf,
     seed: u32,
     dir: &Path,
     use_cache: bool,
     progress: bool,
 ) -> Result<Check> {
-    let spp = check_spp(reference_spp);
-    let check_seed = check_seed(seed, &[seed, reference_seeds[0], reference_seeds[1]]);
+    let spp = check_spp(reference.spp, reference.factor);
+    let check_seed = check_seed(seed, &[seed, reference.seeds[0], reference.seeds[1]]);
     let pixels = check_pixels(tracing.width, tracing.height, check_seed);
     let key = key(scene_text, tracing, spp, check_seed);
     let path = dir.join(format!("{key}.check.json"));
@@ -274,7 +299,7 @@ mod tests {
             let reference = mean(&a, &b);
             let tone = ToneMap::auto(&reference);
             let measured = psnr_db(&truth, &reference, &tone).unwrap() + 10.0 * (17.0f64 / 16.0).log10();
-            let spp = check_spp(reference_spp);
+            let spp = check_spp(reference_spp, 4);
             let check_seed = check_seed(seed, &[seed, seeds[0], seeds[1]]);
             let pixels = check_pixels(width, height, check_seed);
             let (values, seconds) = tracing.trace_pixels(spp, check_seed, &pixels, false).unwrap();
@@ -334,7 +359,14 @@ mod tests {
             let moved = check_seed(seed, &[seed, free, free.wrapping_add(1)]);
             assert!(![seed, free, free.wrapping_add(1)].contains(&moved));
         }
-        assert_eq!(check_spp(2048), 2048 * SPP_FACTOR);
-        assert_eq!(check_spp(MAX_SPP), MAX_SPP);
+        assert_eq!(check_spp(2048, 4), 8192);
+        assert_eq!(parse_factor(DEFAULT_FACTOR), Ok(CheckSetting(Some(4))));
+        assert_eq!(check_spp(MAX_SPP, 2), MAX_SPP);
+        assert_eq!(parse_factor("off"), Ok(CheckSetting(None)));
+        assert_eq!(parse_factor("1"), Ok(CheckSetting(Some(1))));
+        assert_eq!(parse_factor("64"), Ok(CheckSetting(Some(64))));
+        for bad in ["0", "65", "-1", "x", ""] {
+            assert!(parse_factor(bad).unwrap_err().contains("`off` or a whole number in 1..=64"), "{bad}");
+        }
     }
 }

@@ -58,6 +58,24 @@ fn opt(value: Option<f64>, digits: usize) -> String {
     }
 }
 
+/// What the report says of the reference's own PSNR: measured by its check, else estimated
+/// from its halves, else unknown.
+fn own_psnr_text(reference: &super::results::ReferenceInfo) -> String {
+    let halves = |db: f64| format!("{db:.1} dB from its two halves, which miss rare paths alike");
+    match (&reference.check, reference.estimated_psnr_db, reference.halves_psnr_db) {
+        (Some(check), Some(db), halves_db) => format!(
+            "its own PSNR is about {db:.1} dB ({:.1}–{:.1}; measured at {} traced at {} spp{})",
+            check.psnr_interval_db[0],
+            check.psnr_interval_db[1],
+            super::results::pixels_text(check.pixels),
+            check.spp,
+            halves_db.map(|db| format!("; {}", halves(db))).unwrap_or_default()
+        ),
+        (_, _, Some(db)) => format!("its own PSNR is at most about {} (no check: `--reference-check off`)", halves(db)),
+        _ => "its own PSNR is unknown (one image, no halves, `--reference-check off`)".to_string(),
+    }
+}
+
 /// Whether a run's note is something the reader must see: a method's warning or an invalid run.
 fn is_warning(note: &str) -> bool {
     note.starts_with(recon::method::WARNING) || note.starts_with("INVALID")
@@ -113,8 +131,7 @@ pub fn markdown(results: &Results) -> String {
     let _ = writeln!(md, "| threads | {} |", r.threads);
     let _ = writeln!(
         md,
-        "| reference | {} spp in {:.1} s{}; its own PSNR is about {:.1} dB ({:.1}–{:.1}; measured at {} \
-         traced at {} spp{}) |",
+        "| reference | {} spp in {:.1} s{}; {} |",
         r.reference.spp,
         r.reference.seconds,
         if r.reference.from_cache {
@@ -124,15 +141,7 @@ pub fn markdown(results: &Results) -> String {
         } else {
             format!(", rendered elsewhere ({})", r.reference.external.join(", "))
         },
-        r.reference.estimated_psnr_db,
-        r.reference.check.psnr_interval_db[0],
-        r.reference.check.psnr_interval_db[1],
-        super::results::pixels_text(r.reference.check.pixels),
-        r.reference.check.spp,
-        match r.reference.halves_psnr_db {
-            Some(db) => format!("; {db:.1} dB from its two halves, which miss rare paths alike"),
-            None => String::new(),
-        }
+        own_psnr_text(&r.reference)
     );
     let _ = writeln!(
         md,
@@ -275,16 +284,16 @@ mod tests {
                 cache_key: String::new(),
                 from_cache: false,
                 external: Vec::new(),
-                estimated_psnr_db: 31.5,
+                estimated_psnr_db: Some(31.5),
                 halves_psnr_db: None,
-                check: ReferenceCheckInfo {
+                check: Some(ReferenceCheckInfo {
                     psnr_interval_db: [30.9, 32.2],
                     pixels: 225,
                     spp: 32,
                     seed: 4,
                     seconds: 0.5,
                     from_cache: false,
-                },
+                }),
                 image: String::new(),
             },
             flip_available: false,
@@ -305,7 +314,14 @@ mod tests {
             "{md}"
         );
         let mut one = results.clone();
-        one.reference.check.pixels = 1;
+        one.reference.check.as_mut().unwrap().pixels = 1;
         assert!(markdown(&one).contains("measured at 1 pixel traced"));
+        // `--reference-check off`: the halves' estimate, called an upper bound; none for one image.
+        let mut off = results.clone();
+        (off.reference.check, off.reference.halves_psnr_db, off.reference.estimated_psnr_db) =
+            (None, Some(33.0), Some(33.0));
+        assert!(markdown(&off).contains("its own PSNR is at most about 33.0 dB from its two halves"));
+        (off.reference.halves_psnr_db, off.reference.estimated_psnr_db) = (None, None);
+        assert!(markdown(&off).contains("its own PSNR is unknown"));
     }
 }

@@ -55,13 +55,15 @@ pub struct ReferenceInfo {
     pub external: Vec<String>,
     /// PSNR of the reference itself against the truth, measured at the check's pixels
     /// (`check`): PSNR(check, reference) + 10·log10((k + 1) / k), k = check spp / reference spp.
-    /// Method PSNRs near it are limited by the reference.
-    pub estimated_psnr_db: f64,
+    /// Method PSNRs near it are limited by the reference. With `--reference-check off`, the
+    /// halves' estimate (null for one external image).
+    pub estimated_psnr_db: Option<f64>,
     /// The older estimate from the reference's two halves, PSNR(half A, half B) + 6.02 dB:
     /// optimistic where rare paths carry the light. Null for an external reference given as one
     /// image.
     pub halves_psnr_db: Option<f64>,
-    pub check: ReferenceCheckInfo,
+    /// Null with `--reference-check off`.
+    pub check: Option<ReferenceCheckInfo>,
     pub image: String,
 }
 
@@ -71,7 +73,8 @@ pub fn pixels_text(count: usize) -> String {
 }
 
 /// The independent check of the reference's error: a sparse, stratified set of pixels (one per
-/// 4 × 4 block) traced with 4 times the reference's spp and a seed of its own.
+/// 4 × 4 block) traced with `--reference-check` (default 4) times the reference's spp and a
+/// seed of its own.
 #[derive(Clone, Debug, Serialize)]
 pub struct ReferenceCheckInfo {
     /// `[low, high]` dB around `estimated_psnr_db`: the PSNR at the checked pixels' mean squared
