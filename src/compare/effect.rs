@@ -266,3 +266,49 @@ impl Tracing<'_> {
         Ok(Dumped { samples: path.path.to_path_buf(), light_samples: None, samples_s, light_samples_s: None })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The reference's check traces single pixels (`Tracing::trace_pixels`); for every effect
+    /// it must read the same layer, with the same estimator, as the whole image
+    /// (`Tracing::trace`): equal bit for bit at those pixels.
+    #[test]
+    fn tracing_pixels_reads_the_whole_image_s_values_for_every_effect() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let cases = [
+            ("scenes/cornell.toml", Effect::Indirect, None),
+            ("scenes/cornell.toml", Effect::Ao, None),
+            ("scenes/cornell.toml", Effect::SoftShadow, None),
+            ("scenes/monkeys.toml", Effect::Glossy, Some(2)),
+            ("scenes/monkeys-defocus-motion.toml", Effect::Dof, None),
+            ("scenes/monkeys-defocus-motion.toml", Effect::Motion, None),
+            ("scenes/monkeys-defocus-motion.toml", Effect::DofMotion, None),
+        ];
+        for (path, effect, bounces) in cases {
+            let mut scene = Scene::load(&root.join(path)).unwrap();
+            let max_bounces = prepare_scene(effect, &mut scene, bounces).unwrap();
+            let accel = Accel::build(&scene).unwrap();
+            let ao_radius = default_ao_radius(&scene);
+            let tracing = Tracing {
+                scene: &scene,
+                accel: &accel,
+                effect,
+                width: 13,
+                height: 9,
+                max_bounces,
+                ao_radius,
+                threads: 2,
+            };
+            let whole = tracing.trace(3, 17, false).unwrap().frame.color;
+            let pixels: Vec<(u32, u32)> = (0..40u32).map(|i| ((i * 5) % 13, (i * 7 + i / 3) % 9)).collect();
+            let (values, _) = tracing.trace_pixels(3, 17, &pixels, false).unwrap();
+            for (&(x, y), value) in pixels.iter().zip(&values) {
+                let expected = whole.pixels[(y * 13 + x) as usize];
+                assert_eq!(value.map(f32::to_bits), expected.map(f32::to_bits), "{path} {effect:?} at ({x}, {y})");
+            }
+            assert!(values.iter().flatten().any(|v| *v > 0.0), "{path} {effect:?}: not vacuous");
+        }
+    }
+}
