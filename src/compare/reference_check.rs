@@ -1,15 +1,16 @@
 //! An independent check of the reference's own error. The two halves' estimate
 //! (`reference::estimated_psnr_db`) is blind where rare paths carry the light: a pixel whose
-//! halves both missed them reads low in both, so they agree while both are wrong (1.4–1.8 dB
+//! halves both missed them reads low in both, so they agree while both are wrong (1.7–2.1 dB
 //! optimistic on the glossy monkeys; docs/ilfr.md, "The reference's self-estimate"). Only more
 //! samples than the reference has can see that, and a whole image of them would cost more than
 //! the reference; so the check traces a sparse, stratified set of pixels — one per
 //! [`BLOCK`] × [`BLOCK`] block, at a hashed place in it — with [`DEFAULT_FACTOR`] times the
-//! reference's samples (`--reference-check`) and a seed of its own: a quarter of the reference's time. Against it, the
-//! reference's mean squared error at those pixels is measured directly, in the comparison's
-//! display space: MSE(reference, check) = MSE_reference + MSE_check, the check's
-//! 1 / factor of the reference's. Cached beside the reference under a hash of everything
-//! that determines it; used for traced and external references alike.
+//! reference's samples (`--reference-check`) and a seed of its own: a quarter of the
+//! reference's time. Against it, the reference's mean squared error at those pixels is
+//! measured directly, in the comparison's display space: MSE(reference, check) =
+//! MSE_reference + MSE_check, the check's 1 / factor of the reference's. Cached beside the
+//! reference under a hash of everything that determines it; used for traced and external
+//! references alike.
 
 use std::path::Path;
 

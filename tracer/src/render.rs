@@ -36,6 +36,17 @@ pub struct RenderSettings {
 }
 
 impl RenderSettings {
+    /// Checks that every one of `pixels` lies inside the image, naming the first that does not.
+    pub fn check_inside(&self, pixels: &[(u32, u32)]) -> Result<(), RenderError> {
+        match pixels.iter().find(|&&(x, y)| x >= self.width || y >= self.height) {
+            Some(&(x, y)) => Err(RenderError::Settings(format!(
+                "pixel ({x}, {y}) is outside the {}x{} image",
+                self.width, self.height
+            ))),
+            None => Ok(()),
+        }
+    }
+
     /// The scene's own resolution, spp and bounce limit.
     pub fn from_scene(scene: &Scene) -> RenderSettings {
         RenderSettings {
@@ -478,12 +489,7 @@ pub fn render_pixels(
     pixels: &[(u32, u32)],
 ) -> Result<Vec<PixelMeans>, RenderError> {
     settings.validate()?;
-    if let Some(&(x, y)) = pixels.iter().find(|&&(x, y)| x >= settings.width || y >= settings.height) {
-        return Err(RenderError::Settings(format!(
-            "pixel ({x}, {y}) is outside the {}x{} image",
-            settings.width, settings.height
-        )));
-    }
+    settings.check_inside(pixels)?;
     let lights = LightSampler::new(scene);
     let integrator = Integrator::new(scene, accel, &lights, settings.max_bounces, settings.width, settings.height);
     let group = (TILE * TILE) as usize;

@@ -418,12 +418,7 @@ pub fn ambient_occlusion_pixels(
 ) -> Result<Vec<f32>, RenderError> {
     settings.validate()?;
     check_ao_radius(radius)?;
-    if let Some(&(x, y)) = pixels.iter().find(|&&(x, y)| x >= settings.width || y >= settings.height) {
-        return Err(RenderError::Settings(format!(
-            "pixel ({x}, {y}) is outside the {}x{} image",
-            settings.width, settings.height
-        )));
-    }
+    settings.check_inside(pixels)?;
     let lights = LightSampler::new(scene);
     let ao = AoPixel::new(scene, accel, &lights, settings, radius);
     let pool = crate::render::thread_pool(settings.threads)?;
