@@ -23,12 +23,13 @@ use super::filter::SplatShading;
 use super::gather::{gather_with_spread, rays_per_hit, GatherSettings, GatherStats};
 use super::lens::gather_lens;
 use super::lens::read_primary_rays;
+use super::neighbours::KdTree;
 use super::reconstruct::Reconstructor;
 use super::recursive::{recursive_pass, RecursiveSettings, RecursiveStats};
-use super::robust::{robust_radiance, RobustMode, RobustParams, RobustStats};
+use super::robust::{robust_radiance_in, RobustMode, RobustParams, RobustStats};
 use super::samples::{read_indirect, IndirectSamples};
 use super::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams, ShrinkStats, Trim};
-use super::splats::{size_splats, GatheredPoints, SplatParams, SplatStats};
+use super::splats::{size_splats_in, GatheredPoints, SplatParams, SplatStats};
 use super::surfaces::{ConflictTest, SurfaceParams};
 use crate::error::Error;
 use crate::image::Image;
@@ -542,7 +543,11 @@ pub fn reconstruct_samples(
     let start = Instant::now();
     let storage = GatheredPoints::from_samples(samples);
     let points = storage.points();
-    let sized = size_splats(&points, &settings.splats).map_err(failed)?;
+    // One kd-tree of the hits for the sizing and every robust-radiance pass (built once the
+    // hits are known to be finite).
+    points.validate().map_err(failed)?;
+    let tree = KdTree::build(points.position);
+    let sized = size_splats_in(&tree, &points, &settings.splats).map_err(failed)?;
     let sizing_s = start.elapsed().as_secs_f64();
     crate::progress::advance(1);
 
@@ -575,7 +580,7 @@ pub fn reconstruct_samples(
     let radii = bvh.area_radii();
     let splat_radiance = |per_sample: &[[f32; 3]]| -> Result<(Vec<[f32; 3]>, RobustStats), MethodError> {
         let raw: Vec<[f32; 3]> = storage.sample_index.iter().map(|&i| per_sample[i as usize]).collect();
-        robust_radiance(&points, &radii, &raw, &robust).map_err(failed)
+        robust_radiance_in(&tree, &points, &radii, &raw, &robust).map_err(failed)
     };
 
     // §4: each pass reconstructs at the Lambertian secondary hits from the previous radiances.

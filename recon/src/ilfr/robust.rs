@@ -156,15 +156,41 @@ pub fn robust_radiance(
     radiance: &[[f32; 3]],
     params: &RobustParams,
 ) -> Result<(Vec<[f32; 3]>, RobustStats), Error> {
-    params.validate()?;
+    if params.mode == RobustMode::Off {
+        params.validate()?;
+        check_lengths(points, radius, radiance)?;
+        return Ok((radiance.to_vec(), RobustStats::default()));
+    }
+    robust_radiance_in(&KdTree::build(points.position), points, radius, radiance, params)
+}
+
+fn check_lengths(points: &SplatPoints, radius: &[f32], radiance: &[[f32; 3]]) -> Result<(), Error> {
     let n = points.position.len();
     if radius.len() != n || radiance.len() != n || points.normal.len() != n || points.direction.len() != n {
         return Err(Error::size_mismatch("robust radiance", "positions, radii and radiances differ in length"));
     }
+    Ok(())
+}
+
+/// [`robust_radiance`] with the kd-tree of `points.position` built by the caller (shared with
+/// the sizing, [`super::splats::size_splats_in`]); `tree` must hold exactly those positions.
+pub fn robust_radiance_in(
+    tree: &KdTree,
+    points: &SplatPoints,
+    radius: &[f32],
+    radiance: &[[f32; 3]],
+    params: &RobustParams,
+) -> Result<(Vec<[f32; 3]>, RobustStats), Error> {
+    params.validate()?;
+    check_lengths(points, radius, radiance)?;
+    let n = points.position.len();
+    if tree.len() != n {
+        let message = format!("a kd-tree of {} points for {n} splats", tree.len());
+        return Err(Error::size_mismatch("robust radiance", message));
+    }
     if params.mode == RobustMode::Off || n == 0 {
         return Ok((radiance.to_vec(), RobustStats::default()));
     }
-    let tree = KdTree::build(points.position);
     let alpha_squared_minus_one = params.alpha * params.alpha - 1.0;
     let log_threshold = params.lobe_threshold.ln();
     // The first `wanted` neighbours in the lobe, in the walk's order (the jury is their first
@@ -447,6 +473,30 @@ mod tests {
         for k in 0..3 {
             assert!((a[k] - b[k]).abs() <= 1e-6 * a[k], "channel {k}: {} → {}", a[k], b[k]);
         }
+    }
+
+    /// The method builds one kd-tree of the hits for the sizing and every robust pass: with it,
+    /// the radiance is that of the self-contained call bit for bit (spike included); a tree of
+    /// other points is refused, naming both counts.
+    #[test]
+    fn a_shared_kd_tree_gives_the_same_radiance_and_a_wrong_one_is_refused() {
+        let mut l = lattice(6, 1.5, |x, y| [1.0 + 0.1 * x, 0.5, 0.2 * y]);
+        let spike = l.index(1.0, 1.0);
+        l.radiance[spike] = [1e4; 3];
+        let params = RobustParams::default();
+        let own = l.run(&params);
+        let tree = KdTree::build(&l.position);
+        let shared = robust_radiance_in(&tree, &l.points(), &l.radius, &l.radiance, &params).unwrap();
+        assert_eq!(own.1.outliers, shared.1.outliers);
+        let bits = |v: &[[f32; 3]]| v.iter().flat_map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
+        assert_eq!(bits(&own.0), bits(&shared.0));
+        assert!(own.1.outliers >= 1, "not vacuous: the spike is judged");
+        let other = KdTree::build(&l.position[1..]);
+        let error = robust_radiance_in(&other, &l.points(), &l.radius, &l.radiance, &params).unwrap_err();
+        let n = l.position.len();
+        assert!(error.to_string().contains(&format!("a kd-tree of {} points for {n} splats", n - 1)), "{error}");
+        let sizing = crate::ilfr::splats::size_splats_in(&other, &l.points(), &Default::default()).unwrap_err();
+        assert!(sizing.to_string().contains("a kd-tree of"), "{sizing}");
     }
 
     #[test]

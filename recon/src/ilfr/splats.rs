@@ -121,7 +121,9 @@ impl<'a> SplatPoints<'a> {
         self.kappa.map_or(0.0, |k| k[i])
     }
 
-    fn validate(&self) -> Result<(), Error> {
+    /// Checks the fields have one entry per hit and every value is finite (what the kd-tree of
+    /// the positions assumes).
+    pub fn validate(&self) -> Result<(), Error> {
         let n = self.len();
         if self.normal.len() != n || self.direction.len() != n || self.kappa.is_some_and(|k| k.len() != n) {
             return Err(Error::size_mismatch(
@@ -232,10 +234,21 @@ pub struct Splats {
 
 /// Sizes every splat (paper Section 2.2) in parallel; see the module documentation.
 pub fn size_splats(points: &SplatPoints, params: &SplatParams) -> Result<Splats, Error> {
+    points.validate()?;
+    size_splats_in(&KdTree::build(points.position), points, params)
+}
+
+/// [`size_splats`] with the kd-tree of `points.position` built by the caller (who also needs
+/// it for the robust radiance, [`super::robust::robust_radiance_in`]); `tree` must hold
+/// exactly those positions.
+pub fn size_splats_in(tree: &KdTree, points: &SplatPoints, params: &SplatParams) -> Result<Splats, Error> {
     params.validate()?;
     points.validate()?;
+    if tree.len() != points.position.len() {
+        let message = format!("a kd-tree of {} points for {} splats", tree.len(), points.position.len());
+        return Err(Error::size_mismatch("splat sizing", message));
+    }
     let setup = Setup::new(points, params);
-    let tree = KdTree::build(points.position);
     let alpha_squared_minus_one = params.alpha * params.alpha - 1.0;
     // Queried in the tree's leaf order (neighbouring queries walk the same nodes), each result
     // a pure function of its hit, put back in input order.
