@@ -351,6 +351,42 @@ mod tests {
         assert!((single.psnr_db - own).abs() < 1e-9 && single.interval_db == [0.0, PSNR_CEILING_DB], "{single:?}");
     }
 
+    /// Stiff scales: the estimate is read in the display space of the reference's own tone map,
+    /// so a scene whose radiance is 1e-6 or 1e9 times another's gets the same estimate and
+    /// interval (within f32 rounding), finite.
+    #[test]
+    fn the_estimate_is_the_same_at_1e_minus_6_and_1e9_scale() {
+        let (width, height) = (16u32, 12u32);
+        let value = |i: u32, salt: u32| 0.05 + (i.wrapping_mul(2654435761).wrapping_add(salt) % 1000) as f32 / 1000.0;
+        let reference: Vec<[f32; 3]> = (0..width * height).map(|i| [value(i, 1), value(i, 2), value(i, 3)]).collect();
+        let pixels = check_pixels(width, height, 5);
+        let values: Vec<[f32; 3]> = pixels
+            .iter()
+            .map(|&(x, y)| reference[(y * width + x) as usize].map(|v| v * (1.0 + 0.1 * (x as f32 - 7.5) / 8.0)))
+            .collect();
+        let at_scale = |scale: f32| {
+            let image = Image::from_pixels(width, height, reference.iter().map(|p| p.map(|v| v * scale)).collect());
+            let check = Check {
+                pixels: pixels.clone(),
+                values: values.iter().map(|p| p.map(|v| v * scale)).collect(),
+                spp: 64,
+                seed: 5,
+                seconds: 1.0,
+                from_cache: false,
+            };
+            check.estimate(&image, 16, &ToneMap::auto(&image)).unwrap()
+        };
+        let unit = at_scale(1.0);
+        assert!(unit.psnr_db.is_finite() && unit.psnr_db < PSNR_CEILING_DB, "{unit:?}");
+        for scale in [1e-6, 1e9] {
+            let scaled = at_scale(scale);
+            assert!((scaled.psnr_db - unit.psnr_db).abs() < 1e-3, "{scale}: {scaled:?} vs {unit:?}");
+            for (a, b) in scaled.interval_db.iter().zip(unit.interval_db) {
+                assert!(a.is_finite() && (a - b).abs() < 1e-3, "{scale}: {scaled:?} vs {unit:?}");
+            }
+        }
+    }
+
     #[test]
     fn the_check_seed_is_none_of_the_taken_ones() {
         for seed in [0, 1, 5, u32::MAX] {
