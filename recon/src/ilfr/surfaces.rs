@@ -219,6 +219,32 @@ fn footprint_directions() -> &'static [(f32, f32); FOOTPRINT_VERTICES] {
 /// Whether the ray passes inside the convex hull of the footprints of `members` (discs with radii
 /// × `scale`, projected along the ray onto the st plane); see the module documentation.
 pub fn inside_footprint_hull(ray: &Ray, members: &[Candidate], scale: f32) -> bool {
+    footprint_hull_test(ray, members, scale, |points| !in_open_half_plane(points))
+}
+
+/// [`inside_footprint_hull`] by the vertices' angles: sorted, the origin is outside iff two
+/// consecutive ones lie more than π apart. The first implementation, kept as the oracle of the
+/// linear test ([`in_open_half_plane`]); both decide alike but where a gap is within rounding of π.
+#[cfg(test)]
+fn inside_footprint_hull_by_angles(ray: &Ray, members: &[Candidate], scale: f32) -> bool {
+    footprint_hull_test(ray, members, scale, |points| {
+        let mut angles: Vec<f32> = points.iter().map(|&(x, y)| y.atan2(x)).collect();
+        angles.sort_unstable_by(|a, b| a.total_cmp(b));
+        let wrap = angles[0] + std::f32::consts::TAU - angles[angles.len() - 1];
+        let largest_gap = angles.windows(2).map(|w| w[1] - w[0]).fold(wrap, f32::max);
+        largest_gap <= std::f32::consts::PI
+    })
+}
+
+/// The footprint vertices of `members` in the plane ⟂ the ray (coordinates relative to the
+/// ray), handed to `inside` unless a footprint alone decides: within one footprint (the exact
+/// tangent-plane distance), a single splat, or a vertex on the ray.
+fn footprint_hull_test(
+    ray: &Ray,
+    members: &[Candidate],
+    scale: f32,
+    inside: impl FnOnce(&[(f32, f32)]) -> bool,
+) -> bool {
     // Within one footprint: exactly the tangent-plane distance.
     if members.iter().any(|c| c.hit.spatial < scale * c.radius) {
         return true;
@@ -229,13 +255,13 @@ pub fn inside_footprint_hull(ray: &Ray, members: &[Candidate], scale: f32) -> bo
     let d = ray.direction;
     let (u, v) = perpendicular_frame(d);
     // The small surfaces' (≤ 3 splats) vertices fit on the stack.
-    let mut stack_angles = [0.0f32; 3 * FOOTPRINT_VERTICES];
-    let mut heap_angles = Vec::new();
-    let angles: &mut [f32] = if members.len() <= 3 {
-        &mut stack_angles[..members.len() * FOOTPRINT_VERTICES]
+    let mut stack_points = [(0.0f32, 0.0f32); 3 * FOOTPRINT_VERTICES];
+    let mut heap_points = Vec::new();
+    let points: &mut [(f32, f32)] = if members.len() <= 3 {
+        &mut stack_points[..members.len() * FOOTPRINT_VERTICES]
     } else {
-        heap_angles.resize(members.len() * FOOTPRINT_VERTICES, 0.0);
-        &mut heap_angles
+        heap_points.resize(members.len() * FOOTPRINT_VERTICES, (0.0, 0.0));
+        &mut heap_points
     };
     let directions = footprint_directions();
     for (m, c) in members.iter().enumerate() {
@@ -251,16 +277,42 @@ pub fn inside_footprint_hull(ray: &Ray, members: &[Candidate], scale: f32) -> bo
             if x == 0.0 && y == 0.0 {
                 return true;
             }
-            angles[m * FOOTPRINT_VERTICES + k] = y.atan2(x);
+            points[m * FOOTPRINT_VERTICES + k] = (x, y);
         }
     }
-    // Outside iff every vertex lies in an open half-plane through the origin: a gap > π between
-    // consecutive directions. (Values equal under `total_cmp` are equal bit for bit, so any
-    // sort gives the same sequence.)
-    angles.sort_unstable_by(|a, b| a.total_cmp(b));
-    let wrap = angles[0] + std::f32::consts::TAU - angles[angles.len() - 1];
-    let largest_gap = angles.windows(2).map(|w| w[1] - w[0]).fold(wrap, f32::max);
-    largest_gap <= std::f32::consts::PI
+    inside(points)
+}
+
+/// Whether every one of `points` (none at the origin) lies in one open half-plane through the
+/// origin, i.e. the origin is outside their convex hull: one pass that keeps the narrowest
+/// counter-clockwise arc [start, end] (< π) holding the points so far, by the signs of cross
+/// products. A point outside it widens it at the end it lies beyond while the arc stays under
+/// π; where it cannot (the points then span π or more, a gap of exactly π included), the origin
+/// is inside. O(n), without the angles' arctangents and sort.
+fn in_open_half_plane(points: &[(f32, f32)]) -> bool {
+    let cross = |a: (f32, f32), b: (f32, f32)| a.0 * b.1 - a.1 * b.0;
+    let dot = |a: (f32, f32), b: (f32, f32)| a.0 * b.0 + a.1 * b.1;
+    let Some(&first) = points.first() else {
+        return true;
+    };
+    let (mut start, mut end) = (first, first);
+    for &p in &points[1..] {
+        let (from_start, to_end) = (cross(start, p), cross(p, end));
+        let degenerate = cross(start, end) == 0.0; // one direction so far
+        let within =
+            if degenerate { from_start == 0.0 && dot(start, p) > 0.0 } else { from_start >= 0.0 && to_end >= 0.0 };
+        if within {
+            continue;
+        }
+        if from_start > 0.0 {
+            end = p; // beyond the end, less than π from the start
+        } else if to_end > 0.0 {
+            start = p; // before the start, less than π from the end
+        } else {
+            return false;
+        }
+    }
+    true
 }
 
 /// The surface a reconstruction uses.
@@ -678,6 +730,63 @@ mod tests {
             let expected = if kept { (0..2, 0) } else { (0..7, 1) };
             assert_eq!((surface.members.clone(), surface.merged_surfaces), expected, "z = {z}");
         }
+    }
+
+    #[test]
+    fn the_linear_hull_test_decides_as_the_sorted_angles_do() {
+        // Random groups of 2–5 splats (random tilts, radii, scales) around and beside the ray:
+        // the one-pass half-plane test against the angles' sort (the first implementation),
+        // wherever the decision is not within rounding of a gap of exactly π (checked by
+        // moving the group a hair both ways, which must agree with each other).
+        let mut rng = crate::lcg::Lcg(41);
+        let (mut inside, mut outside, mut borderline) = (0, 0, 0);
+        for trial in 0..20_000 {
+            let count = 2 + trial % 4;
+            let spread = if trial % 3 == 0 { 0.5 } else { 2.0 };
+            let shift = [(rng.uniform() - 0.5) * spread, (rng.uniform() - 0.5) * spread];
+            let group: Vec<Candidate> = (0..count)
+                .map(|k| Candidate {
+                    id: k as u32,
+                    centre: [
+                        shift[0] + (rng.uniform() - 0.5) * 2.0,
+                        1.0 + rng.uniform() * 3.0,
+                        shift[1] + (rng.uniform() - 0.5) * 2.0,
+                    ],
+                    normal: unit(rng.uniform() - 0.5, -0.2 - rng.uniform(), rng.uniform() - 0.5),
+                    radius: 0.05 + rng.uniform() * 0.5,
+                    // Outside every footprint, so that the vertices decide.
+                    hit: DiscHit { t: 2.0, spatial: f32::INFINITY, depth: 2.0, back_facing: false },
+                })
+                .collect();
+            let scale = 0.4 + 0.4 * rng.uniform();
+            let nudged = |dx: f32| {
+                let moved: Vec<Candidate> = group
+                    .iter()
+                    .map(|c| Candidate { centre: [c.centre[0] + dx, c.centre[1], c.centre[2] + dx], ..*c })
+                    .collect();
+                inside_footprint_hull_by_angles(&RAY, &moved, scale)
+            };
+            if nudged(1e-4) != nudged(-1e-4) {
+                borderline += 1;
+                continue;
+            }
+            let expected = inside_footprint_hull_by_angles(&RAY, &group, scale);
+            assert_eq!(inside_footprint_hull(&RAY, &group, scale), expected, "trial {trial}");
+            if expected {
+                inside += 1;
+            } else {
+                outside += 1;
+            }
+        }
+        assert!(inside > 2000 && outside > 2000 && borderline < 200, "{inside} {outside} {borderline}");
+        // Exact configurations: two points opposite (a gap of exactly π) are inside, as the angles
+        // say; one direction repeated, or an arc under π, is outside; the arc closing on the
+        // far side of the start is inside.
+        assert!(!in_open_half_plane(&[(1.0, 0.0), (-1.0, 0.0)]));
+        assert!(in_open_half_plane(&[(1.0, 0.0), (2.0, 0.0), (3.0, 0.0)]));
+        assert!(in_open_half_plane(&[(1.0, 0.0), (1.0, 1.0), (0.0, 1.0), (1.0, -1.0)]));
+        assert!(!in_open_half_plane(&[(1.0, 0.0), (0.0, 1.0), (-1.0, 0.1), (-1.0, -1.0)]));
+        assert!(!in_open_half_plane(&[(1.0, 0.0), (-1.0, 1.0), (-1.0, -1.0)]));
     }
 
     #[test]
