@@ -737,7 +737,8 @@ mod tests {
         // Random groups of 2–5 splats (random tilts, radii, scales) around and beside the ray:
         // the one-pass half-plane test against the angles' sort (the first implementation),
         // wherever the decision is not within rounding of a gap of exactly π (checked by
-        // moving the group a hair both ways, which must agree with each other).
+        // moving the group a hair both ways, which must agree with each other), and the same
+        // decisions with the group at 1e-6 and 1e9 scale.
         let mut rng = crate::lcg::Lcg(41);
         let (mut inside, mut outside, mut borderline) = (0, 0, 0);
         for trial in 0..20_000 {
@@ -772,6 +773,14 @@ mod tests {
             }
             let expected = inside_footprint_hull_by_angles(&RAY, &group, scale);
             assert_eq!(inside_footprint_hull(&RAY, &group, scale), expected, "trial {trial}");
+            // The same group at 1e-6 and 1e9 scale (the ray's origin is the centre of scaling).
+            for size in [1e-6f32, 1e9] {
+                let scaled: Vec<Candidate> = group
+                    .iter()
+                    .map(|c| Candidate { centre: c.centre.map(|v| v * size), radius: c.radius * size, ..*c })
+                    .collect();
+                assert_eq!(inside_footprint_hull(&RAY, &scaled, scale), expected, "trial {trial} at {size}");
+            }
             if expected {
                 inside += 1;
             } else {
