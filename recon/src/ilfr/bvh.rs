@@ -26,7 +26,9 @@
 //! returns (tested bit for bit).
 
 use super::disc::{intersect, intersect_placed, wedge_at, wedge_extent, Disc, DiscHit, Ray, WEDGES};
+use super::PARALLEL_ITEMS;
 use crate::error::Error;
+use rayon::prelude::*;
 
 /// Discs per leaf at most.
 pub const MAX_LEAF: usize = 8;
@@ -342,12 +344,17 @@ impl DiscBvh {
     /// sweep sees children first.
     fn refit(&mut self) {
         let pad = self.pad;
+        // The discs' boxes (wedge extents on trimmed discs: the costly part) on every thread.
+        let disc_boxes: Vec<([f32; 3], [f32; 3])> = (0..self.discs.len() as u32)
+            .into_par_iter()
+            .with_max_len(PARALLEL_ITEMS)
+            .map(|slot| self.disc_bounds(slot))
+            .collect();
         for index in (0..self.nodes.len()).rev() {
             let Node { first, count, .. } = self.nodes[index];
             let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
             if count > 0 {
-                for slot in first..first + count {
-                    let (dlo, dhi) = self.disc_bounds(slot);
+                for &(dlo, dhi) in &disc_boxes[first as usize..(first + count) as usize] {
                     grow(&mut lo, &mut hi, dlo, dhi);
                 }
                 for axis in 0..3 {
@@ -384,8 +391,9 @@ impl DiscBvh {
     /// largest box area first (ties by the lower index), so the collapse is a pure function of
     /// the binary tree. Also refreshes the compact disc records.
     fn collapse(&mut self) {
-        self.records =
-            self.discs.iter().enumerate().map(|(slot, disc)| DiscRecord::of(disc, self.wedges.get(slot))).collect();
+        self.records = (self.discs.par_iter().enumerate().with_max_len(PARALLEL_ITEMS))
+            .map(|(slot, disc)| DiscRecord::of(disc, self.wedges.get(slot)))
+            .collect();
         self.wide.clear();
         if self.nodes.is_empty() {
             return;

@@ -76,10 +76,7 @@ impl KdTree {
     /// Builds the tree; the points must be finite (the caller checks).
     pub fn build(points: &[[f32; 3]]) -> KdTree {
         let mut ids: Vec<u32> = (0..points.len() as u32).collect();
-        let mut nodes = Vec::with_capacity(2 * points.len() / LEAF_SIZE + 1);
-        if !points.is_empty() {
-            build_node(points, &mut ids, 0, &mut nodes);
-        }
+        let nodes = if points.is_empty() { Vec::new() } else { build_subtree(points, &mut ids, 0) };
         KdTree { nodes, points: ids.iter().map(|&i| points[i as usize]).collect(), ids }
     }
 
@@ -235,7 +232,10 @@ fn box_lower_bound(node: &Node, query: [f32; 3]) -> f32 {
     sum * (1.0 - 1e-5)
 }
 
-fn build_node(points: &[[f32; 3]], ids: &mut [u32], offset: u32, nodes: &mut Vec<Node>) -> u32 {
+/// The node over `ids` (tree positions from `offset`) and, unless it is a leaf, where its ids
+/// split: at the median along the box's longest axis, the ids reordered so that the left half
+/// comes first (ties by index, so the split is a pure function of the points).
+fn node_and_split(points: &[[f32; 3]], ids: &mut [u32], offset: u32) -> (Node, Option<usize>) {
     let mut lo = [f32::INFINITY; 3];
     let mut hi = [f32::NEG_INFINITY; 3];
     for &id in ids.iter() {
@@ -245,24 +245,69 @@ fn build_node(points: &[[f32; 3]], ids: &mut [u32], offset: u32, nodes: &mut Vec
             hi[axis] = hi[axis].max(p[axis]);
         }
     }
-    let index = nodes.len() as u32;
     let count = ids.len() as u32;
-    nodes.push(Node { lo, hi, start: offset, end: offset + count, left: 0, right: 0 });
+    let node = Node { lo, hi, start: offset, end: offset + count, left: 0, right: 0 };
     let extent = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
     if ids.len() <= LEAF_SIZE || extent.iter().all(|&e| e <= 0.0) {
-        return index;
+        return (node, None);
     }
     let axis = (0..3).max_by(|&a, &b| extent[a].total_cmp(&extent[b]).then(b.cmp(&a))).unwrap_or(0);
     let middle = ids.len() / 2;
     ids.select_nth_unstable_by(middle, |&a, &b| {
         points[a as usize][axis].total_cmp(&points[b as usize][axis]).then(a.cmp(&b))
     });
+    (node, Some(middle))
+}
+
+/// Appends the subtree over `ids` to `nodes` on one thread, its root first, then its left
+/// subtree's nodes, then its right's; returns the root's index.
+fn build_node(points: &[[f32; 3]], ids: &mut [u32], offset: u32, nodes: &mut Vec<Node>) -> u32 {
+    let (node, split) = node_and_split(points, ids, offset);
+    let index = nodes.len() as u32;
+    nodes.push(node);
+    let Some(middle) = split else { return index };
     let (left_ids, right_ids) = ids.split_at_mut(middle);
     let left = build_node(points, left_ids, offset, nodes);
     let right = build_node(points, right_ids, offset + middle as u32, nodes);
     nodes[index as usize].left = left;
     nodes[index as usize].right = right;
     index
+}
+
+/// Subtrees over at least this many points build their two halves on two threads.
+const PARALLEL_BUILD_MIN: usize = 4096;
+
+/// The nodes of the subtree over `ids` in the order [`build_node`] appends them, child indices
+/// counted from the subtree's root. Large subtrees build their halves in parallel and shift the
+/// halves' child indices into place, so the layout is the sequential build's, node for node,
+/// for any number of threads.
+fn build_subtree(points: &[[f32; 3]], ids: &mut [u32], offset: u32) -> Vec<Node> {
+    if ids.len() < PARALLEL_BUILD_MIN {
+        let mut nodes = Vec::with_capacity(2 * ids.len() / LEAF_SIZE + 1);
+        build_node(points, ids, offset, &mut nodes);
+        return nodes;
+    }
+    let (mut root, split) = node_and_split(points, ids, offset);
+    let Some(middle) = split else { return vec![root] };
+    let (left_ids, right_ids) = ids.split_at_mut(middle);
+    let (left, right) = rayon::join(
+        || build_subtree(points, left_ids, offset),
+        || build_subtree(points, right_ids, offset + middle as u32),
+    );
+    // Inner nodes have left > 0 (a child comes after its parent); leaves keep 0.
+    let shift = |node: &Node, by: u32| {
+        if node.left != 0 {
+            Node { left: node.left + by, right: node.right + by, ..*node }
+        } else {
+            *node
+        }
+    };
+    (root.left, root.right) = (1, 1 + left.len() as u32);
+    let mut nodes = Vec::with_capacity(1 + left.len() + right.len());
+    nodes.push(root);
+    nodes.extend(left.iter().map(|n| shift(n, root.left)));
+    nodes.extend(right.iter().map(|n| shift(n, root.right)));
+    nodes
 }
 
 /// The buffers of [`KdTree::walk`], kept across queries of one thread.
@@ -341,6 +386,31 @@ mod tests {
             expected.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
             assert_eq!(walked.len(), points.len() - 1);
             assert!(walked.iter().zip(&expected).all(|(w, e)| w.0.to_bits() == e.0.to_bits() && w.1 == e.1));
+        }
+    }
+
+    /// The parallel build lays out the sequential build's nodes, node for node, on trees of
+    /// one to several parallel levels, with repeated coordinates and coincident points.
+    #[test]
+    fn the_parallel_build_lays_out_the_sequential_builds_nodes() {
+        for (n, seed) in [(PARALLEL_BUILD_MIN - 1, 3u64), (PARALLEL_BUILD_MIN, 4), (5 * PARALLEL_BUILD_MIN + 17, 5)] {
+            let mut points = random_points(n, seed);
+            for i in (0..n).step_by(97) {
+                points[i] = points[i / 2];
+            }
+            let mut ids: Vec<u32> = (0..n as u32).collect();
+            let mut sequential = Vec::new();
+            build_node(&points, &mut ids, 0, &mut sequential);
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().unwrap();
+            let tree = pool.install(|| KdTree::build(&points));
+            assert_eq!(tree.nodes.len(), sequential.len(), "{n} points");
+            for (a, b) in tree.nodes.iter().zip(&sequential) {
+                assert_eq!(
+                    (a.lo, a.hi, a.start, a.end, a.left, a.right),
+                    (b.lo, b.hi, b.start, b.end, b.left, b.right)
+                );
+            }
+            assert_eq!(tree.ids, ids, "{n} points: the leaf order");
         }
     }
 

@@ -222,6 +222,7 @@ pub fn robust_radiance_in(
     let in_leaf_order: Vec<Verdict> = tree
         .leaf_order()
         .par_iter()
+        .with_max_len(super::PARALLEL_ITEMS)
         .map_init(
             || (WalkScratch::default(), Vec::<u32>::new()),
             |(scratch, found), &i| {

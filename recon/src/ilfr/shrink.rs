@@ -216,6 +216,7 @@ pub fn shrink_splats(bvh: &mut DiscBvh, rays: &[InputRay], params: &ShrinkParams
     let crossings = AtomicU64::new(0);
     let (short_rays, blocked_rays) = rays
         .par_iter()
+        .with_max_len(super::PARALLEL_ITEMS)
         .filter(|ray| params.escaped_rays || ray.length.is_finite())
         .map_init(Vec::new, |stack, ray| {
             let Some(window) = blocking_window(ray, epsilon_floor, params) else {

@@ -255,6 +255,7 @@ pub fn size_splats_in(tree: &KdTree, points: &SplatPoints, params: &SplatParams)
     let in_leaf_order: Vec<(f32, SplatStatus, u32)> = tree
         .leaf_order()
         .par_iter()
+        .with_max_len(super::PARALLEL_ITEMS)
         .map_init(
             || (WalkScratch::default(), Vec::new()),
             |(scratch, list), &i| {
