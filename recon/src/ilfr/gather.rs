@@ -835,8 +835,7 @@ mod tests {
         let existing = rays.iter().filter(|w| w.ray.is_some()).count();
         // Each run's keys in the order traced.
         let runs = std::sync::Mutex::new(Vec::new());
-        let trace = |ray: &Ray, scratch: &mut Scratch, stats: &mut ReconstructStats| {
-            let _ = scratch;
+        let trace = |ray: &Ray, _: &mut Scratch, stats: &mut ReconstructStats| {
             stats.rays += 1;
             stats.nodes += ray.origin[0] as u64;
             let key = direction_key(ray.direction);
