@@ -1213,4 +1213,58 @@ pub(crate) mod tests {
         let error = reconstruct_samples(&ao, GatherTarget::Visibility { ao_radius: 0.0 }, &settings(4)).unwrap_err();
         assert!(error.to_string().contains("AO radius"), "{error}");
     }
+
+    /// Issue 23's outlier test at the pixel level: one 1e4 spike among smooth samples (radiance
+    /// 1.0–1.2, grey) in the closed box, the whole method run with and without it.
+    /// - `robust=clamp`: the spike's splat keeps at most c × the second largest luminance of its
+    ///   jury (≤ c · 1.2) and no other splat changes (rank 2: one outlier raises no one's level),
+    ///   and every pixel is albedo × a convex combination of splat radiances (the filter's
+    ///   normalised weights, the mean over rays and over hits), so the stated bound is: no pixel
+    ///   channel moves by more than albedo × (c · 1.2 − 1.0).
+    /// - `robust=spread` (the default) keeps the spike's power instead: the image gains what it
+    ///   gains without the rule (Σ over pixels within 10 %), spread over more pixels.
+    ///
+    /// Without the rule some pixel moves by more than ten times the clamp's bound (not vacuous).
+    #[test]
+    fn one_spike_among_smooth_samples_moves_no_pixel_beyond_the_stated_bound() {
+        let smooth = |h: [f32; 3]| [1.0 + 0.1 * h[2]; 3];
+        let clean = box_samples(16, 4, SampleKind::Indirect, None, smooth);
+        let mut spiked = clean.clone();
+        let spike = (0..spiked.len())
+            .find(|&i| spiked.class[i] == SampleClass::Hit && (0.5..1.5).contains(&spiked.secondary_hit[i][2]))
+            .expect("a wall hit");
+        spiked.radiance.as_mut().unwrap()[spike] = [1e4; 3];
+        let albedo = [0.5f32, 0.25, 1.0]; // box_samples' albedo at every hit
+                                          // (per pixel and channel: the change the spike makes; the image sum's change in blue)
+        let run = |mode: RobustMode| {
+            let s = IlfrSettings { robust: RobustParams { mode, ..RobustParams::default() }, ..settings(64) };
+            let a = reconstruct_samples(&clean, GatherTarget::Indirect, &s).unwrap().image;
+            let b = reconstruct_samples(&spiked, GatherTarget::Indirect, &s).unwrap().image;
+            assert!(b.pixels.iter().flatten().all(|v| v.is_finite()), "{mode:?}");
+            let change: Vec<[f32; 3]> =
+                a.pixels.iter().zip(&b.pixels).map(|(p, q)| [0, 1, 2].map(|c| q[c] - p[c])).collect();
+            let gained: f64 = change.iter().map(|d| d[2] as f64).sum();
+            (change, gained)
+        };
+        let c = RobustParams::default().factor;
+        let bound = albedo.map(|a| a * (c * 1.2 - 1.0));
+        let (clamped, _) = run(RobustMode::Clamp);
+        for (k, d) in clamped.iter().enumerate() {
+            for ch in 0..3 {
+                assert!(d[ch].abs() <= bound[ch] * (1.0 + 1e-5), "clamp: pixel {k} channel {ch} moved {}", d[ch]);
+            }
+        }
+        let (off, off_gain) = run(RobustMode::Off);
+        let worst_off = off.iter().map(|d| d[2].abs()).fold(0.0f32, f32::max);
+        assert!(worst_off > 10.0 * bound[2], "without the rule the spike shows: {worst_off}");
+        let (spread, spread_gain) = run(RobustMode::Spread);
+        assert!((spread_gain - off_gain).abs() <= 0.1 * off_gain, "power: {spread_gain} against {off_gain}");
+        let moved = |d: &[[f32; 3]]| d.iter().filter(|p| p[2] != 0.0).count();
+        assert!(
+            moved(&spread) > moved(&off),
+            "spread over {} pixels, {} without the rule",
+            moved(&spread),
+            moved(&off)
+        );
+    }
 }
