@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# Runs a fixed set of small `lfr compare` runs with two `lfr` binaries and checks that they
-# write the same outputs: every image (EXR and PNG, byte for byte) and results.json with the
-# fields that measure time removed (times, timing spreads, speedups, verdict sentences, peak
-# memory, and stage times in `stats`). Every effect, every method that handles it (probes for
-# indirect light), an external reference, repetitions, explicit reconstruction rays and the
-# reference check switched off.
+# Runs a fixed set of small `lfr compare` runs, and `lfr dump` of every kind, with two `lfr`
+# binaries and checks that they write the same outputs: every sample file and every image (EXR
+# and PNG) byte for byte, and results.json with the fields that measure time removed (times,
+# timing spreads, speedups, verdict sentences, peak memory, durations in the notes). Every
+# effect, every method that handles it (probes for indirect light), an external reference,
+# repetitions, explicit reconstruction rays and the reference check switched off.
 #
 #   scripts/compare-outputs-identical.sh BASE_LFR NEW_LFR [WORK_DIR]
 #
@@ -16,7 +16,7 @@
 set -euo pipefail
 
 if [[ $# -lt 2 ]]; then
-    sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'
+    sed -n '2,15p' "$0" | sed 's/^# \{0,1\}//'
     exit 2
 fi
 base_lfr=$(realpath "$1")
@@ -93,6 +93,27 @@ run_side new "$new_lfr"
 
 status=0
 compared=0
+# `lfr dump` of every kind (lens-time also with the soft-shadow fields): the same files.
+dumps=("lens-time|monkeys-defocus-motion.toml|" "lens-time|soft-shadow.toml|--soft-shadow" "light|soft-shadow.toml|"
+    "indirect|cornell.toml|" "ao|cornell.toml|" "guide|cornell.toml|")
+for dump in "${dumps[@]}"; do
+    IFS='|' read -r kind scene extra <<<"$dump"
+    extension=lfrs
+    [[ $kind == guide ]] && extension=exr
+    name="dump-$kind${extra:+-soft-shadow}-${scene%.toml}.$extension"
+    for side in base new; do
+        lfr=$base_lfr
+        [[ $side == new ]] && lfr=$new_lfr
+        # shellcheck disable=SC2086
+        "$lfr" dump --scene "$scenes/$scene" --kind "$kind" $extra --spp 2 --width 16 --height 12 --seed 5 \
+            --quiet --out "$work/$side/$name" >/dev/null
+    done
+    compared=$((compared + 1))
+    if ! cmp -s "$work/base/$name" "$work/new/$name"; then
+        echo "DIFFERENT: lfr dump --kind $kind $extra ($name)"
+        status=1
+    fi
+done
 for case in "${cases[@]}"; do
     name=${case%%|*}
     base_dir="$work/base/$name" new_dir="$work/new/$name"
