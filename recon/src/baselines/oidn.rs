@@ -109,8 +109,7 @@ impl Method for Oidn {
     }
 
     fn run(&self, inputs: &Inputs, _recon_rays: u32) -> Result<Output, MethodError> {
-        let frame =
-            inputs.frame.ok_or_else(|| Error::missing_input("frame", "oidn: no path-traced frame in the inputs"))?;
+        let frame = inputs.frame("oidn")?;
         let (width, height) = (frame.color.width, frame.color.height);
         if width == 0 || height == 0 {
             return Err(Error::external(TOOL, format!("empty frame ({width}x{height})")).into());
@@ -191,7 +190,7 @@ impl Method for Oidn {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::method::{Effect, FrameInput};
+    use crate::method::{Effect, FrameInput, InputData};
 
     const SIZE: u32 = 64;
 
@@ -248,10 +247,7 @@ mod tests {
             width: frame.color.width,
             height: frame.color.height,
             spp: 4,
-            samples: None,
-            light_samples: None,
-            frame: Some(frame),
-            guide: None,
+            data: InputData::Frame(frame),
             ao_radius: 1.0,
             seed: 0,
             threads: 0,
@@ -322,8 +318,11 @@ mod tests {
     fn missing_frame_fails_and_bad_quality_is_rejected() {
         let frame = smooth_frame();
         let mut without = inputs(&frame);
-        without.frame = None;
-        assert!(matches!(Oidn::default().run(&without, 0), Err(MethodError::Failed(_))));
+        without.data = InputData::Samples { samples: std::path::Path::new("samples.lfrs"), light_samples: None };
+        match Oidn::default().run(&without, 0) {
+            Err(MethodError::Failed(error)) => assert!(error.to_string().contains("path-traced frame"), "{error}"),
+            other => panic!("expected a failure, got {other:?}"),
+        }
         let oidn = Oidn { quality: "ultra".to_string() };
         match oidn.run(&inputs(&frame), 0) {
             Err(MethodError::Failed(error)) => {

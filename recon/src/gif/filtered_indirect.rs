@@ -297,9 +297,7 @@ impl Method for FilteredIndirect {
     }
 
     fn run(&self, inputs: &Inputs, _recon_rays: u32) -> Result<Output, MethodError> {
-        let input = inputs
-            .guide
-            .ok_or_else(|| Error::missing_input("guide buffers", format!("{} needs guide buffers", self.name)))?;
+        let input = inputs.guide(&self.name)?;
         let size = (input.indirect.width, input.indirect.height);
         if size != (inputs.width, inputs.height) || input.albedo.check_same_size(&input.indirect).is_err() {
             let message = format!(

@@ -209,10 +209,7 @@ impl Method for IlfrDof {
         if !matches!(inputs.effect, Effect::Dof | Effect::Motion | Effect::DofMotion) {
             return Err(MethodError::Unsupported(format!("{name} does not reconstruct {}", inputs.effect.name())));
         }
-        let path = inputs
-            .samples
-            .as_ref()
-            .ok_or_else(|| Error::missing_input("samples", format!("{name} needs a sample file")))?;
+        let path = inputs.samples(name)?;
         let settings = self
             .choices
             .apply(IlfrSettings { recon_rays, seed: inputs.seed, ..IlfrSettings::default() }, inputs.effect);
@@ -246,10 +243,7 @@ impl Method for IlfrDof {
 }
 
 fn run_ilfr(name: &str, inputs: &Inputs, settings: IlfrSettings) -> Result<Output, MethodError> {
-    let path = inputs
-        .samples
-        .as_ref()
-        .ok_or_else(|| Error::missing_input("samples", format!("{name} needs a sample file")))?;
+    let path = inputs.samples(name)?;
     let target = match inputs.effect {
         Effect::Indirect | Effect::Glossy => GatherTarget::Indirect,
         Effect::Ao if settings.recursive_passes == 0 => GatherTarget::Visibility { ao_radius: inputs.ao_radius },
