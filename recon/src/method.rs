@@ -279,6 +279,12 @@ pub trait Method: Send + Sync + std::fmt::Debug {
     fn handles(&self, _effect: Effect) -> bool {
         true
     }
+    /// Whether it blurs glossy reflections (a screen-space filter of the indirect light, ILFR's
+    /// grain filter): on a scene with glossy materials its indirect image would lose them, so
+    /// `lfr compare` skips it there with a notice.
+    fn blurs_glossy_reflections(&self) -> bool {
+        false
+    }
     /// `Err(reason)` when a dependency is missing; checked once before any run.
     fn available(&self) -> Result<(), Error> {
         Ok(())

@@ -9,12 +9,14 @@
 //! verdicts (`verdict`), the images (`images`), and the record and its reports (`results`,
 //! `report`, `html`, `plot`).
 
+pub mod budget;
 pub mod effect;
 pub mod external;
 pub mod html;
 pub mod images;
 pub mod memory;
 pub mod out_dir;
+pub mod peer;
 pub mod plot;
 pub mod probes_method;
 pub mod reference;

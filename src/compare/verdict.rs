@@ -130,6 +130,8 @@ pub struct Readings {
     pub speedup_range: Option<[f64; 2]>,
     /// Whether either reading lies beyond the curve's measured ends.
     pub extrapolated: bool,
+    /// Whether the speedup's reading (the baseline's time to the run's PSNR) does.
+    pub speedup_extrapolated: bool,
     /// For a run with a precompute: one frame without it against the baseline.
     pub per_frame_speedup: Option<f64>,
     /// For a run with a precompute: the frames after which it has paid for itself.
@@ -189,6 +191,7 @@ impl Curves {
             speedup,
             speedup_range,
             extrapolated: at_time.is_some_and(|r| r.extrapolated) || to_psnr.is_some_and(|r| r.extrapolated),
+            speedup_extrapolated: to_psnr.is_some_and(|r| r.extrapolated),
             per_frame_speedup: None,
             break_even_frames: None,
         };
@@ -222,7 +225,7 @@ pub fn against(runs: &[Run], baseline: &Baseline) -> (Vec<Verdict>, Vec<Option<R
         .map(|method| {
             let mine: Vec<(&Run, Option<&Readings>)> =
                 runs.iter().zip(&readings).filter(|(r, _)| r.method == method).map(|(r, x)| (r, x.as_ref())).collect();
-            summarise(method, &mine, &curves, baseline)
+            summarise(method, &mine, baseline)
         })
         .collect();
     (verdicts, readings)
@@ -246,7 +249,7 @@ pub fn verdicts_against_path_tracing(runs: &mut [Run]) -> Vec<Verdict> {
 }
 
 /// `method`'s verdict from its runs and their readings against `baseline`.
-fn summarise(method: &str, mine: &[(&Run, Option<&Readings>)], curves: &Curves, baseline: &Baseline) -> Verdict {
+fn summarise(method: &str, mine: &[(&Run, Option<&Readings>)], baseline: &Baseline) -> Verdict {
     let speedup_of = |(_, x): &&(&Run, &Readings)| x.speedup.unwrap_or(0.0);
     let valid: Vec<(&Run, &Readings)> =
         mine.iter().filter_map(|&(r, x)| x.filter(|x| x.speedup.is_some()).map(|x| (r, x))).collect();
@@ -263,9 +266,18 @@ fn summarise(method: &str, mine: &[(&Run, Option<&Readings>)], curves: &Curves, 
     let summary = match best {
         Some((run, x)) => {
             let speedup = x.speedup.unwrap_or(0.0);
-            // The sentence gives the baseline's time to this PSNR: it says "extrapolated" only
-            // when that reading is (the run's flag also covers its equal-time PSNR).
-            let extrapolated = time_to_psnr(&curves.median, run.psnr_db).is_some_and(|r| r.extrapolated);
+            // Either reading beyond the curve's ends: the sentence says which whenever the table
+            // stars the run (the time to this PSNR, or only the PSNR at this time).
+            let extrapolated = if x.speedup_extrapolated {
+                format!(" ({short} curve extrapolated at 10 dB per decade)")
+            } else if x.extrapolated {
+                format!(
+                    " (measured on the {short} curve; its equal-time gain reads the curve beyond its measured range, at \
+                     10 dB per decade)"
+                )
+            } else {
+                String::new()
+            };
             let rays = if run.recon_rays > 0 {
                 format!(" with {} reconstruction rays", run.recon_rays)
             } else {
@@ -292,7 +304,7 @@ fn summarise(method: &str, mine: &[(&Run, Option<&Readings>)], curves: &Curves, 
                 run.psnr_db,
                 run.total_s,
                 speedup * run.total_s,
-                if extrapolated { format!(" ({short} curve extrapolated at 10 dB per decade)") } else { String::new() }
+                extrapolated
             )
         }
         None if mine.iter().any(|(r, _)| !r.valid) => {
@@ -459,8 +471,9 @@ mod tests {
     }
 
     /// `box` reaches path tracing's PSNR at the ladder's last rung, a little slower: the time to
-    /// that PSNR is measured (the rung's), so the sentence does not call it extrapolated, while
-    /// the run's equal-time PSNR, read beyond the ladder's last time, is flagged in the table.
+    /// that PSNR is measured (the rung's), so the sentence does not call the curve extrapolated
+    /// for the speedup, while it says, as the table's star does, that the run's equal-time PSNR
+    /// is read beyond the ladder's last time.
     #[test]
     fn the_summary_says_extrapolated_only_when_its_reading_is() {
         let mut runs = vec![
@@ -472,9 +485,10 @@ mod tests {
         let verdicts = verdicts_against_path_tracing(&mut runs);
         assert!(runs[2].verdict_extrapolated, "box's equal-time PSNR lies beyond the ladder");
         assert!((runs[2].speedup.unwrap() - 1.0 / 1.05).abs() < 1e-9);
-        assert!(!verdicts[0].summary.contains("extrapolated"), "{}", verdicts[0].summary);
+        assert!(!verdicts[0].summary.contains("curve extrapolated"), "{}", verdicts[0].summary);
+        assert!(verdicts[0].summary.contains("equal-time gain reads the curve beyond"), "{}", verdicts[0].summary);
         // 3 dB beyond the last rung: path tracing's time to it is extrapolated.
-        assert!(verdicts[1].summary.contains("extrapolated"), "{}", verdicts[1].summary);
+        assert!(verdicts[1].summary.contains("PT curve extrapolated"), "{}", verdicts[1].summary);
     }
 
     /// Found on soft-shadow.toml at 96×72: path tracing's 1 spp had one slow repetition (11.7 ms

@@ -296,6 +296,12 @@ impl Method for FilteredIndirect {
         Input::Guide
     }
 
+    /// A screen-space filter guided by first-hit geometry: a reflection on a glossy surface
+    /// has no edge in its guide, so it is averaged away.
+    fn blurs_glossy_reflections(&self) -> bool {
+        true
+    }
+
     fn run(&self, inputs: &Inputs, _recon_rays: u32) -> Result<Output, MethodError> {
         let input = inputs.guide(&self.name)?;
         let size = (input.indirect.width, input.indirect.height);

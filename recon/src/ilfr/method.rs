@@ -147,6 +147,11 @@ impl Method for Ilfr {
         grain_choice_handles(self.choices.filter_grain, effect)
     }
 
+    /// The grain filter smooths the image across pixels by geometry alone ([`super::grain`]).
+    fn blurs_glossy_reflections(&self) -> bool {
+        self.choices.filter_grain
+    }
+
     fn sample_needs(&self, effect: Effect) -> Option<Vec<&'static sampleio::Needs>> {
         crate::needs::ilfr(effect.sample_kind()).map(|needs| vec![needs])
     }

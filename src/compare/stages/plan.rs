@@ -82,7 +82,8 @@ impl<'a> Plan<'a> {
             scene.camera.focus_distance = distance;
         }
         let max_bounces = prepare_scene(effect, &mut scene, args.trace.size.max_bounces)?;
-        refuse_narrowed_on_glossy_scene(&methods, effect, tracer::samples::secondary::scene_is_glossy(&scene))?;
+        let glossy_scene = tracer::samples::secondary::scene_is_glossy(&scene);
+        let (methods, mut skipped) = skip_blurring_on_glossy_scene(methods, effect, glossy_scene);
         let (width, height) =
             (args.trace.size.width.unwrap_or(scene.width), args.trace.size.height.unwrap_or(scene.height));
         if width == 0 || height == 0 || width > MAX_COMPARE_SIDE || height > MAX_COMPARE_SIDE {
@@ -97,7 +98,8 @@ impl<'a> Plan<'a> {
         check_memory(args, &methods, &probe_methods, (width, height), threads)?;
         let cache = reference::cache_dir(args.cache_dir.as_deref());
         reference::check_cache_dir(&cache)?;
-        let (methods, skipped) = available(methods);
+        let (methods, unavailable) = available(methods);
+        skipped.extend(unavailable);
         Ok(Plan {
             args,
             effect,
@@ -218,23 +220,39 @@ pub fn resolve_methods(names: &[String], effect: Effect) -> Result<Vec<Registere
     Ok(methods)
 }
 
-/// Refuses, before anything is traced, a method whose options leave out glossy reflections
-/// (`ilfr:grain=filter`) in an indirect comparison of a scene with glossy materials: that
-/// scene's indirect light holds glossy reflections (its sample files carry `weight`), which
-/// such a method would blur.
-fn refuse_narrowed_on_glossy_scene(methods: &[Registered], effect: Effect, glossy_scene: bool) -> Result<()> {
-    if effect != Effect::Indirect || !glossy_scene {
-        return Ok(());
+/// Skips, with a notice and before anything is traced, every method that blurs glossy
+/// reflections (`Method::blurs_glossy_reflections`: the screen-space filters, `ilfr:grain=filter`)
+/// in an indirect or glossy comparison of a scene with glossy materials: that scene's indirect
+/// light holds glossy reflections (its sample files carry `weight`). The other methods run.
+fn skip_blurring_on_glossy_scene(
+    methods: Vec<Registered>,
+    effect: Effect,
+    glossy_scene: bool,
+) -> (Vec<Registered>, Vec<Skipped>) {
+    if !matches!(effect, Effect::Indirect | Effect::Glossy) || !glossy_scene {
+        return (methods, Vec::new());
     }
-    match methods.iter().find(|m| m.spec.effects.contains(&Effect::Glossy) && !m.method.handles(Effect::Glossy)) {
-        Some(m) => bail!(
-            "--methods: {} applies to diffuse indirect light, and this scene has glossy materials, whose \
-             reflections it would blur; use {} or a diffuse scene",
-            m.name(),
-            m.spec.name
-        ),
-        None => Ok(()),
-    }
+    let mut skipped = Vec::new();
+    let kept = methods
+        .into_iter()
+        .filter(|method| {
+            if !method.blurs_glossy_reflections() {
+                return true;
+            }
+            let reason = format!(
+                "it blurs glossy reflections, and this scene has glossy materials (it applies to diffuse scenes{})",
+                if method.name() != method.spec.name {
+                    format!("; {} keeps them", method.spec.name)
+                } else {
+                    String::new()
+                }
+            );
+            eprintln!("skipping {}: {reason}", method.name());
+            skipped.push(Skipped { method: method.name().to_string(), reason });
+            false
+        })
+        .collect();
+    (kept, skipped)
 }
 
 /// Refuses a comparison whose images would not fit in memory, before anything is traced: one
@@ -326,14 +344,22 @@ mod tests {
         assert_eq!(methods.len(), 1);
     }
 
-    /// `ilfr:grain=filter` on a glossy scene's indirect light is refused by name before
-    /// tracing; plain `ilfr`, and the filter on a diffuse scene, are not.
+    /// On a glossy scene's indirect light `ilfr:grain=filter` and the screen-space filters are
+    /// skipped by name with a reason, before tracing, and the other methods stay; on a diffuse
+    /// scene, or for another effect, nothing is skipped.
     #[test]
-    fn a_grain_filter_on_a_glossy_scene_is_refused_before_tracing() {
-        let methods = resolve_methods(&["ilfr".into(), "ilfr:grain=filter".into()], Effect::Indirect).unwrap();
-        let error = refuse_narrowed_on_glossy_scene(&methods, Effect::Indirect, true).unwrap_err().to_string();
-        assert!(error.contains("ilfr:grain=filter") && error.contains("glossy"), "{error}");
-        assert!(refuse_narrowed_on_glossy_scene(&methods, Effect::Indirect, false).is_ok());
-        assert!(refuse_narrowed_on_glossy_scene(&methods[..1], Effect::Indirect, true).is_ok());
+    fn methods_that_blur_glossy_reflections_are_skipped_on_a_glossy_scene_and_the_rest_run() {
+        let names = ["ilfr", "ilfr:grain=filter", "gif", "atrous", "oidn", "ilfr:grain=filter+oidn"];
+        let resolve = || resolve_methods(&names.map(String::from), Effect::Indirect).unwrap();
+        let (kept, skipped) = skip_blurring_on_glossy_scene(resolve(), Effect::Indirect, true);
+        let kept: Vec<&str> = kept.iter().map(|m| m.name()).collect();
+        assert_eq!(kept, ["ilfr", "oidn"]);
+        let skipped_names: Vec<&str> = skipped.iter().map(|s| s.method.as_str()).collect();
+        assert_eq!(skipped_names, ["ilfr:grain=filter", "gif", "atrous", "ilfr:grain=filter+oidn"]);
+        assert!(skipped[0].reason.contains("glossy") && skipped[0].reason.contains("ilfr keeps them"), "{skipped:?}");
+        let (kept, skipped) = skip_blurring_on_glossy_scene(resolve(), Effect::Indirect, false);
+        assert_eq!((kept.len(), skipped.len()), (names.len(), 0));
+        let methods = resolve_methods(&["gif".into()], Effect::Glossy).unwrap();
+        assert_eq!(skip_blurring_on_glossy_scene(methods, Effect::Glossy, true).1.len(), 1);
     }
 }

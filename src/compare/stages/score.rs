@@ -14,7 +14,7 @@ use recon::Image;
 
 use super::super::effect::image_layer;
 use super::super::results::{self, ReferenceCheckInfo, ReferenceInfo, Results, Run, ToneMapInfo};
-use super::super::{images, timing, verdict};
+use super::super::{budget, images, peer, timing, verdict};
 use super::execute::Executed;
 use super::inputs::TraceKey;
 use super::plan::Plan;
@@ -183,6 +183,9 @@ impl<'a> Scorer<'a> {
                 speedup: None,
                 speedup_range: None,
                 verdict_extrapolated: false,
+                speedup_over_oidn: None,
+                speedup_over_oidn_range: None,
+                oidn_curve_position: None,
                 precompute_from_cache: None,
                 per_frame_speedup: None,
                 break_even_frames: None,
@@ -237,6 +240,9 @@ pub fn score(plan: &Plan, measure: &Measure, executed: Executed, start: Instant)
     let flip_available = add_flip(&mut measured, &measure.reference.image, &measure.tone);
     let mut runs: Vec<Run> = measured.into_iter().map(|m| m.run).collect();
     let verdicts = verdict::verdicts_against_path_tracing(&mut runs);
+    let verdicts_against_oidn = peer::verdicts_against_peer(&mut runs).into_iter().map(Into::into).collect();
+    let budgets = budget::winners(&runs, measure.estimated_psnr_db());
+    let headline = budget::headline(&budgets, measure.estimated_psnr_db());
     let reference = &measure.reference;
     let args = plan.args;
     Results {
@@ -277,9 +283,12 @@ pub fn score(plan: &Plan, measure: &Measure, executed: Executed, start: Instant)
         flip_available,
         peak_rss_per_run,
         between_runs_noise: timing::BETWEEN_RUNS_NOISE,
+        headline,
+        budgets,
         runs,
         skipped,
         verdicts,
+        verdicts_against_oidn,
         total_seconds: start.elapsed().as_secs_f64(),
     }
 }

@@ -27,7 +27,13 @@ pub fn write(dir: &Path, results: &Results) -> Result<()> {
     write_whole(&html_path, html::html(results).as_bytes())?;
     let json_path = dir.join("results.json");
     crate::common::write_json(&json_path, results)?;
+    // The verdicts use the runs' median timings (the lines printed during the runs show each
+    // run's first timing, and say so).
+    println!("{}", results.headline);
     for verdict in &results.verdicts {
+        println!("{}", verdict.summary);
+    }
+    for verdict in &results.verdicts_against_oidn {
         println!("{}", verdict.summary);
     }
     println!(
