@@ -55,7 +55,7 @@ impl RunArgs {
 /// `bench-filters` take.
 #[derive(clap::Args, Clone, Debug)]
 pub struct TraceArgs {
-    /// Scene file (.toml, .gltf, .glb, .obj); the embedded Cornell box when omitted.
+    /// Scene file (.toml, .gltf, .glb, .obj, .ply); the embedded Cornell box when omitted.
     #[arg(long)]
     pub scene: Option<PathBuf>,
     #[command(flatten)]

@@ -11,6 +11,7 @@ mod bench_tlfr;
 mod common;
 mod compare;
 mod convert;
+mod demo;
 mod dump;
 mod export;
 mod filter;
@@ -44,6 +45,11 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// The product in one command on the embedded Cornell box: path tracing, the indirect light
+    /// field reconstruction, the same fed to the denoiser and the denoiser alone, compared at
+    /// equal time against a reference; writes report.html and prints what won (`lfr compare`
+    /// with the arguments it prints).
+    Demo(demo::DemoArgs),
     /// Path trace a scene into a multi-layer EXR (beauty, direct, indirect, albedo, normal,
     /// depth, position, variance) and a PNG preview beside it.
     Render(render::RenderArgs),
@@ -86,6 +92,7 @@ fn main() -> ExitCode {
         eprintln!("warning: no interrupt handler ({error}); an interrupt may leave temporary files behind");
     }
     let result = match &cli.command {
+        Command::Demo(args) => demo::run(args),
         Command::Render(args) => render::run(args),
         Command::Merge(args) => merge::run(args),
         Command::Dump(args) => dump::run(args),

@@ -25,6 +25,20 @@ use tracer::{Accel, RenderSettings, Scene};
 
 use crate::convert::{guide_input, image_from_vec3};
 
+/// The effect `lfr compare` measures when `--effect` is not given, from what the scene has (its
+/// camera as given, before `--aperture-radius`): a lens and moving geometry: `dof-motion`; a lens:
+/// `dof`; moving geometry: `motion`; a glossy material: `glossy`; otherwise `indirect`. Returns the
+/// effect and the reason, for the notice.
+pub fn default_for(scene: &Scene) -> (Effect, &'static str) {
+    match (scene.camera.has_lens(), scene.has_motion()) {
+        (true, true) => (Effect::DofMotion, "its camera has an aperture and it has moving geometry"),
+        (true, false) => (Effect::Dof, "its camera has an aperture"),
+        (false, true) => (Effect::Motion, "it has moving geometry"),
+        (false, false) if scene_is_glossy(scene) => (Effect::Glossy, "it has a glossy material"),
+        (false, false) => (Effect::Indirect, "it has neither a lens, motion nor a glossy material"),
+    }
+}
+
 /// Switches off what `effect` does not measure and checks the scene has what it does.
 /// Returns the path length to trace with.
 pub fn prepare_scene(effect: Effect, scene: &mut Scene, max_bounces: Option<u32>) -> Result<u32> {

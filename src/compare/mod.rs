@@ -121,10 +121,23 @@ pub struct CompareArgs {
     pub force: bool,
 }
 
+/// Every method the harness runs: the registry's methods and pipelines, and `probes`, which the
+/// harness builds itself because it needs the tracer (`probes_method`).
+pub fn method_listing() -> String {
+    format!(
+        "{}{}\n    sparse radiance probes (Silvennoinen and Lehtinen 2017), built and run by the harness on the scene\n    \
+         effects: indirect\n    options ({}:key=value:...): {}\n",
+        registry::listing(),
+        probes_method::NAME,
+        probes_method::NAME,
+        probes_method::OPTIONS
+    )
+}
+
 /// Runs the comparison `args` asks for, stage by stage (`stages`).
 pub fn run(args: &CompareArgs) -> Result<()> {
     if args.list_methods {
-        print!("{}", registry::listing());
+        print!("{}", method_listing());
         return Ok(());
     }
     let start = Instant::now();
@@ -141,4 +154,29 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     let executed = execute::execute(&plan, &tracing, &accel, traced, &scorer, &bar)?;
     let results = score::score(&plan, &measure, executed, start);
     write::write(plan.dir, &results)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every name the listing gives at the start of a line is a method the harness builds (the
+    /// registry's `find` or the harness's `probes`), and every registry method, pipeline and
+    /// `probes` is listed.
+    #[test]
+    fn the_method_listing_names_every_method_the_harness_runs() {
+        let listing = method_listing();
+        let listed: Vec<&str> = listing.lines().filter(|line| !line.starts_with(' ')).collect();
+        for name in &listed {
+            let built = registry::find(name).map(|m| m.is_some()).unwrap_or(false)
+                || probes_method::ProbesMethod::parse(name, 1).map(|m| m.is_some()).unwrap_or(false);
+            assert!(built, "listed but not runnable: {name}");
+        }
+        let mut expected: Vec<String> = registry::METHODS.iter().map(|m| m.name.to_string()).collect();
+        expected.extend(registry::PIPELINES.iter().map(|p| p.name()));
+        expected.push(probes_method::NAME.to_string());
+        for name in &expected {
+            assert!(listed.contains(&name.as_str()), "not listed: {name}");
+        }
+    }
 }
