@@ -667,6 +667,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     // Every check that does not need a traced image comes before the first one is traced.
     let cache = reference::cache_dir(args.cache_dir.as_deref());
     reference::check_cache_dir(&cache)?;
+    crate::outputs::check_comparison(dir, &scene, args.reference.as_deref().unwrap_or_default(), &cache)?;
     let accel = Accel::build(&scene)?;
     let tracing = Tracing {
         scene: &scene,
