@@ -1675,7 +1675,7 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
             println!("            direct layer mean ratio {dr:.3} {dg:.3} {db:.3}");
         }
     }
-    println!("wrote {} and {}", args.out.display(), preview.display());
+    println!("wrote {} and {}", args.out.display(), preview_of(&args.out).display());
     if let Some(json) = &args.json {
         write_json(json, &report)?;
     }

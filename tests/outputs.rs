@@ -30,6 +30,7 @@ spp = 1
 [camera]
 position = [0, 0, 3]
 look_at = [0, 0, 0]
+fov = 60
 [[material]]
 name = "printed"
 base_color_texture = "X.png"
@@ -132,11 +133,13 @@ fn a_preview_never_replaces_a_texture_the_scene_reads() {
     assert!(!out.exists(), "nothing rendered");
     // Through a hard link to the texture, too.
     std::fs::hard_link(&texture, d.join("L.png")).unwrap();
-    let mut args = vec!["render", "--scene", text(&toml), "--out", text(&d.join("L.exr"))];
+    let linked_out = d.join("L.exr");
+    let mut args = vec!["render", "--scene", text(&toml), "--out", text(&linked_out)];
     args.extend(SMALL);
     refused(&args, &["L.png", "which the command reads"]);
     // Another name renders.
-    let mut args = vec!["render", "--scene", text(&gltf), "--out", text(&d.join("image.exr"))];
+    let image_out = d.join("image.exr");
+    let mut args = vec!["render", "--scene", text(&gltf), "--out", text(&image_out)];
     args.extend(SMALL);
     let result = lfr(&args);
     assert!(result.status.success(), "{}", stderr(&result));
@@ -150,17 +153,28 @@ fn probes_relight_never_replaces_its_reference_cache_or_json() {
     let reference = d.join("R.exr");
     std::fs::write(&reference, b"a reference").unwrap();
     let cache = d.join("c.probes");
-    let base = ["probes", "relight", "--quiet", "--width", "8", "--height", "8", "--cache", text(&cache)];
+    let base = ["probes", "relight", "--quiet", "--width", "8", "--height", "8"];
     let with = |extra: &[&str]| -> Vec<String> { base.iter().chain(extra).map(|s| s.to_string()).collect() };
     for (extra, needles) in [
         (
-            vec!["--reference", text(&reference), "--out", text(&reference)],
+            vec!["--cache", text(&cache), "--reference", text(&reference), "--out", text(&reference)],
             vec!["--reference", "which the command reads"],
         ),
-        (vec!["--json", text(&d.join("F.exr")), "--out", text(&d.join("F.exr"))], vec!["same file", "--json"]),
-        (vec!["--out", text(&cache)], vec!["same file", "--cache"]),
         (
-            vec!["--out", text(&d.join("o.exr")), "--cpca", "--json", text(&d.join("c.probes.cpca"))],
+            vec!["--cache", text(&cache), "--json", text(&d.join("F.exr")), "--out", text(&d.join("F.exr"))],
+            vec!["same file", "--json"],
+        ),
+        (vec!["--cache", text(&d.join("c.exr")), "--out", text(&d.join("c.exr"))], vec!["same file", "--cache"]),
+        (
+            vec![
+                "--cache",
+                text(&cache),
+                "--out",
+                text(&d.join("o.exr")),
+                "--cpca",
+                "--json",
+                text(&d.join("c.probes.cpca")),
+            ],
             vec!["same file", "CPCA cache"],
         ),
     ] {
