@@ -55,7 +55,7 @@ fn best_of(repeats: u32, mut run: impl FnMut() -> Result<()>) -> Result<f64> {
 
 pub fn run(args: &BenchFiltersArgs) -> Result<()> {
     let trace = &args.trace;
-    let mut plan = crate::outputs::json_plan(args.json.as_deref(), &[trace.scene.clone()])?;
+    let mut plan = crate::outputs::json_plan(args.json.as_deref(), std::slice::from_ref(&trace.scene))?;
     let scene = trace.load_scene()?;
     plan.scene(&scene).check()?;
     let accel = Accel::build(&scene)?;

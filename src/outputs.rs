@@ -10,8 +10,9 @@
 //!   (`..`, `.`): it names a folder;
 //! - it is not a new or regular file (`sampleio::check_output_target`: a folder, a device, a
 //!   FIFO or socket, a symbolic link);
-//! - its folder does not exist, is not a folder, or cannot be written into (tried by creating
-//!   and removing a file there);
+//! - the nearest of its folders that exists is not a folder (a file on the way), or cannot be
+//!   written into (tried by creating and removing a file there); the folders that do not exist
+//!   yet are created when the output is written;
 //! - it is the same file as an input or another output: by device and inode where the file
 //!   exists (so also through `..`, another relative path or a hard link), else by its
 //!   canonical folder and name;
@@ -241,19 +242,22 @@ fn check_file_output(output: &Output, writable: &mut std::collections::HashSet<P
     if path.as_os_str().is_empty() || names_a_folder(path) {
         bail!("{name}: names a folder (a trailing `/`, `.` or `..`), not a file; name the file to write");
     }
-    sampleio::check_output_target(path, &[])?;
-    let folder = match path.parent() {
-        Some(parent) if !parent.as_os_str().is_empty() => parent,
-        _ => Path::new("."),
-    };
-    match std::fs::metadata(folder) {
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            bail!("{name}: the folder {} does not exist; create it first", folder.display())
+    // The folders that do not exist yet are created by the writer; the nearest one that exists
+    // must be a folder that can be written into.
+    let mut folder = Path::new(".");
+    for ancestor in path.ancestors().skip(1).filter(|a| !a.as_os_str().is_empty()) {
+        match std::fs::metadata(ancestor) {
+            // Missing, or under a file (which the next ancestor names).
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::NotFound | std::io::ErrorKind::NotADirectory) => continue,
+            Err(e) => bail!("{name}: cannot reach the folder {}: {e}", ancestor.display()),
+            Ok(m) if !m.is_dir() => bail!("{name}: {} is not a folder", ancestor.display()),
+            Ok(_) => {
+                folder = ancestor;
+                break;
+            }
         }
-        Err(e) => bail!("{name}: cannot reach the folder {}: {e}", folder.display()),
-        Ok(m) if !m.is_dir() => bail!("{name}: {} is not a folder", folder.display()),
-        Ok(_) => {}
     }
+    sampleio::check_output_target(path, &[])?;
     // Whether a file can be made there, tried now (once per folder) rather than after the work.
     if !writable.contains(folder) {
         if let Err(e) = tempfile::Builder::new().prefix(".lfr-write-test").tempfile_in(folder) {
@@ -308,15 +312,17 @@ mod tests {
     }
 
     #[test]
-    fn folder_spellings_missing_folders_and_standard_output_are_refused() {
+    fn folder_spellings_files_as_folders_and_standard_output_are_refused() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
         let text = d.to_str().unwrap();
+        std::fs::write(d.join("file"), b"").unwrap();
         for (path, needle) in [
             (format!("{text}/o.exr/"), "names a folder"),
             (format!("{text}/.."), "names a folder"),
             ("-".to_string(), "standard output"),
-            (format!("{text}/missing/o.exr"), "does not exist"),
+            (format!("{text}/file/o.exr"), "is not a folder"),
+            (format!("{text}/file/deeper/o.exr"), "is not a folder"),
             (text.to_string(), "directory"),
         ] {
             let mut plan = OutputPlan::new();
@@ -324,6 +330,11 @@ mod tests {
             let message = refusal(&plan);
             assert!(message.contains(needle), "{path}: {message}");
         }
+        // Folders that do not exist yet pass (the writer creates them), and are not created here.
+        let mut plan = OutputPlan::new();
+        plan.file(&d.join("new/deeper/o.exr"), "--out");
+        plan.check().unwrap();
+        assert!(!d.join("new").exists());
         // A directory by its plain name: `check_output_target` refuses it.
         std::fs::create_dir(d.join("o.exr")).unwrap();
         let mut plan = OutputPlan::new();

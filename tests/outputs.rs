@@ -186,21 +186,53 @@ fn probes_relight_never_replaces_its_reference_cache_or_json() {
 }
 
 #[test]
-fn folders_spelled_as_outputs_missing_folders_and_standard_output_are_refused_before_work() {
+fn folders_spelled_as_outputs_files_as_folders_and_standard_output_are_refused_before_work() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let slash = format!("{}/o.exr/", d.display());
-    let missing = d.join("no/such/folder/o.exr");
-    for out in [slash.as_str(), text(&missing)] {
-        let mut args = vec!["render", "--out", out];
-        args.extend(SMALL);
-        refused(&args, &[]);
-    }
+    let mut args = vec!["render", "--out", slash.as_str()];
+    args.extend(SMALL);
+    refused(&args, &["names a folder"]);
     let samples = format!("{}/x.lfrs/", d.display());
     refused(&["dump", "--kind", "lens-time", "--spp", "1", "--out", &samples, "--quiet"], &["names a folder"]);
-    let mut args = vec!["render", "--out", text(&missing)];
+    // A regular file where a folder of the output should be: refused before the work, whichever
+    // folder of the path it is; the file is kept.
+    std::fs::write(d.join("notes"), b"mine").unwrap();
+    for out in ["notes/o.exr", "notes/deeper/o.exr"] {
+        let out = d.join(out);
+        let mut args = vec!["render", "--out", text(&out)];
+        args.extend(SMALL);
+        refused(&args, &["notes", "is not a folder"]);
+        refused(
+            &["dump", "--kind", "ao", "--spp", "1", "--out", &format!("{}.lfrs", out.display())],
+            &["is not a folder"],
+        );
+    }
+    assert_eq!(std::fs::read(d.join("notes")).unwrap(), b"mine");
+    // Folders that do not exist yet are created, for images and sample files alike.
+    let image = d.join("no/such/folder/o.exr");
+    let mut args = vec!["render", "--out", text(&image)];
     args.extend(SMALL);
-    refused(&args, &["does not exist"]);
+    let result = lfr(&args);
+    assert!(result.status.success(), "{}", stderr(&result));
+    assert!(image.is_file() && image.with_extension("png").is_file());
+    let samples = d.join("new/samples/x.lfrs");
+    let result = lfr(&[
+        "dump",
+        "--kind",
+        "ao",
+        "--spp",
+        "1",
+        "--width",
+        "4",
+        "--height",
+        "4",
+        "--quiet",
+        "--out",
+        text(&samples),
+    ]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    assert!(samples.is_file());
     // A symbolic link as the output: the link would be replaced, not its target.
     let target = d.join("target.exr");
     std::fs::write(&target, b"kept").unwrap();

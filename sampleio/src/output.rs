@@ -56,10 +56,12 @@ pub fn free_space(dir: &Path) -> Option<u64> {
 /// system ([`free_space`] of the folder `path` goes to) cannot hold; `what` says what the file
 /// is in the message. Passes where the space cannot be measured.
 pub fn check_free_space(path: &Path, bytes: u64, what: &str) -> Result<()> {
-    let folder = match path.parent() {
-        Some(parent) if !parent.as_os_str().is_empty() => parent,
-        _ => Path::new("."),
-    };
+    // The nearest folder that exists: those missing are created on the same file system.
+    let folder = path
+        .ancestors()
+        .skip(1)
+        .find(|folder| !folder.as_os_str().is_empty() && folder.exists())
+        .unwrap_or(Path::new("."));
     match free_space(folder) {
         Some(free) if bytes > free => Err(SampleError::RefusedOutput {
             path: path.to_path_buf(),
