@@ -261,7 +261,7 @@ mod tests {
     #[test]
     fn denoising_removes_most_of_the_noise() {
         if let Some(reason) = skip_reason() {
-            eprintln!("skipped: pyoidn not installed ({reason})");
+            testkit::skip(&format!("pyoidn is not installed ({reason})"));
             return;
         }
         let smooth = smooth_frame();
@@ -284,7 +284,7 @@ mod tests {
     #[test]
     fn invalid_colour_values_are_sanitised_and_counted() {
         if let Some(reason) = skip_reason() {
-            eprintln!("skipped: pyoidn not installed ({reason})");
+            testkit::skip(&format!("pyoidn is not installed ({reason})"));
             return;
         }
         let mut frame = smooth_frame();
