@@ -167,7 +167,7 @@ fn nan_vertices_degenerate_triangles_and_missing_textures() {
     let dir = tempfile::tempdir().unwrap();
     write(dir.path(), "nan.obj", "v 0 0 0\nv 1 0 0\nv 0 1e999 0\nf 1 2 3\n");
     let nan = write(dir.path(), "nan.toml", "[[mesh]]\nfile = \"nan.obj\"\n");
-    expect_render_error(&nan, &[], &["nan.toml", "positions"]);
+    expect_render_error(&nan, &[], &["nan.obj", "line 3", "`1e999` is not a finite number"]);
 
     // Degenerate triangles are dropped with a warning; the render succeeds.
     write(dir.path(), "degenerate.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n");

@@ -249,12 +249,17 @@ pub fn check_mtl(text: &[u8]) -> Result<(), (usize, String)> {
     Ok(())
 }
 
-/// The first line of an OBJ text that tobj refuses, with what is wrong there: a `v`, `vt` or
-/// `vn` without its numbers, a face (`f`, `l`) element that is not an integer, or an index out
-/// of range (0, beyond the elements the file defines, or a relative index reaching before its
-/// first element). `None` when no line is at fault (tobj's own message then stands).
+/// The first line of an OBJ text at fault, with what is wrong there: a `v`, `vt` or `vn`
+/// without its numbers or with one that is not finite (`nan`, `1e999`), a `v` weight of 0, a
+/// face (`f`) of fewer than 3 elements or a line (`l`) of fewer than 2, an element that is not
+/// an integer, or an index out of range (0, beyond the elements the file defines, or a
+/// relative index reaching before its first element). `None` when every line is sound.
+///
+/// Run before tobj reads the text: tobj takes an index of 0 for a missing one, lets a face of
+/// two elements drop without a word, and panics on a relative texture-coordinate index that
+/// reaches before the first. Two passes over the bytes, linear in the file.
 pub fn locate_obj_problem(text: &[u8]) -> Option<(usize, String)> {
-    let lines = || text.split(|&b| b == b'\n').map(|line| String::from_utf8_lossy(line).into_owned());
+    let lines = || text.split(|&b| b == b'\n').map(String::from_utf8_lossy);
     // (positions, texture coordinates, normals): in the whole file and before the current line.
     let mut total = [0usize; 3];
     for line in lines() {
@@ -280,6 +285,9 @@ pub fn locate_obj_problem(text: &[u8]) -> Option<(usize, String)> {
                 let given = words.collect::<Vec<_>>().join(" ");
                 return Some((number, format!("`{keyword}` (a {name}) needs {needed} numbers, got {given:?}")));
             }
+            if let Some(word) = words.clone().find(|w| w.parse::<f32>().is_ok_and(|x| !x.is_finite())) {
+                return Some((number, format!("`{keyword}` (a {name}): `{word}` is not a finite number")));
+            }
             if keyword == "v" {
                 // x y z, then nothing, a w that divides them, or a colour r g b.
                 let extra: Vec<&str> = words.skip(3).collect();
@@ -300,8 +308,15 @@ pub fn locate_obj_problem(text: &[u8]) -> Option<(usize, String)> {
             seen[kind] += 1;
             continue;
         }
-        if keyword != "f" && keyword != "l" {
-            continue;
+        let least = match keyword {
+            "f" => 3,
+            "l" => 2,
+            _ => continue,
+        };
+        let elements = words.clone().count();
+        if elements < least {
+            let what = if keyword == "f" { "a face" } else { "a line" };
+            return Some((number, format!("`{keyword}` ({what}) needs at least {least} elements, got {elements}")));
         }
         for element in words {
             for (kind, part) in element.split('/').enumerate() {
@@ -365,6 +380,9 @@ pub fn load_from_bytes(
     read_mtl: &dyn Fn(&Path) -> Result<Vec<u8>, SceneError>,
 ) -> Result<(), SceneError> {
     let dir = path.parent().unwrap_or(Path::new("."));
+    if let Some((line, problem)) = locate_obj_problem(bytes) {
+        return Err(SceneError::new(path, format!("line {line}"), problem));
+    }
     let load_options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
     // tobj would open the material library itself; `read_mtl` does, and the reason it could not
     // be read is kept.
@@ -390,10 +408,7 @@ pub fn load_from_bytes(
             }
         }
     })
-    .map_err(|e| match locate_obj_problem(bytes) {
-        Some((line, problem)) => SceneError::new(path, format!("line {line}"), problem),
-        None => SceneError::new(path, "obj", format!("cannot parse: {e}")),
-    })?;
+    .map_err(|e| SceneError::new(path, "obj", format!("cannot parse: {e}")))?;
 
     // Materials from the MTL, unless the whole file is overridden.
     let mut material_index: Vec<u32> = Vec::new();
@@ -504,6 +519,23 @@ mod tests {
             ("f 1 2 x\n", 6, "`x` is not an integer"),
             ("v 1 2\nf 1 2 3\n", 6, "`v` (a vertex) needs 3 numbers"),
             ("v 1 2 3 0\nf 1 2 3\n", 6, "weight w of 0"),
+            // What tobj would take silently or panic on: an index of 0 for a texture coordinate
+            // or normal (read as missing), a relative one reaching before the first (a panic),
+            // a face of two elements (dropped), non-finite numbers (zeroed or kept).
+            ("vn 0 0 1\nf 1//0 2//1 3//1\n", 7, "normal index 0: OBJ indices start at 1"),
+            ("f 1/0 2/1 3/1\n", 6, "texture coordinate index 0"),
+            ("f 1/-9 2/-1 3/-1\n", 6, "texture coordinate index -9 reaches before the first: 1 texture"),
+            ("vn 0 0 1\nf 1//1 2//-2 3//1\n", 7, "normal index -2 reaches before the first: 1 normals"),
+            ("vn 0 0 1\nf 1//1 2//2 3//1\n", 7, "normal index 2, but the file defines 1 normals"),
+            ("f 1 2\n", 6, "`f` (a face) needs at least 3 elements, got 2"),
+            ("f\n", 6, "needs at least 3 elements, got 0"),
+            ("l 1\n", 6, "`l` (a line) needs at least 2 elements, got 1"),
+            ("vt 0.5 abc\nf 1 2 3\n", 6, "`vt` (a texture coordinate) needs 2 numbers"),
+            ("vn 1 x 0\nf 1 2 3\n", 6, "`vn` (a normal) needs 3 numbers"),
+            ("vt nan 0\nf 1/2 2/1 3/1\n", 6, "`vt` (a texture coordinate): `nan` is not a finite number"),
+            ("vn 0 1e999 1\nf 1//1 2//1 3//1\n", 6, "`vn` (a normal): `1e999` is not a finite number"),
+            ("v inf 0 0\nf 4 2 3\n", 6, "`v` (a vertex): `inf` is not a finite number"),
+            ("v 0 0 0 NaN 1 1\nf 4 2 3\n", 6, "`NaN` is not a finite number"),
         ] {
             let text = format!("{head}{tail}");
             let error = obj_error(&text);
