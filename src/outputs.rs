@@ -16,7 +16,7 @@
 //! - it is the same file as an input or another output: by device and inode where the file
 //!   exists (so also through `..`, another relative path or a hard link), else by its
 //!   canonical folder and name;
-//! - it lies inside a folder output (which the command fills and clears).
+//! - it lies at or inside a folder output (which the command removes and rewrites).
 //!
 //! An input inside a folder output is refused too.
 
@@ -186,8 +186,8 @@ impl OutputPlan {
             let folder = resolved(&output.path);
             if let Some((_, input)) = inputs.iter().find(|(path, _)| path.starts_with(&folder)) {
                 bail!(
-                    "{}: {} {} lies inside this folder, which the command fills and clears; move it or choose \
-                     another folder",
+                    "{}: {} {} lies at or inside this path, which the command removes and rewrites; move it or \
+                     choose another place",
                     place(output),
                     input.what,
                     input.path.display()
@@ -195,7 +195,12 @@ impl OutputPlan {
             }
             for (j, other) in self.outputs.iter().enumerate() {
                 if j != i && resolved(&other.path).starts_with(&folder) {
-                    bail!("{}: {} lies inside this folder; choose another place", place(output), place(other));
+                    bail!(
+                        "{}: {} lies at or inside this path, which the command removes and rewrites; choose another \
+                         place",
+                        place(output),
+                        place(other)
+                    );
                 }
             }
         }
@@ -218,18 +223,20 @@ pub fn json_plan(json: Option<&Path>, scenes: &[Option<PathBuf>]) -> Result<Outp
 }
 
 /// The plan of `lfr compare`: what it writes into `dir` (`compare::out_dir::WRITTEN`, each
-/// treated as a folder: nothing read may lie at or under it, since a rerun removes them) against
-/// the scene's files, an external reference's and the reference cache folder `cache`.
-pub fn check_comparison(dir: &Path, scene: &tracer::Scene, references: &[PathBuf], cache: &Path) -> Result<()> {
+/// treated as a folder: nothing read may lie at or under it, since a run removes them first)
+/// against the scene file (`--scene`), an external reference's files and the reference cache
+/// folder `cache`. Check it before the scene is loaded, and again with [`OutputPlan::scene`]
+/// once it is, for the files the scene reads.
+pub fn comparison_plan(dir: &Path, scene: Option<&Path>, references: &[PathBuf], cache: &Path) -> OutputPlan {
     let mut plan = OutputPlan::new();
     for name in crate::compare::out_dir::WRITTEN {
         plan.folder(&dir.join(name), format!("the comparison's {name}"));
     }
-    plan.scene(scene).input(cache, "the reference cache (--cache-dir)");
+    plan.scene_file(scene).input(cache, "the reference cache (--cache-dir)");
     for reference in references {
         plan.input(reference, "--reference");
     }
-    plan.check()
+    plan
 }
 
 /// The checks of one file output on its own: its spelling, what is at its path, its folder.
@@ -355,6 +362,6 @@ mod tests {
         let mut plan = OutputPlan::new();
         plan.folder(&d.join("new/images"), "images").input(&d.join("new/x/../images/a.png"), "a texture");
         assert!(resolved(&d.join("new/x/../images")).ends_with("new/images"));
-        assert!(refusal(&plan).contains("lies inside"), "{}", refusal(&plan));
+        assert!(refusal(&plan).contains("lies at or inside"), "{}", refusal(&plan));
     }
 }

@@ -311,14 +311,85 @@ fn a_comparison_never_clears_what_it_reads() {
         ["compare", "--effect", "indirect", "--methods", "box", "--width", "8", "--height", "8", "--quiet", "--force"];
     let mut args: Vec<&str> = common_args.to_vec();
     args.extend(["--out", text(&out), "--cache-dir", text(&cache), "--reference", text(&reference)]);
-    refused(&args, &["--reference", "lies inside this folder"]);
+    refused(&args, &["--reference", "lies at or inside this path"]);
     // The cache inside the comparison's images folder would be removed with it.
     let inside = out.join("images/cache");
     std::fs::create_dir(&inside).unwrap();
     let mut args: Vec<&str> = common_args.to_vec();
     args.extend(["--out", text(&out), "--cache-dir", text(&inside)]);
-    refused(&args, &["reference cache", "lies inside this folder"]);
+    refused(&args, &["reference cache", "lies at or inside this path"]);
     assert_eq!(std::fs::read(&reference).unwrap(), b"a reference from the last run");
+}
+
+/// The scene of a comparison, and every file it reads, may not lie among what the comparison
+/// removes and rewrites in OUT (report.md, results.json, images/, inputs/, ...): refused before
+/// the scene is traced, the files untouched. A symbolic link to a folder is a valid OUT.
+#[test]
+fn a_comparison_never_clears_its_scene_or_the_files_the_scene_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("cmp");
+    std::fs::create_dir_all(out.join("images")).unwrap();
+    std::fs::create_dir_all(out.join("inputs")).unwrap();
+    let cache = d.join("cache");
+    let common_args = [
+        "compare",
+        "--effect",
+        "indirect",
+        "--methods",
+        "box",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--spp",
+        "1",
+        "--reference-spp",
+        "4",
+        "--pt-max-spp",
+        "2",
+        "--quiet",
+        "--force",
+    ];
+    let scene_text = std::fs::read_to_string(textured_toml(d)).unwrap();
+    write_png(&d.join("X.png"));
+    // The scene file itself at one of the comparison's names or inside its folders.
+    for at in ["report.md", "results.json", "images/scene.toml", "inputs/scene.toml"] {
+        let scene = out.join(at);
+        std::fs::write(&scene, &scene_text).unwrap();
+        let mut args: Vec<&str> = common_args.to_vec();
+        args.extend(["--out", text(&out), "--cache-dir", text(&cache), "--scene", text(&scene)]);
+        refused(&args, &["the scene file", at, "removes and rewrites"]);
+        assert_eq!(std::fs::read_to_string(&scene).unwrap(), scene_text, "{at} untouched");
+    }
+    // A texture the scene reads, inside OUT/images: the scene beside it is outside OUT.
+    let texture = out.join("images/X.png");
+    let bytes = write_png(&texture);
+    let scene = d.join("textured.toml");
+    std::fs::write(&scene, scene_text.replace("\"X.png\"", "\"cmp/images/X.png\"")).unwrap();
+    let mut args: Vec<&str> = common_args.to_vec();
+    args.extend(["--out", text(&out), "--cache-dir", text(&cache), "--scene", text(&scene)]);
+    refused(&args, &["cmp/images/X.png", "a file the scene", "removes and rewrites"]);
+    assert_eq!(std::fs::read(&texture).unwrap(), bytes);
+    assert!(!cache.exists(), "refused before the cache folder is made");
+    // Through a symbolic link to OUT, the same files are found.
+    let link = d.join("link");
+    std::os::unix::fs::symlink(&out, &link).unwrap();
+    let mut args: Vec<&str> = common_args.to_vec();
+    args.extend(["--out", text(&link), "--cache-dir", text(&cache), "--scene", text(&scene)]);
+    refused(&args, &["X.png", "removes and rewrites"]);
+    // A symbolic link to a folder is a valid OUT: the comparison runs and writes into its target.
+    let target = d.join("target");
+    std::fs::create_dir(&target).unwrap();
+    let linked = d.join("linked-out");
+    std::os::unix::fs::symlink(&target, &linked).unwrap();
+    let plain = textured_toml(d);
+    let mut args: Vec<&str> = common_args.to_vec();
+    args.extend(["--out", text(&linked), "--cache-dir", text(&cache), "--scene", text(&plain)]);
+    let result = lfr(&args);
+    assert!(result.status.success(), "{}", stderr(&result));
+    assert!(target.join("results.json").is_file() && target.join("report.md").is_file());
+    assert!(std::fs::symlink_metadata(&linked).unwrap().file_type().is_symlink(), "the link is kept");
 }
 
 #[test]

@@ -636,7 +636,14 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     }
     let methods = resolve_methods(&names, effect)?;
 
+    // What the comparison removes and writes in OUT against every file it reads, before the
+    // scene is read and again with the files it references.
+    let cache = reference::cache_dir(args.cache_dir.as_deref());
+    let references = args.reference.as_deref().unwrap_or_default();
+    let mut plan = crate::outputs::comparison_plan(dir, args.trace.scene.as_deref(), references, &cache);
+    plan.check()?;
     let mut scene = args.trace.load_scene()?;
+    plan.scene(&scene).check()?;
     let scene_text = crate::fingerprint::scene_text(args.trace.scene.as_deref())?;
     if let Some(radius) = args.aperture_radius {
         if !(radius.is_finite() && radius >= 0.0) {
@@ -665,9 +672,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     };
     check_memory(args, &methods, &probe_methods, (width, height), args.trace.run.thread_count()?)?;
     // Every check that does not need a traced image comes before the first one is traced.
-    let cache = reference::cache_dir(args.cache_dir.as_deref());
     reference::check_cache_dir(&cache)?;
-    crate::outputs::check_comparison(dir, &scene, args.reference.as_deref().unwrap_or_default(), &cache)?;
     let accel = Accel::build(&scene)?;
     let tracing = Tracing {
         scene: &scene,
