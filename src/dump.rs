@@ -4,13 +4,13 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use tracer::samples::secondary::SecondaryKind;
+use sampleio::SampleKind;
 use tracer::Accel;
 
 use crate::common::TraceArgs;
 use crate::outputs::OutputPlan;
 
-/// Sample kinds `lfr dump` writes.
+/// What `lfr dump` writes: a sample kind, or guide buffers.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 pub enum DumpKind {
     /// Camera samples over pixel, lens and time for the temporal light field (TLFR).
@@ -23,6 +23,19 @@ pub enum DumpKind {
     Ao,
     /// Per-pixel guide buffers for the guided image filter, as a multi-layer EXR.
     Guide,
+}
+
+impl DumpKind {
+    /// The sample kind; `None` for guide buffers.
+    fn sample_kind(self) -> Option<SampleKind> {
+        match self {
+            DumpKind::LensTime => Some(SampleKind::LensTime),
+            DumpKind::Light => Some(SampleKind::Light),
+            DumpKind::Indirect => Some(SampleKind::Indirect),
+            DumpKind::Ao => Some(SampleKind::Ao),
+            DumpKind::Guide => None,
+        }
+    }
 }
 
 #[derive(clap::Args)]
@@ -57,6 +70,9 @@ pub fn run(args: &DumpArgs) -> Result<()> {
         (true, _) => anyhow::bail!("--out {}: guide buffers are written as an .exr file", args.out.display()),
         (false, _) => anyhow::bail!("--out {}: samples are written as an .lfrs file", args.out.display()),
     }
+    if args.soft_shadow && !matches!(args.kind, DumpKind::LensTime) {
+        anyhow::bail!("--soft-shadow only applies to --kind lens-time");
+    }
     let mut plan = OutputPlan::new();
     plan.file(&args.out, "--out").scene_file(trace.scene.as_deref()).check()?;
     let fields = match &args.fields {
@@ -84,25 +100,9 @@ pub fn run(args: &DumpArgs) -> Result<()> {
         sampleio::check_free_space(&args.out, pixels * 22 * 4, "the guide buffers' EXR")?;
     }
     let accel = Accel::build(&scene)?;
-    let report = match args.kind {
-        DumpKind::LensTime if args.soft_shadow => {
-            tracer::samples::lens_time::dump_for_soft_shadows(&scene, &accel, &settings, &fields, &args.out)?
-        }
-        DumpKind::LensTime => tracer::samples::lens_time::dump(&scene, &accel, &settings, &fields, &args.out)?,
-        _ if args.soft_shadow => anyhow::bail!("--soft-shadow only applies to --kind lens-time"),
-        DumpKind::Light => tracer::samples::light::dump(&scene, &accel, &settings, &fields, &args.out)?,
-        DumpKind::Indirect => {
-            tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::Indirect, &fields, &args.out)?
-        }
-        DumpKind::Guide => tracer::samples::guide::dump(&scene, &accel, &settings, &args.out)?,
-        DumpKind::Ao => tracer::samples::secondary::dump(
-            &scene,
-            &accel,
-            &settings,
-            SecondaryKind::AmbientOcclusion,
-            &fields,
-            &args.out,
-        )?,
+    let report = match args.kind.sample_kind() {
+        Some(kind) => tracer::samples::dump(&scene, &accel, &settings, kind, args.soft_shadow, &fields, &args.out)?,
+        None => tracer::samples::guide::dump(&scene, &accel, &settings, &args.out)?,
     };
     println!(
         "wrote {} samples of {} to {} in {:.3} s ({:.3} s tracing and writing the records, {:.3} s finishing the file): {} bytes per record, {:.1} bytes per sample with header and checksums; fields: {}",
