@@ -32,7 +32,7 @@ pub struct BenchArgs {
     spp: u32,
     /// Timed repetitions, each a tracer render followed by the raw replay; the best of each is
     /// reported, with the median ratio of the pairs.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = crate::common::repeats_parser())]
     repeats: u32,
     /// Also write the results as JSON here.
     #[arg(long)]
@@ -78,17 +78,25 @@ fn median(values: &[f64]) -> f64 {
 }
 
 pub fn run(args: &BenchArgs) -> Result<()> {
-    if args.repeats == 0 {
-        anyhow::bail!("--repeats must be at least 1");
-    }
     let size = args.scenes.size.or(256, 256);
     let threads = args.scenes.run.thread_count()?;
     let run = RunArgs { threads, ..args.scenes.run.clone() };
+    let mut plan = crate::outputs::json_plan(args.json.as_deref(), &args.scenes.scene_paths())?;
     let mut results = Vec::new();
     for scene_path in args.scenes.scene_paths() {
         let scene = args.scenes.load_scene(scene_path.as_deref())?;
+        plan.scene(&scene).check()?;
         let accel = Accel::build(&scene)?;
         let settings = size.settings(&scene, args.spp, &run, run.seed_or(0), false)?;
+        // Every ray is kept for the replay: at least a camera ray and a shadow ray a sample,
+        // beside a render's worth of pixels.
+        let (width, height) = (settings.width, settings.height);
+        let ray_bytes = 2 * std::mem::size_of::<tracer::integrator::RecordedRay>() as u64;
+        tracer::memory::check(
+            &format!("recording the rays of a {width}x{height} render at {} spp", settings.spp),
+            tracer::memory::render_bytes(width, height)
+                + width as u64 * height as u64 * settings.spp as u64 * ray_bytes,
+        )?;
         // The rays first, so that the timed tracer and raw runs can alternate: a slow phase of
         // a shared machine then hits both, and the median of the per-pair ratios shows it.
         let recorded = record_rays(&scene, &accel, &settings)?;

@@ -24,7 +24,7 @@ pub struct BenchFiltersArgs {
     #[command(flatten)]
     trace: TraceArgs,
     /// Timed repetitions of the fast filters; the best is reported (the bilateral runs once).
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = crate::common::repeats_parser())]
     repeats: u32,
     /// Skip the cross-bilateral filter (seconds per run at large radii).
     #[arg(long)]
@@ -55,7 +55,9 @@ fn best_of(repeats: u32, mut run: impl FnMut() -> Result<()>) -> Result<f64> {
 
 pub fn run(args: &BenchFiltersArgs) -> Result<()> {
     let trace = &args.trace;
+    let mut plan = crate::outputs::json_plan(args.json.as_deref(), std::slice::from_ref(&trace.scene))?;
     let scene = trace.load_scene()?;
+    plan.scene(&scene).check()?;
     let accel = Accel::build(&scene)?;
     let defaults = TraceArgs {
         size: trace.size.or(1024, 768),
@@ -64,6 +66,9 @@ pub fn run(args: &BenchFiltersArgs) -> Result<()> {
         ..trace.clone()
     };
     let settings = defaults.settings(&scene, 1)?;
+    // The guide buffers and the filters' planes: about two renders' worth, as `filter`.
+    let (width, height) = (settings.width, settings.height);
+    tracer::memory::check(&format!("filtering {width}x{height}"), 2 * tracer::memory::render_bytes(width, height))?;
     let buffers = tracer::samples::guide::guide_buffers(&scene, &accel, &settings)?;
     let (width, height) = (settings.width, settings.height);
     let input = crate::convert::guide_input(&buffers);

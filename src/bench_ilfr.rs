@@ -40,7 +40,7 @@ pub struct BenchIlfrArgs {
     #[arg(long, default_value_t = 256)]
     recon_rays: u32,
     /// Timed repetitions of the Embree replay; the best is reported.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = crate::common::repeats_parser())]
     repeats: u32,
     /// Also write the results as JSON here.
     #[arg(long)]
@@ -93,13 +93,22 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
     let pool = thread_pool(threads)?;
     let dir = tempfile::tempdir().context("a temporary directory for the samples")?;
     let _registration = sampleio::interrupt::remove_on_interrupt(dir.path());
+    let mut plan = crate::outputs::json_plan(args.json.as_deref(), &args.scenes.scene_paths())?;
     let mut rows = Vec::new();
     for scene_path in args.scenes.scene_paths() {
         let scene = args.scenes.load_scene(scene_path.as_deref())?;
+        plan.scene(&scene).check()?;
         let accel = Accel::build(&scene)?;
         let mut first_total = None;
         for &spp in &args.spp {
             let settings = size.settings(&scene, spp, &run, seed, false)?;
+            // The samples are read back whole: TLFR's measured bytes a sample, beside a render.
+            let (width, height) = (settings.width, settings.height);
+            let samples = width as u64 * height as u64 * spp as u64;
+            tracer::memory::check(
+                &format!("{samples} samples at {width}x{height}"),
+                tracer::memory::render_bytes(width, height) + samples * recon::tlfr::method::BYTES_PER_SAMPLE,
+            )?;
             let path = dir.path().join("bench.lfrs");
             let report =
                 dump(&scene, &accel, &settings, SecondaryKind::Indirect, &tracer::samples::FieldSelection::All, &path)?;

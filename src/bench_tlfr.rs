@@ -44,7 +44,7 @@ pub struct BenchTlfrArgs {
     fixed_locations: bool,
     /// Timed repetitions of the render and of the plain reconstruction; the best of each is
     /// reported.
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = 2, value_parser = crate::common::repeats_parser())]
     repeats: u32,
     /// Also write the results as JSON here.
     #[arg(long)]
@@ -105,12 +105,6 @@ pub fn run(args: &BenchTlfrArgs) -> Result<()> {
     if args.locations.is_empty() || args.locations.contains(&0) {
         bail!("--locations must list positive location counts");
     }
-    if args.repeats == 0 {
-        bail!("--repeats must be at least 1");
-    }
-    if let Some(json) = &args.json {
-        crate::common::check_outputs(&[json.as_path()], &[])?;
-    }
     let size =
         SizeArgs { max_bounces: Some(args.scenes.size.max_bounces.unwrap_or(1)), ..args.scenes.size.or(128, 72) };
     let threads = args.scenes.run.thread_count()?;
@@ -122,14 +116,23 @@ pub fn run(args: &BenchTlfrArgs) -> Result<()> {
     } else {
         args.scenes.scene_paths()
     };
+    let mut plan = crate::outputs::json_plan(args.json.as_deref(), &scene_paths)?;
     let dir = tempfile::tempdir().context("a temporary directory for the samples")?;
     let _registration = sampleio::interrupt::remove_on_interrupt(dir.path());
     let mut rows = Vec::new();
     for scene_path in scene_paths {
         let scene = args.scenes.load_scene(scene_path.as_deref())?;
+        plan.scene(&scene).check()?;
         let accel = Accel::build(&scene)?;
         for &spp in &args.spp {
             let settings = size.settings(&scene, spp, &run, seed, false)?;
+            // The samples are read back whole: TLFR's measured bytes a sample, beside a render.
+            let (width, height) = (settings.width, settings.height);
+            let samples = width as u64 * height as u64 * spp as u64;
+            tracer::memory::check(
+                &format!("{samples} samples at {width}x{height}"),
+                tracer::memory::render_bytes(width, height) + samples * recon::tlfr::method::BYTES_PER_SAMPLE,
+            )?;
             let mut trace_s = f64::INFINITY;
             for _ in 0..args.repeats {
                 trace_s = trace_s.min(tracer::render(&scene, &accel, &settings)?.seconds);

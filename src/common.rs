@@ -254,18 +254,10 @@ impl SceneListArgs {
     }
 }
 
-/// Refuses, before any work, output paths that must not be replaced: each of `outputs` must be
-/// new or a regular file, and none of them one of `inputs` (`sampleio::check_output_target`).
-pub fn check_outputs(outputs: &[&Path], inputs: &[&Path]) -> Result<()> {
-    for output in outputs {
-        sampleio::check_output_target(output, inputs)?;
-    }
-    Ok(())
-}
-
-/// The inputs a command reads from its scene option: the scene file, when one is given.
-pub fn scene_inputs(scene: Option<&Path>) -> Vec<&Path> {
-    scene.into_iter().collect()
+/// The value parser of every `--repeats`: a count of timed runs, at least 1 (0 would time
+/// nothing and report infinite or empty results).
+pub fn repeats_parser() -> clap::builder::RangedI64ValueParser<u32> {
+    clap::value_parser!(u32).range(1..)
 }
 
 /// The scene file access of `--allow-outside-scene-dir`.

@@ -7,7 +7,8 @@ use anyhow::Result;
 use sampleio::SampleKind;
 use tracer::Accel;
 
-use crate::common::{check_outputs, scene_inputs, TraceArgs};
+use crate::common::TraceArgs;
+use crate::outputs::OutputPlan;
 
 /// What `lfr dump` writes: a sample kind, or guide buffers.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -72,7 +73,8 @@ pub fn run(args: &DumpArgs) -> Result<()> {
     if args.soft_shadow && !matches!(args.kind, DumpKind::LensTime) {
         anyhow::bail!("--soft-shadow only applies to --kind lens-time");
     }
-    check_outputs(&[&args.out], &scene_inputs(trace.scene.as_deref()))?;
+    let mut plan = OutputPlan::new();
+    plan.file(&args.out, "--out").scene_file(trace.scene.as_deref()).check()?;
     let fields = match &args.fields {
         Some(list) => {
             anyhow::ensure!(
@@ -84,7 +86,19 @@ pub fn run(args: &DumpArgs) -> Result<()> {
         None => tracer::samples::FieldSelection::All,
     };
     let scene = trace.load_scene()?;
+    plan.scene(&scene).check()?;
     let settings = trace.settings(&scene, args.spp)?;
+    if wants_exr {
+        // The guide buffers are held whole (a render's worth per pixel, like `filter`) and written
+        // as 22 f32 channels; a sample file's size is checked by the writer, before tracing.
+        let (width, height) = (settings.width, settings.height);
+        let pixels = width as u64 * height as u64;
+        tracer::memory::check(
+            &format!("{width}x{height} guide buffers"),
+            2 * tracer::memory::render_bytes(width, height),
+        )?;
+        sampleio::check_free_space(&args.out, pixels * 22 * 4, "the guide buffers' EXR")?;
+    }
     let accel = Accel::build(&scene)?;
     let report = match args.kind.sample_kind() {
         Some(kind) => tracer::samples::dump(&scene, &accel, &settings, kind, args.soft_shadow, &fields, &args.out)?,
@@ -102,12 +116,8 @@ pub fn run(args: &DumpArgs) -> Result<()> {
         report.bytes_per_sample(),
         report.fields.join(", "),
     );
-    if report.dropped_contributions > 0 {
-        eprintln!(
-            "warning: {} path contributions were NaN or infinite (e.g. an emitter too bright for f32) and were \
-             dropped; the samples are darker than the scene",
-            report.dropped_contributions
-        );
+    for warning in report.warnings() {
+        eprintln!("warning: {warning}");
     }
     Ok(())
 }

@@ -66,7 +66,8 @@ pub struct ExportArgs {
     format: ExportFormat,
     /// Sample file written by `lfr dump`.
     samples: PathBuf,
-    /// Output file; TLFR's text header goes to OUT.header.
+    /// Output file; its text header goes to OUT.header (`-`, standard output, is refused: the
+    /// format is two files).
     out: PathBuf,
 }
 
@@ -155,7 +156,9 @@ fn write_float_records<const N: usize>(
 }
 
 pub fn run(args: &ExportArgs) -> Result<()> {
-    crate::common::check_outputs(&[&args.out, &header_path(&args.out)], &[&args.samples])?;
+    let mut plan = crate::outputs::OutputPlan::new();
+    plan.file(&args.out, "the output").file(&header_path(&args.out), "the text header beside the output");
+    plan.input(&args.samples, "the sample file").check()?;
     let file = SampleFile::open(&args.samples)?;
     match args.format {
         ExportFormat::Tlfr13 => write_tlfr_1_3(&file, &args.out)?,

@@ -14,8 +14,9 @@ use recon::Image;
 use tracer::output::{write_exr, write_png, Layer};
 use tracer::Accel;
 
-use crate::common::{check_outputs, scene_inputs, TraceArgs};
+use crate::common::TraceArgs;
 use crate::convert::{guide_input, rgb_channels};
+use crate::outputs::{preview_of, OutputPlan};
 
 #[derive(clap::Args)]
 pub struct FilterArgs {
@@ -77,8 +78,12 @@ pub fn run(args: &FilterArgs) -> Result<()> {
     }
     let method = chosen_filter(args)?;
     let trace = &args.trace;
-    check_outputs(&[&args.out, &args.out.with_extension("png")], &scene_inputs(trace.scene.as_deref()))?;
+    let preview = preview_of(&args.out);
+    let mut plan = OutputPlan::new();
+    plan.file(&args.out, "--out").file(&preview, "the PNG preview beside --out");
+    plan.scene_file(trace.scene.as_deref()).check()?;
     let scene = trace.load_scene()?;
+    plan.scene(&scene).check()?;
     let settings = trace.settings(&scene, args.spp)?;
     // The guide buffers, the filter's planes and the composite: about two renders' worth.
     let (width, height) = (settings.width, settings.height);
@@ -104,7 +109,6 @@ pub fn run(args: &FilterArgs) -> Result<()> {
         Layer { name: "depth", channels: vec![("Z", buffers.depth.clone())] },
     ];
     write_exr(&args.out, width, height, &layers).with_context(|| format!("writing {}", args.out.display()))?;
-    let preview = args.out.with_extension("png");
     write_png(&preview, width, height, &vec3(&composite.beauty), 1.0)
         .with_context(|| format!("writing {}", preview.display()))?;
     println!(
@@ -113,6 +117,9 @@ pub fn run(args: &FilterArgs) -> Result<()> {
         args.spp,
         method.name,
     );
+    for warning in buffers.warnings() {
+        eprintln!("warning: {warning}");
+    }
     if sanitised > 0 {
         eprintln!("warning: {sanitised} non-finite indirect values were replaced by 0 before filtering");
     }

@@ -17,6 +17,7 @@ mod export;
 mod filter;
 mod fingerprint;
 mod merge;
+mod outputs;
 mod probes;
 mod reconstruct;
 mod render;

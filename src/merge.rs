@@ -129,9 +129,13 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     if args.out.extension().and_then(|e| e.to_str()).map(|e| e.eq_ignore_ascii_case("exr")) != Some(true) {
         bail!("--out {}: the output must be an .exr file", args.out.display());
     }
-    let preview = args.out.with_extension("png");
-    let inputs: Vec<&Path> = args.shards.iter().map(PathBuf::as_path).collect();
-    crate::common::check_outputs(&[&args.out, &preview], &inputs)?;
+    let preview = crate::outputs::preview_of(&args.out);
+    let mut plan = crate::outputs::OutputPlan::new();
+    plan.file(&args.out, "--out").file(&preview, "the PNG preview beside --out");
+    for shard in &args.shards {
+        plan.input(shard, "a shard");
+    }
+    plan.check()?;
     let shards = check_records(&args.shards)?;
     let first = &shards[0].1;
     let (width, height) = (first.width, first.height);

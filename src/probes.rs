@@ -30,8 +30,9 @@ use probes::ProbesError;
 use serde::Serialize;
 use tracer::output::{write_exr_with_attributes, write_png, Layer};
 
-use crate::common::{check_outputs, scene_inputs, write_json, TraceArgs};
+use crate::common::{write_json, TraceArgs};
 use crate::compare::probes_method::MAX_PROJECTED;
+use crate::outputs::{preview_of, OutputPlan};
 
 #[derive(clap::Args)]
 pub struct ProbesArgs {
@@ -242,10 +243,13 @@ fn run_stats(args: &StatsArgs) -> Result<()> {
             args.relight_rays
         );
     }
+    let mut plan = OutputPlan::new();
     if let Some(json) = &args.json {
-        check_outputs(&[json], &scene_inputs(args.trace.scene.as_deref()))?;
+        plan.file(json, "--json");
     }
+    plan.scene_file(args.trace.scene.as_deref()).check()?;
     let scene = args.trace.load_scene()?;
+    plan.scene(&scene).check()?;
     if args.frame {
         // --frame builds the whole dense pipeline: the precompute's memory.
         let settings = PrecomputeSettings {
@@ -914,15 +918,19 @@ fn print_precompute(r: &PrecomputeReport) {
     );
 }
 
-/// Checks the precompute settings and the outputs, all before the scene is read.
-fn check_common(trace: &TraceArgs, pre: &PrecomputeOptions, outputs: &[&Path]) -> Result<PrecomputeSettings> {
+/// Checks the precompute settings and the outputs in `plan` with the cache (read when it holds
+/// this precompute, else written) among them, all before the scene is read; returns the
+/// settings and the plan, to be checked again with the scene's files once it is loaded.
+fn check_common(
+    trace: &TraceArgs,
+    pre: &PrecomputeOptions,
+    mut plan: OutputPlan,
+) -> Result<(PrecomputeSettings, OutputPlan)> {
     let settings = pre.settings(trace.seed());
     settings.validate()?;
     trace.run.thread_count()?;
-    let mut all: Vec<&Path> = outputs.to_vec();
-    all.push(&pre.cache);
-    check_outputs(&all, &scene_inputs(trace.scene.as_deref()))?;
-    Ok(settings)
+    plan.file(&pre.cache, "the precompute cache (--cache)").scene_file(trace.scene.as_deref()).check()?;
+    Ok((settings, plan))
 }
 
 /// Refuses the run when its estimated peak memory (`probes::memory`) is over what the machine
@@ -951,9 +959,13 @@ pub(crate) fn frame_estimate(
 }
 
 fn run_precompute(args: &PrecomputeArgs) -> Result<()> {
-    let outputs: Vec<&Path> = args.json.iter().map(|p| p.as_path()).collect();
-    let settings = check_common(&args.trace, &args.pre, &outputs)?;
+    let mut plan = OutputPlan::new();
+    if let Some(json) = &args.json {
+        plan.file(json, "--json");
+    }
+    let (settings, mut plan) = check_common(&args.trace, &args.pre, plan)?;
     let scene = args.trace.load_scene()?;
+    plan.scene(&scene).check()?;
     let threads = args.trace.run.thread_count()?;
     check_memory("the probes precompute", &MemoryEstimate::precompute(&settings, threads))?;
     let pool = tracer::render::thread_pool(threads)?;
@@ -1395,15 +1407,20 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
             anyhow::bail!("reference: {} is not a file", reference.display());
         }
     }
-    let preview = args.out.with_extension("png");
-    let mut outputs: Vec<&Path> = vec![&args.out, &preview];
-    outputs.extend(args.json.iter().map(|p| p.as_path()));
-    let cpca_cache = cpca_path(&args.pre.cache);
-    if cpca_settings.is_some() {
-        outputs.push(&cpca_cache);
+    let mut plan = OutputPlan::new();
+    plan.file(&args.out, "--out").file(&preview_of(&args.out), "the PNG preview beside --out");
+    if let Some(json) = &args.json {
+        plan.file(json, "--json");
     }
-    let settings = check_common(&args.trace, &args.pre, &outputs)?;
+    if cpca_settings.is_some() {
+        plan.file(&cpca_path(&args.pre.cache), "the CPCA cache beside --cache");
+    }
+    if let Some(reference) = &args.reference {
+        plan.input(reference, "--reference");
+    }
+    let (settings, mut plan) = check_common(&args.trace, &args.pre, plan)?;
     let scene = args.trace.load_scene()?;
+    plan.scene(&scene).check()?;
     let image = image_settings(&args.trace, &scene, &args.frame)?;
     let threads = args.trace.run.thread_count()?;
     let projected = args.bounce_loop.unwrap_or(BounceLoop::Projected) == BounceLoop::Projected;
@@ -1658,7 +1675,7 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
             println!("            direct layer mean ratio {dr:.3} {dg:.3} {db:.3}");
         }
     }
-    println!("wrote {} and {}", args.out.display(), preview.display());
+    println!("wrote {} and {}", args.out.display(), preview_of(&args.out).display());
     if let Some(json) = &args.json {
         write_json(json, &report)?;
     }
@@ -1711,14 +1728,17 @@ fn run_animate(args: &AnimateArgs) -> Result<()> {
         })
         .collect();
     let timings = args.out_dir.join("timings.json");
-    let mut outputs: Vec<&Path> = names.iter().flat_map(|(e, p)| [e.as_path(), p.as_path()]).collect();
-    outputs.push(&timings);
-    let cpca_cache = cpca_path(&args.pre.cache);
-    if cpca_settings.is_some() {
-        outputs.push(&cpca_cache);
+    let mut plan = OutputPlan::new();
+    for (exr, png) in &names {
+        plan.file(exr, "a frame").file(png, "a frame's PNG preview");
     }
-    let settings = check_common(&args.trace, &args.pre, &outputs)?;
+    plan.file(&timings, "the timings");
+    if cpca_settings.is_some() {
+        plan.file(&cpca_path(&args.pre.cache), "the CPCA cache beside --cache");
+    }
+    let (settings, mut plan) = check_common(&args.trace, &args.pre, plan)?;
     let scene = args.trace.load_scene()?;
+    plan.scene(&scene).check()?;
     let image = image_settings(&args.trace, &scene, &args.frame)?;
     let threads = args.trace.run.thread_count()?;
     // Animate runs one bounce a frame through the full loop: no projected bounce.

@@ -58,11 +58,22 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     if args.out.extension().and_then(|e| e.to_str()).map(|e| e.eq_ignore_ascii_case("exr")) != Some(true) {
         bail!("--out {}: the output must be an .exr file", args.out.display());
     }
-    crate::common::check_outputs(&[&args.out, &args.out.with_extension("png")], &[&args.samples])?;
+    let preview = crate::outputs::preview_of(&args.out);
+    crate::outputs::OutputPlan::new()
+        .file(&args.out, "--out")
+        .file(&preview, "the PNG preview beside --out")
+        .input(&args.samples, "--samples")
+        .check()?;
     if args.locations == 0 || args.locations > MAX_RECON_RAYS {
         bail!("--locations must be in 1..={MAX_RECON_RAYS}, got {}", args.locations);
     }
     let refocus = match (args.focus_distance, args.aperture) {
+        (Some(distance), _) if !(distance.is_finite() && distance > 0.0) => {
+            bail!("--focus-distance must be positive and finite, got {distance}")
+        }
+        (_, Some(aperture)) if !(aperture.is_finite() && aperture >= 0.0) => {
+            bail!("--aperture must be finite and at least 0, got {aperture}")
+        }
         (Some(distance), Some(aperture)) => Some((distance, aperture)),
         (None, None) => None,
         _ => bail!("--focus-distance and --aperture go together"),
@@ -116,7 +127,6 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     let image = &output.image;
     write_exr(&args.out, image.width, image.height, &[Layer { name: "", channels: rgb_channels(image) }])
         .with_context(|| format!("writing {}", args.out.display()))?;
-    let preview = args.out.with_extension("png");
     let pixels: Vec<glam::Vec3> = image.pixels.iter().map(|p| glam::Vec3::from_array(*p)).collect();
     write_png(&preview, image.width, image.height, &pixels, 1.0)
         .with_context(|| format!("writing {}", preview.display()))?;

@@ -11,7 +11,8 @@ use serde::{Deserialize, Serialize};
 use tracer::render::{Shard, ShardBy};
 use tracer::{Accel, Frame, RenderSettings};
 
-use crate::common::{check_outputs, scene_inputs, TraceArgs};
+use crate::common::TraceArgs;
+use crate::outputs::{preview_of, OutputPlan};
 
 #[derive(clap::Args)]
 pub struct RenderArgs {
@@ -124,7 +125,7 @@ pub fn write_recorded(path: &std::path::Path, frame: &Frame, record: &RenderReco
     let layers = tracer::output::frame_layers(frame);
     tracer::output::write_exr_with_attributes(path, frame.width, frame.height, &layers, &[record.attribute()?])
         .with_context(|| "writing the image")?;
-    let preview = path.with_extension("png");
+    let preview = preview_of(path);
     tracer::output::write_png(&preview, frame.width, frame.height, &frame.beauty, 1.0)
         .with_context(|| "writing the preview")?;
     Ok(preview)
@@ -135,10 +136,12 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         anyhow::bail!("--out {}: the output must be an .exr file", args.out.display());
     }
     let trace = &args.trace;
-    let preview = args.out.with_extension("png");
-    check_outputs(&[&args.out, &preview], &scene_inputs(trace.scene.as_deref()))?;
+    let mut plan = OutputPlan::new();
+    plan.file(&args.out, "--out").file(&preview_of(&args.out), "the PNG preview beside --out");
+    plan.scene_file(trace.scene.as_deref()).check()?;
     let load_start = Instant::now();
     let scene = trace.load_scene()?;
+    plan.scene(&scene).check()?;
     let scene_text = crate::fingerprint::scene_text(trace.scene.as_deref())?;
     let settings = trace.settings(&scene, args.spp.unwrap_or(scene.spp))?;
     let shard = args.shard.unwrap_or(Shard::WHOLE).by(args.shard_by);

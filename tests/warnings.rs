@@ -75,6 +75,85 @@ fn render_and_dump_warn_about_overflowing_contributions() {
     assert!(result.status.success() && !stderr(&result).contains("warning"), "{}", stderr(&result));
 }
 
+/// A floor and a ceiling with a 3e38 point light between them: the light reflected once off the
+/// ceiling onto the floor (the guide's indirect light) is about 1e37, its square far beyond f32.
+const BRIGHT_LIGHT_BETWEEN_TWO_PLANES: &str = r#"
+[render]
+max_bounces = 3
+[camera]
+position = [0, 0.8, 0]
+look_at = [0, 0, 0]
+up = [0, 0, 1]
+fov = 60
+[[material]]
+name = "grey"
+base_color = [0.5, 0.5, 0.5]
+specular = 0
+[[mesh]]
+shape = "polygon"
+material = "grey"
+points = [[-10, 0, -10], [-10, 0, 10], [10, 0, 10], [10, 0, -10]]
+[[mesh]]
+shape = "polygon"
+material = "grey"
+points = [[-10, 1, -10], [10, 1, -10], [10, 1, 10], [-10, 1, 10]]
+[[light]]
+type = "point"
+position = [0, 0.5, 0]
+intensity = [3e38, 3e38, 3e38]
+"#;
+
+#[test]
+fn the_guide_dump_and_filter_count_and_warn_about_overflowing_light() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("bright.toml");
+    std::fs::write(&scene, BRIGHT_LIGHT_BETWEEN_TWO_PLANES).unwrap();
+    let guide = dir.path().join("guide.exr");
+    let size = ["--width", "8", "--height", "8", "--spp", "4", "--quiet"];
+    let warned =
+        |message: &str| message.lines().filter(|l| l.starts_with("warning:")).map(str::to_string).collect::<Vec<_>>();
+    let mut args =
+        vec!["dump", "--kind", "guide", "--scene", scene.to_str().unwrap(), "--out", guide.to_str().unwrap()];
+    args.extend(size);
+    let result = lfr(&args);
+    let message = stderr(&result);
+    assert!(result.status.success(), "{message}");
+    let warnings = warned(&message);
+    assert!(
+        warnings.iter().any(|w| w.contains("path contributions were NaN or infinite"))
+            && warnings.iter().any(|w| w.contains("values exceed the f32 range")),
+        "the dropped light and the clamped variance are both counted: {message}"
+    );
+    let (_, _, channels) = tracer::output::read_exr(&guide).unwrap();
+    for (name, values) in &channels {
+        assert!(values.iter().all(|v| v.is_finite()), "{name} holds a non-finite value");
+    }
+    let variance: Vec<f32> =
+        channels.iter().filter(|(n, _)| n.starts_with("indirect_variance")).flat_map(|(_, v)| v.clone()).collect();
+    assert!(variance.contains(&f32::MAX), "the overflowing variance is stored as f32::MAX");
+
+    let filtered = dir.path().join("filtered.exr");
+    let mut args = vec!["filter", "--scene", scene.to_str().unwrap(), "--out", filtered.to_str().unwrap()];
+    args.extend(size);
+    let result = lfr(&args);
+    let message = stderr(&result);
+    assert!(result.status.success(), "{message}");
+    assert!(warned(&message).iter().any(|w| w.contains("path contributions were NaN or infinite")), "{message}");
+
+    // The same scene with a finite light: nothing dropped, nothing clamped, no warning.
+    std::fs::write(&scene, BRIGHT_LIGHT_BETWEEN_TWO_PLANES.replace("3e38", "1")).unwrap();
+    for command in ["dump", "filter"] {
+        let out = if command == "dump" { &guide } else { &filtered };
+        let mut args = vec![command, "--scene", scene.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        if command == "dump" {
+            args.extend(["--kind", "guide"]);
+        }
+        args.extend(size);
+        let result = lfr(&args);
+        assert!(result.status.success() && warned(&stderr(&result)).is_empty(), "{}", stderr(&result));
+    }
+}
+
 #[test]
 fn reconstruct_warns_about_an_all_nan_radiance() {
     let dir = tempfile::tempdir().unwrap();

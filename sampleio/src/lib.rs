@@ -65,7 +65,7 @@ pub use header::{
     MAX_RECORD_SIZE, MAX_SPP, PREAMBLE_LEN, TRAILER_LEN, TRAILER_MAGIC,
 };
 pub use needs::{FieldNeed, Needs, OCTAHEDRAL, REAL};
-pub use output::check_output_target;
+pub use output::{check_free_space, check_output_target, free_space, human_bytes};
 pub use positional_writer::PositionalWriter;
 pub use reader::SampleFile;
 pub use writer::{encode_record, encode_records, Durability, SampleWriter, UnencodableValue};

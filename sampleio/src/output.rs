@@ -33,6 +33,64 @@ pub fn check_output_target(path: &Path, inputs: &[&Path]) -> Result<()> {
     Ok(())
 }
 
+/// Bytes free to an unprivileged writer on the file system that holds `dir`
+/// (`statvfs`: available blocks × fragment size); `LFR_FREE_SPACE` (bytes) replaces the
+/// measurement, for tests. `None` where it cannot be measured.
+pub fn free_space(dir: &Path) -> Option<u64> {
+    if let Some(given) = std::env::var("LFR_FREE_SPACE").ok().and_then(|v| v.trim().parse::<u64>().ok()) {
+        return Some(given);
+    }
+    #[cfg(unix)]
+    {
+        let stat = nix::sys::statvfs::statvfs(dir).ok()?;
+        Some((stat.blocks_available() as u64).saturating_mul(stat.fragment_size() as u64))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = dir;
+        None
+    }
+}
+
+/// Refuses, before any work, an output of about `bytes` bytes that the free space of its file
+/// system ([`free_space`] of the folder `path` goes to) cannot hold; `what` says what the file
+/// is in the message. Passes where the space cannot be measured.
+pub fn check_free_space(path: &Path, bytes: u64, what: &str) -> Result<()> {
+    // The nearest folder that exists: those missing are created on the same file system.
+    let folder = path
+        .ancestors()
+        .skip(1)
+        .find(|folder| !folder.as_os_str().is_empty() && folder.exists())
+        .unwrap_or(Path::new("."));
+    match free_space(folder) {
+        Some(free) if bytes > free => Err(SampleError::RefusedOutput {
+            path: path.to_path_buf(),
+            reason: format!(
+                "{what} would take about {} and its file system has {} free",
+                human_bytes(bytes),
+                human_bytes(free)
+            ),
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// `bytes` in the largest binary unit that keeps it at least 1, one decimal.
+pub fn human_bytes(bytes: u64) -> String {
+    const UNITS: [&str; 6] = ["B", "KiB", "MiB", "GiB", "TiB", "PiB"];
+    let mut value = bytes as f64;
+    let mut unit = 0;
+    while value >= 1024.0 && unit + 1 < UNITS.len() {
+        value /= 1024.0;
+        unit += 1;
+    }
+    if unit == 0 {
+        format!("{bytes} B")
+    } else {
+        format!("{value:.1} {}", UNITS[unit])
+    }
+}
+
 fn describe(kind: &std::fs::FileType) -> &'static str {
     #[cfg(unix)]
     {
@@ -74,6 +132,18 @@ fn same_file(metadata: &std::fs::Metadata, other: &Path) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_output_larger_than_the_free_space_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("big.lfrs");
+        let free = free_space(dir.path()).expect("statvfs answers for a temporary folder");
+        assert!(check_free_space(&path, 1, "the file").is_ok());
+        let message = check_free_space(&path, free.saturating_add(1 << 30), "the sample file").unwrap_err().to_string();
+        assert!(message.contains("big.lfrs") && message.contains("the sample file would take about"), "{message}");
+        assert_eq!(human_bytes(1023), "1023 B");
+        assert_eq!(human_bytes(3 << 40), "3.0 TiB");
+    }
 
     #[test]
     fn new_and_regular_files_pass_special_files_and_inputs_do_not() {

@@ -175,6 +175,9 @@ pub(crate) fn start(path: &Path, header: HeaderSpec) -> Result<Started> {
         field: "path".into(),
         message: "the path has no file name".into(),
     })?;
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(|e| SampleError::io(parent, "create the folder", e))?;
+    }
     crate::interrupt::remove_stale_temporaries(path);
     let registration = crate::interrupt::remove_on_interrupt(&tmp);
     let file = File::create(&tmp).map_err(|e| SampleError::io(&tmp, "create", e))?;

@@ -25,7 +25,8 @@ fn is_ours(name: &str) -> bool {
 /// Makes `dir` an empty comparison folder (see the module doc). Returns how many previous
 /// entries were removed.
 pub fn prepare(dir: &Path, force: bool) -> Result<usize> {
-    match std::fs::symlink_metadata(dir) {
+    // A symbolic link to a folder is that folder.
+    match std::fs::metadata(dir) {
         Err(error) if error.kind() == std::io::ErrorKind::NotFound => {
             std::fs::create_dir_all(dir).with_context(|| format!("--out: creating {}", dir.display()))?;
             return Ok(0);

@@ -38,20 +38,10 @@ pub fn available_bytes() -> Option<u64> {
     }
 }
 
-/// `bytes` in the largest unit that keeps it at or above 1 (binary prefixes).
+/// `bytes` in the largest unit that keeps it at or above 1 (binary prefixes; one home with the
+/// free-space check's, `sampleio::human_bytes`).
 pub fn human(bytes: u64) -> String {
-    const UNITS: [&str; 6] = ["B", "KiB", "MiB", "GiB", "TiB", "PiB"];
-    let mut value = bytes as f64;
-    let mut unit = 0;
-    while value >= 1024.0 && unit + 1 < UNITS.len() {
-        value /= 1024.0;
-        unit += 1;
-    }
-    if unit == 0 {
-        format!("{bytes} B")
-    } else {
-        format!("{value:.1} {}", UNITS[unit])
-    }
+    sampleio::human_bytes(bytes)
 }
 
 /// Refuses `what` (e.g. "a 32768x32768 render") when it needs more than `needed` bytes than the

@@ -119,26 +119,31 @@ impl Frame {
     /// One line per kind of value this frame dropped or clamped (none for a clean frame),
     /// for the commands to print as warnings.
     pub fn warnings(&self) -> Vec<String> {
-        let mut warnings = Vec::new();
-        if self.dropped_contributions > 0 {
-            warnings.push(format!(
-                "{} path contributions were NaN or infinite (e.g. an emitter too bright for f32) and were dropped; \
-                 the image is darker than the scene",
-                self.dropped_contributions
-            ));
-        }
-        if self.invalid_samples > 0 {
-            warnings.push(format!("{} samples had non-finite radiance and were dropped", self.invalid_samples));
-        }
-        if self.clamped_variances > 0 {
-            warnings.push(format!(
-                "{} variance values exceed the f32 range (radiance above ~1.8e19) and were stored as {:e}",
-                self.clamped_variances,
-                f32::MAX
-            ));
-        }
-        warnings
+        value_warnings(self.dropped_contributions, self.invalid_samples, self.clamped_variances)
     }
+}
+
+/// The warnings of everything that traces light (a render, the guide buffers, a sample dump):
+/// one line per kind of value dropped or clamped, none when all counts are zero.
+pub fn value_warnings(dropped_contributions: u64, invalid_samples: u64, clamped_values: u64) -> Vec<String> {
+    let mut warnings = Vec::new();
+    if dropped_contributions > 0 {
+        warnings.push(format!(
+            "{dropped_contributions} path contributions were NaN or infinite (e.g. an emitter too bright for f32) and \
+             were dropped; the image is darker than the scene"
+        ));
+    }
+    if invalid_samples > 0 {
+        warnings.push(format!("{invalid_samples} samples had non-finite radiance and were dropped"));
+    }
+    if clamped_values > 0 {
+        warnings.push(format!(
+            "{clamped_values} values exceed the f32 range (e.g. the variance of radiance above ~1.8e19) and were \
+             stored as {:e}",
+            f32::MAX
+        ));
+    }
+    warnings
 }
 
 /// Per-pixel accumulator in double precision.

@@ -67,7 +67,14 @@ impl<'a> Plan<'a> {
         let (names, probe_methods) = split_probes(&args.methods, effect, seed)?;
         let methods = resolve_methods(&names, effect)?;
 
+        // What the comparison removes and writes in OUT against every file it reads, before the
+        // scene is read and again with the files it references.
+        let cache = reference::cache_dir(args.cache_dir.as_deref());
+        let references = args.reference.as_deref().unwrap_or_default();
+        let mut outputs = crate::outputs::comparison_plan(dir, args.trace.scene.as_deref(), references, &cache);
+        outputs.check()?;
         let mut scene = args.trace.load_scene()?;
+        outputs.scene(&scene).check()?;
         let scene_text = crate::fingerprint::scene_text(args.trace.scene.as_deref())?;
         if let Some(radius) = args.aperture_radius {
             if !(radius.is_finite() && radius >= 0.0) {
@@ -96,7 +103,6 @@ impl<'a> Plan<'a> {
             None => default_ao_radius(&scene),
         };
         check_memory(args, &methods, &probe_methods, (width, height), threads)?;
-        let cache = reference::cache_dir(args.cache_dir.as_deref());
         reference::check_cache_dir(&cache)?;
         let (methods, unavailable) = available(methods);
         skipped.extend(unavailable);

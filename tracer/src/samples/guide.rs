@@ -63,6 +63,21 @@ pub struct GuideBuffers {
     pub eye_rays_per_pixel: u32,
     /// `eye_rays_per_pixel` eye rays of each pixel, pixels row-major.
     pub eye_rays: Vec<EyeRay>,
+    /// Path contributions and per-sample light estimates that were NaN or infinite (an
+    /// emitter too bright for f32) and were dropped: the integrator's count
+    /// (`Integrator::dropped_contributions`) and the estimates this module adds up.
+    pub dropped_contributions: u64,
+    /// `indirect_variance` (or `direct`) values beyond f32's range, stored as `f32::MAX`.
+    pub clamped_values: u64,
+}
+
+impl GuideBuffers {
+    /// One line per kind of value these buffers dropped or clamped (none for clean buffers),
+    /// for the commands to print as warnings; the same counts and words as a render's
+    /// (`Frame::warnings`).
+    pub fn warnings(&self) -> Vec<String> {
+        crate::render::value_warnings(self.dropped_contributions, 0, self.clamped_values)
+    }
 }
 
 /// An additional eye ray through a jittered position of its pixel.
@@ -94,6 +109,23 @@ struct GuidePixel {
     indirect_variance: Vec3,
     secondary_normal: Vec3,
     eye_rays: Vec<EyeRay>,
+    /// Light estimates of this pixel (guide hit and eye rays) that were not finite and were
+    /// dropped.
+    dropped: u64,
+    /// Values beyond f32's range stored as `f32::MAX`.
+    clamped: u64,
+}
+
+/// `value` (a sum or mean in f64) as f32; beyond f32's range it is stored as `f32::MAX` (with
+/// its sign) and counted in `clamped`.
+fn clamped_f32(value: f64, clamped: &mut u64) -> f32 {
+    let narrow = value as f32;
+    if narrow.is_finite() {
+        narrow
+    } else {
+        *clamped += 1;
+        f32::MAX.copysign(value as f32)
+    }
 }
 
 /// The ray leaving `surface` towards a BSDF sample (as the path tracer's first bounce, MIS
@@ -164,7 +196,7 @@ fn eye_ray(
         normal: surface.shading_normal,
         depth: scene.camera.depth(surface.position),
         albedo: surface.bsdf.albedo(),
-        direct: if direct.is_finite() { direct } else { Vec3::ZERO },
+        direct,
     }
 }
 
@@ -176,7 +208,19 @@ fn guide_pixel(
     y: u32,
 ) -> GuidePixel {
     let scene = integrator.scene;
-    let eye_rays = (0..settings.spp - 1).map(|k| eye_ray(integrator, direct_only, settings, x, y, k)).collect();
+    let mut dropped = 0u64;
+    let mut clamped = 0u64;
+    let eye_rays: Vec<EyeRay> = (0..settings.spp - 1)
+        .map(|k| {
+            let ray = eye_ray(integrator, direct_only, settings, x, y, k);
+            if ray.direct.is_finite() {
+                ray
+            } else {
+                dropped += 1;
+                EyeRay { direct: Vec3::ZERO, ..ray }
+            }
+        })
+        .collect();
     let film = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
     let PathStart { origin, direction, .. } = pinhole_ray(integrator, film);
     let Some(hit) = integrator.accel.intersect(origin, direction, 0.0, f32::INFINITY, 0.0) else {
@@ -190,13 +234,15 @@ fn guide_pixel(
             indirect_variance: Vec3::ZERO,
             secondary_normal: Vec3::ZERO,
             eye_rays,
+            dropped,
+            clamped,
         };
     };
     let wo = -direction;
     let surface = SurfacePoint::new(scene, &hit, wo, 0.0, integrator.camera_cone().width_at(hit.distance));
     let frame = Frame::new(surface.shading_normal);
     let emitted = surface.emission(scene, &hit, wo);
-    let mut direct_sum = Vec3::ZERO;
+    let mut direct_sum = [0.0f64; 3];
     let mut indirect_sum = [0.0f64; 3];
     let mut indirect_sum_sq = [0.0f64; 3];
     let mut rays = 0;
@@ -219,34 +265,48 @@ fn guide_pixel(
             direct += weight * traced.emitted;
             indirect = weight * traced.reflected();
         }
-        if direct.is_finite() {
-            direct_sum += direct;
-        }
-        let indirect = if indirect.is_finite() { indirect } else { Vec3::ZERO };
+        // A non-finite estimate is dropped and counted, as the path tracer drops its
+        // contributions; the sums are in f64, so finite estimates never overflow them.
+        let mut finite_or_dropped = |v: Vec3| {
+            if v.is_finite() {
+                v
+            } else {
+                dropped += 1;
+                Vec3::ZERO
+            }
+        };
+        let direct = finite_or_dropped(direct);
+        let indirect = finite_or_dropped(indirect);
         for c in 0..3 {
+            direct_sum[c] += direct[c] as f64;
             indirect_sum[c] += indirect[c] as f64;
             indirect_sum_sq[c] += (indirect[c] as f64).powi(2);
         }
     }
     let n = settings.spp as f64;
     let mean = indirect_sum.map(|s| s / n);
+    // The variance of radiance above about 1.8e19 leaves f32's range (its square does):
+    // stored as f32::MAX and counted, as the render's variance is.
     let variance = [0, 1, 2].map(|c| {
         if settings.spp > 1 {
-            (((indirect_sum_sq[c] - n * mean[c] * mean[c]) / (n - 1.0)).max(0.0) / n) as f32
+            clamped_f32(((indirect_sum_sq[c] - n * mean[c] * mean[c]) / (n - 1.0)).max(0.0) / n, &mut clamped)
         } else {
             0.0
         }
     });
+    let direct = [0, 1, 2].map(|c| clamped_f32(emitted[c] as f64 + direct_sum[c] / n, &mut clamped));
     GuidePixel {
         normal: surface.shading_normal,
         depth: scene.camera.depth(surface.position),
         position: surface.position,
         albedo: surface.bsdf.albedo(),
-        direct: emitted + direct_sum / settings.spp as f32,
+        direct: Vec3::from(direct),
         indirect: Vec3::new(mean[0] as f32, mean[1] as f32, mean[2] as f32),
         indirect_variance: Vec3::from(variance),
         secondary_normal: secondary_normal_sum.normalize_or_zero(),
         eye_rays,
+        dropped,
+        clamped,
     }
 }
 
@@ -284,6 +344,10 @@ pub fn guide_buffers(scene: &Scene, accel: &Accel, settings: &RenderSettings) ->
         secondary_normal: pixels.iter().map(|p| p.secondary_normal).collect(),
         eye_rays_per_pixel: settings.spp - 1,
         eye_rays: pixels.iter().flat_map(|p| p.eye_rays.iter().copied()).collect(),
+        dropped_contributions: integrator.dropped_contributions()
+            + direct_only.dropped_contributions()
+            + pixels.iter().map(|p| p.dropped).sum::<u64>(),
+        clamped_values: pixels.iter().map(|p| p.clamped).sum(),
     })
 }
 
@@ -316,6 +380,7 @@ pub fn dump(scene: &Scene, accel: &Accel, settings: &RenderSettings, path: &Path
         fields: layers.iter().map(|l| l.name.to_string()).collect(),
         seconds: start.elapsed().as_secs_f64(),
         trace_seconds,
-        dropped_contributions: 0,
+        dropped_contributions: buffers.dropped_contributions,
+        clamped_values: buffers.clamped_values,
     })
 }

@@ -52,9 +52,16 @@ pub struct DumpReport {
     pub trace_seconds: f64,
     /// Path contributions that were NaN or infinite and were dropped (`TracedRay::dropped`).
     pub dropped_contributions: u64,
+    /// Values beyond f32's range stored as `f32::MAX` (the guide buffers' variance).
+    pub clamped_values: u64,
 }
 
 impl DumpReport {
+    /// One line per kind of value the dump dropped or clamped (`render::value_warnings`).
+    pub fn warnings(&self) -> Vec<String> {
+        crate::render::value_warnings(self.dropped_contributions, 0, self.clamped_values)
+    }
+
     pub fn bytes_per_sample(&self) -> f64 {
         self.bytes as f64 / self.samples.max(1) as f64
     }
@@ -269,6 +276,12 @@ where
     let (spec, selected_ranges) = fields.apply(spec)?;
     let output_error =
         |e: sampleio::SampleError| RenderError::Output { path: path.to_path_buf(), message: e.to_string() };
+    // The file's size (records × record size, from the header's fields) against the free space
+    // of its file system, before anything is traced.
+    if let Ok(planned) = spec.to_header() {
+        let what = format!("the sample file ({} samples of {} bytes)", planned.sample_count, planned.record_size);
+        sampleio::check_free_space(path, planned.data_len().unwrap_or(u64::MAX), &what).map_err(output_error)?;
+    }
     let writer = PositionalWriter::create(path, spec).map_err(output_error)?;
     let header = writer.header().clone();
     let record_size = header.record_size as usize;
@@ -343,7 +356,16 @@ where
     let bytes = std::fs::metadata(&final_path).map(|m| m.len()).unwrap_or(0);
     let seconds = start.elapsed().as_secs_f64();
     let samples = pixel_count * spp as u64;
-    Ok(DumpReport { samples, bytes, record_size, fields, seconds, trace_seconds, dropped_contributions: 0 })
+    Ok(DumpReport {
+        samples,
+        bytes,
+        record_size,
+        fields,
+        seconds,
+        trace_seconds,
+        dropped_contributions: 0,
+        clamped_values: 0,
+    })
 }
 
 #[cfg(test)]

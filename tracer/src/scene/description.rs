@@ -439,6 +439,22 @@ pub fn parse_with_access(text: &str, path: &Path, access: FileAccess) -> Result<
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut scene = Scene::empty(path);
     scene.file_access = access;
+    // The command-line limits, checked here so that a value from the file is named by its key
+    // (not by the option the user never gave).
+    let side = 1..=crate::limits::MAX_IMAGE_SIDE;
+    for (key, value, range) in [
+        ("render.width", desc.render.width, &side),
+        ("render.height", desc.render.height, &side),
+        ("render.spp", desc.render.spp, &(1..=crate::limits::MAX_SPP)),
+    ] {
+        if !range.contains(&value) {
+            return Err(SceneError::new(
+                path,
+                key,
+                format!("must be in {}..={}, got {value}", range.start(), range.end()),
+            ));
+        }
+    }
     scene.width = desc.render.width;
     scene.height = desc.render.height;
     scene.spp = desc.render.spp;
@@ -802,8 +818,17 @@ mod tests {
         }
         let err = parse("[render]\nwidht = 3\n", p).unwrap_err();
         assert!(err.message.contains("widht"), "{err}");
-        let mut zero = parse("[render]\nwidth = 0\n", p).unwrap();
-        assert!(zero.validate().unwrap_err().field.contains("resolution"));
+        // Out-of-range values are named by file and key, not by the command's options.
+        for (text, key) in [
+            ("[render]\nwidth = 0\n", "render.width"),
+            ("[render]\nheight = 40000\n", "render.height"),
+            ("[render]\nspp = 2000000\n", "render.spp"),
+            ("[render]\nspp = 0\n", "render.spp"),
+        ] {
+            let err = parse(text, p).unwrap_err();
+            assert_eq!(err.field, key, "{err}");
+            assert!(err.to_string().starts_with("/tmp/bad.toml: render.") && !err.to_string().contains("--"), "{err}");
+        }
     }
 
     /// The error of `text`, which must fail to parse.

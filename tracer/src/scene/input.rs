@@ -4,8 +4,9 @@
 //! and, for a file that a scene file references, only inside the folders a scene may reach
 //! ([`FileAccess`], [`confine`]).
 
+use std::cell::RefCell;
 use std::io::Read;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use crate::error::SceneError;
 
@@ -53,11 +54,40 @@ pub fn confine(
     ))
 }
 
+thread_local! {
+    /// The files [`check_input`] was asked about while [`recording_reads`] runs on this thread.
+    static READS: RefCell<Option<Vec<PathBuf>>> = const { RefCell::new(None) };
+}
+
+/// Runs `load` and returns, beside its result, every file it read through [`check_input`] (and
+/// so [`read_input`]) on this thread, in the order read: the scene file and every file it
+/// references (models, material libraries, glTF buffers and images, textures). The commands
+/// check their outputs against these before any work. Every loader reads its files on the
+/// calling thread; nested recordings each see their own reads, which also count for the
+/// enclosing one.
+pub fn recording_reads<T>(load: impl FnOnce() -> T) -> (T, Vec<PathBuf>) {
+    let outer = READS.with(|reads| reads.borrow_mut().replace(Vec::new()));
+    let result = load();
+    let read = READS.with(|reads| reads.borrow_mut().take()).unwrap_or_default();
+    if let Some(mut outer) = outer {
+        outer.extend(read.iter().cloned());
+        READS.with(|reads| *reads.borrow_mut() = Some(outer));
+    }
+    (result, read)
+}
+
 /// Checks that `path` (followed through symbolic links) is a regular file of at most
 /// `max_bytes`; `referenced_from` and `field` name where the path came from in errors.
 /// The error names `referenced_from` first; `path` is repeated in the message only when it is
 /// another file (a scene's own file would be named twice).
 pub fn check_input(path: &Path, max_bytes: u64, referenced_from: &Path, field: &str) -> Result<u64, SceneError> {
+    READS.with(|reads| {
+        if let Some(reads) = reads.borrow_mut().as_mut() {
+            if !reads.iter().any(|p| p == path) {
+                reads.push(path.to_path_buf());
+            }
+        }
+    });
     let error = |message: String| SceneError::new(referenced_from, field, message);
     let named = if path == referenced_from { String::new() } else { format!("{}: ", path.display()) };
     let metadata = std::fs::metadata(path).map_err(|e| {
@@ -116,6 +146,18 @@ mod tests {
             std::os::unix::fs::symlink(&looped, &looped).unwrap();
             assert!(message(&looped, 100).contains("cannot read"), "{}", message(&looped, 100));
         }
+        // Reads are recorded while a recording runs, nested ones for both.
+        let other = dir.path().join("other.obj");
+        std::fs::write(&other, b"v 1 1 1\n").unwrap();
+        let ((), outer) = recording_reads(|| {
+            read_input(&file, 100, &scene, "mesh.file").unwrap();
+            let ((), inner) = recording_reads(|| {
+                read_input(&other, 100, &scene, "mesh.file").unwrap();
+            });
+            assert_eq!(inner, vec![other.clone()]);
+            read_input(&file, 100, &scene, "mesh.file").unwrap();
+        });
+        assert_eq!(outer, vec![file.clone(), other.clone()]);
         // A scene's own file is named once (as the file of the error), not again in the message.
         let own = read_input(&scene, 100, &scene, "file").unwrap_err().to_string();
         assert_eq!(own.matches("scene.toml").count(), 1, "{own}");

@@ -212,6 +212,10 @@ pub struct Scene {
     pub file_access: input::FileAccess,
     /// The cameras that the scene's glTF files define, in file order (`--camera N`).
     pub file_cameras: Vec<FileCamera>,
+    /// Every file read to load the scene, in the order read: the scene file and the files it
+    /// references (`input::recording_reads`); empty for a scene built in memory. The commands
+    /// refuse an output that is one of them.
+    pub inputs: Vec<PathBuf>,
 }
 
 /// The file extensions `Scene::load` reads (lower case), and how its errors list them.
@@ -253,6 +257,7 @@ impl Scene {
             warnings: Vec::new(),
             file_access: input::FileAccess::Confined,
             file_cameras: Vec::new(),
+            inputs: Vec::new(),
         }
     }
 
@@ -345,6 +350,14 @@ impl Scene {
 
     /// [`Scene::load`] with file references allowed as `access` says.
     pub fn load_with_access(path: &Path, access: input::FileAccess) -> Result<Scene, SceneError> {
+        let (scene, inputs) = input::recording_reads(|| Scene::load_unrecorded(path, access));
+        let mut scene = scene?;
+        scene.inputs = inputs;
+        Ok(scene)
+    }
+
+    /// [`Scene::load_with_access`] without the record of the files read.
+    fn load_unrecorded(path: &Path, access: input::FileAccess) -> Result<Scene, SceneError> {
         let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).unwrap_or_default();
         let mut scene = match ext.as_str() {
             "toml" => description::load_with_access(path, access)?,

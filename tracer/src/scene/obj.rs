@@ -249,6 +249,111 @@ pub fn check_mtl(text: &[u8]) -> Result<(), (usize, String)> {
     Ok(())
 }
 
+/// The first line of an OBJ text at fault, with what is wrong there: a `v`, `vt` or `vn`
+/// without its numbers or with one that is not finite (`nan`, `1e999`), a `v` weight of 0, a
+/// face (`f`) of fewer than 3 elements or a line (`l`) of fewer than 2, an element that is not
+/// an integer, or an index out of range (0, beyond the elements the file defines, or a
+/// relative index reaching before its first element). `None` when every line is sound.
+///
+/// Run before tobj reads the text: tobj takes an index of 0 for a missing one, lets a face of
+/// two elements drop without a word, and panics on a relative texture-coordinate index that
+/// reaches before the first. Two passes over the bytes, linear in the file.
+pub fn locate_obj_problem(text: &[u8]) -> Option<(usize, String)> {
+    let lines = || text.split(|&b| b == b'\n').map(String::from_utf8_lossy);
+    // (positions, texture coordinates, normals): in the whole file and before the current line.
+    let mut total = [0usize; 3];
+    for line in lines() {
+        match line.split_whitespace().next() {
+            Some("v") => total[0] += 1,
+            Some("vt") => total[1] += 1,
+            Some("vn") => total[2] += 1,
+            _ => {}
+        }
+    }
+    const ELEMENTS: [(&str, &str, usize); 3] =
+        [("v", "vertex", 3), ("vt", "texture coordinate", 2), ("vn", "normal", 3)];
+    const PLURALS: [&str; 3] = ["vertices", "texture coordinates", "normals"];
+    let mut seen = [0usize; 3];
+    for (i, line) in lines().enumerate() {
+        let number = i + 1;
+        let mut words = line.split_whitespace();
+        let Some(keyword) = words.next() else { continue };
+        if let Some(kind) = ELEMENTS.iter().position(|(k, _, _)| *k == keyword) {
+            let (_, name, needed) = ELEMENTS[kind];
+            let numbers = words.clone().take(needed).filter(|w| w.parse::<f32>().is_ok()).count();
+            if numbers < needed {
+                let given = words.collect::<Vec<_>>().join(" ");
+                return Some((number, format!("`{keyword}` (a {name}) needs {needed} numbers, got {given:?}")));
+            }
+            if let Some(word) = words.clone().find(|w| w.parse::<f32>().is_ok_and(|x| !x.is_finite())) {
+                return Some((number, format!("`{keyword}` (a {name}): `{word}` is not a finite number")));
+            }
+            if keyword == "v" {
+                // x y z, then nothing, a w that divides them, or a colour r g b.
+                let extra: Vec<&str> = words.skip(3).collect();
+                let problem = match extra.as_slice() {
+                    [] => None,
+                    [w] => match w.parse::<f32>() {
+                        Ok(w) if w != 0.0 => None,
+                        Ok(_) => Some("`v` with a weight w of 0 (the position would be divided by it)".to_string()),
+                        Err(_) => Some(format!("`v`: the weight `{w}` is not a number")),
+                    },
+                    [_, _, _] => None,
+                    _ => Some(format!("`v` takes x y z, x y z w or x y z r g b; got {} values", 3 + extra.len())),
+                };
+                if let Some(problem) = problem {
+                    return Some((number, problem));
+                }
+            }
+            seen[kind] += 1;
+            continue;
+        }
+        let least = match keyword {
+            "f" => 3,
+            "l" => 2,
+            _ => continue,
+        };
+        let elements = words.clone().count();
+        if elements < least {
+            let what = if keyword == "f" { "a face" } else { "a line" };
+            return Some((number, format!("`{keyword}` ({what}) needs at least {least} elements, got {elements}")));
+        }
+        for element in words {
+            for (kind, part) in element.split('/').enumerate() {
+                if part.is_empty() {
+                    continue;
+                }
+                if kind > 2 {
+                    return Some((number, format!("`{keyword}` element `{element}` has more than three parts")));
+                }
+                let (name, plural) = (ELEMENTS[kind].1, PLURALS[kind]);
+                let Ok(index) = part.parse::<i64>() else {
+                    return Some((
+                        number,
+                        format!("`{keyword}` element `{element}`: `{part}` is not an integer index"),
+                    ));
+                };
+                let problem = if index == 0 {
+                    Some(format!("{name} index 0: OBJ indices start at 1 (or count back from -1)"))
+                } else if index > 0 && index as u64 > total[kind] as u64 {
+                    Some(format!("{name} index {index}, but the file defines {} {plural}", total[kind]))
+                } else if index < 0 && index.unsigned_abs() > seen[kind] as u64 {
+                    Some(format!(
+                        "{name} index {index} reaches before the first: {} {plural} precede this line",
+                        seen[kind]
+                    ))
+                } else {
+                    None
+                };
+                if let Some(problem) = problem {
+                    return Some((number, format!("`{keyword}` element `{element}`: {problem}")));
+                }
+            }
+        }
+    }
+    None
+}
+
 /// Appends the meshes (one per OBJ model and material) and materials of `path` to `scene`.
 pub fn load(path: &Path, scene: &mut Scene, options: &ObjOptions) -> Result<(), SceneError> {
     let bytes = read_input(path, MAX_MODEL_BYTES, path, "file")?;
@@ -275,6 +380,9 @@ pub fn load_from_bytes(
     read_mtl: &dyn Fn(&Path) -> Result<Vec<u8>, SceneError>,
 ) -> Result<(), SceneError> {
     let dir = path.parent().unwrap_or(Path::new("."));
+    if let Some((line, problem)) = locate_obj_problem(bytes) {
+        return Err(SceneError::new(path, format!("line {line}"), problem));
+    }
     let load_options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
     // tobj would open the material library itself; `read_mtl` does, and the reason it could not
     // be read is kept.
@@ -389,6 +497,53 @@ pub fn load_from_bytes(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The error of loading the OBJ text `text` (which must fail).
+    fn obj_error(text: &str) -> SceneError {
+        let mut scene = Scene::empty("bad.obj");
+        let no_mtl = |_: &Path| -> Result<Vec<u8>, SceneError> { Err(SceneError::new("bad.obj", "mtllib", "none")) };
+        match load_from_bytes(Path::new("bad.obj"), text.as_bytes(), &mut scene, &ObjOptions::default(), &no_mtl) {
+            Ok(()) => panic!("accepted:\n{text}"),
+            Err(e) => e,
+        }
+    }
+
+    #[test]
+    fn a_bad_face_or_element_is_named_by_its_line() {
+        let head = "# three vertices\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\n";
+        for (tail, line, needle) in [
+            ("f -999999 1 2\n", 6, "vertex index -999999 reaches before the first: 3 vertices precede"),
+            ("f 1 2 3\nf 0 1 2\n", 7, "vertex index 0: OBJ indices start at 1"),
+            ("f 1 2 3\n\nf 1 2 4\n", 8, "vertex index 4, but the file defines 3 vertices"),
+            ("f 1/1 2/7 3/1\n", 6, "texture coordinate index 7, but the file defines 1 texture coordinates"),
+            ("f 1 2 x\n", 6, "`x` is not an integer"),
+            ("v 1 2\nf 1 2 3\n", 6, "`v` (a vertex) needs 3 numbers"),
+            ("v 1 2 3 0\nf 1 2 3\n", 6, "weight w of 0"),
+            // What tobj would take silently or panic on: an index of 0 for a texture coordinate
+            // or normal (read as missing), a relative one reaching before the first (a panic),
+            // a face of two elements (dropped), non-finite numbers (zeroed or kept).
+            ("vn 0 0 1\nf 1//0 2//1 3//1\n", 7, "normal index 0: OBJ indices start at 1"),
+            ("f 1/0 2/1 3/1\n", 6, "texture coordinate index 0"),
+            ("f 1/-9 2/-1 3/-1\n", 6, "texture coordinate index -9 reaches before the first: 1 texture"),
+            ("vn 0 0 1\nf 1//1 2//-2 3//1\n", 7, "normal index -2 reaches before the first: 1 normals"),
+            ("vn 0 0 1\nf 1//1 2//2 3//1\n", 7, "normal index 2, but the file defines 1 normals"),
+            ("f 1 2\n", 6, "`f` (a face) needs at least 3 elements, got 2"),
+            ("f\n", 6, "needs at least 3 elements, got 0"),
+            ("l 1\n", 6, "`l` (a line) needs at least 2 elements, got 1"),
+            ("vt 0.5 abc\nf 1 2 3\n", 6, "`vt` (a texture coordinate) needs 2 numbers"),
+            ("vn 1 x 0\nf 1 2 3\n", 6, "`vn` (a normal) needs 3 numbers"),
+            ("vt nan 0\nf 1/2 2/1 3/1\n", 6, "`vt` (a texture coordinate): `nan` is not a finite number"),
+            ("vn 0 1e999 1\nf 1//1 2//1 3//1\n", 6, "`vn` (a normal): `1e999` is not a finite number"),
+            ("v inf 0 0\nf 4 2 3\n", 6, "`v` (a vertex): `inf` is not a finite number"),
+            ("v 0 0 0 NaN 1 1\nf 4 2 3\n", 6, "`NaN` is not a finite number"),
+        ] {
+            let text = format!("{head}{tail}");
+            let error = obj_error(&text);
+            assert_eq!(error.field, format!("line {line}"), "{text}: {error}");
+            assert!(error.message.contains(needle), "{text}: {error}");
+            assert!(error.to_string().starts_with("bad.obj: line "), "{error}");
+        }
+    }
 
     #[test]
     fn phong_mapping_is_monotone_and_bounded() {

@@ -128,9 +128,23 @@ pub fn sphere(name: &str, center: Vec3, radius: f32, subdivisions: u32, material
 /// of the faces around each vertex whose normal is within `crease_degrees` of the corner's
 /// own face. Hard edges (box corners) stay hard, curved scans (the bunny) become smooth.
 /// Vertices are split per corner, so uvs are duplicated alongside.
+///
+/// The cost is linear in the corners for ordinary meshes and O(k log k) at a vertex shared by
+/// k faces (not O(k²)): a vertex of more than [`TREE_MIN_FACES`] faces sums them through a
+/// [`NormalTree`].
 pub fn compute_normals(mesh: &mut Mesh, crease_degrees: f32) {
+    compute_normals_counting(mesh, crease_degrees);
+}
+
+/// A vertex shared by more faces than this sums them through a [`NormalTree`]; below it, the
+/// plain loop over its faces (whose sums keep the bits of the definition).
+pub const TREE_MIN_FACES: usize = 64;
+
+/// [`compute_normals`], returning the number of face tests and tree nodes it visited while
+/// summing (the work that was quadratic in a vertex's valence).
+pub fn compute_normals_counting(mesh: &mut Mesh, crease_degrees: f32) -> u64 {
     if mesh.normals.is_some() {
-        return;
+        return 0;
     }
     let cos_crease = crease_degrees.to_radians().cos();
     let corners = |&[a, b, c]: &[u32; 3]| [a, b, c].map(|i| mesh.positions[i as usize]);
@@ -158,8 +172,10 @@ pub fn compute_normals(mesh: &mut Mesh, crease_degrees: f32) {
     // The sum at a corner depends only on its vertex and its own face's unit normal, so corners
     // that share both (every corner of a triangulated planar polygon's fan vertex) share one
     // sum: computed once, in face order as for each corner alone, so the bits are the same.
-    // Without this a 30k-vertex polygon took 7 s (every fan corner summed every face).
     let mut sums: std::collections::HashMap<(u32, [u32; 3]), Vec3> = std::collections::HashMap::new();
+    // The trees of the vertices of many faces, built on their first corner.
+    let mut trees: std::collections::HashMap<u32, NormalTree> = std::collections::HashMap::new();
+    let mut work = 0u64;
     let mut positions = Vec::with_capacity(mesh.indices.len() * 3);
     let mut normals = Vec::with_capacity(mesh.indices.len() * 3);
     let mut uvs: Option<Vec<Vec2>> = mesh.uvs.as_ref().map(|_| Vec::with_capacity(mesh.indices.len() * 3));
@@ -169,13 +185,19 @@ pub fn compute_normals(mesh: &mut Mesh, crease_degrees: f32) {
         let base = positions.len() as u32;
         for &v in tri {
             let key = (v, own.to_array().map(f32::to_bits));
+            let faces = &faces_of_vertex[v as usize];
             let sum = *sums.entry(key).or_insert_with(|| {
+                if faces.len() > TREE_MIN_FACES {
+                    let tree = trees.entry(v).or_insert_with(|| NormalTree::new(faces, &unit_normals, &face_normals));
+                    return tree.sum_within(own, cos_crease, &unit_normals, &face_normals, &mut work);
+                }
                 let mut sum = Vec3::ZERO;
-                for &g in &faces_of_vertex[v as usize] {
+                for &g in faces {
                     if unit_normals[g as usize].dot(own) >= cos_crease {
                         sum += face_normals[g as usize];
                     }
                 }
+                work += faces.len() as u64;
                 sum
             });
             let n = sum.normalize_or_zero();
@@ -191,6 +213,122 @@ pub fn compute_normals(mesh: &mut Mesh, crease_degrees: f32) {
     mesh.normals = Some(normals);
     mesh.uvs = uvs;
     mesh.indices = indices;
+    work
+}
+
+/// The faces around one vertex as a k-d tree over their unit normals, each node with the box of
+/// its normals and the (area-weighted) sum of its faces' normals. The sum over the faces whose
+/// unit normal `u` has `u · own >= cos_crease` (the crease rule) then takes whole nodes whose
+/// box lies clearly inside or outside that cap and tests single faces only in the nodes the
+/// cap's boundary crosses: O(log k + boundary) per corner instead of O(k).
+///
+/// A node is taken or skipped whole only when every point of its box is at least
+/// [`NormalTree::MARGIN`] inside or outside the cap, far beyond the f32 rounding of a single
+/// test (< 1e-6 for unit vectors), so the faces summed are exactly those the plain loop sums;
+/// only the order of the additions differs (in f64 here).
+struct NormalTree {
+    nodes: Vec<NormalNode>,
+    /// The faces, ordered so that every node holds a contiguous range.
+    faces: Vec<u32>,
+}
+
+struct NormalNode {
+    lo: Vec3,
+    hi: Vec3,
+    sum: [f64; 3],
+    range: std::ops::Range<usize>,
+    /// The two children, or none for a leaf.
+    children: Option<(usize, usize)>,
+}
+
+impl NormalTree {
+    /// Most faces of a leaf.
+    const LEAF: usize = 8;
+    /// How far inside or outside the cap (in cosine) a box must lie to be taken or skipped whole.
+    const MARGIN: f64 = 1e-5;
+
+    fn new(faces: &[u32], unit_normals: &[Vec3], face_normals: &[Vec3]) -> NormalTree {
+        let mut tree = NormalTree { nodes: Vec::new(), faces: faces.to_vec() };
+        tree.build(0..faces.len(), unit_normals, face_normals);
+        tree
+    }
+
+    /// Builds the node of `range` (and its subtree); returns its index.
+    fn build(&mut self, range: std::ops::Range<usize>, unit_normals: &[Vec3], face_normals: &[Vec3]) -> usize {
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        let mut sum = [0.0f64; 3];
+        for &g in &self.faces[range.clone()] {
+            let u = unit_normals[g as usize];
+            (lo, hi) = (lo.min(u), hi.max(u));
+            let n = face_normals[g as usize];
+            for c in 0..3 {
+                sum[c] += n[c] as f64;
+            }
+        }
+        let index = self.nodes.len();
+        self.nodes.push(NormalNode { lo, hi, sum, range: range.clone(), children: None });
+        if range.len() > Self::LEAF {
+            let extent = hi - lo;
+            let axis = if extent.x >= extent.y && extent.x >= extent.z {
+                0
+            } else if extent.y >= extent.z {
+                1
+            } else {
+                2
+            };
+            let middle = range.len() / 2;
+            self.faces[range.clone()].select_nth_unstable_by(middle, |&a, &b| {
+                unit_normals[a as usize][axis].total_cmp(&unit_normals[b as usize][axis])
+            });
+            let split = range.start + middle;
+            let left = self.build(range.start..split, unit_normals, face_normals);
+            let right = self.build(split..range.end, unit_normals, face_normals);
+            self.nodes[index].children = Some((left, right));
+        }
+        index
+    }
+
+    /// The sum of the normals of the faces within the crease of `own` (see the type's doc);
+    /// adds the nodes and faces visited to `work`.
+    fn sum_within(
+        &self,
+        own: Vec3,
+        cos_crease: f32,
+        unit_normals: &[Vec3],
+        face_normals: &[Vec3],
+        work: &mut u64,
+    ) -> Vec3 {
+        let mut sum = [0.0f64; 3];
+        let mut add = |n: [f64; 3]| (0..3).for_each(|c| sum[c] += n[c]);
+        let cos = cos_crease as f64;
+        let mut stack = vec![0usize];
+        while let Some(index) = stack.pop() {
+            *work += 1;
+            let node = &self.nodes[index];
+            // The least and greatest of own · u over the node's box.
+            let (mut least, mut greatest) = (0.0f64, 0.0f64);
+            for c in 0..3 {
+                let (a, b) = (own[c] as f64 * node.lo[c] as f64, own[c] as f64 * node.hi[c] as f64);
+                least += a.min(b);
+                greatest += a.max(b);
+            }
+            if least >= cos + Self::MARGIN {
+                add(node.sum);
+            } else if greatest < cos - Self::MARGIN {
+                continue;
+            } else if let Some((left, right)) = node.children {
+                stack.extend([left, right]);
+            } else {
+                for &g in &self.faces[node.range.clone()] {
+                    *work += 1;
+                    if unit_normals[g as usize].dot(own) >= cos_crease {
+                        add(face_normals[g as usize].to_array().map(f64::from));
+                    }
+                }
+            }
+        }
+        Vec3::new(sum[0] as f32, sum[1] as f32, sum[2] as f32)
+    }
 }
 
 #[cfg(test)]
@@ -334,6 +472,66 @@ mod tests {
                 let bits = |v: &[Vec3]| v.iter().map(|n| n.to_array().map(f32::to_bits)).collect::<Vec<_>>();
                 assert_eq!(bits(&got), bits(&expected), "{} at {crease} degrees", mesh.name);
             }
+        }
+    }
+
+    /// A fan of `k` triangles around one hub vertex (index 0) whose rim waves up and down
+    /// (`waves` times around, or at random heights with `random`): every face's normal differs,
+    /// so no two corners at the hub share a sum.
+    fn wavy_fan(k: u32, waves: f32, random: bool) -> Mesh {
+        let mut lcg = 0x9e37_79b9u32;
+        let mut next = move || {
+            lcg = lcg.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (lcg >> 8) as f32 / (1u32 << 24) as f32
+        };
+        let mut positions = vec![Vec3::ZERO];
+        for i in 0..k {
+            let a = i as f32 * std::f32::consts::TAU / k as f32;
+            let z = if random { next() - 0.5 } else { 0.3 * (waves * a).sin() };
+            positions.push(Vec3::new(a.cos(), a.sin(), z));
+        }
+        let indices = (0..k).map(|i| [0, 1 + i, 1 + (i + 1) % k]).collect();
+        Mesh { name: "fan".into(), positions, indices, ..Mesh::default() }
+    }
+
+    #[test]
+    fn a_vertex_of_many_faces_gets_the_normals_of_the_definition() {
+        for (k, waves, random) in [(300, 7.0, false), (1000, 3.0, false), (500, 0.0, true)] {
+            let mesh = wavy_fan(k, waves, random);
+            for crease in [0.0, 30.0, 60.0, 120.0, 180.0] {
+                let expected = compute_normals_by_definition(&mesh, crease);
+                let mut fast = mesh.clone();
+                compute_normals(&mut fast, crease);
+                let got = fast.normals.unwrap();
+                let mut hub_corners = 0;
+                for (corner, (g, e)) in got.iter().zip(&expected).enumerate() {
+                    if mesh.indices[corner / 3][corner % 3] == 0 {
+                        // Summed through the tree: the same faces, added in another order.
+                        hub_corners += 1;
+                        assert!((*g - *e).length() < 1e-5, "k {k} crease {crease}: {g} against {e}");
+                    } else {
+                        // The rim's vertices have two faces each: the plain loop, bit for bit.
+                        assert_eq!(g.to_array().map(f32::to_bits), e.to_array().map(f32::to_bits));
+                    }
+                }
+                assert_eq!(hub_corners, k);
+            }
+        }
+    }
+
+    #[test]
+    fn the_work_at_a_shared_vertex_grows_close_to_linearly_with_its_faces() {
+        // The plain loop tests every face at every corner of the hub: k² tests. The tree's
+        // work for 16 times the faces grows by far less than 16² (about 16 log 16).
+        for (waves, random) in [(7.0, false), (0.0, true)] {
+            let work = |k: u32| {
+                let mut mesh = wavy_fan(k, waves, random);
+                compute_normals_counting(&mut mesh, 60.0)
+            };
+            let (small, large) = (work(1_000), work(16_000));
+            let ratio = large as f64 / small as f64;
+            assert!(ratio < 40.0, "work {small} at 1000 faces, {large} at 16000: ×{ratio:.1} (quadratic: ×256)");
+            assert!(large < 16_000 * 16_000 / 20, "{large} steps for 16000 faces");
         }
     }
 
