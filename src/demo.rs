@@ -72,7 +72,10 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let command = CompareCommand::try_parse_from(std::iter::once("lfr compare".to_string()).chain(arguments))
         .map_err(|e| anyhow::anyhow!("demo: the compare arguments do not parse: {e}"))?;
     compare::run(&command.compare)?;
-    println!("open {} in a browser: the verdict, the error-against-time plot and the images", args.out.join("report.html").display());
+    println!(
+        "open {} in a browser: the verdict, the error-against-time plot and the images",
+        args.out.join("report.html").display()
+    );
     Ok(())
 }
 

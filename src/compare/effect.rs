@@ -26,7 +26,7 @@ use tracer::{Accel, RenderSettings, Scene};
 use crate::convert::{guide_input, image_from_vec3};
 
 /// The effect `lfr compare` measures when `--effect` is not given, from what the scene has (its
-/// camera as given, before `--aperture-radius`): a lens and moving geometry: `dof-motion`; a lens:
+/// camera with `--aperture-radius` applied): a lens and moving geometry: `dof-motion`; a lens:
 /// `dof`; moving geometry: `motion`; a glossy material: `glossy`; otherwise `indirect`. Returns the
 /// effect and the reason, for the notice.
 pub fn default_for(scene: &Scene) -> (Effect, &'static str) {
@@ -315,6 +315,30 @@ impl Tracing<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The default effect follows what the scene has, in the documented order, checked on the
+    /// Cornell box (diffuse, pinhole, static) with each property switched on in turn.
+    #[test]
+    fn the_default_effect_follows_the_scenes_lens_motion_and_materials() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let cornell = Scene::load(&root.join("scenes/cornell.toml")).unwrap();
+        assert!(!scene_is_glossy(&cornell) && !cornell.camera.has_lens() && !cornell.has_motion());
+        assert_eq!(default_for(&cornell).0, Effect::Indirect);
+        let mut glossy = cornell.clone();
+        glossy.materials[0].metallic = 1.0;
+        glossy.materials[0].roughness = 0.1;
+        assert!(scene_is_glossy(&glossy));
+        assert_eq!(default_for(&glossy).0, Effect::Glossy);
+        let mut moving = glossy.clone();
+        moving.meshes[0].motion = Vec3::new(0.1, 0.0, 0.0);
+        assert_eq!(default_for(&moving).0, Effect::Motion);
+        let mut lens = glossy.clone();
+        lens.camera.aperture_radius = 0.05;
+        assert_eq!(default_for(&lens).0, Effect::Dof);
+        let mut both = moving.clone();
+        both.camera.aperture_radius = 0.05;
+        assert_eq!(default_for(&both).0, Effect::DofMotion);
+    }
 
     /// The reference's check traces single pixels (`Tracing::trace_pixels`); for every effect
     /// it must read the same layer, with the same estimator, as the whole image

@@ -52,8 +52,9 @@ pub struct CompareArgs {
     /// threads and progress.
     #[command(flatten)]
     pub trace: TraceArgs,
-    /// indirect, glossy, ao, dof, motion, dof-motion or soft-shadow.
-    #[arg(long, value_parser = parse_effect, required_unless_present = "list_methods")]
+    /// indirect, glossy, ao, dof, motion, dof-motion or soft-shadow; without it, from the scene:
+    /// dof-motion (aperture and motion), dof, motion, glossy (a glossy material), else indirect.
+    #[arg(long, value_parser = parse_effect)]
     pub effect: Option<Effect>,
     /// Output directory (created): results.json, report.md, images/, plots.
     #[arg(long, required_unless_present = "list_methods")]

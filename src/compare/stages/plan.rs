@@ -14,7 +14,7 @@ use recon::Effect;
 use tracer::limits::{MAX_COMPARE_SIDE, MAX_COMPARE_SPP, MAX_RECON_RAYS, MAX_SPP};
 use tracer::{Accel, Scene};
 
-use super::super::effect::{default_ao_radius, prepare_scene, Tracing};
+use super::super::effect::{default_ao_radius, default_for as default_effect, prepare_scene, Tracing};
 use super::super::results::Skipped;
 use super::super::{probes_method, reference, CompareArgs};
 
@@ -55,8 +55,8 @@ pub struct Plan<'a> {
 impl<'a> Plan<'a> {
     /// Checks `args` and sets the comparison up (module doc); `Ok` only when every check passed.
     pub fn new(args: &'a CompareArgs) -> Result<Plan<'a>> {
-        let (Some(effect), Some(dir)) = (args.effect, args.out.as_deref()) else {
-            bail!("--effect and --out are required (or --list-methods)");
+        let Some(dir) = args.out.as_deref() else {
+            bail!("--out is required (or --list-methods)");
         };
         let seed = args.trace.run.seed_or(1);
         check_counts(args)?;
@@ -64,8 +64,12 @@ impl<'a> Plan<'a> {
             Some(exposure) => Some(ToneMap::with_exposure(exposure).map_err(|e| anyhow::anyhow!("--exposure: {e}"))?),
             None => None,
         };
-        let (names, probe_methods) = split_probes(&args.methods, effect, seed)?;
-        let methods = resolve_methods(&names, effect)?;
+        // With --effect given, the methods are checked before the scene is read.
+        let resolve = |effect: Effect| -> Result<_> {
+            let (names, probe_methods) = split_probes(&args.methods, effect, seed)?;
+            Ok((resolve_methods(&names, effect)?, probe_methods))
+        };
+        let early = args.effect.map(resolve).transpose()?;
 
         // What the comparison removes and writes in OUT against every file it reads, before the
         // scene is read and again with the files it references.
@@ -88,6 +92,15 @@ impl<'a> Plan<'a> {
             }
             scene.camera.focus_distance = distance;
         }
+        let effect = args.effect.unwrap_or_else(|| {
+            let (effect, why) = default_effect(&scene);
+            eprintln!("compare: no --effect given: {} for {} ({why})", effect.name(), scene.source.display());
+            effect
+        });
+        let (methods, probe_methods) = match early {
+            Some(resolved) => resolved,
+            None => resolve(effect)?,
+        };
         let max_bounces = prepare_scene(effect, &mut scene, args.trace.size.max_bounces)?;
         let glossy_scene = tracer::samples::secondary::scene_is_glossy(&scene);
         let (methods, mut skipped) = skip_blurring_on_glossy_scene(methods, effect, glossy_scene);
