@@ -1,10 +1,8 @@
 //! The `lfr` command end to end: every scene file renders, and bad input gives a clear error
 //! naming the file and field, a non-zero exit, no panic and no output file.
 
-#[path = "common/cli.rs"]
-mod cli;
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
+use crate::lfr_runner as cli;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

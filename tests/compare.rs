@@ -4,10 +4,8 @@
 //! reproduces every number, an all-black reference scores as documented, and bad input fails
 //! cleanly.
 
-#[path = "common/cli.rs"]
-mod cli;
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
+use crate::lfr_runner as cli;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -4,8 +4,7 @@
 //! links that lead out are refused; the error names the file, the field and the reference and
 //! shows nothing of the refused file.
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::{Command, Output};

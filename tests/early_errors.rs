@@ -2,8 +2,7 @@
 //! reference cache it cannot write and a soft-shadow scene whose light is not planar before it
 //! traces anything; a bad MTL line is named with its file and line number.
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::{Command, Output};

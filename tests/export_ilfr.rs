@@ -1,8 +1,7 @@
 //! `lfr export --format ilfr-2.2`: the ILFR authors' sample buffer, read back as their README
 //! describes it and checked field by field against our own sample file.
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use std::process::Command;
 

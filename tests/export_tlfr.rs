@@ -2,8 +2,7 @@
 //! their `UVTSampleBuffer` reads it (text header, 16 float32 per sample), and reprojected with
 //! their conventions (lens centre at xy − C(w)·uv, homogeneous motion per Eq. 3).
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use std::process::Command;
 

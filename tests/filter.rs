@@ -1,8 +1,7 @@
 //! `lfr filter` end to end (the filtered path-tracing pipeline of Bauszat et al. 2011) and the
 //! tracer's additional eye rays it reads.
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::{Command, Output};

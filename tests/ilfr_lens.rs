@@ -3,8 +3,7 @@
 //! every hit on the surface the tracer hit, with that surface's normal — the check that the
 //! two crates agree on the lens, the image axes and the gradient's meaning.
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use common::emissive_polygon;
 use glam::Vec3;

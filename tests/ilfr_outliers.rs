@@ -5,10 +5,7 @@
 //! very comparison gave a relative MSE of 2.999e-3 at 4 spp and 3.109e-3 at 16 spp; now
 //! 2.606e-3 and 1.676e-3 (docs/ilfr.md, "Issue 23: the error that grew with the input").
 
-#[path = "common/cli.rs"]
-mod cli;
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::lfr_runner as cli;
 
 use cli::lfr;
 use serde_json::Value;

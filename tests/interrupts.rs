@@ -3,8 +3,7 @@
 //! (`NAME.<pid>.tmp`) and the comparison's input samples, writes no half file under the target's
 //! name, and exits with 130.
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};

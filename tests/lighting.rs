@@ -2,10 +2,8 @@
 //! documented default lighting with a notice; `--environment`, `--sun` and `--sun-irradiance`
 //! light any scene, `--camera N` picks among a glTF file's cameras, and bad values are refused.
 
-#[path = "common/cli.rs"]
-mod cli;
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
+use crate::lfr_runner as cli;
 
 use std::path::{Path, PathBuf};
 use std::process::Output;

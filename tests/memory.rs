@@ -2,8 +2,7 @@
 //! this machine cannot hold is refused at once with the estimate and what is available, before
 //! any tracing and without writing anything, instead of an aborted allocation or the OOM killer.
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};

@@ -4,8 +4,7 @@
 //! dump from a dump of just its fields (a field it reads but does not declare would be missing
 //! and change the image or fail the run).
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use std::path::Path;
 

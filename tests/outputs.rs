@@ -5,10 +5,8 @@
 //! spelled as an output and `-` are refused before tracing; errors name the file and the line or
 //! key.
 
-#[path = "common/cli.rs"]
-mod cli;
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
+use crate::lfr_runner as cli;
 
 use std::path::{Path, PathBuf};
 

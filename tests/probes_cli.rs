@@ -4,10 +4,8 @@
 //! whatever the lights, writes the image's named layers consistently, refuses corrupt,
 //! truncated, foreign and stale caches by file name; `animate` and CPCA end to end.
 
-#[path = "common/cli.rs"]
-mod cli;
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
+use crate::lfr_runner as cli;
 
 use std::path::Path;
 

@@ -3,8 +3,7 @@
 //! exit non-zero with an error naming the file (once) and the field, without a panic and
 //! without leaving any file (no output, no `OUT.<pid>.tmp`).
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 #[path = "../recon/tests/common/sample_camera.rs"]
 mod sample_camera;
 

@@ -3,8 +3,7 @@
 //! missing or repeated shards are refused before anything is written. Shards by sample ranges
 //! (`--shard-by samples`) merge into it within float rounding.
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::{Command, Output};

@@ -2,8 +2,7 @@
 //! reprojection (Eq. 2–4) against the tracer's projection of the moving geometry, and the
 //! radius R measured on the tracer's sampling pattern.
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use common::{emissive_polygon, SceneToml, FLOOR, LAMP, SQUARE_AT_DEPTH_4};
 use glam::{Vec2, Vec3};

@@ -2,8 +2,7 @@
 //! class 9): an emitter too bright for f32 in `lfr render` and `lfr dump`, and a sample file
 //! whose radiance is all NaN in `lfr reconstruct`, no longer give a silently black image.
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use std::process::{Command, Output};
 

@@ -1,7 +1,7 @@
 //! Renders of scenes with known answers (pbrt-v4 style): the furnace, a Lambertian plane under
 //! a point light and under a square area light, motion-blur coverage, and the stiff cases.
 
-mod common;
+use crate::common;
 
 use std::f32::consts::PI;
 

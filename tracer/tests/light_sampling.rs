@@ -3,7 +3,7 @@
 //! 16 spp falls by at least 30 % against the sampling before (kept as
 //! `LightStrategy::Legacy`, the oracle), with the same mean within noise.
 
-mod common;
+use crate::common;
 
 use glam::Vec3;
 use tracer::lights::{LightSampler, LightStrategy};

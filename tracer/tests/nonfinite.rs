@@ -4,7 +4,7 @@
 //! infinite value. The frame and the sample dumps report
 //! how many were dropped (the commands warn with the count) instead of a silently black image.
 
-mod common;
+use crate::common;
 
 use common::{mean, render, SceneToml};
 use tracer::{Accel, RenderSettings};

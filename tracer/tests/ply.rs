@@ -2,7 +2,7 @@
 //! a truncated file is an error naming it, PLY works as a `[[mesh]] file` in a description,
 //! and the shared Stanford bunny's PLY equals its verbatim OBJ conversion.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

@@ -7,7 +7,7 @@
 //! (the embedded Cornell box). Regenerate it when the scene or the light transport changes on
 //! purpose, and say why in the commit.
 
-mod common;
+use crate::common;
 
 use common::{exr_channel, project_root, render, scene_from_toml};
 

@@ -2,7 +2,7 @@
 //! scene, and the paper's reprojection (Eq. 2–4) mapping samples back onto the geometry they
 //! came from, which checks the signs and units of C1, C2 and the motion vectors.
 
-mod common;
+use crate::common;
 
 use common::{emissive_polygon, SQUARE_AT_DEPTH_4};
 use sampleio::SampleFile;

@@ -2,7 +2,7 @@
 //! is blocked exactly when it crosses Π inside the blocker, which pins (l_x, l_y), z and the
 //! light frame together; the Cornell box dumps with its luminaire.
 
-mod common;
+use crate::common;
 
 use common::{project_root, scene_from_toml, SceneToml, FLOOR, LAMP};
 use glam::{Vec2, Vec3};

@@ -3,7 +3,7 @@
 //! consistent, ambient-occlusion distances follow the cosine distribution in closed form, and
 //! fields appear only when the scene needs them.
 
-mod common;
+use crate::common;
 
 use common::{exr_channel, project_root, render, scene_from_toml, shared_scenes, SceneToml};
 use glam::Vec3;

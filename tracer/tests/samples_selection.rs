@@ -2,7 +2,7 @@
 //! out: the same samples in the same order, each kept field with the same type and the same
 //! bytes, whatever the kind and whatever the layout skips computing (the depth gradient).
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -2,7 +2,7 @@
 //! of a unit from a wall, a 1e9 radiance spike, motion beyond f16's range. Every value written
 //! stays finite where the format promises finite values.
 
-mod common;
+use crate::common;
 
 use common::{scene_from_toml, SceneToml};
 use sampleio::SampleFile;

@@ -4,7 +4,7 @@
 //! environment) does not change. With the same seed the paths take the same random numbers, so
 //! the images differ only where float rounding or an absolute epsilon changes a decision.
 
-mod common;
+use crate::common;
 
 use common::{mean, render, SceneToml};
 use glam::Vec3;

@@ -13,7 +13,7 @@
 //! value comes from the file, not from the tracer's code. The same model without the map is
 //! the reference it must differ from.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

@@ -3,7 +3,7 @@
 //! estimator: this test recomputes every pixel one path at a time and asks for equality, bit for
 //! bit, of every layer and of the ray count.
 
-mod common;
+use crate::common;
 
 use common::scene_from_toml;
 use glam::Vec3;
