@@ -611,8 +611,19 @@ fn compare_lists_every_method_with_its_options() {
     }
     let result = lfr(&["compare", "--effect", "indirect", "--out", "x", "--methods", "gif:radius=0"]);
     assert!(!result.status.success() && stderr(&result).contains("`gif:radius=0`"), "{}", stderr(&result));
-    let result = lfr(&["compare", "--out", "x"]);
-    assert!(!result.status.success() && stderr(&result).contains("--effect"), "{}", stderr(&result));
+    let result = lfr(&["compare", "--effect", "indirect"]);
+    assert!(!result.status.success() && stderr(&result).contains("--out"), "{}", stderr(&result));
+    // Without --effect the scene's effect is chosen and named before the methods are checked
+    // (the unknown method stops the run before anything is traced or written).
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let result = lfr(&["compare", "--out", out.to_str().unwrap(), "--methods", "nosuch"]);
+    let text = stderr(&result);
+    assert!(
+        !result.status.success() && text.contains("no --effect given: indirect") && text.contains("nosuch"),
+        "{text}"
+    );
+    assert!(!out.exists(), "nothing is written");
 }
 
 /// Issue 22, class 1 and 4: an output path that names a device node, a symbolic link or the

@@ -154,9 +154,17 @@ fn invalid_specs_are_refused_before_any_file_is_made() {
         assert!(e.to_string().contains("s.lfrs"));
     }
     assert!(files_in(dir.path()).is_empty());
-    let e = SampleWriter::create(&dir.path().join("no/such/dir/s.lfrs"), small_spec()).unwrap_err();
-    assert!(matches!(e, SampleError::Io { .. }));
-    assert!(e.to_string().contains("no/such/dir"), "{e}");
+    // Missing folders are created (like every other output); a regular file among the
+    // folders is refused, naming it, and nothing is made.
+    std::fs::write(dir.path().join("plain"), b"x").unwrap();
+    let e = SampleWriter::create(&dir.path().join("plain/sub/s.lfrs"), small_spec()).unwrap_err();
+    assert!(matches!(e, SampleError::Io { .. }), "{e}");
+    assert!(e.to_string().contains("plain"), "{e}");
+    assert_eq!(files_in(dir.path()), vec!["plain".to_string()]);
+    let deep = dir.path().join("no/such/dir/s.lfrs");
+    let w = SampleWriter::create(&deep, small_spec()).unwrap();
+    drop(w);
+    assert!(dir.path().join("no/such/dir").is_dir());
 }
 
 #[test]
