@@ -7,7 +7,7 @@ use crate::baselines::box_filter::BoxFilter;
 use crate::baselines::oidn::Oidn;
 use crate::error::Error;
 use crate::gif::filtered_indirect::{FilterOptions, FilteredIndirect};
-use crate::ilfr::method::{Ilfr, IlfrChoices, IlfrDof, IlfrRecursive};
+use crate::ilfr::method::{Ilfr, IlfrChoices, IlfrDof, IlfrRecursive, RayModelChoice};
 use crate::ilfr::robust::RobustMode;
 use crate::ilfr::shrink::Trim;
 use crate::ilfr::surfaces::ConflictTest;
@@ -144,6 +144,22 @@ const GRAIN: OptionSpec = OptionSpec {
            pixel's standard error from its rays, light divided by albedo (beyond the paper; --effect indirect, \
            diffuse scenes)",
 };
+const VARIANT: OptionSpec = OptionSpec {
+    key: "variant",
+    kind: OptionKind::Choice(&["paper", "nearest-splat"]),
+    default: "paper",
+    help: "what a reconstruction ray reads: every splat along it grouped into apparent surfaces and the nearest \
+           surface filtered (the paper), or the nearest splat it meets and that splat's radiance filtered once over \
+           its neighbours (beyond the paper)",
+};
+const CACHE: OptionSpec = OptionSpec {
+    key: "cache",
+    kind: OptionKind::Choice(&["off", "records"]),
+    default: "off",
+    help: "indirect light at Lambertian primary hits: every hit gathers its own rays (the paper), or records \
+           gather many rays at a subset of the hits and the rest are interpolated (irradiance caching; beyond the \
+           paper)",
+};
 const QUALITY: OptionSpec = OptionSpec {
     key: "quality",
     kind: OptionKind::Choice(&crate::baselines::oidn::QUALITIES),
@@ -264,14 +280,14 @@ pub const METHODS: &[MethodSpec] = &[
     MethodSpec {
         name: "ilfr",
         effects: INDIRECT_AND_AO,
-        options: &[CONFLICT, SHRINK, TRIM, ROBUST, SMALL, GRAIN],
+        options: &[VARIANT, CACHE, CONFLICT, SHRINK, TRIM, ROBUST, SMALL, GRAIN],
         description: "indirect light field reconstruction (Lehtinen et al. 2012)",
         build: |options| Ok(Box::new(Ilfr { choices: ilfr_choices(options) })),
     },
     MethodSpec {
         name: "ilfr-recursive",
         effects: INDIRECT,
-        options: &[PASSES, CONFLICT, SHRINK, TRIM, ROBUST],
+        options: &[PASSES, VARIANT, CONFLICT, SHRINK, TRIM, ROBUST],
         description: "indirect light field reconstruction with recursive filtering at the secondary hits (Lehtinen \
                       et al. 2012 §4)",
         build: |options| {
@@ -333,6 +349,12 @@ fn ilfr_choices(options: &Options) -> IlfrChoices {
             _ => defaults.merge_small_surfaces,
         },
         filter_grain: options.choice("grain").map_or(defaults.filter_grain, |c| c == "filter"),
+        ray_model: match options.choice("variant") {
+            Some("paper") => RayModelChoice::ApparentSurfaces,
+            Some("nearest-splat") => RayModelChoice::NearestSplat,
+            _ => defaults.ray_model,
+        },
+        cache: options.choice("cache").map_or(defaults.cache, |c| c == "records"),
     }
 }
 
