@@ -45,7 +45,7 @@ pub struct Ilfr {
 }
 
 /// The choices the paper leaves open that a user can switch (`ilfr:conflict=…:shrink=…`);
-/// docs/ilfr.md measures each.
+/// docs/history/ilfr.md measures each.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IlfrChoices {
     /// `None`: [`conflict_test_for`] the effect.
@@ -61,10 +61,49 @@ pub struct IlfrChoices {
     pub merge_small_surfaces: Option<bool>,
     /// Whether the final gather's grain is filtered ([`super::grain`]; indirect light only).
     pub filter_grain: bool,
-    /// What a reconstruction ray reads from the splats ([`IlfrSettings::ray_model`]).
-    pub ray_model: RayModelChoice,
-    /// Records and interpolation ([`IlfrSettings::cache`]).
-    pub cache: bool,
+    /// The gather's design; `None`: [`variant_for`] the effect.
+    pub variant: Option<Variant>,
+}
+
+/// The final gather's design (`ilfr:variant=…`; docs/ilfr.md measures each).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Variant {
+    /// The paper's: every primary hit gathers its own rays, and every ray groups the splats it
+    /// meets into apparent surfaces and filters the nearest ([`RayModel::ApparentSurfaces`]).
+    Paper,
+    /// Every primary hit gathers its own rays; a ray reads the nearest splat it meets, whose
+    /// radiance is prefiltered over its neighbours ([`RayModel::NearestSplat`]).
+    NearestSplat,
+    /// As [`Variant::NearestSplat`], but at Lambertian hits of indirect light records gather at
+    /// a subset of the hits and the others interpolate them ([`super::cache`]).
+    Records,
+}
+
+impl Variant {
+    pub fn name(self) -> &'static str {
+        match self {
+            Variant::Paper => "paper",
+            Variant::NearestSplat => "nearest-splat",
+            Variant::Records => "records",
+        }
+    }
+}
+
+/// The gather's design for `effect` unless one is chosen (with `filter_grain`, the grain filter,
+/// which needs the per-pixel variances of a gather at every hit): records for indirect light
+/// (Cornell 128², 4 spp: 5.3–6.6× path tracing's speed to equal PSNR against the paper's
+/// gather's 0.9–1.3×; Sponza 160 × 90, 8 spp: 1.2–2.8× against 1.2–2.3×, level with the nearest
+/// splat at every hit within the spread), the nearest splat at every hit with the grain filter
+/// (5.0× / 6.8× against the paper's gather's 3.9× / 6.0×) and for ambient occlusion (the paper's
+/// PSNR within 0.2 dB at a half to a third of its time), the paper's gather for glossy
+/// reflections, whose anisotropic nearest neighbour the prefiltered splats do not reproduce
+/// (docs/ilfr.md, "Variants and today's results").
+pub fn variant_for(effect: Effect, filter_grain: bool) -> Variant {
+    match effect {
+        Effect::Indirect if !filter_grain => Variant::Records,
+        Effect::Indirect | Effect::Ao => Variant::NearestSplat,
+        _ => Variant::Paper,
+    }
 }
 
 impl Default for IlfrChoices {
@@ -76,8 +115,7 @@ impl Default for IlfrChoices {
             robust: RobustParams::default().mode,
             merge_small_surfaces: None,
             filter_grain: false,
-            ray_model: RayModelChoice::ApparentSurfaces,
-            cache: false,
+            variant: None,
         }
     }
 }
@@ -128,6 +166,7 @@ impl IlfrChoices {
     pub fn apply(&self, settings: IlfrSettings, effect: Effect) -> IlfrSettings {
         let conflict_test = self.conflict_test.unwrap_or_else(|| conflict_test_for(effect));
         let merge_small_surfaces = self.merge_small_surfaces.unwrap_or_else(|| merge_small_surfaces_for(effect));
+        let variant = self.variant.unwrap_or_else(|| variant_for(effect, self.filter_grain));
         IlfrSettings {
             surfaces: SurfaceParams { conflict_test, merge_small_surfaces, ..settings.surfaces },
             shrink: ShrinkParams {
@@ -137,8 +176,11 @@ impl IlfrChoices {
             },
             robust: RobustParams { mode: self.robust, ..settings.robust },
             filter_grain: self.filter_grain,
-            ray_model: self.ray_model,
-            cache: self.cache.then(CacheParams::default),
+            ray_model: match variant {
+                Variant::Paper => RayModelChoice::ApparentSurfaces,
+                Variant::NearestSplat | Variant::Records => RayModelChoice::NearestSplat,
+            },
+            cache: (variant == Variant::Records).then(CacheParams::default),
             ..settings
         }
     }
@@ -149,8 +191,13 @@ impl Method for Ilfr {
         Input::Samples
     }
 
-    fn default_recon_rays(&self) -> Vec<u32> {
-        vec![256]
+    /// 256 for the paper's gather; 16 and 128 otherwise (records gather 16 rays per ray of a
+    /// pixel's budget, [`IlfrSettings::rays_per_record_ray`]).
+    fn default_recon_rays(&self, effect: Effect) -> Vec<u32> {
+        match self.choices.variant.unwrap_or_else(|| variant_for(effect, self.choices.filter_grain)) {
+            Variant::Paper => vec![256],
+            Variant::NearestSplat | Variant::Records => vec![16, 128],
+        }
     }
 
     /// With `grain=filter`, diffuse indirect light only ([`super::grain`]).
@@ -185,7 +232,7 @@ impl Method for IlfrRecursive {
         Input::Samples
     }
 
-    fn default_recon_rays(&self) -> Vec<u32> {
+    fn default_recon_rays(&self, _effect: Effect) -> Vec<u32> {
         vec![256]
     }
 
@@ -193,10 +240,12 @@ impl Method for IlfrRecursive {
         crate::needs::ilfr(effect.sample_kind()).map(|needs| vec![needs])
     }
 
+    /// The paper's gather unless a variant is chosen (`auto` is measured for one pass only).
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
         let settings =
             IlfrSettings { recon_rays, seed: inputs.seed, recursive_passes: self.passes, ..IlfrSettings::default() };
-        run_ilfr("ilfr-recursive", inputs, self.choices.apply(settings, inputs.effect))
+        let choices = IlfrChoices { variant: Some(self.choices.variant.unwrap_or(Variant::Paper)), ..self.choices };
+        run_ilfr("ilfr-recursive", inputs, choices.apply(settings, inputs.effect))
     }
 }
 
@@ -212,7 +261,7 @@ impl Method for IlfrDof {
         Input::Samples
     }
 
-    fn default_recon_rays(&self) -> Vec<u32> {
+    fn default_recon_rays(&self, _effect: Effect) -> Vec<u32> {
         vec![128]
     }
 
@@ -841,17 +890,30 @@ pub(crate) mod tests {
         s
     }
 
-    /// What `ilfr` runs for indirect light by default (its per-effect choices: the wedges'
-    /// trimming among them), with `rays` reconstruction rays per pixel.
+    /// What `ilfr:variant=paper` runs for indirect light by default (its per-effect choices: the
+    /// wedges' trimming among them), with `rays` reconstruction rays per pixel: the paper's
+    /// gather, the oracle of the cheaper ones.
     pub(crate) fn settings(rays: u32) -> IlfrSettings {
-        IlfrChoices::defaults_for(Effect::Indirect, rays, IlfrSettings::default().seed)
+        paper(Effect::Indirect, rays)
     }
 
-    /// What `ilfr` runs for ambient occlusion by default (the whole-disc trimming, the plain
-    /// event line, no small-surface rule).
+    /// What `ilfr:variant=paper` runs for ambient occlusion by default (the whole-disc trimming,
+    /// the plain event line, no small-surface rule).
     fn ao_settings(rays: u32) -> IlfrSettings {
-        IlfrChoices::defaults_for(Effect::Ao, rays, IlfrSettings::default().seed)
+        paper(Effect::Ao, rays)
     }
+
+    fn paper(effect: Effect, rays: u32) -> IlfrSettings {
+        chosen(Variant::Paper, effect, rays)
+    }
+
+    /// What `ilfr:variant=…` runs for `effect` with `rays` reconstruction rays per pixel.
+    fn chosen(variant: Variant, effect: Effect, rays: u32) -> IlfrSettings {
+        let choices = IlfrChoices { variant: Some(variant), ..IlfrChoices::default() };
+        choices.apply(IlfrSettings { recon_rays: rays, ..IlfrSettings::default() }, effect)
+    }
+
+    const VARIANTS: [Variant; 3] = [Variant::Paper, Variant::NearestSplat, Variant::Records];
 
     #[test]
     fn white_furnace_returns_albedo_times_radiance() {
@@ -1283,16 +1345,23 @@ pub(crate) mod tests {
         assert_ne!(bits(&one_filtered), bits(&one), "the filter ran");
     }
 
-    /// Stiff inputs: a 1×1 image at 1 spp still gives the furnace's exact albedo × L, and a
-    /// scene where every secondary ray escaped (nothing to splat: an empty scene around the
-    /// primary hits) gives exactly the black sky for indirect light and full visibility for AO,
-    /// with no NaN from empty trees.
+    /// Stiff inputs, with every variant: a 1×1 image at 1 spp still gives the furnace's exact
+    /// albedo × L, and a scene where every secondary ray escaped (nothing to splat: an empty
+    /// scene around the primary hits) gives exactly the black sky for indirect light and full
+    /// visibility for AO, with no NaN from empty trees.
     #[test]
     fn one_pixel_and_all_escaped_inputs_have_exact_answers() {
+        for variant in VARIANTS {
+            one_pixel_and_all_escaped_inputs_with(variant);
+        }
+    }
+
+    fn one_pixel_and_all_escaped_inputs_with(variant: Variant) {
+        let settings = |rays: u32| chosen(variant, Effect::Indirect, rays);
         let l = [3.0f32, 0.5, 1e6];
         let one = box_samples(1, 1, SampleKind::Indirect, None, |_| l);
         let result = reconstruct_samples(&one, GatherTarget::Indirect, &settings(16)).unwrap();
-        assert_eq!(result.image.pixels, vec![[0.5 * l[0], 0.25 * l[1], l[2]]]);
+        assert_eq!(result.image.pixels, vec![[0.5 * l[0], 0.25 * l[1], l[2]]], "{variant:?}");
 
         let escape_all = |mut s: IndirectSamples| {
             for i in 0..s.class.len() {
@@ -1310,20 +1379,27 @@ pub(crate) mod tests {
         };
         let empty = escape_all(box_samples(4, 2, SampleKind::Indirect, None, |_| l));
         let result = reconstruct_samples(&empty, GatherTarget::Indirect, &settings(16)).unwrap();
-        assert!(result.image.pixels.iter().all(|p| *p == [0.0; 3]), "{:?}", result.image.pixels);
+        assert!(result.image.pixels.iter().all(|p| *p == [0.0; 3]), "{variant:?}: {:?}", result.image.pixels);
         let empty_ao = escape_all(box_samples(4, 2, SampleKind::Ao, None, |_| l));
-        let result =
-            reconstruct_samples(&empty_ao, GatherTarget::Visibility { ao_radius: 0.5 }, &settings(16)).unwrap();
-        assert!(result.image.pixels.iter().all(|p| *p == [1.0; 3]), "{:?}", result.image.pixels);
+        let ao_settings = chosen(variant, Effect::Ao, 16);
+        let result = reconstruct_samples(&empty_ao, GatherTarget::Visibility { ao_radius: 0.5 }, &ao_settings).unwrap();
+        assert!(result.image.pixels.iter().all(|p| *p == [1.0; 3]), "{variant:?}: {:?}", result.image.pixels);
     }
 
     /// Stiff inputs of issue 7 item 11: zero-length secondary rays (the secondary hit on the
     /// primary hit, as a ray that hits its own surface at once would give) and coincident hits
     /// (several samples on the same point with the same normal). In the furnace (constant L)
     /// every reconstruction is a convex combination of L, so every pixel must still be albedo ×
-    /// L, finite, and AO of a closed box stays 0.
+    /// L, finite, and AO of a closed box stays 0; with every variant.
     #[test]
     fn zero_length_secondary_rays_and_coincident_hits_stay_exact_in_the_furnace() {
+        for variant in VARIANTS {
+            degenerate_hits_in_the_furnace_with(variant);
+        }
+    }
+
+    fn degenerate_hits_in_the_furnace_with(variant: Variant) {
+        let settings = |rays: u32| chosen(variant, Effect::Indirect, rays);
         let l = [3.0f32, 0.5, 2.0];
         let degenerate = |mut s: IndirectSamples| {
             for i in 0..s.class.len() {
@@ -1346,12 +1422,13 @@ pub(crate) mod tests {
         let expected = [0.5 * l[0], 0.25 * l[1], l[2]];
         for p in &result.image.pixels {
             for c in 0..3 {
-                assert!((p[c] - expected[c]).abs() <= 1e-5 * expected[c], "{p:?} vs {expected:?}");
+                assert!((p[c] - expected[c]).abs() <= 1e-5 * expected[c], "{variant:?}: {p:?} vs {expected:?}");
             }
         }
         let ao = degenerate(box_samples(6, 3, SampleKind::Ao, None, |_| l));
-        let result = reconstruct_samples(&ao, GatherTarget::Visibility { ao_radius: 5.0 }, &settings(32)).unwrap();
-        assert!(result.image.pixels.iter().all(|p| *p == [0.0; 3]), "{:?}", result.image.pixels);
+        let ao_settings = chosen(variant, Effect::Ao, 32);
+        let result = reconstruct_samples(&ao, GatherTarget::Visibility { ao_radius: 5.0 }, &ao_settings).unwrap();
+        assert!(result.image.pixels.iter().all(|p| *p == [0.0; 3]), "{variant:?}: {:?}", result.image.pixels);
     }
 
     /// The furnace through the whole method with the grain filter on: constant light stays

@@ -43,8 +43,9 @@
 //!   spurious ones (`surfaces::SurfaceParams::merge_small_surfaces`, `method`); on request
 //!   (`ilfr:grain=filter`), an edge-aware filter of the final gather's per-pixel grain in
 //!   diffuse indirect light (`grain`).
-//! - Beyond the paper, a cheaper final gather (`ilfr:variant=nearest-splat`, `ilfr:cache=records`;
-//!   `ilfr:variant=paper` is the paper's): each splat's radiance filtered once over its jury
+//! - Beyond the paper, a cheaper final gather (`ilfr:variant=nearest-splat`, `ilfr:variant=records`;
+//!   `ilfr:variant=paper` is the paper's; `variant=auto` picks per effect, `method::variant_for`):
+//!   each splat's radiance filtered once over its jury
 //!   (`prefilter`), and a reconstruction ray reads the nearest splat it meets within 0.7 of its
 //!   radius, else the nearest at all (`reconstruct::RayModel::NearestSplat`, by the ordered walk
 //!   `bvh::DiscBvh::nearest_hit`, whose oracle is the all-hits walk); and the final gather at a

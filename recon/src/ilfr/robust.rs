@@ -9,7 +9,7 @@
 //! while the fireflies grow in number as spp, so the reconstructed field's squared contrast
 //! over directions (∫ L̃² dω, what the final gather's fixed number of rays samples) stays
 //! constant in spp, and grows while rare paths first appear: the image's error stops falling,
-//! or rises, with more input (docs/ilfr.md, "Issue 23": Cornell's relative MSE rose from 4 to
+//! or rises, with more input (docs/history/ilfr.md, "Issue 23": Cornell's relative MSE rose from 4 to
 //! 16 spp).
 //!
 //! The rule, per splat i, from the input alone and the same for any thread count:
@@ -27,7 +27,7 @@
 //!   Σ_j L_j r_j² — the splats' radiant power up to a constant, what the reconstruction
 //!   integrates — is unchanged: no energy is lost, the excess is only blurred over a
 //!   neighbourhood whose size shrinks with the sampling rate (consistent as spp → ∞);
-//!   [`RobustMode::Clamp`] drops the excess (biased, measured in docs/ilfr.md).
+//!   [`RobustMode::Clamp`] drops the excess (biased, measured in docs/history/ilfr.md).
 //!
 //! A splat with fewer than `neighbours` neighbours in its lobe among the `max_candidates`
 //! nearest is not judged (a mirror lobe, an isolated hit). Radiances that are not finite and
