@@ -18,7 +18,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use rayon::prelude::*;
 use recon::ilfr::gather::reconstruction_rays;
 use recon::ilfr::method::GatherTarget;
-use recon::ilfr::method::{reconstruct_samples, IlfrChoices};
+use recon::ilfr::method::{reconstruct_samples, IlfrChoices, IlfrSettings, Variant};
 use recon::ilfr::samples::read_indirect;
 use recon::method::Effect;
 use sampleio::SampleFile;
@@ -45,6 +45,11 @@ pub struct BenchIlfrArgs {
     /// Also write the results as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// The gather: `nearest-splat` (the rays of the default, at every hit) or `paper` (the
+    /// paper's apparent surfaces). The records of `ilfr`'s default for indirect light gather other
+    /// rays than the per-hit gather whose rays are replayed here.
+    #[arg(long, default_value = "nearest-splat", value_parser = ["nearest-splat", "paper"])]
+    variant: String,
 }
 
 #[derive(Serialize)]
@@ -117,8 +122,11 @@ pub fn run(args: &BenchIlfrArgs) -> Result<()> {
             let samples = read_indirect(&file).map_err(|e| anyhow!("{e}"))?;
             drop(file);
             let read_s = start.elapsed().as_secs_f64();
-            // What `ilfr` does by default for indirect light (its per-effect choices applied).
-            let ilfr = IlfrChoices::defaults_for(Effect::Indirect, args.recon_rays, seed);
+            // What `ilfr:variant=…` does for indirect light (its per-effect choices applied).
+            let variant = if args.variant == "paper" { Variant::Paper } else { Variant::NearestSplat };
+            let choices = IlfrChoices { variant: Some(variant), ..IlfrChoices::default() };
+            let ilfr = choices
+                .apply(IlfrSettings { recon_rays: args.recon_rays, seed, ..IlfrSettings::default() }, Effect::Indirect);
             let result = pool
                 .install(|| reconstruct_samples(&samples, GatherTarget::Indirect, &ilfr))
                 .map_err(|e| anyhow!("{e}"))?;

@@ -3,7 +3,7 @@
 //! the small ceiling light after a bounce or two), judged against a traced reference of many
 //! more samples. Before issue 23 (one gather set per primary hit, no robust splat radiance) this
 //! very comparison gave a relative MSE of 2.999e-3 at 4 spp and 3.109e-3 at 16 spp; now
-//! 2.606e-3 and 1.676e-3 (docs/ilfr.md, "Issue 23: the error that grew with the input").
+//! 2.606e-3 and 1.676e-3 (docs/history/ilfr.md, "Issue 23: the error that grew with the input").
 
 use crate::lfr_runner as cli;
 

@@ -52,7 +52,7 @@ fn run(method: &dyn Method, effect: Effect, files: &(std::path::PathBuf, Option<
         seed: 3,
         threads: 0,
     };
-    let rays = method.default_recon_rays().into_iter().min().unwrap_or(0).min(8);
+    let rays = method.default_recon_rays(effect).into_iter().min().unwrap_or(0).min(8);
     method.run(&inputs, rays).unwrap_or_else(|e| panic!("{effect:?}: {e}")).image
 }
 

@@ -258,9 +258,9 @@ impl From<sampleio::SampleError> for MethodError {
 pub trait Method: Send + Sync + std::fmt::Debug {
     /// What it reads.
     fn input(&self) -> Input;
-    /// Reconstruction rays (or locations) per pixel to sweep by default; `[0]` for methods
-    /// without such a parameter.
-    fn default_recon_rays(&self) -> Vec<u32> {
+    /// Reconstruction rays (or locations) per pixel to sweep by default for `effect`; `[0]` for
+    /// methods without such a parameter.
+    fn default_recon_rays(&self, _effect: Effect) -> Vec<u32> {
         vec![0]
     }
     /// Whether it reads soft shadows' light samples (`InputData::Samples`) for `effect` (their tracing counts in its time).

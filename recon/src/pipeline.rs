@@ -31,8 +31,8 @@ impl Method for Denoised {
         self.first.input()
     }
 
-    fn default_recon_rays(&self) -> Vec<u32> {
-        self.first.default_recon_rays()
+    fn default_recon_rays(&self, effect: Effect) -> Vec<u32> {
+        self.first.default_recon_rays(effect)
     }
 
     fn reads_light_samples(&self, effect: Effect) -> bool {

@@ -8,7 +8,7 @@ use crate::baselines::box_filter::BoxFilter;
 use crate::baselines::oidn::Oidn;
 use crate::error::Error;
 use crate::gif::filtered_indirect::{FilterOptions, FilteredIndirect};
-use crate::ilfr::method::{Ilfr, IlfrChoices, IlfrDof, IlfrRecursive};
+use crate::ilfr::method::{Ilfr, IlfrChoices, IlfrDof, IlfrRecursive, Variant};
 use crate::ilfr::robust::RobustMode;
 use crate::ilfr::shrink::Trim;
 use crate::ilfr::surfaces::ConflictTest;
@@ -146,6 +146,17 @@ const GRAIN: OptionSpec = OptionSpec {
            pixel's standard error from its rays, light divided by albedo (beyond the paper; --effect indirect, \
            diffuse scenes)",
 };
+const VARIANT: OptionSpec = OptionSpec {
+    key: "variant",
+    kind: OptionKind::Choice(&["auto", "paper", "nearest-splat", "records"]),
+    default: "auto",
+    help: "the final gather: every hit gathers its own rays and every ray groups the splats it meets into apparent \
+           surfaces (paper); every hit gathers its own rays and each ray reads the nearest splat it meets, its \
+           radiance prefiltered over its neighbours (nearest-splat); or, for indirect light at Lambertian hits, records \
+           of nearest-splat rays at a subset of the hits, interpolated to the others where their error estimate \
+           allows (records; irradiance caching); auto: records for indirect light (nearest-splat with grain=filter), \
+           nearest-splat for ambient occlusion, paper for glossy reflections (ilfr-recursive: paper)",
+};
 const QUALITY: OptionSpec = OptionSpec {
     key: "quality",
     kind: OptionKind::Choice(&crate::baselines::oidn::QUALITIES),
@@ -273,14 +284,14 @@ pub const METHODS: &[MethodSpec] = &[
     MethodSpec {
         name: "ilfr",
         effects: INDIRECT_AND_AO,
-        options: &[CONFLICT, SHRINK, TRIM, ROBUST, SMALL, GRAIN],
+        options: &[VARIANT, CONFLICT, SHRINK, TRIM, ROBUST, SMALL, GRAIN],
         description: "indirect light field reconstruction (Lehtinen et al. 2012)",
         build: |options| Ok(Box::new(Ilfr { choices: ilfr_choices(options) })),
     },
     MethodSpec {
         name: "ilfr-recursive",
         effects: INDIRECT,
-        options: &[PASSES, CONFLICT, SHRINK, TRIM, ROBUST],
+        options: &[PASSES, VARIANT, CONFLICT, SHRINK, TRIM, ROBUST],
         description: "indirect light field reconstruction with recursive filtering at the secondary hits (Lehtinen \
                       et al. 2012 §4)",
         build: |options| {
@@ -412,6 +423,12 @@ fn ilfr_choices(options: &Options) -> IlfrChoices {
             _ => defaults.merge_small_surfaces,
         },
         filter_grain: options.choice("grain").map_or(defaults.filter_grain, |c| c == "filter"),
+        variant: match options.choice("variant") {
+            Some("paper") => Some(Variant::Paper),
+            Some("nearest-splat") => Some(Variant::NearestSplat),
+            Some("records") => Some(Variant::Records),
+            _ => defaults.variant,
+        },
     }
 }
 
@@ -653,6 +670,28 @@ mod tests {
             assert_eq!(applied.shrink.trim, trim, "{option} for {effect:?}");
         }
         assert_eq!(find("ilfr-dof:trim=disc").unwrap().unwrap().name(), "ilfr-dof:trim=disc");
+        use crate::ilfr::method::RayModelChoice::{ApparentSurfaces, NearestSplat};
+        for (option, effect, model, records) in [
+            ("variant=auto", Effect::Indirect, NearestSplat, true),
+            ("grain=filter", Effect::Indirect, NearestSplat, false),
+            ("variant=auto", Effect::Ao, NearestSplat, false),
+            ("variant=auto", Effect::Glossy, ApparentSurfaces, false),
+            ("variant=paper", Effect::Indirect, ApparentSurfaces, false),
+            ("variant=nearest-splat", Effect::Indirect, NearestSplat, false),
+            ("variant=records", Effect::Glossy, NearestSplat, true),
+        ] {
+            let choices = ilfr_choices(&spec("ilfr").unwrap().parse_options(option).unwrap());
+            let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), effect);
+            assert_eq!((applied.ray_model, applied.cache.is_some()), (model, records), "{option} for {effect:?}");
+        }
+        assert!(spec("ilfr").unwrap().parse_options("variant=fast").is_err());
+        let rays = |name: &str, effect: Effect| find(name).unwrap().unwrap().default_recon_rays(effect);
+        assert_eq!(rays("ilfr", Effect::Indirect), [16, 128]);
+        assert_eq!(rays("ilfr", Effect::Ao), [16, 128]);
+        assert_eq!(rays("ilfr", Effect::Glossy), [256]);
+        assert_eq!(rays("ilfr:variant=paper", Effect::Indirect), [256]);
+        assert_eq!(rays("ilfr:variant=records", Effect::Glossy), [16, 128]);
+        assert_eq!(rays("ilfr+oidn", Effect::Indirect), [16, 128]);
         let gi = |text: &str| tlfr_gi(&spec("tlfr").unwrap().parse_options(text).unwrap()).unwrap();
         assert_eq!(gi(""), GiMode::Whole);
         assert_eq!(gi("gi=split"), GiMode::Split { radius: GI_RADIUS.default.parse().unwrap() });

@@ -166,7 +166,7 @@ fn layer_image(path: &Path, width: u32, height: u32, channels: &[(String, Vec<f3
 /// The PSNR of the reference (the mean of its two halves) against the truth, estimated from
 /// the halves alone: for independent halves the mean's error is half of either's in linear
 /// space, so its display-space MSE is a quarter of the halves' mutual one, hence their PSNR
-/// plus 10·log10 4. Checked against renders of 16 times the samples (test below; docs/ilfr.md,
+/// plus 10·log10 4. Checked against renders of 16 times the samples (test below; docs/history/ilfr.md,
 /// "The reference's self-estimate"): right within ±0.8 dB on Cornell and Sponza, but 1.4–1.8 dB
 /// optimistic where rare paths carry the light (the glossy monkeys' dark floor), which both
 /// halves miss alike; no statistic of two halves can see that deficit.

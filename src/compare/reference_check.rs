@@ -1,7 +1,7 @@
 //! An independent check of the reference's own error. The two halves' estimate
 //! (`reference::estimated_psnr_db`) is blind where rare paths carry the light: a pixel whose
 //! halves both missed them reads low in both, so they agree while both are wrong (1.7–2.1 dB
-//! optimistic on the glossy monkeys; docs/ilfr.md, "The reference's self-estimate"). Only more
+//! optimistic on the glossy monkeys; docs/history/ilfr.md, "The reference's self-estimate"). Only more
 //! samples than the reference has can see that, and a whole image of them would cost more than
 //! the reference; so the check traces a sparse, stratified set of pixels — one per
 //! [`BLOCK`] × [`BLOCK`] block, at a hashed place in it — with [`DEFAULT_FACTOR`] times the

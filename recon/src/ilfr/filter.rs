@@ -64,6 +64,8 @@ pub struct Filtered {
     pub mode: FilterMode,
     /// Splats that took part (for the glossy filter: the candidates compared).
     pub contributors: u32,
+    /// The ray parameter where the ray met the surface: its nearest member's crossing.
+    pub distance: f32,
 }
 
 /// The spatial tent of a splat at distance `spatial` from its centre on its tangent plane:
@@ -111,6 +113,7 @@ pub fn filter_radiance(
         return None;
     }
     let glossy = members().any(|c| shading.kappa_of(c.id) >= GLOSSY_KAPPA);
+    let distance = members().map(|c| c.hit.t).fold(f32::INFINITY, f32::min);
     if glossy {
         // Largest g; ties by the larger tent, then the lower id (deterministic, and meaningful
         // when every lobe underflows to 0).
@@ -131,6 +134,7 @@ pub fn filter_radiance(
             radiance: shading.radiance[id as usize],
             mode: FilterMode::Glossy,
             contributors: count,
+            distance,
         });
     }
     let (mut sum, mut weight) = ([0.0f64; 3], 0.0f64);
@@ -154,7 +158,7 @@ pub fn filter_radiance(
         weight = count as f64;
     }
     let radiance = sum.map(|s| (s / weight) as f32);
-    Some(Filtered { radiance, mode: FilterMode::Diffuse, contributors: count })
+    Some(Filtered { radiance, mode: FilterMode::Diffuse, contributors: count, distance })
 }
 
 /// Ambient visibility through `surface` for the AO radius `ao_radius`: the tent-weighted

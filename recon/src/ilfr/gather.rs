@@ -42,6 +42,7 @@ use rayon::prelude::*;
 use shading::sampling::hash_u32;
 
 use super::bsdf_rays::{bsdf_rays, single_lobe, WeightedRay};
+use super::cache::{cached_radiance, CacheParams, CacheStats};
 use super::directions::cosine_rays;
 use super::disc::Ray;
 use std::ops::Range;
@@ -67,6 +68,9 @@ pub struct GatherSettings {
     /// per pixel (one stratification over the pixel), instead of one sequence per hit: cosine
     /// rays, and at glossy hits each BSDF lobe's directions (`bsdf_rays`).
     pub pixel_stratified: bool,
+    /// Gather indirect light at Lambertian hits through records and interpolation
+    /// ([`super::cache`]); `None`: every hit gathers its own rays.
+    pub cache: Option<CacheParams>,
 }
 
 impl Default for GatherSettings {
@@ -78,6 +82,7 @@ impl Default for GatherSettings {
             sky_pixel_radius: 2,
             sky_spacing_factor: 2.0,
             pixel_stratified: true,
+            cache: None,
         }
     }
 }
@@ -93,6 +98,8 @@ pub struct GatherStats {
     pub fallbacks: SkyFallbacks,
     /// Primary hits none of whose rays had support (they kept their own input estimate).
     pub unsupported_hits: u64,
+    /// With records ([`super::cache`]): (records, hits interpolated, hits gathered on their own).
+    pub cache: Option<(u64, u64, u64)>,
 }
 
 impl GatherStats {
@@ -101,6 +108,10 @@ impl GatherStats {
         self.primary_hits += other.primary_hits;
         self.fallbacks.add(&other.fallbacks);
         self.unsupported_hits += other.unsupported_hits;
+        if let Some((r, i, u)) = other.cache {
+            let (a, b, c) = self.cache.unwrap_or_default();
+            self.cache = Some((a + r, b + i, c + u));
+        }
     }
 }
 
@@ -186,6 +197,9 @@ pub fn gather_with_spread(
         return Err(Error::sample_content(&samples.path, message));
     }
     let per_hit = rays_per_hit(settings.rays_per_pixel, spp);
+    if let (Some(cache), Some(albedo), None) = (&settings.cache, albedo, &samples.primary_shading) {
+        return Ok(gather_cached(samples, reconstructor, albedo, cache, (per_hit, settings)));
+    }
     let layout = TileLayout::of(samples, per_hit);
     crate::progress::begin("gather", layout.count() as u64, "tiles");
     let tiles: Vec<TileGather> = (0..layout.count())
@@ -217,6 +231,74 @@ pub fn gather_with_spread(
         stats.add(&gathered.stats);
     }
     Ok((Image::from_pixels(width, height, pixels), stats, variance))
+}
+
+/// The indirect light at Lambertian primary hits through records and interpolation
+/// ([`super::cache`]); a hit no record covers gathers its own `per_hit` rays, as the plain gather
+/// does, and one without any support keeps its input estimate. Variances are unknown (+inf).
+fn gather_cached(
+    samples: &IndirectSamples,
+    reconstructor: &Reconstructor,
+    albedo: &[[f32; 3]],
+    cache: &CacheParams,
+    (per_hit, settings): (u32, &GatherSettings),
+) -> (Image, GatherStats, Vec<f32>) {
+    let (width, height, spp) = (samples.width, samples.height, samples.spp.max(1) as usize);
+    let sky = |x: u32, y: u32| {
+        let mut sky = Vec::new();
+        let spacing = sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky);
+        let min_cosine = spacing.map(|s| (settings.sky_spacing_factor * s).min(std::f32::consts::PI).cos());
+        (sky, min_cosine)
+    };
+    let per_hit_gather = |i: usize, scratch: &mut Scratch, stats: &mut CacheStats| {
+        let pixel = (i / spp) as u32;
+        let (sky, min_cosine) = sky(pixel % width, pixel / width);
+        let (mut sum, mut supported) = ([0.0f64; 3], 0u32);
+        for ray in hit_rays(samples, i, per_hit, settings) {
+            let found = reconstructor.radiance(&ray, scratch, &mut stats.reconstruct).map(|f| f.radiance);
+            if let Some(l) = or_sky(found, ray.direction, (&sky, min_cosine), &mut stats.fallbacks) {
+                (0..3).for_each(|c| sum[c] += l[c] as f64);
+                supported += 1;
+            }
+        }
+        (supported > 0).then(|| sum.map(|s| (s / supported as f64) as f32))
+    };
+    let (radiance, cached) =
+        cached_radiance(samples, reconstructor, cache, (settings.seed, settings.offset), &sky, &per_hit_gather);
+    let mut stats = GatherStats {
+        reconstruct: cached.reconstruct,
+        fallbacks: cached.fallbacks,
+        cache: Some((cached.records, cached.interpolated, cached.uncovered)),
+        ..GatherStats::default()
+    };
+    let mut pixels = Vec::with_capacity(width as usize * height as usize);
+    for p in 0..width as usize * height as usize {
+        let mut sum = [0.0f64; 3];
+        for i in p * spp..(p + 1) * spp {
+            let value = match (samples.class[i], radiance[i]) {
+                (SampleClass::CameraMiss, _) => [0.0; 3],
+                (_, Some(l)) => {
+                    stats.primary_hits += 1;
+                    [0, 1, 2].map(|c| albedo[i][c] * l[c])
+                }
+                (class, None) => {
+                    stats.primary_hits += 1;
+                    stats.unsupported_hits += 1;
+                    match class {
+                        SampleClass::Hit | SampleClass::Escaped => {
+                            let l = samples.radiance.as_ref().map_or([0.0; 3], |r| r[i]);
+                            [0, 1, 2].map(|c| albedo[i][c] * l[c])
+                        }
+                        _ => [0.0; 3],
+                    }
+                }
+            };
+            (0..3).for_each(|c| sum[c] += value[c] as f64);
+        }
+        pixels.push(sum.map(|s| (s / spp as f64) as f32));
+    }
+    let variance = vec![f32::INFINITY; pixels.len()];
+    (Image::from_pixels(width, height, pixels), stats, variance)
 }
 
 /// Pixels per side of the square tiles the gather works in: a tile's rays are reconstructed in
@@ -409,7 +491,7 @@ const RAYS_PER_JOB: usize = 1024;
 /// [`direction_order`], in runs of [`RAYS_PER_JOB`] rays on any thread, each run with its own
 /// scratch and counts; the results come back in the rays' own order, with the counts summed in
 /// run order (each result is a pure function of its ray, so neither depends on the threads).
-fn trace_in_direction_order<T: Clone + Default + Send>(
+pub(super) fn trace_in_direction_order<T: Clone + Default + Send>(
     rays: &[WeightedRay],
     trace: impl Fn(&Ray, &mut Scratch, &mut ReconstructStats) -> T + Sync,
 ) -> (Vec<T>, ReconstructStats) {
@@ -635,6 +717,7 @@ mod tests {
     use crate::ilfr::disc::Disc;
     use crate::ilfr::filter::SplatShading;
     use crate::ilfr::method::tests::box_samples;
+    use crate::ilfr::reconstruct::RayModel;
     use crate::ilfr::surfaces::SurfaceParams;
     use crate::lcg::Lcg;
     use sampleio::SampleKind;
@@ -739,7 +822,8 @@ mod tests {
         let (discs, radiance, direction) = cluttered_box();
         let bvh = DiscBvh::build(&discs).unwrap();
         let shading = SplatShading { radiance: &radiance, direction: &direction, kappa: None };
-        let reconstructor = Reconstructor { bvh: &bvh, shading, surfaces: SurfaceParams::default() };
+        let reconstructor =
+            Reconstructor { bvh: &bvh, shading, surfaces: SurfaceParams::default(), model: RayModel::ApparentSurfaces };
         let settings = GatherSettings { rays_per_pixel: 12, seed: 5, ..GatherSettings::default() };
         let indirect = box_samples(21, 3, SampleKind::Indirect, Some(1.5), |h| [h[2], 1.0, 0.25]);
         let ao = box_samples(21, 3, SampleKind::Ao, Some(1.5), |_| [0.0; 3]);

@@ -33,7 +33,7 @@
 //!
 //! Choices: every splat is filtered as diffuse (κ is not read): across the lens the view
 //! direction changes by at most 2a/z rad, a few degrees in our scenes, and the glossy nearest
-//! neighbour made the monkeys worse (docs/ilfr.md).
+//! neighbour made the monkeys worse (docs/history/ilfr.md).
 
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;

@@ -43,6 +43,16 @@
 //!   spurious ones (`surfaces::SurfaceParams::merge_small_surfaces`, `method`); on request
 //!   (`ilfr:grain=filter`), an edge-aware filter of the final gather's per-pixel grain in
 //!   diffuse indirect light (`grain`).
+//! - Beyond the paper, a cheaper final gather (`ilfr:variant=nearest-splat`, `ilfr:variant=records`;
+//!   `ilfr:variant=paper` is the paper's; `variant=auto` picks per effect, `method::variant_for`):
+//!   each splat's radiance filtered once over its jury
+//!   (`prefilter`), and a reconstruction ray reads the nearest splat it meets within 0.7 of its
+//!   radius, else the nearest at all (`reconstruct::RayModel::NearestSplat`, by the ordered walk
+//!   `bvh::DiscBvh::nearest_hit`, whose oracle is the all-hits walk); and the final gather at a
+//!   subset of the Lambertian primary hits, interpolated to the others where the records' error
+//!   estimate allows and gathered in full where not (irradiance caching: `cache`). The sizing's
+//!   walk also finds each splat's jury, so that the robust radiance walks the kd-tree only for
+//!   its outliers (`splats::size_splats_with_juries`, the same radiance bit for bit).
 //! - ✓ Section 4, recursive filtering: at every secondary hit 16 rays reconstruct the incident
 //!   light, and the sample's radiance becomes `secondary_direct` + the reflected mean before the
 //!   final gather (cosine rays × `secondary_albedo` in diffuse files; h's own BSDF through
@@ -57,6 +67,7 @@
 
 pub mod bsdf_rays;
 pub mod bvh;
+pub mod cache;
 pub mod directions;
 pub mod disc;
 pub mod filter;
@@ -65,6 +76,7 @@ pub mod grain;
 pub mod lens;
 pub mod method;
 pub mod neighbours;
+pub mod prefilter;
 pub mod reconstruct;
 pub mod recursive;
 pub mod robust;

@@ -19,7 +19,7 @@
 //! authors do. For visibility, no splat means nothing occludes: 1. Nothing here produces NaN:
 //! filter weights are finite in [0, 1] and sums guard against zero.
 
-use super::bvh::{DiscBvh, SplatHit};
+use super::bvh::{DiscBvh, Kept, SplatHit};
 use super::disc::{dot, Ray};
 use super::filter::{filter_radiance, filter_visibility, FilterMode, Filtered, SplatShading};
 use super::surfaces::{first_surface, prepare_candidates, Candidate, Surface, SurfaceParams};
@@ -28,6 +28,7 @@ use super::surfaces::{first_surface, prepare_candidates, Candidate, Surface, Sur
 #[derive(Debug, Default)]
 pub struct Scratch {
     stack: Vec<u32>,
+    ordered_stack: Vec<(u32, f32)>,
     hits: Vec<SplatHit>,
     candidates: Vec<Candidate>,
 }
@@ -76,9 +77,74 @@ pub struct Reconstructor<'a> {
     pub bvh: &'a DiscBvh,
     pub shading: SplatShading<'a>,
     pub surfaces: SurfaceParams,
+    pub model: RayModel<'a>,
+}
+
+/// What a reconstruction ray reads from the splats.
+#[derive(Clone, Copy, Debug)]
+pub enum RayModel<'a> {
+    /// The paper's: every splat along the ray, grouped into apparent surfaces, the nearest
+    /// surface filtered (§2.3.2, §2.4, §3.3).
+    ApparentSurfaces,
+    /// Beyond the paper: the nearest splat the ray meets ([`NearestSplat`]).
+    NearestSplat(NearestSplat<'a>),
+}
+
+/// The nearest splat along the ray that it passes within `visibility_scale` of its radius, or
+/// where it passes none that closely the nearest it meets at all (a back-facing splat whose
+/// centre lies nearer than its radius never counts, as §2.5's near field), read as its
+/// `radiance` (by splat id: each splat's radiance filtered over its neighbours,
+/// [`super::prefilter`]); for ambient occlusion, occluded iff any splat it meets lies within the
+/// radius. The scale plays the part of §2.5's small-surface rule: a ray that clips the rim of a
+/// splat in front and meets another surface squarely behind takes that one.
+#[derive(Clone, Copy, Debug)]
+pub struct NearestSplat<'a> {
+    pub radiance: &'a [[f32; 3]],
+    pub visibility_scale: f32,
+}
+
+impl NearestSplat<'_> {
+    /// What the walk makes of `hit` ([`Kept`]).
+    #[inline]
+    fn keeps(&self, hit: &SplatHit, cull_near_back_faces: bool) -> Kept {
+        if cull_near_back_faces && hit.hit.back_facing && hit.hit.depth < hit.radius {
+            Kept::No
+        } else if hit.hit.spatial < self.visibility_scale * hit.radius {
+            Kept::Yes
+        } else {
+            Kept::Fallback
+        }
+    }
 }
 
 impl Reconstructor<'_> {
+    /// The nearest splat [`NearestSplat`] keeps along `ray` within (0, `t_max`) (with `first`,
+    /// any one it keeps), counted.
+    fn nearest_splat(
+        &self,
+        model: &NearestSplat,
+        ray: &Ray,
+        (t_max, first): (f32, bool),
+        scratch: &mut Scratch,
+        stats: &mut ReconstructStats,
+    ) -> Option<SplatHit> {
+        stats.rays += 1;
+        let cull = self.surfaces.backface_near_field_cull;
+        let (hit, walk) =
+            self.bvh.nearest_hit(ray, (0.0, t_max), first, &mut scratch.ordered_stack, |h| model.keeps(h, cull));
+        stats.nodes += walk.nodes;
+        stats.discs_tested += walk.discs_tested;
+        match hit {
+            Some(_) => {
+                stats.surfaces += 1;
+                stats.collected += 1;
+                stats.surface_members += 1;
+            }
+            None => stats.no_surface += 1,
+        }
+        hit
+    }
+
     /// Collects, sorts and groups the splats along `ray`; the nearest surface or `None`.
     fn nearest_surface(&self, ray: &Ray, scratch: &mut Scratch, stats: &mut ReconstructStats) -> Option<Surface> {
         stats.rays += 1;
@@ -103,6 +169,11 @@ impl Reconstructor<'_> {
     /// The radiance arriving at `ray.origin` from `ray.direction` (unit), or `None` when the ray
     /// meets no splat.
     pub fn radiance(&self, ray: &Ray, scratch: &mut Scratch, stats: &mut ReconstructStats) -> Option<Filtered> {
+        if let RayModel::NearestSplat(model) = &self.model {
+            let hit = self.nearest_splat(model, ray, (f32::INFINITY, false), scratch, stats)?;
+            let radiance = model.radiance[hit.id as usize];
+            return Some(Filtered { radiance, mode: FilterMode::Diffuse, contributors: 1, distance: hit.hit.t });
+        }
         let surface = self.nearest_surface(ray, scratch, stats)?;
         let filtered = filter_radiance(ray.direction, &scratch.candidates, &surface, &self.shading);
         match &filtered {
@@ -132,6 +203,10 @@ impl Reconstructor<'_> {
     /// lies beyond the radius or there is none, 0 when within it, in between where its splats
     /// disagree (tent-weighted).
     pub fn visibility(&self, ray: &Ray, ao_radius: f32, scratch: &mut Scratch, stats: &mut ReconstructStats) -> f32 {
+        if let RayModel::NearestSplat(model) = &self.model {
+            let occluded = self.nearest_splat(model, ray, (ao_radius, true), scratch, stats).is_some();
+            return if occluded { 0.0 } else { 1.0 };
+        }
         match self.nearest_surface(ray, scratch, stats) {
             Some(surface) => filter_visibility(&scratch.candidates, &surface, ao_radius),
             None => 1.0,
@@ -228,7 +303,8 @@ mod tests {
         let bvh = DiscBvh::build(discs).unwrap();
         let direction = vec![[0.0, 0.0, -1.0]; discs.len()];
         let shading = SplatShading { radiance, direction: &direction, kappa: None };
-        let reconstructor = Reconstructor { bvh: &bvh, shading, surfaces: SurfaceParams::default() };
+        let reconstructor =
+            Reconstructor { bvh: &bvh, shading, surfaces: SurfaceParams::default(), model: RayModel::ApparentSurfaces };
         let (mut scratch, mut stats) = (Scratch::default(), ReconstructStats::default());
         reconstructor.radiance(ray, &mut scratch, &mut stats).map(|f| f.radiance)
     }
@@ -324,7 +400,8 @@ mod tests {
         let bvh = DiscBvh::build(&discs).unwrap();
         let direction = vec![[0.0, 0.0, -1.0]; discs.len()];
         let shading = SplatShading { radiance: &radiance, direction: &direction, kappa: None };
-        let reconstructor = Reconstructor { bvh: &bvh, shading, surfaces: SurfaceParams::default() };
+        let reconstructor =
+            Reconstructor { bvh: &bvh, shading, surfaces: SurfaceParams::default(), model: RayModel::ApparentSurfaces };
         let (mut scratch, mut stats) = (Scratch::default(), ReconstructStats::default());
         // Upwards from above the plane, and downwards beside it.
         for ray in [

@@ -255,6 +255,7 @@ mod tests {
     use crate::ilfr::method::tests::{box_exit, box_samples, settings};
     use crate::ilfr::method::GatherTarget;
     use crate::ilfr::method::{reconstruct_samples, IlfrSettings};
+    use crate::ilfr::reconstruct::RayModel;
     use crate::ilfr::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams};
     use crate::ilfr::splats::{size_splats, GatheredPoints, SplatParams};
     use crate::ilfr::surfaces::SurfaceParams;
@@ -277,7 +278,8 @@ mod tests {
         let radiance: Vec<[f32; 3]> = storage.sample_index.iter().map(|&i| current[i as usize]).collect();
         let shading =
             SplatShading { radiance: &radiance, direction: &storage.direction, kappa: storage.kappa.as_deref() };
-        let reconstructor = Reconstructor { bvh: &bvh, shading, surfaces: SurfaceParams::default() };
+        let reconstructor =
+            Reconstructor { bvh: &bvh, shading, surfaces: SurfaceParams::default(), model: RayModel::ApparentSurfaces };
         let settings = RecursiveSettings { rays_per_hit, offset, ..RecursiveSettings::default() };
         recursive_pass(samples, &current, &reconstructor, &settings)
     }

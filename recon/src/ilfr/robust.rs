@@ -9,7 +9,7 @@
 //! while the fireflies grow in number as spp, so the reconstructed field's squared contrast
 //! over directions (∫ L̃² dω, what the final gather's fixed number of rays samples) stays
 //! constant in spp, and grows while rare paths first appear: the image's error stops falling,
-//! or rises, with more input (docs/ilfr.md, "Issue 23": Cornell's relative MSE rose from 4 to
+//! or rises, with more input (docs/history/ilfr.md, "Issue 23": Cornell's relative MSE rose from 4 to
 //! 16 spp).
 //!
 //! The rule, per splat i, from the input alone and the same for any thread count:
@@ -27,7 +27,7 @@
 //!   Σ_j L_j r_j² — the splats' radiant power up to a constant, what the reconstruction
 //!   integrates — is unchanged: no energy is lost, the excess is only blurred over a
 //!   neighbourhood whose size shrinks with the sampling rate (consistent as spp → ∞);
-//!   [`RobustMode::Clamp`] drops the excess (biased, measured in docs/ilfr.md).
+//!   [`RobustMode::Clamp`] drops the excess (biased, measured in docs/history/ilfr.md).
 //!
 //! A splat with fewer than `neighbours` neighbours in its lobe among the `max_candidates`
 //! nearest is not judged (a mirror lobe, an isolated hit). Radiances that are not finite and
@@ -38,7 +38,7 @@
 use rayon::prelude::*;
 
 use super::neighbours::{KdTree, MetricQuery, WalkScratch};
-use super::splats::SplatPoints;
+use super::splats::{Juries, JuryRule, SplatPoints};
 use crate::error::Error;
 
 /// What is done with an outlier's excess.
@@ -97,6 +97,12 @@ impl Default for RobustParams {
 }
 
 impl RobustParams {
+    /// The jury these parameters ask for, for the sizing's walk to find
+    /// ([`super::splats::size_splats_with_juries`]).
+    pub fn jury_rule(&self) -> JuryRule {
+        JuryRule { size: self.neighbours, lobe_threshold: self.lobe_threshold, max_candidates: self.max_candidates }
+    }
+
     fn validate(&self) -> Result<(), Error> {
         if !(self.factor.is_finite() && self.factor >= 1.0) {
             return Err(Error::parameter("factor", format!("robust radiance: c must be ≥ 1, got {}", self.factor)));
@@ -181,7 +187,31 @@ pub fn robust_radiance_in(
     radiance: &[[f32; 3]],
     params: &RobustParams,
 ) -> Result<(Vec<[f32; 3]>, RobustStats), Error> {
+    robust_radiance_with_juries(tree, points, (radius, radiance), params, None)
+}
+
+/// [`robust_radiance_in`] with each splat's jury already found by the sizing's walk
+/// ([`super::splats::size_splats_with_juries`] under [`RobustParams::jury_rule`]): only the
+/// outliers walk the tree again, for their sharers. The same result bit for bit.
+pub fn robust_radiance_with_juries(
+    tree: &KdTree,
+    points: &SplatPoints,
+    (radius, radiance): (&[f32], &[[f32; 3]]),
+    params: &RobustParams,
+    juries: Option<&Juries>,
+) -> Result<(Vec<[f32; 3]>, RobustStats), Error> {
     params.validate()?;
+    if let Some(juries) = juries {
+        let rule = params.jury_rule();
+        let fits = juries.rule.size >= rule.size
+            && juries.rule.lobe_threshold == rule.lobe_threshold
+            && juries.rule.max_candidates == rule.max_candidates
+            && juries.count.len() == points.position.len();
+        if !fits {
+            let message = format!("juries found by {:?} for the rule {rule:?} of {} splats", juries.rule, radius.len());
+            return Err(Error::parameter("juries", message));
+        }
+    }
     check_lengths(points, radius, radiance)?;
     let n = points.position.len();
     if tree.len() != n {
@@ -232,7 +262,13 @@ pub fn robust_radiance_in(
                 if !(y.is_finite() && y > 0.0 && own.iter().all(|c| c.is_finite() && *c >= 0.0)) {
                     return Verdict { judged: false, excess: None };
                 }
-                in_lobe(i, params.neighbours, scratch, found);
+                match juries {
+                    Some(juries) => {
+                        found.clear();
+                        found.extend_from_slice(juries.of(i));
+                    }
+                    None => in_lobe(i, params.neighbours, scratch, found),
+                }
                 if found.len() < params.neighbours {
                     return Verdict { judged: false, excess: None };
                 }
@@ -498,6 +534,83 @@ mod tests {
         assert!(error.to_string().contains(&format!("a kd-tree of {} points for {n} splats", n - 1)), "{error}");
         let sizing = crate::ilfr::splats::size_splats_in(&other, &l.points(), &Default::default()).unwrap_err();
         assert!(sizing.to_string().contains("a kd-tree of"), "{sizing}");
+    }
+
+    /// The juries the sizing's walk finds give the robust radiance of the robust pass's own
+    /// walks bit for bit: a random cloud on two planes and a sphere (normals noisy, coincident
+    /// hits), heavy-tailed spikes, diffuse and glossy lobes (κ up to 300, so that juries run
+    /// short and walks go long), spread and clamp; the sizing's radii are those of the plain
+    /// sizing, and juries found by another rule are refused.
+    #[test]
+    fn juries_from_the_sizing_walk_give_the_same_radiance() {
+        use crate::ilfr::splats::{size_splats_in, size_splats_with_juries, SplatParams};
+        let mut rng = crate::lcg::Lcg(77);
+        let (mut position, mut normal, mut direction, mut radiance, mut kappa) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for i in 0..3000 {
+            let (p, n) = match i % 3 {
+                0 => ([rng.uniform() * 4.0, rng.uniform() * 4.0, 0.0], [0.0, 0.0, 1.0]),
+                1 => ([rng.uniform() * 4.0, 0.0, rng.uniform() * 2.0], [0.0, 1.0, 0.0]),
+                _ => {
+                    let u = rng.unit_vector();
+                    ([2.0 + u[0], 2.0 + u[1], 1.0 + u[2]], u)
+                }
+            };
+            let tilt = rng.unit_vector();
+            let n = crate::ilfr::directions::normalize([0, 1, 2].map(|a| n[a] + 0.1 * tilt[a]));
+            let d = rng.unit_vector();
+            let d = if crate::ilfr::disc::dot(d, n) > 0.0 { d.map(|c| -c) } else { d };
+            let (p, n, d) = if i % 41 == 40 { (position[i - 1], normal[i - 1], direction[i - 1]) } else { (p, n, d) };
+            position.push(p);
+            normal.push(n);
+            direction.push(d);
+            let y = if rng.uniform() < 0.03 { 1e3 / (1.0 - rng.uniform()).max(1e-3) } else { 0.5 + rng.uniform() };
+            radiance.push([y, 0.7 * y, 0.3 * y]);
+            kappa.push(match i % 4 {
+                0 => 0.0,
+                1 => 3.0,
+                2 => 40.0,
+                _ => 300.0,
+            });
+        }
+        let radius: Vec<f32> = (0..position.len()).map(|_| 0.05 + 0.1 * rng.uniform()).collect();
+        let tree = KdTree::build(&position);
+        for glossy in [false, true] {
+            let points = SplatPoints {
+                position: &position,
+                normal: &normal,
+                direction: &direction,
+                kappa: glossy.then_some(&kappa[..]),
+            };
+            for mode in [RobustMode::Spread, RobustMode::Clamp] {
+                let params = RobustParams { mode, ..RobustParams::default() };
+                let (sized, juries) =
+                    size_splats_with_juries(&tree, &points, &SplatParams::default(), Some(params.jury_rule())).unwrap();
+                let plain = size_splats_in(&tree, &points, &SplatParams::default()).unwrap();
+                assert_eq!(
+                    sized.radius.iter().map(|r| r.to_bits()).collect::<Vec<_>>(),
+                    plain.radius.iter().map(|r| r.to_bits()).collect::<Vec<_>>()
+                );
+                let juries = juries.unwrap();
+                let walked = robust_radiance_in(&tree, &points, &radius, &radiance, &params).unwrap();
+                let given =
+                    robust_radiance_with_juries(&tree, &points, (&radius, &radiance), &params, Some(&juries)).unwrap();
+                let bits = |v: &[[f32; 3]]| v.iter().flat_map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
+                assert_eq!(bits(&walked.0), bits(&given.0), "glossy {glossy}, {mode:?}");
+                assert_eq!(walked.1, given.1);
+                assert!(walked.1.outliers > 20 && walked.1.judged > 1000, "{:?}", walked.1);
+                if glossy {
+                    assert!(
+                        (0..position.len()).any(|i| juries.of(i).len() < params.neighbours),
+                        "some juries run short"
+                    );
+                }
+                let other = RobustParams { lobe_threshold: 0.4, ..params };
+                assert!(
+                    robust_radiance_with_juries(&tree, &points, (&radius, &radiance), &other, Some(&juries)).is_err()
+                );
+            }
+        }
     }
 
     #[test]

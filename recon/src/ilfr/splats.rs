@@ -242,6 +242,47 @@ pub fn size_splats(points: &SplatPoints, params: &SplatParams) -> Result<Splats,
 /// it for the robust radiance, [`super::robust::robust_radiance_in`]); `tree` must hold
 /// exactly those positions.
 pub fn size_splats_in(tree: &KdTree, points: &SplatPoints, params: &SplatParams) -> Result<Splats, Error> {
+    Ok(size_splats_with_juries(tree, points, params, None)?.0)
+}
+
+/// Who sits on each splat's jury (the robust radiance's, [`super::robust`]): its first `size`
+/// neighbours in the walk's order (metric distance, index) whose direction lies in its lobe at
+/// `lobe_threshold`, A_i(ω_j) ≥ τ, coincident hits included, among the first `max_candidates`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct JuryRule {
+    pub size: usize,
+    pub lobe_threshold: f32,
+    pub max_candidates: usize,
+}
+
+/// Each splat's jury ([`JuryRule`]), found by the sizing's own walk.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Juries {
+    /// The rule they were found by.
+    pub rule: JuryRule,
+    /// Members per splat at most (the rule's size).
+    pub size: usize,
+    /// Splat i's members are `members[i * size .. i * size + count[i]]`.
+    pub members: Vec<u32>,
+    pub count: Vec<u32>,
+}
+
+impl Juries {
+    /// The members of splat `i`'s jury, nearest first.
+    pub fn of(&self, i: usize) -> &[u32] {
+        &self.members[i * self.size..i * self.size + self.count[i] as usize]
+    }
+}
+
+/// [`size_splats_in`], and with a `jury` rule each splat's jury from the same walk of the tree
+/// (continued past the sizing's last neighbour while the jury is short), so that the robust
+/// radiance needs no walk of its own ([`super::robust::robust_radiance_in`] takes them).
+pub fn size_splats_with_juries(
+    tree: &KdTree,
+    points: &SplatPoints,
+    params: &SplatParams,
+    jury: Option<JuryRule>,
+) -> Result<(Splats, Option<Juries>), Error> {
     params.validate()?;
     points.validate()?;
     if tree.len() != points.position.len() {
@@ -250,9 +291,12 @@ pub fn size_splats_in(tree: &KdTree, points: &SplatPoints, params: &SplatParams)
     }
     let setup = Setup::new(points, params);
     let alpha_squared_minus_one = params.alpha * params.alpha - 1.0;
+    let jury_size = jury.map_or(0, |rule| rule.size);
+    let jury_log_threshold = jury.map_or(0.0, |rule| rule.lobe_threshold.ln());
+    let jury_candidates = jury.map_or(0, |rule| rule.max_candidates);
     // Queried in the tree's leaf order (neighbouring queries walk the same nodes), each result
     // a pure function of its hit, put back in input order.
-    let in_leaf_order: Vec<(f32, SplatStatus, u32)> = tree
+    let in_leaf_order: Vec<((f32, SplatStatus, u32), Vec<u32>)> = tree
         .leaf_order()
         .par_iter()
         .with_max_len(super::PARALLEL_ITEMS)
@@ -262,6 +306,9 @@ pub fn size_splats_in(tree: &KdTree, points: &SplatPoints, params: &SplatParams)
                 let i = i as usize;
                 let mut selector = setup.selector(points, i, list);
                 let query = points.position[i];
+                let (kappa, direction) = (points.kappa(i), points.direction[i]);
+                let mut members = Vec::with_capacity(jury_size);
+                let (mut sizing, mut visited) = (true, 0usize);
                 // k in the lobe: k others, a few more where hits coincide; a narrow lobe
                 // continues past them.
                 let expected = params.k + 4;
@@ -269,17 +316,36 @@ pub fn size_splats_in(tree: &KdTree, points: &SplatPoints, params: &SplatParams)
                     MetricQuery { position: query, normal: points.normal[i], alpha_squared_minus_one, skip: i as u32 };
                 tree.walk(&metric, expected, scratch, |j, _| {
                     let j = j as usize;
-                    selector.offer(distance(points.position[j], query), points.direction[j])
+                    visited += 1;
+                    if members.len() < jury_size && visited <= jury_candidates {
+                        let w = points.direction[j];
+                        let cosine = direction[0] * w[0] + direction[1] * w[1] + direction[2] * w[2];
+                        if kappa * (cosine - 1.0) >= jury_log_threshold {
+                            members.push(j as u32);
+                        }
+                    }
+                    if sizing {
+                        sizing = selector.offer(distance(points.position[j], query), points.direction[j]);
+                    }
+                    sizing || (members.len() < jury_size && visited < jury_candidates)
                 });
-                selector.finish()
+                (selector.finish(), members)
             },
         )
         .collect();
-    let mut per_hit = vec![(0.0, SplatStatus::Isolated, 0); points.len()];
-    for (&i, result) in tree.leaf_order().iter().zip(in_leaf_order) {
-        per_hit[i as usize] = result;
+    let n = points.len();
+    let mut per_hit = vec![(0.0, SplatStatus::Isolated, 0); n];
+    let mut juries =
+        jury.map(|rule| Juries { rule, size: jury_size, members: vec![u32::MAX; n * jury_size], count: vec![0; n] });
+    for (&i, (result, members)) in tree.leaf_order().iter().zip(in_leaf_order) {
+        let i = i as usize;
+        per_hit[i] = result;
+        if let Some(juries) = &mut juries {
+            juries.members[i * jury_size..i * jury_size + members.len()].copy_from_slice(&members);
+            juries.count[i] = members.len() as u32;
+        }
     }
-    Ok(setup.assemble(per_hit))
+    Ok((setup.assemble(per_hit), juries))
 }
 
 /// The same definition by sorting all others for every hit: O(n² log n), for tests.

@@ -15,7 +15,7 @@
 //!   ("facing / coplanar") as [`ConflictTest::FacingOrCoplanar`]; the default (issue 23),
 //!   [`ConflictTest::EventLineOffPlane`], asks the event line only of pairs whose connecting line
 //!   leaves both tangent planes by more than [`COPLANAR_DEGREES`], so that neighbours of one
-//!   noisy surface never fragment it while stacked surfaces stay apart (docs/ilfr.md, "Issue 23").
+//!   noisy surface never fragment it while stacked surfaces stay apart (docs/history/ilfr.md, "Issue 23").
 //! - §2.5 two-sided splats: "back-facing splats contribute to \[visibility\] similarly to
 //!   front-facing splats … contribute to radiance only if all splats of the first surface are
 //!   back-facing": the flipped normal n̂ in [`conflicts`] and [`Surface::radiance_from_back_faces`]
@@ -70,7 +70,7 @@ pub struct SurfaceParams {
     /// Footprint scale of the small-surface test for surfaces of 1, 2, 3 splats.
     pub small_surface_scale: [f32; 3],
     /// Whether the small-surface rule (§2.5) runs; off, every surface counts whatever its size
-    /// (ambient occlusion's default: docs/ilfr.md, "Issue 23: ambient occlusion").
+    /// (ambient occlusion's default: docs/history/ilfr.md, "Issue 23: ambient occlusion").
     pub merge_small_surfaces: bool,
 }
 

@@ -76,7 +76,7 @@ impl Method for TlfrMethod {
         Input::Samples
     }
 
-    fn default_recon_rays(&self) -> Vec<u32> {
+    fn default_recon_rays(&self, _effect: Effect) -> Vec<u32> {
         vec![32, 128]
     }
 

@@ -162,7 +162,7 @@ impl<'a> Plan<'a> {
     /// The reconstruction rays `method` sweeps: `--recon-rays`, else its own default (`[0]`
     /// for a method without such a parameter, whatever `--recon-rays` says).
     pub fn rays_of(&self, method: &Registered) -> Vec<u32> {
-        let default_rays = method.default_recon_rays();
+        let default_rays = method.default_recon_rays(self.effect);
         if default_rays == [0] {
             vec![0]
         } else {
