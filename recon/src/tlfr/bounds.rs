@@ -84,6 +84,17 @@ pub struct ScreenArea {
     pub max_reach: f32,
 }
 
+/// A box of locations: screen x̂ and ŷ, lens û and v̂, time t̂, each a closed interval
+/// [low, high] (a pixel's locations over the whole lens and shutter, for one walk per pixel).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Window {
+    pub x: [f32; 2],
+    pub y: [f32; 2],
+    pub u: [f32; 2],
+    pub v: [f32; 2],
+    pub t: [f32; 2],
+}
+
 /// The unit roundoff of f32.
 const F32_EPSILON: f64 = f32::EPSILON as f64 * 0.5;
 
@@ -532,6 +543,30 @@ impl Bounds {
             && location[0] <= self.x_max.at(at.t, at.u) + reach
             && location[1] >= self.y_min.at(at.t, at.v) - reach
             && location[1] <= self.y_max.at(at.t, at.v) + reach
+    }
+
+    /// Whether `near(location, at, reach)` can hold for some location of `window`: each side of
+    /// the test compared at the window's corner most in its favour. f32 products and sums are
+    /// monotone in each operand, so a plane evaluated in f32 at that corner bounds its f32 value
+    /// anywhere in the window, and the test is conservative bit for bit.
+    #[inline]
+    pub fn may_be_near(&self, window: &Window, reach: f32) -> bool {
+        let lowest = |plane: &Plane, lens: [f32; 2]| {
+            let t = if plane.time >= 0.0 { window.t[0] } else { window.t[1] };
+            let w = if plane.lens >= 0.0 { lens[0] } else { lens[1] };
+            plane.at(t, w)
+        };
+        let highest = |plane: &Plane, lens: [f32; 2]| {
+            let t = if plane.time >= 0.0 { window.t[1] } else { window.t[0] };
+            let w = if plane.lens >= 0.0 { lens[1] } else { lens[0] };
+            plane.at(t, w)
+        };
+        window.t[1] >= self.span[0]
+            && window.t[0] <= self.span[1]
+            && window.x[1] >= lowest(&self.x_min, window.u) - reach
+            && window.x[0] <= highest(&self.x_max, window.u) + reach
+            && window.y[1] >= lowest(&self.y_min, window.v) - reach
+            && window.y[0] <= highest(&self.y_max, window.v) + reach
     }
 
     /// Bounds of the union of two nodes' samples (Appendix A; see the module comment).

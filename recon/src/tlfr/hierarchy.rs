@@ -59,7 +59,7 @@
 
 use rayon::prelude::*;
 
-use super::bounds::{sample_segments, Bounds, ScreenArea};
+use super::bounds::{sample_segments, Bounds, ScreenArea, Window};
 use super::lens::LensModel;
 use super::reprojection::{reproject, LensTime, LensTimeSample};
 use super::same_surface::{same_surface_at, BUILD_CROSSING_TOLERANCE_PX};
@@ -313,6 +313,15 @@ impl Hierarchy {
         }
     }
 
+    /// The query times entry `entry` takes, half-open: everything for a whole sample
+    /// (`entry_takes` in array form).
+    pub fn entry_times(&self, entry: usize) -> [f32; 2] {
+        match entry.checked_sub(self.whole_entries) {
+            None => [f32::NEG_INFINITY, f32::INFINITY],
+            Some(k) => self.segment_times[k],
+        }
+    }
+
     /// The number of entries (the length of the reordered samples).
     pub fn entry_count(&self) -> usize {
         self.whole_entries + self.segment_times.len()
@@ -336,6 +345,28 @@ impl Hierarchy {
                 }
                 i += 1;
             } else if node.bounds.near(location, at, reach) {
+                i += 1;
+            } else {
+                i = node.first_or_end as usize;
+            }
+        }
+    }
+
+    /// Appends to `out` (cleared first) every leaf that `leaves_near` can return for some
+    /// location of `window` with reach `reach`, in depth-first order (`Bounds::may_be_near`: a
+    /// node is entered when its bounds can come within reach of some location of the window).
+    pub fn leaves_near_window(&self, window: &Window, reach: f32, out: &mut Vec<u32>) {
+        out.clear();
+        let mut i = 0usize;
+        while i < self.nodes.len() {
+            let node = &self.nodes[i];
+            let near = node.bounds.may_be_near(window, reach);
+            if node.is_leaf() {
+                if near {
+                    out.push(i as u32);
+                }
+                i += 1;
+            } else if near {
                 i += 1;
             } else {
                 i = node.first_or_end as usize;
