@@ -150,14 +150,23 @@ impl LightingArgs {
         if let Some((towards, irradiance)) = sun {
             scene.add_sun(towards, irradiance);
         }
-        if environment.is_none() && sun.is_none() && scene.apply_default_lighting() {
-            eprintln!(
-                "notice: {}: the scene has no lights; using the default lighting (environment {}, a sun of irradiance \
-                 {} from behind the camera's left shoulder; --environment and --sun choose others)",
-                scene.source.display(),
-                tracer::scene::DEFAULT_ENVIRONMENT,
-                tracer::scene::DEFAULT_SUN_IRRADIANCE
-            );
+        if environment.is_none() && sun.is_none() {
+            let emissive_only = scene.has_emitter();
+            if scene.apply_default_lighting() {
+                let what = if emissive_only {
+                    "the model has no lights of its own besides emissive surfaces, which stay lit"
+                } else {
+                    "the scene has no lights"
+                };
+                eprintln!(
+                    "notice: {}: {what}; using the default lighting (environment {}, a sun of irradiance {} from behind \
+                     the camera's left shoulder; --environment and --sun choose others, --environment 0 keeps the \
+                     file's own light only)",
+                    scene.source.display(),
+                    tracer::scene::DEFAULT_ENVIRONMENT,
+                    tracer::scene::DEFAULT_SUN_IRRADIANCE
+                );
+            }
         }
         Ok(())
     }

@@ -4,12 +4,12 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use tracer::samples::secondary::SecondaryKind;
+use sampleio::SampleKind;
 use tracer::Accel;
 
 use crate::common::{check_outputs, scene_inputs, TraceArgs};
 
-/// Sample kinds `lfr dump` writes.
+/// What `lfr dump` writes: a sample kind, or guide buffers.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 pub enum DumpKind {
     /// Camera samples over pixel, lens and time for the temporal light field (TLFR).
@@ -22,6 +22,19 @@ pub enum DumpKind {
     Ao,
     /// Per-pixel guide buffers for the guided image filter, as a multi-layer EXR.
     Guide,
+}
+
+impl DumpKind {
+    /// The sample kind; `None` for guide buffers.
+    fn sample_kind(self) -> Option<SampleKind> {
+        match self {
+            DumpKind::LensTime => Some(SampleKind::LensTime),
+            DumpKind::Light => Some(SampleKind::Light),
+            DumpKind::Indirect => Some(SampleKind::Indirect),
+            DumpKind::Ao => Some(SampleKind::Ao),
+            DumpKind::Guide => None,
+        }
+    }
 }
 
 #[derive(clap::Args)]
@@ -56,6 +69,9 @@ pub fn run(args: &DumpArgs) -> Result<()> {
         (true, _) => anyhow::bail!("--out {}: guide buffers are written as an .exr file", args.out.display()),
         (false, _) => anyhow::bail!("--out {}: samples are written as an .lfrs file", args.out.display()),
     }
+    if args.soft_shadow && !matches!(args.kind, DumpKind::LensTime) {
+        anyhow::bail!("--soft-shadow only applies to --kind lens-time");
+    }
     check_outputs(&[&args.out], &scene_inputs(trace.scene.as_deref()))?;
     let fields = match &args.fields {
         Some(list) => {
@@ -70,25 +86,9 @@ pub fn run(args: &DumpArgs) -> Result<()> {
     let scene = trace.load_scene()?;
     let settings = trace.settings(&scene, args.spp)?;
     let accel = Accel::build(&scene)?;
-    let report = match args.kind {
-        DumpKind::LensTime if args.soft_shadow => {
-            tracer::samples::lens_time::dump_for_soft_shadows(&scene, &accel, &settings, &fields, &args.out)?
-        }
-        DumpKind::LensTime => tracer::samples::lens_time::dump(&scene, &accel, &settings, &fields, &args.out)?,
-        _ if args.soft_shadow => anyhow::bail!("--soft-shadow only applies to --kind lens-time"),
-        DumpKind::Light => tracer::samples::light::dump(&scene, &accel, &settings, &fields, &args.out)?,
-        DumpKind::Indirect => {
-            tracer::samples::secondary::dump(&scene, &accel, &settings, SecondaryKind::Indirect, &fields, &args.out)?
-        }
-        DumpKind::Guide => tracer::samples::guide::dump(&scene, &accel, &settings, &args.out)?,
-        DumpKind::Ao => tracer::samples::secondary::dump(
-            &scene,
-            &accel,
-            &settings,
-            SecondaryKind::AmbientOcclusion,
-            &fields,
-            &args.out,
-        )?,
+    let report = match args.kind.sample_kind() {
+        Some(kind) => tracer::samples::dump(&scene, &accel, &settings, kind, args.soft_shadow, &fields, &args.out)?,
+        None => tracer::samples::guide::dump(&scene, &accel, &settings, &args.out)?,
     };
     println!(
         "wrote {} samples of {} to {} in {:.3} s ({:.3} s tracing and writing the records, {:.3} s finishing the file): {} bytes per record, {:.1} bytes per sample with header and checksums; fields: {}",

@@ -659,7 +659,7 @@ fn outputs_never_replace_devices_links_or_inputs() {
         use std::os::unix::fs::FileTypeExt;
         assert!(std::fs::symlink_metadata(path("null.exr")).unwrap().file_type().is_char_device());
     } else {
-        eprintln!("note: mknod needs root; the character-device case was not run");
+        testkit::skip("mknod needs root: the character-device case was not run");
     }
     // A directory named like an output.
     std::fs::create_dir(path("dir.exr")).unwrap();

@@ -59,7 +59,7 @@ fn compare_refuses_an_unusable_cache_dir_before_tracing() {
         let extra = ["--effect", "indirect", "--cache-dir", read_only.to_str().unwrap()];
         expect_early_compare_error(&out, &extra, &["--cache-dir", "read-only", "cannot write into the directory"]);
     } else {
-        eprintln!("skipping the read-only case: this user writes into a 0555 directory (root)");
+        testkit::skip_unless_unprivileged("the read-only case: this user writes into a 0555 directory (root)");
     }
     std::fs::set_permissions(&read_only, std::fs::Permissions::from_mode(0o755)).unwrap();
 }

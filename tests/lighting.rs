@@ -246,3 +246,84 @@ fn a_bare_ply_renders_lit_by_the_default_lighting() {
     assert!(stderr(&result).contains("square.ply: line 14: not a valid PLY file: "), "{}", stderr(&result));
     assert!(!out.exists());
 }
+
+/// A bare glTF file like [`bare_gltf`]'s square (grey, camera 0 only) with a small emissive
+/// patch of radiance 1 in front of its upper-right corner ([0.6, 0.9]² at z = 0.01): a model
+/// whose only light is an emissive texture or panel, as DamagedHelmet's.
+fn emissive_patch_gltf(dir: &Path) -> PathBuf {
+    let mut bin = Vec::new();
+    let square = [[-1.0f32, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]];
+    let patch = [[0.6f32, 0.6, 0.01], [0.9, 0.6, 0.01], [0.9, 0.9, 0.01], [0.6, 0.9, 0.01]];
+    for p in square.iter().chain(&patch) {
+        for c in p {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for i in [0u16, 1, 2, 0, 2, 3] {
+        bin.extend_from_slice(&i.to_le_bytes());
+    }
+    std::fs::write(dir.join("patch.bin"), &bin).unwrap();
+    let json = r#"{
+      "asset": {"version": "2.0"},
+      "scene": 0,
+      "scenes": [{"nodes": [0, 1, 2]}],
+      "nodes": [{"mesh": 0}, {"mesh": 1}, {"camera": 0, "translation": [0, 0, 3]}],
+      "cameras": [{"type": "perspective", "perspective": {"yfov": 0.8, "aspectRatio": 1.0, "znear": 0.1}}],
+      "materials": [
+        {"pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.8, 0.8, 1], "metallicFactor": 0}},
+        {"emissiveFactor": [1, 1, 1], "pbrMetallicRoughness": {"baseColorFactor": [0, 0, 0, 1], "metallicFactor": 0}}
+      ],
+      "meshes": [
+        {"primitives": [{"attributes": {"POSITION": 0}, "indices": 2, "material": 0}]},
+        {"primitives": [{"attributes": {"POSITION": 1}, "indices": 2, "material": 1}]}
+      ],
+      "buffers": [{"uri": "patch.bin", "byteLength": 108}],
+      "bufferViews": [
+        {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+        {"buffer": 0, "byteOffset": 48, "byteLength": 48},
+        {"buffer": 0, "byteOffset": 96, "byteLength": 12}
+      ],
+      "accessors": [
+        {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-1, -1, 0], "max": [1, 1, 0]},
+        {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0.6, 0.6, 0.01], "max": [0.9, 0.9, 0.01]},
+        {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"}
+      ]
+    }"#;
+    let path = dir.join("patch.gltf");
+    std::fs::write(&path, json).unwrap();
+    path
+}
+
+#[test]
+fn a_bare_gltf_with_an_emissive_patch_is_lit_as_viewers_light_it_and_a_toml_scene_stays_as_authored() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = emissive_patch_gltf(dir.path());
+    let (result, out) = render(&scene, &[]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    let err = stderr(&result);
+    assert!(err.contains("notice:") && err.contains("emissive surfaces"), "{err}");
+    let lit = exr_channel(&out, "G");
+    // The lower-left quarter of the image sees only the grey square, far from the patch: lit by
+    // the default sun and environment it is brighter than the environment behind it.
+    let lower_left = lit[12 * 16 + 3] as f64;
+    assert!(lower_left > tracer::scene::DEFAULT_ENVIRONMENT as f64 * 1.2, "lower left {lower_left}");
+    // The patch still glows: its pixel holds at least its own emission.
+    let patch_pixel = lit[3 * 16 + 12];
+    assert!(patch_pixel >= 0.95, "patch {patch_pixel}");
+
+    // `--environment 0` keeps the file's own light only: the patch glows and the far corner of
+    // the square, lit by the patch alone at a distance, is far darker than under the default.
+    let (result, out) = render(&scene, &["--environment", "0"]);
+    assert!(result.status.success() && !stderr(&result).contains("notice:"), "{}", stderr(&result));
+    let own = exr_channel(&out, "G");
+    assert!((own[12 * 16 + 3] as f64) < lower_left * 0.1, "{} against {lower_left}", own[12 * 16 + 3]);
+
+    // The same file through a TOML scene is rendered exactly as authored: no default lighting.
+    let toml = dir.path().join("patch.toml");
+    std::fs::write(&toml, "[[mesh]]\nfile = \"patch.gltf\"\n").unwrap();
+    let (result, out) = render(&toml, &[]);
+    assert!(result.status.success(), "{}", stderr(&result));
+    assert!(!stderr(&result).contains("notice:"), "{}", stderr(&result));
+    let authored = exr_channel(&out, "G");
+    assert!(authored.iter().sum::<f32>() < lit.iter().sum::<f32>() * 0.5);
+}

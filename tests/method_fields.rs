@@ -10,11 +10,10 @@ mod common;
 use std::path::Path;
 
 use common::project_root;
-use recon::method::{Inputs, Method};
+use recon::method::{InputData, Inputs, Method};
 use recon::registry::METHODS;
 use recon::Effect;
-use tracer::samples::secondary::SecondaryKind;
-use tracer::samples::{lens_time, light, secondary, FieldSelection};
+use tracer::samples::FieldSelection;
 use tracer::{Accel, RenderSettings, Scene};
 
 const WIDTH: u32 = 16;
@@ -32,24 +31,15 @@ fn dump(
     let settings =
         RenderSettings { width: WIDTH, height: HEIGHT, spp: SPP, seed: 3, max_bounces: 3, threads: 0, progress: false };
     let samples = dir.join("samples.lfrs");
-    match effect {
-        Effect::SoftShadow => {
-            let light_samples = dir.join("light.lfrs");
-            lens_time::dump_for_soft_shadows(scene, &accel, &settings, fields, &samples).unwrap();
-            light::dump(scene, &accel, &settings, fields, &light_samples).unwrap();
-            return (samples, Some(light_samples));
-        }
-        Effect::Indirect | Effect::Glossy => {
-            secondary::dump(scene, &accel, &settings, SecondaryKind::Indirect, fields, &samples).unwrap();
-        }
-        Effect::Ao => {
-            secondary::dump(scene, &accel, &settings, SecondaryKind::AmbientOcclusion, fields, &samples).unwrap();
-        }
-        _ => {
-            lens_time::dump(scene, &accel, &settings, fields, &samples).unwrap();
-        }
+    let soft_shadows = effect == Effect::SoftShadow;
+    tracer::samples::dump(scene, &accel, &settings, effect.sample_kind(), soft_shadows, fields, &samples).unwrap();
+    if !soft_shadows {
+        return (samples, None);
     }
-    (samples, None)
+    let light_samples = dir.join("light.lfrs");
+    tracer::samples::dump(scene, &accel, &settings, sampleio::SampleKind::Light, false, fields, &light_samples)
+        .unwrap();
+    (samples, Some(light_samples))
 }
 
 fn run(method: &dyn Method, effect: Effect, files: &(std::path::PathBuf, Option<std::path::PathBuf>)) -> recon::Image {
@@ -58,10 +48,7 @@ fn run(method: &dyn Method, effect: Effect, files: &(std::path::PathBuf, Option<
         width: WIDTH,
         height: HEIGHT,
         spp: SPP,
-        samples: Some(files.0.clone()),
-        light_samples: files.1.clone(),
-        frame: None,
-        guide: None,
+        data: InputData::Samples { samples: &files.0, light_samples: files.1.as_deref() },
         ao_radius: 0.5,
         seed: 3,
         threads: 0,

@@ -581,7 +581,7 @@ fn soft_shadow_inputs_that_do_not_belong_together_are_clear_errors() {
 /// the moving square and ILFR's reconstruction rays on the Cornell box.
 #[test]
 fn the_seed_reaches_every_reconstruction_and_keeps_its_quality() {
-    use recon::method::Inputs;
+    use recon::method::{InputData, Inputs};
     let run = |name: &str, effect: recon::Effect, path: &std::path::Path, size: u32, seed: u32| {
         let method = recon::registry::find(name).unwrap().unwrap();
         let inputs = Inputs {
@@ -589,10 +589,7 @@ fn the_seed_reaches_every_reconstruction_and_keeps_its_quality() {
             width: size,
             height: size,
             spp: 4,
-            samples: Some(path.to_path_buf()),
-            light_samples: None,
-            frame: None,
-            guide: None,
+            data: InputData::Samples { samples: path, light_samples: None },
             ao_radius: 1.0,
             seed,
             threads: 0,
@@ -659,7 +656,7 @@ fn the_seed_reaches_every_reconstruction_and_keeps_its_quality() {
 /// the default smoothing it is closer to a converged render than `tlfr` on the whole radiance.
 #[test]
 fn gi_split_reconstructs_the_direct_part_and_adds_the_filtered_rest() {
-    use recon::method::Inputs;
+    use recon::method::{InputData, Inputs};
     let _ = common::shared_scenes();
     let mut scene = Scene::load(&common::project_root().join("scenes/monkeys-defocus-motion.toml")).unwrap();
     let (width, height, spp) = (48u32, 27u32, 4u32);
@@ -680,10 +677,7 @@ fn gi_split_reconstructs_the_direct_part_and_adds_the_filtered_rest() {
             width,
             height,
             spp,
-            samples: Some(path.to_path_buf()),
-            light_samples: None,
-            frame: None,
-            guide: None,
+            data: InputData::Samples { samples: path, light_samples: None },
             ao_radius: 1.0,
             seed: 2,
             threads: 0,

@@ -11,6 +11,7 @@
 
 #![forbid(unsafe_code)]
 
+pub mod auxiliary;
 pub mod baselines;
 pub mod error;
 pub mod gif;
@@ -22,6 +23,7 @@ pub mod metrics;
 pub mod needs;
 pub mod octahedral;
 pub mod options;
+pub mod pipeline;
 pub mod python;
 pub mod registry;
 pub mod tlfr;

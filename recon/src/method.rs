@@ -5,7 +5,7 @@
 //! reconstructed image of the effect's layer with its own time split into preprocess and
 //! reconstruct.
 
-use std::path::PathBuf;
+use std::path::Path;
 
 use crate::error::Error;
 use crate::image::Image;
@@ -102,6 +102,34 @@ pub struct FrameInput {
     pub normal: Image,
 }
 
+/// The traced input of a run: the one its method asks for (`Method::input`).
+#[derive(Clone, Copy, Debug)]
+pub enum InputData<'a> {
+    /// `Input::Samples`: a sample file of the effect's sample kind (`Effect::sample_kind`).
+    Samples {
+        samples: &'a Path,
+        /// With `Effect::SoftShadow`: the `light` samples of the same seed and spp (sample i
+        /// belongs to camera sample i of `samples`, which then carries the fields `albedo`,
+        /// `normal` and `radiance_without_light`).
+        light_samples: Option<&'a Path>,
+    },
+    /// `Input::Frame`: the path-traced frame.
+    Frame(&'a FrameInput),
+    /// `Input::Guide`: the guide buffers.
+    Guide(&'a GuideInput),
+}
+
+impl InputData<'_> {
+    /// Which input this is.
+    pub fn kind(&self) -> Input {
+        match self {
+            InputData::Samples { .. } => Input::Samples,
+            InputData::Frame(_) => Input::Frame,
+            InputData::Guide(_) => Input::Guide,
+        }
+    }
+}
+
 /// Everything a method run receives.
 #[derive(Clone, Debug)]
 pub struct Inputs<'a> {
@@ -110,16 +138,8 @@ pub struct Inputs<'a> {
     pub height: u32,
     /// Input samples per pixel.
     pub spp: u32,
-    /// The sample file, when the method asked for `Input::Samples`.
-    pub samples: Option<PathBuf>,
-    /// With `Input::Samples` and `Effect::SoftShadow`: the `light` samples of the same seed and
-    /// spp (sample i belongs to camera sample i of `samples`, which then carries the fields
-    /// `albedo`, `normal` and `radiance_without_light`).
-    pub light_samples: Option<PathBuf>,
-    /// The path-traced frame, when the method asked for `Input::Frame`.
-    pub frame: Option<&'a FrameInput>,
-    /// The guide buffers, when the method asked for `Input::Guide`.
-    pub guide: Option<&'a GuideInput>,
+    /// The traced input the method asked for.
+    pub data: InputData<'a>,
     /// Ambient-occlusion radius in scene units (`Effect::Ao`).
     pub ao_radius: f32,
     /// Seed of the method's own random numbers (reconstruction locations and rays): the seed
@@ -127,6 +147,43 @@ pub struct Inputs<'a> {
     pub seed: u32,
     /// Worker threads; 0 = all cores.
     pub threads: usize,
+}
+
+impl<'a> Inputs<'a> {
+    /// The sample file, for `method` (named in the error when the input is another).
+    pub fn samples(&self, method: &str) -> Result<&'a Path, Error> {
+        match self.data {
+            InputData::Samples { samples, .. } => Ok(samples),
+            _ => Err(Error::missing_input("samples", format!("{method} needs a sample file"))),
+        }
+    }
+
+    /// Soft shadows' light samples beside the sample file, for `method`.
+    pub fn light_samples(&self, method: &str) -> Result<&'a Path, Error> {
+        match self.data {
+            InputData::Samples { light_samples: Some(light_samples), .. } => Ok(light_samples),
+            _ => Err(Error::missing_input(
+                "light samples",
+                format!("{method} soft shadows need the light samples of the same seed and spp"),
+            )),
+        }
+    }
+
+    /// The path-traced frame, for `method`.
+    pub fn frame(&self, method: &str) -> Result<&'a FrameInput, Error> {
+        match self.data {
+            InputData::Frame(frame) => Ok(frame),
+            _ => Err(Error::missing_input("frame", format!("{method} needs a path-traced frame"))),
+        }
+    }
+
+    /// The guide buffers, for `method`.
+    pub fn guide(&self, method: &str) -> Result<&'a GuideInput, Error> {
+        match self.data {
+            InputData::Guide(guide) => Ok(guide),
+            _ => Err(Error::missing_input("guide buffers", format!("{method} needs guide buffers"))),
+        }
+    }
 }
 
 /// A note of [`Output::notes`] that starts with this is a warning: the method dropped or
@@ -206,7 +263,7 @@ pub trait Method: Send + Sync + std::fmt::Debug {
     fn default_recon_rays(&self) -> Vec<u32> {
         vec![0]
     }
-    /// Whether it reads `Inputs::light_samples` for `effect` (their tracing counts in its time).
+    /// Whether it reads soft shadows' light samples (`InputData::Samples`) for `effect` (their tracing counts in its time).
     fn reads_light_samples(&self, _effect: Effect) -> bool {
         false
     }
@@ -221,6 +278,12 @@ pub trait Method: Send + Sync + std::fmt::Debug {
     /// declared effects (`crate::registry`): an option may narrow them. Checked before any run.
     fn handles(&self, _effect: Effect) -> bool {
         true
+    }
+    /// Whether it blurs glossy reflections (a screen-space filter of the indirect light, ILFR's
+    /// grain filter): on a scene with glossy materials its indirect image would lose them, so
+    /// `lfr compare` skips it there with a notice.
+    fn blurs_glossy_reflections(&self) -> bool {
+        false
     }
     /// `Err(reason)` when a dependency is missing; checked once before any run.
     fn available(&self) -> Result<(), Error> {

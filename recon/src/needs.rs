@@ -155,6 +155,37 @@ pub fn box_filter(kind: SampleKind) -> &'static Needs {
     }
 }
 
+/// The auxiliary images of a pipeline's denoiser (`crate::auxiliary`) from `lens-time` samples:
+/// each sample's first-hit albedo and normal, on top of the reconstruction's own fields.
+pub const AUXILIARY_LENS_TIME: Needs = Needs {
+    consumer: "the denoiser's auxiliary images (lens-time samples)",
+    fields: &[FieldNeed::real("albedo", 3), FieldNeed::octahedral("normal")],
+};
+
+/// The auxiliary images from `indirect` samples: the primary hit's albedo and normal.
+pub const AUXILIARY_INDIRECT: Needs = Needs {
+    consumer: "the denoiser's auxiliary images (indirect samples)",
+    fields: &[FieldNeed::real("albedo", 3), FieldNeed::octahedral("origin_normal")],
+};
+
+/// The auxiliary images from `ao` samples: the primary hit's normal (ambient occlusion is a
+/// visibility, its albedo 1).
+pub const AUXILIARY_AO: Needs = Needs {
+    consumer: "the denoiser's auxiliary images (ao samples)",
+    fields: &[FieldNeed::octahedral("origin_normal")],
+};
+
+/// The auxiliary declaration for samples of `kind` (`None` for `light` samples, which a
+/// denoiser never reads).
+pub fn auxiliary(kind: SampleKind) -> Option<&'static Needs> {
+    match kind {
+        SampleKind::LensTime => Some(&AUXILIARY_LENS_TIME),
+        SampleKind::Indirect => Some(&AUXILIARY_INDIRECT),
+        SampleKind::Ao => Some(&AUXILIARY_AO),
+        SampleKind::Light => None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -227,7 +227,7 @@ mod tests {
     #[test]
     fn failing_script_reports_its_stderr() {
         if let Some(reason) = no_python() {
-            eprintln!("skipped: no Python interpreter ({reason})");
+            testkit::skip(&format!("no Python interpreter ({reason})"));
             return;
         }
         let dir = tempfile::tempdir().unwrap();
@@ -240,7 +240,7 @@ mod tests {
     #[test]
     fn script_arguments_and_result_round_trip() {
         if let Some(reason) = no_python() {
-            eprintln!("skipped: no Python interpreter ({reason})");
+            testkit::skip(&format!("no Python interpreter ({reason})"));
             return;
         }
         let dir = tempfile::tempdir().unwrap();
@@ -297,7 +297,7 @@ mod tests {
     #[test]
     fn missing_module_names_the_module_and_how_to_install() {
         if let Some(reason) = no_python() {
-            eprintln!("skipped: no Python interpreter ({reason})");
+            testkit::skip(&format!("no Python interpreter ({reason})"));
             return;
         }
         let module = "lfr_no_such_module_for_tests";

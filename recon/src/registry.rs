@@ -3,6 +3,7 @@
 //! file that names the concrete methods; the harness finds them here by a spec
 //! `NAME[:key=value...]` (options parsed by `crate::options`).
 
+use crate::auxiliary::AuxiliaryMode;
 use crate::baselines::box_filter::BoxFilter;
 use crate::baselines::oidn::Oidn;
 use crate::error::Error;
@@ -13,6 +14,7 @@ use crate::ilfr::shrink::Trim;
 use crate::ilfr::surfaces::ConflictTest;
 use crate::method::{Effect, Method};
 use crate::options::{OptionKind, OptionSpec, Options};
+use crate::pipeline::Denoised;
 use crate::tlfr::global_illumination::{GiMode, DEFAULT_GI_RADIUS};
 use crate::tlfr::method::{TLFR, TLFR_BANDWIDTH, TLFR_NEAREST};
 use crate::tlfr::settings::Kernel;
@@ -150,6 +152,13 @@ const QUALITY: OptionSpec = OptionSpec {
     kind: OptionKind::Choice(&crate::baselines::oidn::QUALITIES),
     default: "high",
     help: "OIDN's filter quality",
+};
+const AUXILIARY: OptionSpec = OptionSpec {
+    key: "aux",
+    kind: OptionKind::Choice(&["integrated", "centre"]),
+    default: "integrated",
+    help: "the denoiser's albedo and normal from the same samples: each pixel's mean over the lens and shutter, or \
+           its sample nearest the lens centre and mid-shutter (pinhole-like)",
 };
 const BANDWIDTH: OptionSpec = OptionSpec {
     key: "bandwidth",
@@ -303,6 +312,76 @@ pub const METHODS: &[MethodSpec] = &[
     },
 ];
 
+/// A reconstruction followed by a denoiser (`crate::pipeline`), named `FIRST+LAST` and given as
+/// `FIRST[:its options]+LAST[:options]`; it handles FIRST's effects.
+pub struct PipelineSpec {
+    /// The reconstruction: a method of [`METHODS`] that reads samples.
+    pub first: &'static str,
+    /// The denoiser.
+    pub last: &'static str,
+    /// The options after `+`: the denoiser's and the auxiliary images'.
+    pub options: &'static [OptionSpec],
+}
+
+const DENOISER_OPTIONS: &[OptionSpec] = &[QUALITY, AUXILIARY];
+
+/// Every pipeline: each reconstruction that reads samples (and `box`, their plain average),
+/// then OIDN with albedo and normal from the same samples.
+pub const PIPELINES: &[PipelineSpec] = &[
+    PipelineSpec { first: "box", last: "oidn", options: DENOISER_OPTIONS },
+    PipelineSpec { first: "tlfr", last: "oidn", options: DENOISER_OPTIONS },
+    PipelineSpec { first: "tlfr-nn", last: "oidn", options: DENOISER_OPTIONS },
+    PipelineSpec { first: "tlfr-bw", last: "oidn", options: DENOISER_OPTIONS },
+    PipelineSpec { first: "ilfr", last: "oidn", options: DENOISER_OPTIONS },
+    PipelineSpec { first: "ilfr-recursive", last: "oidn", options: DENOISER_OPTIONS },
+    PipelineSpec { first: "ilfr-dof", last: "oidn", options: DENOISER_OPTIONS },
+];
+
+impl PipelineSpec {
+    /// `FIRST+LAST`.
+    pub fn name(&self) -> String {
+        format!("{}+{}", self.first, self.last)
+    }
+
+    /// The reconstruction's declaration (every pipeline's first is one of [`METHODS`]).
+    pub fn first_spec(&self) -> &'static MethodSpec {
+        spec(self.first).expect("a pipeline's first stage is a registered method")
+    }
+
+    fn description(&self) -> String {
+        format!(
+            "{}'s image denoised by Intel Open Image Denoise with albedo and normal from the same samples (for depth of \
+             field and motion integrated over the lens and shutter); time and stats of both stages",
+            self.first
+        )
+    }
+
+    /// The pipeline of `first` (already built from its spec) with `options` (the part after
+    /// `LAST:`) applied; its canonical name is FIRST's, `+LAST`, then the options.
+    fn build(&'static self, first: Registered, options_text: &str) -> Result<Registered, Error> {
+        let name = self.name();
+        let known_elsewhere = |key: &str| METHODS.iter().any(|m| m.options.iter().any(|o| o.key == key));
+        let options = Options::parse(&name, options_text, self.options, known_elsewhere)?;
+        let default = Oidn::default();
+        let denoiser = Oidn { quality: options.choice("quality").map_or(default.quality, str::to_string) };
+        let auxiliary = match options.choice("aux") {
+            Some("centre") => AuxiliaryMode::Centre,
+            _ => AuxiliaryMode::Integrated,
+        };
+        let mut canonical = format!("{}+{}", first.name, self.last);
+        if !options.is_empty() {
+            canonical = format!("{canonical}:{}", options.canonical());
+        }
+        let method = Denoised { first: first.method, first_name: first.name, denoiser, auxiliary };
+        Ok(Registered { name: canonical, spec: first.spec, method: Box::new(method) })
+    }
+}
+
+/// The pipeline named `first+last`.
+pub fn pipeline(first: &str, last: &str) -> Option<&'static PipelineSpec> {
+    PIPELINES.iter().find(|p| p.first == first && p.last == last)
+}
+
 /// The `gi` and `gi_radius` options of `tlfr`; a radius without `gi=split` would be ignored,
 /// so it is refused.
 fn tlfr_gi(options: &Options) -> Result<GiMode, Error> {
@@ -383,6 +462,22 @@ impl MethodSpec {
 /// The method `spec` names: `NAME` or `NAME:key=value:...`. `Ok(None)` when no method has that
 /// name; `Err` for options that do not parse or apply.
 pub fn find(spec_text: &str) -> Result<Option<Registered>, Error> {
+    if let Some((first_text, last_text)) = spec_text.split_once('+') {
+        let first_name = first_text.split_once(':').map_or(first_text, |(name, _)| name);
+        let (last_name, last_options) = last_text.split_once(':').unwrap_or((last_text, ""));
+        let Some(pipeline) = pipeline(first_name, last_name) else {
+            if spec(first_name).is_none() {
+                return Ok(None);
+            }
+            let known: Vec<String> = PIPELINES.iter().map(PipelineSpec::name).collect();
+            return Err(Error::Option {
+                spec: spec_text.to_string(),
+                message: format!("no such pipeline; the pipelines are {}", known.join(", ")),
+            });
+        };
+        let Some(first) = find(first_text)? else { return Ok(None) };
+        return pipeline.build(first, last_options).map(Some);
+    }
     let (name, options) = spec_text.split_once(':').unwrap_or((spec_text, ""));
     let Some(spec) = spec(name) else { return Ok(None) };
     let options = spec.parse_options(options)?;
@@ -406,6 +501,20 @@ pub fn listing() -> String {
             text.push_str(&format!("      {key} = {range}, default {default}: {help}\n"));
         }
     }
+    for pipeline in PIPELINES {
+        let first = pipeline.first_spec();
+        let effects: Vec<&str> = first.effects.iter().map(|e| e.name()).collect();
+        let name = pipeline.name();
+        text.push_str(&format!("{name}\n    {}\n    effects: {}\n", pipeline.description(), effects.join(", ")));
+        text.push_str(&format!(
+            "    options: {}'s before the `+` ({}:key=value:...+{}), and after `{}`:\n",
+            pipeline.first, pipeline.first, pipeline.last, pipeline.last
+        ));
+        for option in pipeline.options {
+            let (key, range, default, help) = (option.key, option.range(), option.default, option.help);
+            text.push_str(&format!("      {key} = {range}, default {default}: {help}\n"));
+        }
+    }
     text
 }
 
@@ -424,6 +533,54 @@ mod tests {
             assert_eq!(method.name(), method.spec.name, "no options, plain name");
             assert!(!method.spec.effects.is_empty() && !method.spec.description.is_empty());
         }
+    }
+
+    #[test]
+    fn every_pipeline_starts_with_a_method_that_reads_samples_and_builds() {
+        for pipeline in PIPELINES {
+            let first = pipeline.first_spec();
+            let built = find(&pipeline.name()).unwrap().unwrap();
+            assert_eq!(built.name(), pipeline.name(), "no options, plain name");
+            assert_eq!(built.input(), crate::method::Input::Samples, "{}", pipeline.name());
+            for effect in Effect::ALL {
+                assert_eq!(built.supports(effect), first.effects.contains(&effect), "{}: {effect:?}", pipeline.name());
+            }
+        }
+    }
+
+    #[test]
+    fn pipelines_parse_both_stages_options_and_name_them_canonically() {
+        let built = find("ilfr:grain=filter+oidn:aux=centre:quality=fast").unwrap().unwrap();
+        assert_eq!(built.name(), "ilfr:grain=filter+oidn:quality=fast:aux=centre");
+        assert!(!built.supports(Effect::Glossy), "the first stage's options narrow the effects");
+        let debug = format!("{:?}", built.method);
+        assert!(
+            debug.contains("quality: \"fast\"") && debug.contains("Centre") && debug.contains("filter_grain: true")
+        );
+        assert_eq!(find("ilfr+oidn").unwrap().unwrap().name(), "ilfr+oidn");
+        // The denoiser's options are checked by the one parser, with its error format.
+        let error = find("ilfr+oidn:quality=best").err().unwrap().to_string();
+        assert!(error.contains("ilfr+oidn") && error.contains("quality"), "{error}");
+        let error = find("ilfr+oidn:grain=filter").err().unwrap().to_string();
+        assert!(error.contains("grain"), "{error}");
+        // A pipeline that does not exist: an error listing the ones that do; an unknown first
+        // stage is an unknown method.
+        let error = find("gif+oidn").err().unwrap().to_string();
+        assert!(error.contains("no such pipeline") && error.contains("tlfr+oidn"), "{error}");
+        assert!(find("nonsense+oidn").unwrap().is_none());
+        assert!(find("ilfr:grain=maybe+oidn").is_err());
+    }
+
+    #[test]
+    fn the_listing_names_every_method_and_pipeline_with_its_options() {
+        let listing = listing();
+        for spec in METHODS {
+            assert!(listing.lines().any(|l| l == spec.name), "{}", spec.name);
+        }
+        for pipeline in PIPELINES {
+            assert!(listing.lines().any(|l| l == pipeline.name()), "{}", pipeline.name());
+        }
+        assert!(listing.contains("aux = integrated|centre, default integrated"), "{listing}");
     }
 
     #[test]

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use recon::method::{Effect, Input, Inputs, MethodError};
+use recon::method::{Effect, Input, InputData, Inputs, MethodError};
 use recon::registry::METHODS;
 #[path = "common/sample_camera.rs"]
 mod sample_camera;
@@ -108,10 +108,7 @@ fn run(name: &str, effect: Effect, samples: &Path, light: Option<&Path>) -> Resu
         width: 4,
         height: 4,
         spp: 2,
-        samples: Some(samples.to_path_buf()),
-        light_samples: light.map(Path::to_path_buf),
-        frame: None,
-        guide: None,
+        data: InputData::Samples { samples, light_samples: light },
         ao_radius: 1.0,
         seed: 1,
         threads: 1,

@@ -1,15 +1,16 @@
 //! What each effect means for the tracer: how the scene is set up for it (what is switched
-//! off), which estimator gives its image, and which samples the methods read.
+//! off), which estimate gives its image and what the image's layer is called ([`image_layer`],
+//! the one table of it), and which samples the methods read (`Effect::sample_kind`).
 //!
-//! | effect | scene set-up | image (reference, ladder, `Frame` input) | samples |
-//! |---|---|---|---|
-//! | `indirect` | as given; needs `max_bounces ≥ 2` | `indirect` layer | `indirect` |
-//! | `glossy` | as given; needs a glossy material | `indirect` layer | `indirect` |
-//! | `ao` | as given | ambient visibility within the AO radius | `ao` |
-//! | `dof` | motion removed; needs an aperture | `beauty` | `lens-time` |
-//! | `motion` | lens closed; needs motion | `beauty` | `lens-time` |
-//! | `dof-motion` | needs both | `beauty` | `lens-time` |
-//! | `soft-shadow` | `max_bounces = 1` (direct light only); needs an emissive mesh | `beauty` | `lens-time` |
+//! | effect | scene set-up | image (reference, ladder, `Frame` input) | layer | samples |
+//! |---|---|---|---|---|
+//! | `indirect` | as given; needs `max_bounces ≥ 2` | render's `indirect` | `indirect` | `indirect` |
+//! | `glossy` | as given; needs a glossy material | render's `indirect` | `indirect` | `indirect` |
+//! | `ao` | as given | ambient visibility within the AO radius | `ao` | `ao` |
+//! | `dof` | motion removed; needs an aperture | render's `beauty` | `beauty` | `lens-time` |
+//! | `motion` | lens closed; needs motion | render's `beauty` | `beauty` | `lens-time` |
+//! | `dof-motion` | needs both | render's `beauty` | `beauty` | `lens-time` |
+//! | `soft-shadow` | `max_bounces = 1` (direct light only); needs an emissive mesh | render's `beauty` | `direct` | `lens-time` + `light` |
 
 use std::path::Path;
 use std::time::Instant;
@@ -18,7 +19,7 @@ use anyhow::{bail, Result};
 use glam::Vec3;
 use recon::method::{FrameInput, GuideInput};
 use recon::{Effect, Image};
-use tracer::samples::secondary::{ambient_occlusion_frame, scene_is_glossy, SecondaryKind};
+use tracer::samples::secondary::{ambient_occlusion_frame, scene_is_glossy};
 use tracer::samples::{DumpTarget, FieldSelection};
 use tracer::{Accel, RenderSettings, Scene};
 
@@ -92,6 +93,59 @@ pub fn default_ao_radius(scene: &Scene) -> f32 {
     }
 }
 
+/// Which of the tracer's estimates gives an effect's image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Estimate {
+    /// The full radiance (`beauty`): with soft shadows' one bounce, emission plus direct light.
+    Beauty,
+    /// Light after at least one more bounce (`indirect`).
+    Indirect,
+    /// The fraction of cosine-weighted rays unoccluded within the AO radius.
+    AmbientVisibility,
+}
+
+/// Where an effect's image comes from and what its layer is called: a row of the table in the
+/// module doc.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ImageLayer {
+    pub estimate: Estimate,
+    /// The layer of the comparison's EXR images (the reference's and every run's).
+    pub name: &'static str,
+}
+
+/// The one effect → image-layer table (module doc).
+pub const fn image_layer(effect: Effect) -> ImageLayer {
+    let (estimate, name) = match effect {
+        Effect::Indirect | Effect::Glossy => (Estimate::Indirect, "indirect"),
+        Effect::Ao => (Estimate::AmbientVisibility, "ao"),
+        Effect::Dof | Effect::Motion | Effect::DofMotion => (Estimate::Beauty, "beauty"),
+        // Traced with one bounce, the beauty is the direct light the layer is named after.
+        Effect::SoftShadow => (Estimate::Beauty, "direct"),
+    };
+    ImageLayer { estimate, name }
+}
+
+impl Estimate {
+    /// The layer of an `lfr render` EXR holding this estimate (`""`: its beauty channels);
+    /// `None` where it writes none.
+    pub fn render_layer(self) -> Option<&'static str> {
+        match self {
+            Estimate::Beauty => Some(""),
+            Estimate::Indirect => Some("indirect"),
+            Estimate::AmbientVisibility => None,
+        }
+    }
+
+    /// Of a render's `beauty` and `indirect` (images or pixels), the one this estimate reads
+    /// (`tracer::render` has no ambient visibility: that is traced on its own).
+    fn pick<T>(self, beauty: T, indirect: T) -> T {
+        match self {
+            Estimate::Indirect => indirect,
+            Estimate::Beauty | Estimate::AmbientVisibility => beauty,
+        }
+    }
+}
+
 /// How the effect's images are traced.
 pub struct Tracing<'a> {
     pub scene: &'a Scene,
@@ -128,7 +182,8 @@ impl Tracing<'_> {
     pub fn trace(&self, spp: u32, seed: u32, progress: bool) -> Result<Traced> {
         let (width, height) = (self.width, self.height);
         let start = Instant::now();
-        let frame = if self.effect == Effect::Ao {
+        let estimate = image_layer(self.effect).estimate;
+        let frame = if estimate == Estimate::AmbientVisibility {
             let settings = RenderSettings { progress, ..self.dump_settings(spp, seed) };
             let ao = ambient_occlusion_frame(self.scene, self.accel, &settings, self.ao_radius)?;
             FrameInput {
@@ -147,10 +202,7 @@ impl Tracing<'_> {
                 progress,
             };
             let frame = tracer::render(self.scene, self.accel, &settings)?;
-            let color = match self.effect {
-                Effect::Indirect | Effect::Glossy => &frame.indirect,
-                _ => &frame.beauty,
-            };
+            let color = estimate.pick(&frame.beauty, &frame.indirect);
             FrameInput {
                 color: image_from_vec3(width, height, color),
                 albedo: image_from_vec3(width, height, &frame.albedo),
@@ -172,7 +224,8 @@ impl Tracing<'_> {
     ) -> Result<(Vec<[f32; 3]>, f64)> {
         let start = Instant::now();
         let settings = RenderSettings { progress, ..self.dump_settings(spp, seed) };
-        let values = if self.effect == Effect::Ao {
+        let estimate = image_layer(self.effect).estimate;
+        let values = if estimate == Estimate::AmbientVisibility {
             tracer::samples::secondary::ambient_occlusion_pixels(
                 self.scene,
                 self.accel,
@@ -186,10 +239,7 @@ impl Tracing<'_> {
         } else {
             tracer::render::render_pixels(self.scene, self.accel, &settings, pixels)?
                 .into_iter()
-                .map(|m| match self.effect {
-                    Effect::Indirect | Effect::Glossy => m.indirect.to_array(),
-                    _ => m.beauty.to_array(),
-                })
+                .map(|m| estimate.pick(m.beauty, m.indirect).to_array())
                 .collect()
         };
         Ok((values, start.elapsed().as_secs_f64()))
@@ -210,7 +260,7 @@ impl Tracing<'_> {
     /// Traces the guide buffers with `spp` indirect estimates per guide hit; returns them and
     /// the wall time. Only for the effects whose image is the indirect layer.
     pub fn guide(&self, spp: u32, seed: u32) -> Result<(GuideInput, f64)> {
-        if !matches!(self.effect, Effect::Indirect | Effect::Glossy) {
+        if image_layer(self.effect).estimate != Estimate::Indirect {
             bail!("guide buffers carry indirect light: --effect {} has no guide input", self.effect.name());
         }
         let start = Instant::now();
@@ -231,39 +281,20 @@ impl Tracing<'_> {
         let (scene, accel) = (self.scene, self.accel);
         let name = |kind: sampleio::SampleKind| format!("{}-{spp}spp-fields{}.lfrs", kind.name(), selection + 1);
         let path = dir.join(name(self.effect.sample_kind()));
-        if self.effect == Effect::SoftShadow {
-            tracer::samples::lens_time::dump_for_soft_shadows(
-                scene,
-                accel,
-                &settings,
-                fields,
-                DumpTarget::scratch(&path),
-            )?;
-            let samples_s = start.elapsed().as_secs_f64();
-            let light_start = Instant::now();
-            let light_path = dir.join(name(sampleio::SampleKind::Light));
-            tracer::samples::light::dump(scene, accel, &settings, fields, DumpTarget::scratch(&light_path))?;
-            let light_samples_s = Some(light_start.elapsed().as_secs_f64());
-            return Ok(Dumped { samples: path, light_samples: Some(light_path), samples_s, light_samples_s });
-        }
-        let path = DumpTarget::scratch(path.as_path());
-        match self.effect.sample_kind() {
-            sampleio::SampleKind::Indirect => {
-                tracer::samples::secondary::dump(scene, accel, &settings, SecondaryKind::Indirect, fields, path)?
-            }
-            sampleio::SampleKind::Ao => tracer::samples::secondary::dump(
-                scene,
-                accel,
-                &settings,
-                SecondaryKind::AmbientOcclusion,
-                fields,
-                path,
-            )?,
-            sampleio::SampleKind::LensTime => tracer::samples::lens_time::dump(scene, accel, &settings, fields, path)?,
-            sampleio::SampleKind::Light => tracer::samples::light::dump(scene, accel, &settings, fields, path)?,
-        };
+        // Soft shadows' camera samples carry the shading fields their light samples pair with.
+        let soft_shadows = self.effect == Effect::SoftShadow;
+        let kind = self.effect.sample_kind();
+        tracer::samples::dump(scene, accel, &settings, kind, soft_shadows, fields, DumpTarget::scratch(&path))?;
         let samples_s = start.elapsed().as_secs_f64();
-        Ok(Dumped { samples: path.path.to_path_buf(), light_samples: None, samples_s, light_samples_s: None })
+        if !soft_shadows {
+            return Ok(Dumped { samples: path, light_samples: None, samples_s, light_samples_s: None });
+        }
+        let light_start = Instant::now();
+        let light_path = dir.join(name(sampleio::SampleKind::Light));
+        let target = DumpTarget::scratch(&light_path);
+        tracer::samples::dump(scene, accel, &settings, sampleio::SampleKind::Light, false, fields, target)?;
+        let light_samples_s = Some(light_start.elapsed().as_secs_f64());
+        Ok(Dumped { samples: path, light_samples: Some(light_path), samples_s, light_samples_s })
     }
 }
 

@@ -12,7 +12,7 @@ use anyhow::{bail, Context, Result};
 use recon::{Effect, Image};
 use sha2::{Digest, Sha256};
 
-use super::effect::Tracing;
+use super::effect::{image_layer, Tracing};
 use super::reference::Reference;
 use crate::render::RenderRecord;
 
@@ -21,10 +21,9 @@ pub const MAX_FILES: usize = 2;
 
 /// The EXR layer of the effect's image in an `lfr render` output (`""`: beauty).
 fn layer_of(effect: Effect) -> Result<&'static str> {
-    match effect {
-        Effect::Indirect | Effect::Glossy => Ok("indirect"),
-        Effect::Ao => bail!("--reference: lfr render writes no ambient-occlusion layer; --effect ao traces its own"),
-        Effect::Dof | Effect::Motion | Effect::DofMotion | Effect::SoftShadow => Ok(""),
+    match image_layer(effect).estimate.render_layer() {
+        Some(layer) => Ok(layer),
+        None => bail!("--reference: lfr render writes no ambient-occlusion layer; --effect ao traces its own"),
     }
 }
 

@@ -71,6 +71,16 @@ pub fn prepare(dir: &Path, force: bool) -> Result<usize> {
     Ok(ours.len())
 }
 
+/// Prepares `dir` for a comparison ([`prepare`]), says what it removed, and creates its
+/// `images` folder.
+pub fn open(dir: &Path, force: bool) -> Result<()> {
+    let cleared = prepare(dir, force)?;
+    if cleared > 0 {
+        eprintln!("compare: removed the previous comparison's {cleared} files and folders from {}", dir.display());
+    }
+    std::fs::create_dir_all(dir.join("images")).with_context(|| format!("creating {}", dir.display()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -81,6 +81,19 @@ fn is_warning(note: &str) -> bool {
     note.starts_with(recon::method::WARNING) || note.starts_with("INVALID")
 }
 
+/// The run's speedup over OIDN, or where it lies outside OIDN's range.
+fn oidn_cell(run: &Run) -> String {
+    match (run.speedup_over_oidn, run.oidn_curve_position) {
+        (Some(speedup), _) => format!(
+            "{speedup:.2}{}",
+            run.speedup_over_oidn_range.map(|[lo, hi]| format!(" ({lo:.2}–{hi:.2})")).unwrap_or_default()
+        ),
+        (None, Some("above")) => "above its range".into(),
+        (None, Some("below")) => "below its range".into(),
+        _ => "–".into(),
+    }
+}
+
 fn run_label(run: &Run) -> String {
     let rays = if run.recon_rays > 0 { format!(" × {} rays", run.recon_rays) } else { String::new() };
     format!("{} {} spp{rays}", if run.method == "pt" { "path tracing" } else { &run.method }, run.input_spp)
@@ -93,6 +106,7 @@ pub fn markdown(results: &Results) -> String {
     let _ = writeln!(md, "# {} — {} ({}×{})\n", scene_name(&r.scene), r.effect, r.width, r.height);
 
     let _ = writeln!(md, "## Verdict\n");
+    let _ = writeln!(md, "**{}**\n", r.headline);
     if r.verdicts.is_empty() {
         let _ = writeln!(md, "Only path tracing ran; there is no method to judge.\n");
     }
@@ -116,6 +130,18 @@ pub fn markdown(results: &Results) -> String {
         "\nSpeedup = path-tracing time to reach the method's PSNR (interpolated on the path-tracing curve in \
          log time) / the method's total time, trace included. Above 1, the method beats tracing more samples.\n"
     );
+    if !r.verdicts_against_oidn.is_empty() {
+        let _ = writeln!(md, "### Against the denoiser (OIDN on path tracing)\n");
+        for verdict in &r.verdicts_against_oidn {
+            let _ = writeln!(md, "- {}.", verdict.summary.trim_end_matches('.'));
+        }
+        let _ = writeln!(
+            md,
+            "\nSpeedup over OIDN = OIDN's time to reach the method's PSNR (interpolated on OIDN's own curve in log time, \
+             never extended beyond its runs: outside them the run is \"below\" or \"above OIDN's range\") / the \
+             method's total time.\n"
+        );
+    }
 
     let _ = writeln!(md, "## Set-up\n");
     let _ = writeln!(md, "| | |\n|---|---|");
@@ -159,13 +185,13 @@ pub fn markdown(results: &Results) -> String {
     let _ = writeln!(md, "## Every run\n");
     let _ = writeln!(
         md,
-        "| run | trace s | preprocess s | reconstruct s | total s | timed | PSNR dB | rel. MSE | SSIM | FLIP | peak MiB | equal-time gain dB | speedup (range) |"
+        "| run | trace s | preprocess s | reconstruct s | total s | timed | PSNR dB | rel. MSE | SSIM | FLIP | peak MiB | equal-time gain dB | speedup (range) | vs OIDN |"
     );
-    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for run in &r.runs {
         let _ = writeln!(
             md,
-            "| {}{} | {:.3} | {:.3} | {:.3} | {:.3} | {}× ±{:.0} % | {:.2} | {:.3e} | {:.4} | {} | {} | {} | {}{}{} |",
+            "| {}{} | {:.3} | {:.3} | {:.3} | {:.3} | {}× ±{:.0} % | {:.2} | {:.3e} | {:.4} | {} | {} | {} | {}{}{} | {} |",
             run_label(run),
             if run.valid { "" } else { " **INVALID**" },
             run.trace_s,
@@ -183,6 +209,7 @@ pub fn markdown(results: &Results) -> String {
             opt(run.speedup, 2),
             run.speedup_range.map(|[lo, hi]| format!(" ({lo:.2}–{hi:.2})")).unwrap_or_default(),
             if run.verdict_extrapolated { "*" } else { "" },
+            oidn_cell(run),
         );
     }
     let _ = writeln!(
@@ -299,9 +326,12 @@ mod tests {
             flip_available: false,
             peak_rss_per_run: true,
             between_runs_noise: 0.1,
+            headline: "Winner by PSNR at each time budget: x.".into(),
+            budgets: Vec::new(),
             runs: vec![run("pt", &[]), run("ilfr", &["time: read 0.1 s", "warning: 3 samples dropped"])],
             skipped: Vec::new(),
             verdicts: Vec::new(),
+            verdicts_against_oidn: Vec::new(),
             total_seconds: 1.0,
         };
         let md = markdown(&results);

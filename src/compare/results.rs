@@ -4,7 +4,7 @@
 
 use serde::Serialize;
 
-pub const SCHEMA: &str = "lfr-compare/2";
+pub const SCHEMA: &str = "lfr-compare/3";
 
 #[derive(Clone, Debug, Serialize)]
 pub struct Results {
@@ -28,9 +28,15 @@ pub struct Results {
     /// Speedups within this relative distance of 1 are "no clear difference" whatever the
     /// repetitions' spread (`timing::BETWEEN_RUNS_NOISE`, docs/compare.md).
     pub between_runs_noise: f64,
+    /// The winner at each time budget, in words (`compare::budget`).
+    pub headline: String,
+    /// The winners behind the headline: by PSNR and by HDR-FLIP, per span of budgets.
+    pub budgets: Vec<super::budget::Span>,
     pub runs: Vec<Run>,
     pub skipped: Vec<Skipped>,
     pub verdicts: Vec<Verdict>,
+    /// When `oidn` ran: every other method's verdict against it (path tracing's first).
+    pub verdicts_against_oidn: Vec<PeerVerdict>,
     pub total_seconds: f64,
 }
 
@@ -125,6 +131,14 @@ pub struct Run {
     pub speedup_range: Option<[f64; 2]>,
     /// Whether the PT curve had to be extended beyond its measured range for the verdicts.
     pub verdict_extrapolated: bool,
+    /// When `oidn` ran: OIDN's time to reach `psnr_db` on its own curve / `total_s`, null outside
+    /// OIDN's measured range (`compare::peer`) and for `oidn`'s own runs.
+    pub speedup_over_oidn: Option<f64>,
+    /// The range of `speedup_over_oidn` over the repetitions.
+    pub speedup_over_oidn_range: Option<[f64; 2]>,
+    /// When `oidn` ran: `"within"`, `"below"` (OIDN's cheapest run is better) or `"above"` (no
+    /// OIDN run reaches this PSNR) OIDN's curve; null for `oidn`'s own runs.
+    pub oidn_curve_position: Option<&'static str>,
     /// Methods with a precompute (`probes`): whether it was read from the cache (its
     /// `preprocess_s` is then the build time kept beside the cache); null for the others.
     pub precompute_from_cache: Option<bool>,
@@ -142,6 +156,31 @@ pub struct Run {
     pub notes: Vec<String>,
     /// The method's statistics as named numbers (`recon::method::Stats`; empty for most).
     pub stats: recon::method::Stats,
+}
+
+/// A method's best showing against OIDN (`compare::peer`).
+#[derive(Clone, Debug, Serialize)]
+pub struct PeerVerdict {
+    pub method: String,
+    /// The valid run with the highest equal-quality speedup over OIDN (null when every run lies
+    /// outside OIDN's range).
+    pub best_speedup: Option<f64>,
+    pub best_speedup_range: Option<[f64; 2]>,
+    /// `"faster"`, `"slower"` or `"no clear difference"`; null without a speedup.
+    pub difference: Option<&'static str>,
+    pub summary: String,
+}
+
+impl From<super::peer::PeerVerdict> for PeerVerdict {
+    fn from(v: super::peer::PeerVerdict) -> PeerVerdict {
+        PeerVerdict {
+            method: v.method,
+            best_speedup: v.best_speedup,
+            best_speedup_range: v.best_speedup_range,
+            difference: v.difference,
+            summary: v.sentence,
+        }
+    }
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -197,6 +236,9 @@ impl Run {
             speedup: None,
             speedup_range: None,
             verdict_extrapolated: false,
+            speedup_over_oidn: None,
+            speedup_over_oidn_range: None,
+            oidn_curve_position: None,
             precompute_from_cache: None,
             per_frame_speedup: None,
             break_even_frames: None,

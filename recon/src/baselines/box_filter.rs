@@ -35,7 +35,7 @@ impl Method for BoxFilter {
     }
 
     fn run(&self, inputs: &Inputs, _recon_rays: u32) -> Result<Output, MethodError> {
-        let path = inputs.samples.as_ref().ok_or_else(|| Error::missing_input("samples", "box needs a sample file"))?;
+        let path = inputs.samples("box")?;
         let start = Instant::now();
         let file = SampleFile::open(path)?;
         let preprocess_s = start.elapsed().as_secs_f64();

@@ -22,7 +22,7 @@ use std::time::Instant;
 
 use crate::error::Error;
 use crate::image::Image;
-use crate::method::{Input, Inputs, Method, MethodError, Output, Stats};
+use crate::method::{Effect, Input, Inputs, Method, MethodError, Output, Stats};
 use crate::python;
 
 const SCRIPT: &str = include_str!("oidn_denoise.py");
@@ -109,17 +109,39 @@ impl Method for Oidn {
     }
 
     fn run(&self, inputs: &Inputs, _recon_rays: u32) -> Result<Output, MethodError> {
-        let frame =
-            inputs.frame.ok_or_else(|| Error::missing_input("frame", "oidn: no path-traced frame in the inputs"))?;
-        let (width, height) = (frame.color.width, frame.color.height);
+        let frame = inputs.frame("oidn")?;
+        self.denoise(&frame.color, &frame.albedo, &frame.normal, inputs.effect)
+    }
+}
+
+/// Ambient occlusion is a grey visibility in [0, 1]; OIDN, trained on colour images, returns
+/// slightly coloured pixels and values above 1 for it. The denoised visibility is the mean of
+/// its channels clamped to [0, 1] (a non-finite mean stays as it is, for the harness to count).
+pub fn as_visibility(image: &mut Image) {
+    for pixel in &mut image.pixels {
+        let mean = (pixel[0] + pixel[1] + pixel[2]) / 3.0;
+        *pixel = [if mean.is_finite() { mean.clamp(0.0, 1.0) } else { mean }; 3];
+    }
+}
+
+impl Oidn {
+    /// Denoises `color` (the image of `effect`) with its first-hit `albedo` and `normal`: the
+    /// `oidn` method on a path-traced frame, and the last stage of a pipeline (`crate::pipeline`)
+    /// on a reconstruction's image. For ambient occlusion the result is a grey visibility
+    /// ([`as_visibility`]).
+    pub fn denoise(
+        &self,
+        color: &Image,
+        albedo: &Image,
+        normal: &Image,
+        effect: Effect,
+    ) -> Result<Output, MethodError> {
+        let (width, height) = (color.width, color.height);
         if width == 0 || height == 0 {
             return Err(Error::external(TOOL, format!("empty frame ({width}x{height})")).into());
         }
-        for (name, image) in [("albedo", &frame.albedo), ("normal", &frame.normal)] {
-            frame
-                .color
-                .check_same_size(image)
-                .map_err(|e| Error::size_mismatch(name, format!("{TOOL}: {name}: {e}")))?;
+        for (name, image) in [("albedo", albedo), ("normal", normal)] {
+            color.check_same_size(image).map_err(|e| Error::size_mismatch(name, format!("{TOOL}: {name}: {e}")))?;
         }
         if !QUALITIES.contains(&self.quality.as_str()) {
             let message =
@@ -129,7 +151,7 @@ impl Method for Oidn {
         self.available().map_err(MethodError::Unavailable)?;
 
         let started = Instant::now();
-        let (color, albedo, normal, sanitized) = sanitize(&frame.color, &frame.albedo, &frame.normal);
+        let (color, albedo, normal, sanitized) = sanitize(color, albedo, normal);
         let dir = tempfile::Builder::new()
             .prefix("lfr-oidn-")
             .tempdir()
@@ -151,7 +173,10 @@ impl Method for Oidn {
             "quality": self.quality,
         });
         let result = python::run_script(SCRIPT, &args, dir.path()).map_err(bridge)?;
-        let image = python::read_image_f32(&path("output"), width, height).map_err(bridge)?;
+        let mut image = python::read_image_f32(&path("output"), width, height).map_err(bridge)?;
+        if effect == Effect::Ao {
+            as_visibility(&mut image);
+        }
         let wall_s = started.elapsed().as_secs_f64();
 
         let recon_s = number(&result, "seconds")?;
@@ -191,7 +216,7 @@ impl Method for Oidn {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::method::{Effect, FrameInput};
+    use crate::method::{Effect, FrameInput, InputData};
 
     const SIZE: u32 = 64;
 
@@ -248,20 +273,30 @@ mod tests {
             width: frame.color.width,
             height: frame.color.height,
             spp: 4,
-            samples: None,
-            light_samples: None,
-            frame: Some(frame),
-            guide: None,
+            data: InputData::Frame(frame),
             ao_radius: 1.0,
             seed: 0,
             threads: 0,
         }
     }
 
+    /// Ambient occlusion out of OIDN is a grey visibility: each pixel the mean of its channels,
+    /// clamped to [0, 1]; a non-finite pixel stays non-finite for the harness to count.
+    #[test]
+    fn ambient_occlusion_comes_out_grey_and_within_zero_to_one() {
+        let mut image =
+            Image::from_pixels(4, 1, vec![[0.9, 1.2, 1.2], [0.2, 0.3, 0.1], [-0.3, 0.0, 0.0], [f32::NAN, 0.5, 0.5]]);
+        as_visibility(&mut image);
+        assert_eq!(image.pixels[0], [1.0; 3]);
+        assert!(image.pixels[1].iter().all(|&v| (v - 0.2).abs() < 1e-7), "{:?}", image.pixels[1]);
+        assert_eq!(image.pixels[2], [0.0; 3]);
+        assert!(image.pixels[3].iter().all(|v| v.is_nan()));
+    }
+
     #[test]
     fn denoising_removes_most_of_the_noise() {
         if let Some(reason) = skip_reason() {
-            eprintln!("skipped: pyoidn not installed ({reason})");
+            testkit::skip(&format!("pyoidn is not installed ({reason})"));
             return;
         }
         let smooth = smooth_frame();
@@ -284,7 +319,7 @@ mod tests {
     #[test]
     fn invalid_colour_values_are_sanitised_and_counted() {
         if let Some(reason) = skip_reason() {
-            eprintln!("skipped: pyoidn not installed ({reason})");
+            testkit::skip(&format!("pyoidn is not installed ({reason})"));
             return;
         }
         let mut frame = smooth_frame();
@@ -322,8 +357,11 @@ mod tests {
     fn missing_frame_fails_and_bad_quality_is_rejected() {
         let frame = smooth_frame();
         let mut without = inputs(&frame);
-        without.frame = None;
-        assert!(matches!(Oidn::default().run(&without, 0), Err(MethodError::Failed(_))));
+        without.data = InputData::Samples { samples: std::path::Path::new("samples.lfrs"), light_samples: None };
+        match Oidn::default().run(&without, 0) {
+            Err(MethodError::Failed(error)) => assert!(error.to_string().contains("path-traced frame"), "{error}"),
+            other => panic!("expected a failure, got {other:?}"),
+        }
         let oidn = Oidn { quality: "ultra".to_string() };
         match oidn.run(&inputs(&frame), 0) {
             Err(MethodError::Failed(error)) => {

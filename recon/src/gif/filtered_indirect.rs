@@ -296,10 +296,14 @@ impl Method for FilteredIndirect {
         Input::Guide
     }
 
+    /// A screen-space filter guided by first-hit geometry: a reflection on a glossy surface
+    /// has no edge in its guide, so it is averaged away.
+    fn blurs_glossy_reflections(&self) -> bool {
+        true
+    }
+
     fn run(&self, inputs: &Inputs, _recon_rays: u32) -> Result<Output, MethodError> {
-        let input = inputs
-            .guide
-            .ok_or_else(|| Error::missing_input("guide buffers", format!("{} needs guide buffers", self.name)))?;
+        let input = inputs.guide(&self.name)?;
         let size = (input.indirect.width, input.indirect.height);
         if size != (inputs.width, inputs.height) || input.albedo.check_same_size(&input.indirect).is_err() {
             let message = format!(

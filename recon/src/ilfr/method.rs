@@ -147,6 +147,11 @@ impl Method for Ilfr {
         grain_choice_handles(self.choices.filter_grain, effect)
     }
 
+    /// The grain filter smooths the image across pixels by geometry alone ([`super::grain`]).
+    fn blurs_glossy_reflections(&self) -> bool {
+        self.choices.filter_grain
+    }
+
     fn sample_needs(&self, effect: Effect) -> Option<Vec<&'static sampleio::Needs>> {
         crate::needs::ilfr(effect.sample_kind()).map(|needs| vec![needs])
     }
@@ -209,10 +214,7 @@ impl Method for IlfrDof {
         if !matches!(inputs.effect, Effect::Dof | Effect::Motion | Effect::DofMotion) {
             return Err(MethodError::Unsupported(format!("{name} does not reconstruct {}", inputs.effect.name())));
         }
-        let path = inputs
-            .samples
-            .as_ref()
-            .ok_or_else(|| Error::missing_input("samples", format!("{name} needs a sample file")))?;
+        let path = inputs.samples(name)?;
         let settings = self
             .choices
             .apply(IlfrSettings { recon_rays, seed: inputs.seed, ..IlfrSettings::default() }, inputs.effect);
@@ -246,10 +248,7 @@ impl Method for IlfrDof {
 }
 
 fn run_ilfr(name: &str, inputs: &Inputs, settings: IlfrSettings) -> Result<Output, MethodError> {
-    let path = inputs
-        .samples
-        .as_ref()
-        .ok_or_else(|| Error::missing_input("samples", format!("{name} needs a sample file")))?;
+    let path = inputs.samples(name)?;
     let target = match inputs.effect {
         Effect::Indirect | Effect::Glossy => GatherTarget::Indirect,
         Effect::Ao if settings.recursive_passes == 0 => GatherTarget::Visibility { ao_radius: inputs.ao_radius },

@@ -101,10 +101,8 @@ mod tests {
         if available() {
             return false;
         }
-        eprintln!(
-            "skipped: flip_evaluator not installed ({})",
-            python::module_available("flip_evaluator").err().map(|e| e.to_string()).unwrap_or_default()
-        );
+        let reason = python::module_available("flip_evaluator").err().map(|e| e.to_string()).unwrap_or_default();
+        testkit::skip(&format!("flip_evaluator is not installed ({reason})"));
         true
     }
 

@@ -109,10 +109,7 @@ impl Method for TlfrMethod {
     }
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
-        let path = inputs
-            .samples
-            .as_deref()
-            .ok_or_else(|| Error::missing_input("samples", format!("{} needs a sample file", self.name)))?;
+        let path = inputs.samples(self.name)?;
         let settings = TlfrSettings {
             locations: recon_rays,
             seed: inputs.seed,
@@ -122,10 +119,7 @@ impl Method for TlfrMethod {
             ..TlfrSettings::default()
         };
         let output = if inputs.effect == Effect::SoftShadow {
-            let light_path = inputs.light_samples.as_ref().ok_or_else(|| {
-                let message = format!("{} soft shadows need the light samples of the same seed and spp", self.name);
-                Error::missing_input("light samples", message)
-            })?;
+            let light_path = inputs.light_samples(self.name)?;
             super::shadows::reconstruct_soft_shadow(path, light_path, &settings)?
         } else {
             reconstruct_file_with(self.value, path, &settings)?

@@ -14,8 +14,8 @@
 //! | `radiance` | 3 | always | path-traced radiance (linear RGB) |
 //! | `depth_gradient` | 2 | always | ∂z/∂x, ∂z/∂y in scene units per pixel at fixed (u, v, t) |
 //! | `bandwidth` | 1 | glossy materials | κ of the BRDF lobe at the hit (as for `indirect` samples, `secondary::bandwidth`); 0 for diffuse and misses; for the bandwidth-weighted reconstruction of TLFR Fig. 14 |
-//! | `albedo` | f16 × 3 | soft-shadow dumps | reflectance of the first hit (0 for a miss) |
-//! | `normal` | u16 × 2 | soft-shadow dumps | shading normal of the first hit facing the camera, world space, octahedral; (0, 0) for a miss |
+//! | `albedo` | f16 × 3 | soft-shadow dumps, or selected by name (with `normal`) | reflectance of the first hit (0 for a miss) |
+//! | `normal` | u16 × 2 | soft-shadow dumps, or selected by name (with `albedo`) | shading normal of the first hit facing the camera, world space, octahedral; (0, 0) for a miss |
 //! | `radiance_without_light` | 3 | soft-shadow dumps | `radiance` minus the light the planar light (`light::PlanarLight`) sent to the first hit directly or after more bounces; its emission seen by the camera stays |
 //! | `direct` | 3 | selected by name | the part of `radiance` that is emission seen by the camera or light reflected by the first hit straight from an emitter (`PathSample::direct`); `radiance − direct` is the light of longer paths |
 //!
@@ -51,6 +51,9 @@ pub struct LensTimeLayout {
     pub bandwidth: bool,
     /// `albedo`, `normal` and `radiance_without_light` for soft shadows.
     pub shading: bool,
+    /// `albedo` and `normal` alone, when a selection names either (a denoiser's auxiliary
+    /// images from these samples; the soft-shadow layout has them already).
+    pub auxiliary: bool,
     /// `direct`: emission plus the first hit's direct light, when a selection names it.
     pub direct: bool,
 }
@@ -62,13 +65,21 @@ impl LensTimeLayout {
             time: scene.has_motion(),
             bandwidth: super::secondary::scene_is_glossy(scene),
             shading: false,
+            auxiliary: false,
             direct: false,
         }
     }
 
-    /// This layout with `direct` when `fields` names it.
+    /// This layout with `direct` when `fields` names it, and `albedo` and `normal` when it
+    /// names either.
     pub fn with_selected(self, fields: &FieldSelection) -> LensTimeLayout {
-        LensTimeLayout { direct: fields.names("direct"), ..self }
+        let auxiliary = fields.names("albedo") || fields.names("normal");
+        LensTimeLayout { direct: fields.names("direct"), auxiliary, ..self }
+    }
+
+    /// Whether the records hold `albedo` and `normal`.
+    fn has_albedo_and_normal(&self) -> bool {
+        self.shading || self.auxiliary
     }
 
     pub fn values_per_sample(&self) -> usize {
@@ -79,7 +90,8 @@ impl LensTimeLayout {
             + 3
             + 2
             + self.bandwidth as usize
-            + 8 * self.shading as usize
+            + 5 * self.has_albedo_and_normal() as usize
+            + 3 * self.shading as usize
             + 3 * self.direct as usize
     }
 
@@ -123,7 +135,7 @@ impl LensTimeLayout {
                     .meaning("von Mises-Fisher concentration kappa of the BRDF at the hit; 0 diffuse"),
             );
         }
-        if self.shading {
+        if self.has_albedo_and_normal() {
             spec = spec
                 .field(
                     FieldSpec::new("albedo", FieldType::F16, 3)
@@ -134,13 +146,15 @@ impl LensTimeLayout {
                     FieldSpec::new("normal", FieldType::U16, 2)
                         .unit("octahedral u16 pair, 0 = none; see docs/sample-format.md")
                         .meaning("world-space shading normal of the first hit, facing the camera"),
-                )
-                .field(f32_field(
-                    "radiance_without_light",
-                    3,
-                    "W/(m^2 sr)",
-                    "radiance minus the planar light's light reflected by the first hit (directly or not)",
-                ));
+                );
+        }
+        if self.shading {
+            spec = spec.field(f32_field(
+                "radiance_without_light",
+                3,
+                "W/(m^2 sr)",
+                "radiance minus the planar light's light reflected by the first hit (directly or not)",
+            ));
         }
         if self.direct {
             spec = spec.field(f32_field(
@@ -251,9 +265,11 @@ fn dump_with(
                         if layout.bandwidth {
                             values.push(super::secondary::bandwidth(&hit.bsdf));
                         }
-                        if layout.shading {
+                        if layout.has_albedo_and_normal() {
                             values.extend_from_slice(&super::secondary::clamp_f16(hit.albedo).to_array());
                             values.extend_from_slice(&super::secondary::encode_octahedral(hit.normal));
+                        }
+                        if layout.shading {
                             values.extend_from_slice(&(path.radiance() - path.split_emitter_light).to_array());
                         }
                         if layout.direct {
@@ -270,8 +286,10 @@ fn dump_with(
                         if layout.bandwidth {
                             values.push(0.0);
                         }
-                        if layout.shading {
+                        if layout.has_albedo_and_normal() {
                             values.extend_from_slice(&[0.0; 5]);
+                        }
+                        if layout.shading {
                             values.extend_from_slice(&path.radiance().to_array());
                         }
                         if layout.direct {

@@ -99,6 +99,36 @@ pub fn camera_header(camera: &Camera, width: u32, height: u32) -> sampleio::Came
     }
 }
 
+/// Writes samples of `kind` for `scene` to `target`, the fields `fields` selects: the one entry
+/// point from a sample kind to its dump (`lfr dump`, `lfr compare`). With `soft_shadows`,
+/// `lens-time` samples carry the soft-shadow reconstruction's shading fields
+/// (`lens_time::dump_for_soft_shadows`); other kinds refuse it.
+pub fn dump<'a>(
+    scene: &Scene,
+    accel: &Accel,
+    settings: &RenderSettings,
+    kind: sampleio::SampleKind,
+    soft_shadows: bool,
+    fields: &FieldSelection,
+    target: impl Into<DumpTarget<'a>>,
+) -> Result<DumpReport, RenderError> {
+    use sampleio::SampleKind;
+    use secondary::SecondaryKind;
+    match kind {
+        SampleKind::LensTime if soft_shadows => {
+            lens_time::dump_for_soft_shadows(scene, accel, settings, fields, target)
+        }
+        _ if soft_shadows => Err(RenderError::Settings(format!(
+            "the soft-shadow fields belong to lens-time samples, not {}",
+            kind.name()
+        ))),
+        SampleKind::LensTime => lens_time::dump(scene, accel, settings, fields, target),
+        SampleKind::Light => light::dump(scene, accel, settings, fields, target),
+        SampleKind::Indirect => secondary::dump(scene, accel, settings, SecondaryKind::Indirect, fields, target),
+        SampleKind::Ao => secondary::dump(scene, accel, settings, SecondaryKind::AmbientOcclusion, fields, target),
+    }
+}
+
 /// Where a dump goes and whether the file must outlive the process.
 #[derive(Clone, Copy, Debug)]
 pub struct DumpTarget<'a> {

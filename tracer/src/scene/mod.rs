@@ -261,13 +261,7 @@ impl Scene {
     pub fn has_emitter(&self) -> bool {
         let emissive_mesh =
             self.meshes.iter().any(|m| self.materials.get(m.material as usize).is_some_and(Material::is_emissive));
-        let light = self.lights.iter().any(|l| match l {
-            PunctualLight::Point { intensity, .. } | PunctualLight::Spot { intensity, .. } => {
-                intensity.max_element() > 0.0
-            }
-            PunctualLight::Directional { irradiance, .. } => irradiance.max_element() > 0.0,
-        });
-        emissive_mesh || light || self.environment.max_element() > 0.0
+        emissive_mesh || self.has_light_or_environment()
     }
 
     /// Adds a sun: directional light from `towards_sun` (the direction from the scene to the
@@ -276,11 +270,43 @@ impl Scene {
         self.lights.push(PunctualLight::Directional { direction: -towards_sun.normalize(), irradiance });
     }
 
-    /// Gives a scene without any emitter the default lighting ([`DEFAULT_ENVIRONMENT`],
-    /// [`DEFAULT_SUN_IRRADIANCE`], [`default_sun_direction`] of the current camera); returns
-    /// whether it did. A scene that emits anything is left alone.
+    /// Whether the scene is a bare model file given directly (`.gltf`, `.glb`, `.obj`, `.ply`),
+    /// not a TOML description (which is rendered exactly as authored) nor the embedded scene.
+    pub fn is_bare_model(&self) -> bool {
+        let ext = self.source.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        matches!(ext.as_str(), "gltf" | "glb" | "obj" | "ply")
+    }
+
+    /// Whether the scene lights itself: a punctual light of non-zero colour or a non-black
+    /// environment (emissive surfaces not counted).
+    pub fn has_light_or_environment(&self) -> bool {
+        let light = self.lights.iter().any(|l| match l {
+            PunctualLight::Point { intensity, .. } | PunctualLight::Spot { intensity, .. } => {
+                intensity.max_element() > 0.0
+            }
+            PunctualLight::Directional { irradiance, .. } => irradiance.max_element() > 0.0,
+        });
+        light || self.environment.max_element() > 0.0
+    }
+
+    /// Whether [`Scene::apply_default_lighting`] lights this scene: a bare model file without
+    /// a punctual light or an environment, even when it has emissive surfaces (glTF viewers
+    /// light every model with an environment; a DamagedHelmet lit by its emissive panel alone
+    /// renders at mean radiance 0.002), and any scene without an emitter at all. A TOML scene
+    /// with an emitter stays as authored.
+    pub fn needs_default_lighting(&self) -> bool {
+        if self.is_bare_model() {
+            !self.has_light_or_environment()
+        } else {
+            !self.has_emitter()
+        }
+    }
+
+    /// Gives a scene that [`Scene::needs_default_lighting`] the default lighting
+    /// ([`DEFAULT_ENVIRONMENT`], [`DEFAULT_SUN_IRRADIANCE`], [`default_sun_direction`] of the
+    /// current camera); returns whether it did.
     pub fn apply_default_lighting(&mut self) -> bool {
-        if self.has_emitter() {
+        if !self.needs_default_lighting() {
             return false;
         }
         self.environment = Vec3::splat(DEFAULT_ENVIRONMENT);
