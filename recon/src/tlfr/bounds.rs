@@ -602,6 +602,12 @@ impl Bounds {
 
     /// The extents of the bounds over their span and |u|, |v| ≤ 1: (width, height), pixels.
     pub fn extent(&self) -> (f32, f32) {
+        let [x0, x1, y0, y1] = self.extent_box();
+        ((x1 - x0).max(0.0) as f32, (y1 - y0).max(0.0) as f32)
+    }
+
+    /// The box [x_lo, x_hi, y_lo, y_hi] the planes span over the time span and the whole lens.
+    pub fn extent_box(&self) -> [f64; 4] {
         let corners = |plane: &Plane, upper: bool| {
             let values = [
                 plane.at_f64(self.span[0] as f64, -1.0),
@@ -615,9 +621,12 @@ impl Bounds {
                 values.into_iter().fold(f64::INFINITY, f64::min)
             }
         };
-        let width = corners(&self.x_max, true) - corners(&self.x_min, false);
-        let height = corners(&self.y_max, true) - corners(&self.y_min, false);
-        (width.max(0.0) as f32, height.max(0.0) as f32)
+        [
+            corners(&self.x_min, false),
+            corners(&self.x_max, true),
+            corners(&self.y_min, false),
+            corners(&self.y_max, true),
+        ]
     }
 }
 
