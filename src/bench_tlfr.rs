@@ -16,10 +16,11 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use recon::tlfr::integrate::{integrate_adaptive, integrate_clocked};
-use recon::tlfr::method::prepare;
-use recon::tlfr::query::reconstruct;
-use recon::tlfr::settings::TlfrSettings;
+use recon::image::Image;
+use recon::tlfr::integrate::{integrate_adaptive, integrate_clocked, Clocked};
+use recon::tlfr::method::{prepare, Prepared};
+use recon::tlfr::query::{reconstruct, QueryStats, Scene};
+use recon::tlfr::settings::{Kernel, TlfrSettings};
 use serde::Serialize;
 use tracer::render::thread_pool;
 use tracer::Accel;
@@ -42,6 +43,11 @@ pub struct BenchTlfrArgs {
     /// N locations in every pixel: the adaptive rule off (`recon::tlfr::integrate::AdaptiveRule`).
     #[arg(long)]
     fixed_locations: bool,
+    /// The kernels timed, comma-separated, alternating within each repetition: `fused` (one SIMD
+    /// pass per sample, what `tlfr` runs) and `oracle` (the per-location code it is tested
+    /// against). With both, each row also gives the largest difference between their images.
+    #[arg(long, value_delimiter = ',', default_value = "fused")]
+    kernel: Vec<String>,
     /// Timed repetitions of the render and of the plain reconstruction; the best of each is
     /// reported.
     #[arg(long, default_value_t = 2, value_parser = crate::common::repeats_parser())]
@@ -61,6 +67,8 @@ struct Row {
     /// Locations per pixel asked for, and whether the adaptive rule could spend fewer.
     locations: u32,
     adaptive: bool,
+    /// `fused` or `oracle`.
+    kernel: String,
     threads: usize,
     /// Samples the tracer rendered (width × height × spp) and its best time.
     traced_samples: u64,
@@ -96,6 +104,61 @@ struct Row {
     leaves_per_location: f64,
     radius_px: f32,
     hierarchy_leaves: usize,
+    /// The largest difference of a pixel channel between this kernel's image and the first
+    /// kernel's, relative to the larger of the two (0 for the first kernel).
+    largest_relative_difference: f64,
+}
+
+/// The kernels `--kernel` names.
+fn kernels(names: &[String]) -> Result<Vec<Kernel>> {
+    let mut kernels = Vec::new();
+    for name in names {
+        let kernel = match name.as_str() {
+            "fused" => Kernel::Fused,
+            "oracle" => Kernel::Oracle,
+            other => bail!("--kernel: unknown kernel `{other}` (fused, oracle)"),
+        };
+        if kernels.contains(&kernel) {
+            bail!("--kernel names `{name}` twice");
+        }
+        kernels.push(kernel);
+    }
+    if kernels.is_empty() {
+        bail!("--kernel must name a kernel");
+    }
+    Ok(kernels)
+}
+
+fn kernel_name(kernel: Kernel) -> &'static str {
+    match kernel {
+        Kernel::Fused => "fused",
+        Kernel::Oracle => "oracle",
+    }
+}
+
+/// One integration of `prepared` with `kernel` (`clocked`: every location's stages timed).
+fn integrate_with_kernel(
+    kernel: Kernel,
+    prepared: &Prepared,
+    scene: &Scene,
+    n: (u32, Option<recon::tlfr::integrate::AdaptiveRule>),
+    seed: u32,
+    clocked: bool,
+) -> (Image, Clocked) {
+    let (width, height) = (prepared.width, prepared.height);
+    let fallback = |x: u32, y: u32| prepared.box_image.pixels[(y * width + x) as usize];
+    let has = (prepared.has_lens, prepared.has_time);
+    let plain = |(image, stats): (Image, QueryStats)| (image, Clocked { stats, ..Clocked::default() });
+    match (kernel, prepared.fused(scene)) {
+        (Kernel::Fused, Some(fused)) if clocked => {
+            recon::tlfr::fused::integrate_clocked(&fused, (width, height), n, seed, fallback)
+        }
+        (Kernel::Fused, Some(fused)) => {
+            plain(recon::tlfr::fused::integrate(&fused, (width, height), n, seed, fallback))
+        }
+        _ if clocked => integrate_clocked(scene, (width, height), n, has, seed, fallback),
+        _ => plain(integrate_adaptive(reconstruct, scene, (width, height), n, has, seed, fallback)),
+    }
 }
 
 pub fn run(args: &BenchTlfrArgs) -> Result<()> {
@@ -107,6 +170,7 @@ pub fn run(args: &BenchTlfrArgs) -> Result<()> {
     }
     let size =
         SizeArgs { max_bounces: Some(args.scenes.size.max_bounces.unwrap_or(1)), ..args.scenes.size.or(128, 72) };
+    let kernels = kernels(&args.kernel)?;
     let threads = args.scenes.run.thread_count()?;
     let run = RunArgs { threads, ..args.scenes.run.clone() };
     let seed = run.seed_or(1);
@@ -143,116 +207,131 @@ pub fn run(args: &BenchTlfrArgs) -> Result<()> {
             tracer::samples::lens_time::dump(&scene, &accel, &settings, &tracer::samples::FieldSelection::All, &path)?;
             let defaults = TlfrSettings::default();
             let adaptive = if args.fixed_locations { None } else { defaults.adaptive };
-            let tlfr = TlfrSettings { seed, adaptive, ..defaults };
+            let tlfr = TlfrSettings { seed, adaptive, kernel: Kernel::Fused, ..defaults };
             let prepared = pool.install(|| prepare(&path, &tlfr)).map_err(|e| anyhow::anyhow!("{e}"))?;
             let (width, height) = (prepared.width, prepared.height);
-            let fallback = |x: u32, y: u32| prepared.box_image.pixels[(y * width + x) as usize];
-            let has = (prepared.has_lens, prepared.has_time);
             for &locations in &args.locations {
                 let scene_view = prepared.scene(locations);
-                let mut reconstruct_s = f64::INFINITY;
-                let mut plain = None;
+                let n = (locations, tlfr.adaptive);
+                // The kernels alternate within each repetition, so that a slow phase of the
+                // machine hits them alike.
+                let mut times = vec![f64::INFINITY; kernels.len()];
+                let mut plain: Vec<Option<(Image, QueryStats)>> = kernels.iter().map(|_| None).collect();
                 for _ in 0..args.repeats {
+                    for (k, &kernel) in kernels.iter().enumerate() {
+                        let start = Instant::now();
+                        let (image, clocked) =
+                            pool.install(|| integrate_with_kernel(kernel, &prepared, &scene_view, n, seed, false));
+                        times[k] = times[k].min(start.elapsed().as_secs_f64());
+                        plain[k] = Some((image, clocked.stats));
+                    }
+                }
+                let first_image = plain[0].as_ref().expect("at least one repeat").0.pixels.clone();
+                for (k, &kernel) in kernels.iter().enumerate() {
+                    let (image, stats) = plain[k].take().expect("at least one repeat");
+                    let reconstruct_s = times[k];
                     let start = Instant::now();
-                    let result = pool.install(|| {
-                        let n = (locations, tlfr.adaptive);
-                        integrate_adaptive(reconstruct, &scene_view, (width, height), n, has, seed, fallback)
-                    });
-                    reconstruct_s = reconstruct_s.min(start.elapsed().as_secs_f64());
-                    plain = Some(result);
-                }
-                let (image, stats) = plain.expect("at least one repeat");
-                let start = Instant::now();
-                let (clocked_image, clocked) = pool.install(|| {
-                    integrate_clocked(&scene_view, (width, height), (locations, tlfr.adaptive), has, seed, fallback)
-                });
-                let clocked_s = start.elapsed().as_secs_f64();
-                if clocked_image.pixels != image.pixels || clocked.stats != stats {
-                    bail!("the clocked reconstruction differs from the plain one: the bench would time other work");
-                }
-                let pixels = width as f64 * height as f64;
-                let locations_per_s = stats.locations as f64 / reconstruct_s;
-                let tlfr_total_s = prepared.read_s + prepared.radius_s + prepared.hierarchy_s + reconstruct_s;
-                let percent = |n: u64| 100.0 * n as f64 / stats.locations.max(1) as f64;
-                let row = Row {
-                    scene: scene.source.display().to_string(),
-                    width,
-                    height,
-                    max_bounces: settings.max_bounces,
-                    spp,
-                    locations,
-                    adaptive: tlfr.adaptive.is_some(),
-                    threads,
-                    traced_samples,
-                    trace_s,
-                    traced_samples_per_s,
-                    read_s: prepared.read_s,
-                    radius_s: prepared.radius_s,
-                    hierarchy_s: prepared.hierarchy_s,
-                    reconstruct_s,
-                    evaluated_locations: stats.locations,
-                    mean_locations_per_pixel: stats.locations as f64 / pixels,
-                    locations_per_s,
-                    location_in_traced_samples: traced_samples_per_s / locations_per_s,
-                    budget_locations_per_s: pixels * locations as f64 / reconstruct_s,
-                    budget_location_in_traced_samples: traced_samples_per_s
-                        / (pixels * locations as f64 / reconstruct_s),
-                    clocked_s,
-                    query_s: clocked.times.query_s,
-                    coverage_s: clocked.times.coverage_s,
-                    filter_s: clocked.times.filter_s,
-                    tlfr_total_s,
-                    tlfr_total_over_trace: tlfr_total_s / trace_s,
-                    one_surface_percent: percent(stats.one_surface),
-                    triangle_search_percent: percent(stats.coverage.triangle_searches),
-                    leaves_per_location: stats.leaves as f64 / stats.locations.max(1) as f64,
-                    radius_px: prepared.radius,
-                    hierarchy_leaves: prepared.hierarchy.leaf_count(),
-                };
-                let staged = row.query_s + row.coverage_s + row.filter_s;
-                let share = |s: f64| 100.0 * s / staged.max(f64::MIN_POSITIVE);
-                println!(
-                    "{} {}x{} max-bounces {}, {} spp, {} locations/pixel, {} threads\n  \
+                    let (clocked_image, clocked) =
+                        pool.install(|| integrate_with_kernel(kernel, &prepared, &scene_view, n, seed, true));
+                    let clocked_s = start.elapsed().as_secs_f64();
+                    if clocked_image.pixels != image.pixels || clocked.stats != stats {
+                        bail!("the clocked reconstruction differs from the plain one: the bench would time other work");
+                    }
+                    let largest_relative_difference = image
+                        .pixels
+                        .iter()
+                        .zip(&first_image)
+                        .flat_map(|(a, b)| (0..3).map(move |c| (a[c] as f64, b[c] as f64)))
+                        .map(|(a, b)| (a - b).abs() / a.abs().max(b.abs()).max(1e-30))
+                        .fold(0.0f64, f64::max);
+                    let pixels = width as f64 * height as f64;
+                    let locations_per_s = stats.locations as f64 / reconstruct_s;
+                    let tlfr_total_s = prepared.read_s + prepared.radius_s + prepared.hierarchy_s + reconstruct_s;
+                    let percent = |n: u64| 100.0 * n as f64 / stats.locations.max(1) as f64;
+                    let row = Row {
+                        scene: scene.source.display().to_string(),
+                        width,
+                        height,
+                        max_bounces: settings.max_bounces,
+                        spp,
+                        locations,
+                        adaptive: tlfr.adaptive.is_some(),
+                        kernel: kernel_name(kernel).to_string(),
+                        threads,
+                        traced_samples,
+                        trace_s,
+                        traced_samples_per_s,
+                        read_s: prepared.read_s,
+                        radius_s: prepared.radius_s,
+                        hierarchy_s: prepared.hierarchy_s,
+                        reconstruct_s,
+                        evaluated_locations: stats.locations,
+                        mean_locations_per_pixel: stats.locations as f64 / pixels,
+                        locations_per_s,
+                        location_in_traced_samples: traced_samples_per_s / locations_per_s,
+                        budget_locations_per_s: pixels * locations as f64 / reconstruct_s,
+                        budget_location_in_traced_samples: traced_samples_per_s
+                            / (pixels * locations as f64 / reconstruct_s),
+                        clocked_s,
+                        query_s: clocked.times.query_s,
+                        coverage_s: clocked.times.coverage_s,
+                        filter_s: clocked.times.filter_s,
+                        tlfr_total_s,
+                        tlfr_total_over_trace: tlfr_total_s / trace_s,
+                        one_surface_percent: percent(stats.one_surface),
+                        triangle_search_percent: percent(stats.coverage.triangle_searches),
+                        leaves_per_location: stats.leaves as f64 / stats.locations.max(1) as f64,
+                        radius_px: prepared.radius,
+                        hierarchy_leaves: prepared.hierarchy.leaf_count(),
+                        largest_relative_difference,
+                    };
+                    let staged = row.query_s + row.coverage_s + row.filter_s;
+                    let share = |s: f64| 100.0 * s / staged.max(f64::MIN_POSITIVE);
+                    println!(
+                        "{} {}x{} max-bounces {}, {} spp, {} locations/pixel, {} threads, {} kernel\n  \
                      trace   {:8.3} s  {} samples, {:.0} samples/s\n  \
                      prepare {:8.3} s  read {:.3}, R {:.3} ({:.3} px), hierarchy {:.3} ({} leaves)\n  \
                      locate  {:8.3} s  {} locations ({:.1} per pixel), {:.0} locations/s; clocked {:.3} s: \
                      query {:.1}%, coverage {:.1}%, filter {:.1}%\n  \
                      {:.1}% one surface, {:.2}% triangle searches, {:.1} leaves per location\n  \
                      one location costs {:.3} traced samples ({:.3} per location of the budget); \
-                     tlfr in all {:.3} s = {:.2}x the render",
-                    row.scene,
-                    width,
-                    height,
-                    row.max_bounces,
-                    spp,
-                    locations,
-                    threads,
-                    row.trace_s,
-                    row.traced_samples,
-                    row.traced_samples_per_s,
-                    row.read_s + row.radius_s + row.hierarchy_s,
-                    row.read_s,
-                    row.radius_s,
-                    row.radius_px,
-                    row.hierarchy_s,
-                    row.hierarchy_leaves,
-                    row.reconstruct_s,
-                    row.evaluated_locations,
-                    row.mean_locations_per_pixel,
-                    row.locations_per_s,
-                    row.clocked_s,
-                    share(row.query_s),
-                    share(row.coverage_s),
-                    share(row.filter_s),
-                    row.one_surface_percent,
-                    row.triangle_search_percent,
-                    row.leaves_per_location,
-                    row.location_in_traced_samples,
-                    row.budget_location_in_traced_samples,
-                    row.tlfr_total_s,
-                    row.tlfr_total_over_trace,
-                );
-                rows.push(row);
+                     tlfr in all {:.3} s = {:.2}x the render; largest difference from the first kernel's image {:.2e}",
+                        row.scene,
+                        width,
+                        height,
+                        row.max_bounces,
+                        spp,
+                        locations,
+                        threads,
+                        row.kernel,
+                        row.trace_s,
+                        row.traced_samples,
+                        row.traced_samples_per_s,
+                        row.read_s + row.radius_s + row.hierarchy_s,
+                        row.read_s,
+                        row.radius_s,
+                        row.radius_px,
+                        row.hierarchy_s,
+                        row.hierarchy_leaves,
+                        row.reconstruct_s,
+                        row.evaluated_locations,
+                        row.mean_locations_per_pixel,
+                        row.locations_per_s,
+                        row.clocked_s,
+                        share(row.query_s),
+                        share(row.coverage_s),
+                        share(row.filter_s),
+                        row.one_surface_percent,
+                        row.triangle_search_percent,
+                        row.leaves_per_location,
+                        row.location_in_traced_samples,
+                        row.budget_location_in_traced_samples,
+                        row.tlfr_total_s,
+                        row.tlfr_total_over_trace,
+                        row.largest_relative_difference,
+                    );
+                    rows.push(row);
+                }
             }
         }
     }

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use recon::tlfr::global_illumination::{GiMode, DEFAULT_GI_RADIUS};
 use recon::tlfr::method::reconstruct_file;
+use recon::tlfr::settings::Kernel;
 use recon::tlfr::settings::TlfrSettings;
 use tracer::output::{write_exr, write_png, Layer};
 
@@ -27,6 +28,10 @@ pub struct ReconstructArgs {
     /// Every pixel takes all --locations (the adaptive rule off).
     #[arg(long)]
     fixed_locations: bool,
+    /// Evaluate each location with the per-location code (`recon::tlfr::query`) that the fused
+    /// kernel is tested against, instead of the fused kernel.
+    #[arg(long)]
+    oracle: bool,
     /// Refocus: the new focus distance (scene units); needs --aperture.
     #[arg(long)]
     focus_distance: Option<f32>,
@@ -94,6 +99,7 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
             Some(radius) => GiMode::Split { radius: radius.unwrap_or(DEFAULT_GI_RADIUS) },
             None => GiMode::Whole,
         },
+        kernel: if args.oracle { Kernel::Oracle } else { Kernel::Fused },
     };
     let pool = args.run.worker_pool()?;
     // Memory before any work (issue 22, class 5): the sample count from the file's header

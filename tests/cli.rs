@@ -500,6 +500,23 @@ fn bench_tlfr_reports_a_locations_cost_in_traced_samples() {
         let percent = number("one_surface_percent");
         assert!((0.0..=100.0).contains(&percent), "{row}");
     }
+    // Both kernels in one run: a row each, alternating, the oracle's image within f32 rounding
+    // of the fused kernel's.
+    let both = dir.path().join("both.json");
+    let size = ["--width", "16", "--height", "12", "--repeats", "1", "--spp", "2", "--locations", "8"];
+    let mut args = vec!["bench-tlfr", "--scenes", scene.to_str().unwrap(), "--kernel", "fused,oracle", "--json"];
+    args.push(both.to_str().unwrap());
+    args.extend_from_slice(&size);
+    let result = lfr(&args);
+    assert!(result.status.success(), "{}", stderr(&result));
+    let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&both).unwrap()).unwrap();
+    assert_eq!((rows[0]["kernel"].as_str(), rows[1]["kernel"].as_str()), (Some("fused"), Some("oracle")));
+    assert_eq!(rows[0]["largest_relative_difference"], 0.0);
+    let difference = rows[1]["largest_relative_difference"].as_f64().unwrap();
+    assert!(difference < 1e-5, "{difference}");
+    assert_eq!(rows[0]["evaluated_locations"], rows[1]["evaluated_locations"]);
+    let result = lfr(&["bench-tlfr", "--kernel", "fast"]);
+    assert!(!result.status.success() && stderr(&result).contains("--kernel"), "{}", stderr(&result));
     // Without the adaptive rule every pixel evaluates all N locations.
     let fixed = dir.path().join("fixed.json");
     let size = ["--width", "16", "--height", "12", "--repeats", "1", "--spp", "1", "--locations", "4"];

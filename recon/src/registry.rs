@@ -17,6 +17,7 @@ use crate::options::{OptionKind, OptionSpec, Options};
 use crate::pipeline::Denoised;
 use crate::tlfr::global_illumination::{GiMode, DEFAULT_GI_RADIUS};
 use crate::tlfr::method::{TLFR, TLFR_BANDWIDTH, TLFR_NEAREST};
+use crate::tlfr::settings::Kernel;
 
 /// One method as data.
 pub struct MethodSpec {
@@ -189,6 +190,13 @@ const GI_RADIUS: OptionSpec = OptionSpec {
     default: "3",
     help: "with gi=split: radius in pixels of the depth-aware smoothing of the longer paths' light (0: per pixel)",
 };
+const KERNEL: OptionSpec = OptionSpec {
+    key: "kernel",
+    kind: OptionKind::Choice(&["fused", "oracle"]),
+    default: "fused",
+    help: "how each location is evaluated: one SIMD pass per sample (fused) or the per-location code it is tested \
+           against (oracle); the same images within f32 rounding (docs/tlfr.md)",
+};
 const PASSES: OptionSpec = OptionSpec {
     key: "passes",
     kind: OptionKind::Count { min: 1, max: 8 },
@@ -262,9 +270,15 @@ pub const METHODS: &[MethodSpec] = &[
     MethodSpec {
         name: "tlfr",
         effects: DEFOCUS_MOTION_AND_SHADOWS,
-        options: &[GI, GI_RADIUS],
+        options: &[GI, GI_RADIUS, KERNEL],
         description: "temporal light field reconstruction (Lehtinen et al. 2011)",
-        build: |options| Ok(Box::new(TLFR.with_gi(tlfr_gi(options)?))),
+        build: |options| {
+            let kernel = match options.choice("kernel") {
+                Some("oracle") => Kernel::Oracle,
+                _ => Kernel::Fused,
+            };
+            Ok(Box::new(TLFR.with_gi(tlfr_gi(options)?).with_kernel(kernel)))
+        },
     },
     MethodSpec {
         name: "tlfr-nn",
@@ -617,6 +631,9 @@ mod tests {
         assert_eq!(find("gif:subsample=2").unwrap().unwrap().name(), "gif:subsample=2");
         assert_eq!(find("bilateral:lookup=own-pixel").unwrap().unwrap().name(), "bilateral:lookup=own-pixel");
         assert_eq!(find("tlfr-bw:bandwidth=2").unwrap().unwrap().name(), "tlfr-bw:bandwidth=2");
+        assert_eq!(find("tlfr:kernel=oracle").unwrap().unwrap().name(), "tlfr:kernel=oracle");
+        let oracle = find("tlfr:kernel=oracle").unwrap().unwrap();
+        assert_ne!(format!("{:?}", oracle.method), format!("{:?}", find("tlfr").unwrap().unwrap().method));
         assert_eq!(find("ilfr-recursive:passes=2").unwrap().unwrap().name(), "ilfr-recursive:passes=2");
         let variant = find("ilfr:shrink=hit-rays:conflict=event-line").unwrap().unwrap();
         assert_eq!(variant.name(), "ilfr:conflict=event-line:shrink=hit-rays", "canonical order");

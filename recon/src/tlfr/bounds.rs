@@ -84,6 +84,17 @@ pub struct ScreenArea {
     pub max_reach: f32,
 }
 
+/// A box of locations: screen x̂ and ŷ, lens û and v̂, time t̂, each a closed interval
+/// [low, high] (a pixel's locations over the whole lens and shutter, for one walk per pixel).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Window {
+    pub x: [f32; 2],
+    pub y: [f32; 2],
+    pub u: [f32; 2],
+    pub v: [f32; 2],
+    pub t: [f32; 2],
+}
+
 /// The unit roundoff of f32.
 const F32_EPSILON: f64 = f32::EPSILON as f64 * 0.5;
 
@@ -534,6 +545,30 @@ impl Bounds {
             && location[1] <= self.y_max.at(at.t, at.v) + reach
     }
 
+    /// Whether `near(location, at, reach)` can hold for some location of `window`: each side of
+    /// the test compared at the window's corner most in its favour. f32 products and sums are
+    /// monotone in each operand, so a plane evaluated in f32 at that corner bounds its f32 value
+    /// anywhere in the window, and the test is conservative bit for bit.
+    #[inline]
+    pub fn may_be_near(&self, window: &Window, reach: f32) -> bool {
+        let lowest = |plane: &Plane, lens: [f32; 2]| {
+            let t = if plane.time >= 0.0 { window.t[0] } else { window.t[1] };
+            let w = if plane.lens >= 0.0 { lens[0] } else { lens[1] };
+            plane.at(t, w)
+        };
+        let highest = |plane: &Plane, lens: [f32; 2]| {
+            let t = if plane.time >= 0.0 { window.t[1] } else { window.t[0] };
+            let w = if plane.lens >= 0.0 { lens[1] } else { lens[0] };
+            plane.at(t, w)
+        };
+        window.t[1] >= self.span[0]
+            && window.t[0] <= self.span[1]
+            && window.x[1] >= lowest(&self.x_min, window.u) - reach
+            && window.x[0] <= highest(&self.x_max, window.u) + reach
+            && window.y[1] >= lowest(&self.y_min, window.v) - reach
+            && window.y[0] <= highest(&self.y_max, window.v) + reach
+    }
+
     /// Bounds of the union of two nodes' samples (Appendix A; see the module comment).
     pub fn merge(&self, other: &Bounds) -> Bounds {
         merge_children(&[self, other])
@@ -567,6 +602,12 @@ impl Bounds {
 
     /// The extents of the bounds over their span and |u|, |v| ≤ 1: (width, height), pixels.
     pub fn extent(&self) -> (f32, f32) {
+        let [x0, x1, y0, y1] = self.extent_box();
+        ((x1 - x0).max(0.0) as f32, (y1 - y0).max(0.0) as f32)
+    }
+
+    /// The box [x_lo, x_hi, y_lo, y_hi] the planes span over the time span and the whole lens.
+    pub fn extent_box(&self) -> [f64; 4] {
         let corners = |plane: &Plane, upper: bool| {
             let values = [
                 plane.at_f64(self.span[0] as f64, -1.0),
@@ -580,9 +621,12 @@ impl Bounds {
                 values.into_iter().fold(f64::INFINITY, f64::min)
             }
         };
-        let width = corners(&self.x_max, true) - corners(&self.x_min, false);
-        let height = corners(&self.y_max, true) - corners(&self.y_min, false);
-        (width.max(0.0) as f32, height.max(0.0) as f32)
+        [
+            corners(&self.x_min, false),
+            corners(&self.x_max, true),
+            corners(&self.y_min, false),
+            corners(&self.y_max, true),
+        ]
     }
 }
 

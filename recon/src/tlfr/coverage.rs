@@ -73,7 +73,7 @@ pub struct CoverageStats {
     pub quadrant_accepts: u64,
     /// Decided by searching triangles.
     pub triangle_searches: u64,
-    /// Triangles tested.
+    /// Triangles tested (those whose edges are all at most 2R).
     pub triangles_tested: u64,
 }
 
@@ -119,11 +119,29 @@ pub fn is_covered(
         .filter(|(d2, _)| *d2 <= 4.0 * r2)
         .collect();
     near.sort_by(|a, b| a.0.total_cmp(&b.0));
-    near.truncate(max_candidates.max(3));
+    near.truncate(max_candidates.clamp(3, 31));
+    // An edge of a valid triangle is at most twice its enclosing radius, so at most 2R: pairs
+    // farther apart (by a margin above f64's and f32's roundings) are never tested together.
+    let limit = 4.0 * (radius as f64).powi(2) * (1.0 + 1e-5);
+    let edges: Vec<u32> = near
+        .iter()
+        .map(|(_, p)| {
+            near.iter().enumerate().fold(0u32, |bits, (k, (_, q))| {
+                let d = (p[0] as f64 - q[0] as f64).powi(2) + (p[1] as f64 - q[1] as f64).powi(2);
+                bits | (u32::from(d <= limit) << k)
+            })
+        })
+        .collect();
     // Nearest first, so that the valid triangles (small ones near the location) come early.
     for i in 0..near.len() {
         for j in i + 1..near.len() {
-            for k in j + 1..near.len() {
+            if edges[i] >> j & 1 == 0 {
+                continue;
+            }
+            let mut third = edges[i] & edges[j] & !((2u32 << j) - 1);
+            while third != 0 {
+                let k = third.trailing_zeros() as usize;
+                third &= third - 1;
                 stats.triangles_tested += 1;
                 let (a, b, c) = (near[i].1, near[j].1, near[k].1);
                 if covers(a, b, c, location) && enclosing_radius(a, b, c) <= radius {

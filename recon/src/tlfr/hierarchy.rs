@@ -59,7 +59,7 @@
 
 use rayon::prelude::*;
 
-use super::bounds::{sample_segments, Bounds, ScreenArea};
+use super::bounds::{sample_segments, Bounds, ScreenArea, Window};
 use super::lens::LensModel;
 use super::reprojection::{reproject, LensTime, LensTimeSample};
 use super::same_surface::{same_surface_at, BUILD_CROSSING_TOLERANCE_PX};
@@ -127,10 +127,10 @@ struct BuildNode {
     segmented: bool,
 }
 
-/// The cost of a node in the greedy merging.
-fn cost(bounds: &Bounds, samples: u32) -> f64 {
-    let (w, h) = bounds.extent();
-    (w as f64 + 1.0) * (h as f64 + 1.0) * samples as f64
+/// The cost of a node in the greedy merging, from its extent box (`Bounds::extent_box`).
+fn box_cost(extent: &[f64; 4], samples: u32) -> f64 {
+    let (w, h) = ((extent[1] - extent[0]).max(0.0), (extent[3] - extent[2]).max(0.0));
+    (w + 1.0) * (h + 1.0) * samples as f64
 }
 
 /// Interleaves the bits of x and y (x in the even bits).
@@ -265,6 +265,7 @@ impl Hierarchy {
         // The BVH, bottom-up along the same walk: each open quadtree node collects a frontier.
         let mut builder = Builder {
             nodes: Vec::new(),
+            boxes: Vec::new(),
             order: Vec::with_capacity(entry_count),
             times: Vec::with_capacity(entry_count),
         };
@@ -313,6 +314,15 @@ impl Hierarchy {
         }
     }
 
+    /// The query times entry `entry` takes, half-open: everything for a whole sample
+    /// (`entry_takes` in array form).
+    pub fn entry_times(&self, entry: usize) -> [f32; 2] {
+        match entry.checked_sub(self.whole_entries) {
+            None => [f32::NEG_INFINITY, f32::INFINITY],
+            Some(k) => self.segment_times[k],
+        }
+    }
+
     /// The number of entries (the length of the reordered samples).
     pub fn entry_count(&self) -> usize {
         self.whole_entries + self.segment_times.len()
@@ -336,6 +346,28 @@ impl Hierarchy {
                 }
                 i += 1;
             } else if node.bounds.near(location, at, reach) {
+                i += 1;
+            } else {
+                i = node.first_or_end as usize;
+            }
+        }
+    }
+
+    /// Appends to `out` (cleared first) every leaf that `leaves_near` can return for some
+    /// location of `window` with reach `reach`, in depth-first order (`Bounds::may_be_near`: a
+    /// node is entered when its bounds can come within reach of some location of the window).
+    pub fn leaves_near_window(&self, window: &Window, reach: f32, out: &mut Vec<u32>) {
+        out.clear();
+        let mut i = 0usize;
+        while i < self.nodes.len() {
+            let node = &self.nodes[i];
+            let near = node.bounds.may_be_near(window, reach);
+            if node.is_leaf() {
+                if near {
+                    out.push(i as u32);
+                }
+                i += 1;
+            } else if near {
                 i += 1;
             } else {
                 i = node.first_or_end as usize;
@@ -453,6 +485,8 @@ fn split_into_runs(cell: &[Placed], samples: &[LensTimeSample], lens: &LensModel
 
 struct Builder {
     nodes: Vec<BuildNode>,
+    /// Each node's extent over its span and the whole lens: [x_lo, x_hi, y_lo, y_hi].
+    boxes: Vec<[f64; 4]>,
     /// The entries in build order: their samples and query times.
     order: Vec<u32>,
     times: Vec<[f32; 2]>,
@@ -475,6 +509,7 @@ impl Builder {
     }
 
     fn push(&mut self, node: BuildNode) -> u32 {
+        self.boxes.push(node.bounds.extent_box());
         self.nodes.push(node);
         (self.nodes.len() - 1) as u32
     }
@@ -493,17 +528,20 @@ impl Builder {
         if frontier.len() <= keep {
             return;
         }
-        let own = |nodes: &[BuildNode], i: u32| cost(&nodes[i as usize].bounds, nodes[i as usize].samples);
-        let added = |nodes: &[BuildNode], i: u32, j: u32| {
-            let (a, b) = (&nodes[i as usize], &nodes[j as usize]);
-            cost(&a.bounds.merge(&b.bounds), a.samples + b.samples) - own(nodes, i) - own(nodes, j)
+        // The cost of a merge is judged on the union of the two extents (the merged planes are
+        // fitted only for the merges chosen). Queries find the same samples whatever the tree;
+        // only the order of their sums changes (images within 0.001 dB, docs/tlfr.md).
+        let own = |b: &Builder, i: u32| box_cost(&b.boxes[i as usize], b.nodes[i as usize].samples);
+        let added = |b: &Builder, i: u32, j: u32| {
+            let (x, y) = (&b.boxes[i as usize], &b.boxes[j as usize]);
+            let union = [x[0].min(y[0]), x[1].max(y[1]), x[2].min(y[2]), x[3].max(y[3])];
+            let samples = b.nodes[i as usize].samples + b.nodes[j as usize].samples;
+            box_cost(&union, samples) - own(b, i) - own(b, j)
         };
         // costs[i][j] for i < j, over positions in `frontier`.
         let mut costs: Vec<Vec<f64>> = (0..frontier.len())
             .map(|i| {
-                (0..frontier.len())
-                    .map(|j| if j > i { added(&self.nodes, frontier[i], frontier[j]) } else { 0.0 })
-                    .collect()
+                (0..frontier.len()).map(|j| if j > i { added(self, frontier[i], frontier[j]) } else { 0.0 }).collect()
             })
             .collect();
         while frontier.len() > keep {
@@ -527,7 +565,7 @@ impl Builder {
             for k in 0..frontier.len() {
                 if k != i {
                     let (lo, hi) = (k.min(i), k.max(i));
-                    costs[lo][hi] = added(&self.nodes, frontier[lo], frontier[hi]);
+                    costs[lo][hi] = added(self, frontier[lo], frontier[hi]);
                 }
             }
         }

@@ -30,29 +30,36 @@ use crate::image::Image;
 /// of (seed, pixel, dimension): dimension `dimension` of location `j` is the radical inverse of
 /// j in `base` plus the pixel's shift for that dimension, modulo 1.
 pub(crate) struct RotatedHalton {
-    pixel_hash: u32,
+    /// The pixel's shift of each dimension (0-4: screen, lens, time; 5-6: the light's point).
+    shifts: [f32; 7],
 }
 
 impl RotatedHalton {
     pub(crate) fn new(seed: u32, x: u32, y: u32) -> RotatedHalton {
-        RotatedHalton { pixel_hash: hash_u32(seed ^ hash_u32(x.wrapping_mul(0x9e37_79b9) ^ hash_u32(y))) }
+        let pixel_hash = hash_u32(seed ^ hash_u32(x.wrapping_mul(0x9e37_79b9) ^ hash_u32(y)));
+        let shifts =
+            std::array::from_fn(|d| to_unit_float(hash_u32(pixel_hash ^ (d as u32).wrapping_mul(0x85eb_ca6b))));
+        RotatedHalton { shifts }
     }
 
     pub(crate) fn dimension(&self, j: u32, base: u32, dimension: u32) -> f32 {
-        let shift = to_unit_float(hash_u32(self.pixel_hash ^ dimension.wrapping_mul(0x85eb_ca6b)));
-        let v = radical_inverse(j, base) + shift;
+        let v = radical_inverse(j, base) + self.shifts[dimension as usize];
         v - v.floor()
+    }
+
+    /// Location `j` of pixel (x, y) (`location`).
+    pub(crate) fn location(&self, x: u32, y: u32, j: u32, has_lens: bool, has_time: bool) -> ([f32; 2], LensTime) {
+        let dim = |base: u32, dimension: u32| self.dimension(j, base, dimension);
+        let screen = [x as f32 + dim(2, 0), y as f32 + dim(3, 1)];
+        let (u, v) = if has_lens { concentric_disk(Vec2::new(dim(5, 2), dim(7, 3))).into() } else { (0.0, 0.0) };
+        let t = if has_time { dim(11, 4) } else { 0.5 };
+        (screen, LensTime { u, v, t })
     }
 }
 
 /// Location `j` of pixel (x, y): screen position and lens-time coordinates.
 pub fn location(seed: u32, x: u32, y: u32, j: u32, has_lens: bool, has_time: bool) -> ([f32; 2], LensTime) {
-    let halton = RotatedHalton::new(seed, x, y);
-    let dim = |base: u32, dimension: u32| halton.dimension(j, base, dimension);
-    let screen = [x as f32 + dim(2, 0), y as f32 + dim(3, 1)];
-    let (u, v) = if has_lens { concentric_disk(Vec2::new(dim(5, 2), dim(7, 3))).into() } else { (0.0, 0.0) };
-    let t = if has_time { dim(11, 4) } else { 0.5 };
-    (screen, LensTime { u, v, t })
+    RotatedHalton::new(seed, x, y).location(x, y, j, has_lens, has_time)
 }
 
 /// The value of one location (`query::reconstruct`, `nearest::reconstruct_nearest`).
@@ -219,8 +226,9 @@ pub fn integrate_locations<Sc: Default + Send, St: Counters>(
                     let (mut sum, mut count) = ([0.0f64; 3], 0u32);
                     let mut agreement =
                         Agreement { simple: true, low: [f32::INFINITY; 3], high: [f32::NEG_INFINITY; 3] };
+                    let halton = RotatedHalton::new(seed, x, y);
                     for j in 0..locations {
-                        let (screen, at) = location(seed, x, y, j, has_lens, has_time);
+                        let (screen, at) = halton.location(x, y, j, has_lens, has_time);
                         let before = stats.surface_counts();
                         let found = value((x, y, j), screen, at, scratch, &mut stats);
                         if let Some(found) = found {

@@ -10,6 +10,7 @@ use sampleio::SampleFile;
 use super::bandwidth::ViewBandwidth;
 use super::bounds::ScreenArea;
 use super::dispersion::measure_radius;
+use super::fused::{Entries, Fused};
 use super::global_illumination::{indirect_pixel_means, smooth_indirect, split_sample, GiMode};
 use super::hierarchy::{reorder, Hierarchy};
 use super::integrate::{integrate_adaptive, Reconstruct};
@@ -19,7 +20,7 @@ use super::query::{max_reach, reconstruct, Scene};
 use super::reprojection::{near_limit, LensTimeSample};
 use super::same_surface::window_half_width;
 use super::samples::{read_lens_time, refocus};
-use super::settings::{TlfrSettings, DEFAULT_BANDWIDTH_SCALE, RADIUS_TRIALS};
+use super::settings::{Kernel, TlfrSettings, DEFAULT_BANDWIDTH_SCALE, RADIUS_TRIALS};
 use crate::baselines::box_filter::average;
 use crate::error::Error;
 use crate::image::Image;
@@ -30,9 +31,11 @@ use crate::method::{Effect, Input, Inputs, Method, MethodError, Output, Stats};
 #[derive(Clone, Copy, Debug)]
 pub struct TlfrMethod {
     name: &'static str,
-    value: Reconstruct,
+    /// Another value per location than the tent filter (through `query`), or `None`: the tent.
+    value: Option<Reconstruct>,
     bandwidth_scale: Option<f32>,
     gi: GiMode,
+    kernel: Kernel,
 }
 
 /// `tlfr`: the paper's reconstruction (effects `dof`, `motion`, `dof-motion`, `soft-shadow`).
@@ -42,27 +45,39 @@ pub struct TlfrMethod {
 /// 250-320 B a sample over a fixed ~46 MB; rounded up.
 pub const BYTES_PER_SAMPLE: u64 = 384;
 
-pub const TLFR: TlfrMethod = TlfrMethod { name: "tlfr", value: reconstruct, bandwidth_scale: None, gi: GiMode::Whole };
+pub const TLFR: TlfrMethod =
+    TlfrMethod { name: "tlfr", value: None, bandwidth_scale: None, gi: GiMode::Whole, kernel: Kernel::Fused };
 
 /// `tlfr-nn`: the same reconstruction with the nearest sample's radiance instead of the filter
 /// (`nearest`); effects `dof`, `motion`, `dof-motion`.
-pub const TLFR_NEAREST: TlfrMethod =
-    TlfrMethod { name: "tlfr-nn", value: reconstruct_nearest, bandwidth_scale: None, gi: GiMode::Whole };
+pub const TLFR_NEAREST: TlfrMethod = TlfrMethod {
+    name: "tlfr-nn",
+    value: Some(reconstruct_nearest),
+    bandwidth_scale: None,
+    gi: GiMode::Whole,
+    kernel: Kernel::Oracle,
+};
 
 /// `tlfr-bw`: the reconstruction with the bandwidth extension (Figure 14, `bandwidth`): each
 /// sample also weighted by a Gaussian in lens distance matched to its BRDF's bandwidth; effects
 /// `dof`, `motion`, `dof-motion`.
 pub const TLFR_BANDWIDTH: TlfrMethod = TlfrMethod {
     name: "tlfr-bw",
-    value: reconstruct,
+    value: None,
     bandwidth_scale: Some(DEFAULT_BANDWIDTH_SCALE),
     gi: GiMode::Whole,
+    kernel: Kernel::Oracle,
 };
 
 impl TlfrMethod {
     /// This method with the bandwidth extension's scale set to `scale` (its default when `None`).
     pub fn with_bandwidth_scale(self, scale: Option<f32>) -> TlfrMethod {
         TlfrMethod { bandwidth_scale: scale.or(self.bandwidth_scale), ..self }
+    }
+
+    /// This method evaluating its locations with `kernel`.
+    pub fn with_kernel(self, kernel: Kernel) -> TlfrMethod {
+        TlfrMethod { kernel, ..self }
     }
 
     /// This method treating full global illumination as `gi` says (`global_illumination`).
@@ -100,6 +115,7 @@ impl Method for TlfrMethod {
             seed: inputs.seed,
             bandwidth_scale: self.bandwidth_scale,
             gi: self.gi,
+            kernel: self.kernel,
             ..TlfrSettings::default()
         };
         let output = if inputs.effect == Effect::SoftShadow {
@@ -136,7 +152,7 @@ pub fn dropped_warning(path: &std::path::Path, dropped: usize, total: usize) -> 
 
 /// Reconstructs the image of a `lens-time` file.
 pub fn reconstruct_file(path: &std::path::Path, settings: &TlfrSettings) -> Result<Output, MethodError> {
-    reconstruct_file_with(reconstruct, path, settings)
+    reconstruct_file_with(None, path, settings)
 }
 
 /// A `lens-time` file made ready for queries (`prepare`): its samples in the hierarchy's order,
@@ -154,6 +170,9 @@ pub struct Prepared {
     pub has_lens: bool,
     pub has_time: bool,
     pub view_bandwidth: Option<ViewBandwidth>,
+    /// The entries as the fused kernel reads them (`Kernel::Fused` without the bandwidth
+    /// extension).
+    pub entries: Option<Entries>,
     /// The per-pixel mean of the file's samples (a pixel's value where no location found any;
     /// of their direct parts with `gi=split`).
     pub box_image: Image,
@@ -171,6 +190,12 @@ pub struct Prepared {
 }
 
 impl Prepared {
+    /// The fused kernel's view of these samples for the scene `scene` (`self.scene(N)`), when
+    /// the entries were prepared.
+    pub fn fused<'a>(&'a self, scene: &'a Scene<'a>) -> Option<Fused<'a>> {
+        self.entries.as_ref().map(|entries| Fused { scene, entries, has_lens: self.has_lens, has_time: self.has_time })
+    }
+
     /// The query's view of these samples for `locations` per pixel.
     pub fn scene(&self, locations: u32) -> Scene<'_> {
         Scene {
@@ -264,6 +289,8 @@ pub fn prepare(path: &std::path::Path, settings: &TlfrSettings) -> Result<Prepar
             scale,
         }),
     };
+    let entries = (settings.kernel == Kernel::Fused && view_bandwidth.is_none())
+        .then(|| Entries::new(&samples, &radiance, &loaded.lens, &hierarchy));
     let hierarchy_s = start.elapsed().as_secs_f64();
     crate::progress::end();
     Ok(Prepared {
@@ -280,6 +307,7 @@ pub fn prepare(path: &std::path::Path, settings: &TlfrSettings) -> Result<Prepar
         has_lens,
         has_time: loaded.has_time,
         view_bandwidth,
+        entries,
         box_image,
         indirect,
         dropped: loaded.dropped,
@@ -290,9 +318,10 @@ pub fn prepare(path: &std::path::Path, settings: &TlfrSettings) -> Result<Prepar
     })
 }
 
-/// `reconstruct_file` with another value per location (`nearest::reconstruct_nearest`).
+/// `reconstruct_file` with another value per location (`nearest::reconstruct_nearest`), through
+/// `query`; `None`: the tent filter, through the kernel `settings` name.
 pub fn reconstruct_file_with(
-    value: Reconstruct,
+    value: Option<Reconstruct>,
     path: &std::path::Path,
     settings: &TlfrSettings,
 ) -> Result<Output, MethodError> {
@@ -306,15 +335,18 @@ pub fn reconstruct_file_with(
     let scene = prepared.scene(locations);
     let box_image = &prepared.box_image;
     let fallback = |x: u32, y: u32| box_image.pixels[(y * width + x) as usize];
-    let (mut image, stats) = integrate_adaptive(
-        value,
-        &scene,
-        (width, height),
-        (locations, settings.adaptive),
-        (prepared.has_lens, prepared.has_time),
-        settings.seed,
-        fallback,
-    );
+    let n = (locations, settings.adaptive);
+    let (mut image, stats) = match (value, prepared.fused(&scene)) {
+        (None, Some(fused)) => super::fused::integrate(&fused, (width, height), n, settings.seed, fallback),
+        (value, _) => {
+            let has = (prepared.has_lens, prepared.has_time);
+            let value = value.unwrap_or(reconstruct);
+            integrate_adaptive(value, &scene, (width, height), n, has, settings.seed, fallback)
+        }
+    };
+    if value.is_none() && prepared.entries.is_some() {
+        notes.push("the fused kernel (one SIMD pass per sample)".into());
+    }
     if let Some(indirect) = &prepared.indirect {
         for (pixel, rest) in image.pixels.iter_mut().zip(&indirect.pixels) {
             for c in 0..3 {

@@ -20,7 +20,10 @@
 //! - Section 3.3, "Determining visibility": valid triangles, coverage, the tent filter:
 //!   `coverage`.
 //! - Section 3 steps 1–4 and Figure 7, RECONSTRUCT at one location: leaves from `hierarchy`,
-//!   grouped into surfaces leaf by leaf through one representative sample each: `query`.
+//!   grouped into surfaces leaf by leaf through one representative sample each: `query` (the
+//!   oracle), and the same as one SIMD pass per sample over structure-of-arrays entries with
+//!   the surfaces' coverage and tent sums taken from per-leaf sums: `fused` (what `tlfr` runs,
+//!   on the camera and the light side).
 //! - Not in the paper: `tlfr-nn`, steps 1–3 with the nearest sample's radiance instead of the
 //!   filter: `nearest`.
 //! - Eq. 1, N locations per pixel over pixel × lens × time: `integrate` (also for soft
@@ -46,6 +49,7 @@ pub mod bandwidth;
 pub mod bounds;
 pub mod coverage;
 pub mod dispersion;
+pub mod fused;
 pub mod global_illumination;
 pub mod hierarchy;
 pub mod integrate;

@@ -403,7 +403,12 @@ pub fn takes_rim(front: &[(u32, Point)], behind: &[(u32, Point)], location: Poin
             .map(|(_, p)| (p[0] - location[0]).powi(2) + (p[1] - location[1]).powi(2))
             .fold(f32::INFINITY, f32::min)
     };
-    nearest(front) * (front.len() as f32) < nearest(behind) * (behind.len() as f32)
+    takes_rim_distances((nearest(front), front.len()), (nearest(behind), behind.len()))
+}
+
+/// `takes_rim` on each set's least squared distance and size: d_front²·n_front < d_behind²·n_behind.
+pub fn takes_rim_distances((front, front_count): (f32, usize), (behind, behind_count): (f32, usize)) -> bool {
+    front * (front_count as f32) < behind * (behind_count as f32)
 }
 
 #[cfg(test)]

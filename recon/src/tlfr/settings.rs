@@ -20,6 +20,17 @@ pub const DEFAULT_BANDWIDTH_SCALE: f32 = 0.5;
 /// Spreads from 0.05 to 0.2 stop about as many pixels: the one-surface test decides.
 pub const DEFAULT_ADAPTIVE: AdaptiveRule = AdaptiveRule { first: 16, spread: 0.05 };
 
+/// Which code evaluates a location of the plain reconstruction (`tlfr`); the bandwidth
+/// extension (`tlfr-bw`) and `tlfr-nn` always run through `query`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Kernel {
+    /// One pass per sample over structure-of-arrays entries, in SIMD (`fused`).
+    #[default]
+    Fused,
+    /// The per-location code with separate loops (`query`): the fused kernel's oracle.
+    Oracle,
+}
+
 /// How `reconstruct_file` runs.
 #[derive(Clone, Debug)]
 pub struct TlfrSettings {
@@ -37,6 +48,8 @@ pub struct TlfrSettings {
     /// The whole radiance through the reconstruction, or only its `direct` part with the rest
     /// filtered per pixel (`global_illumination`).
     pub gi: GiMode,
+    /// The fused kernel or its oracle.
+    pub kernel: Kernel,
 }
 
 impl Default for TlfrSettings {
@@ -48,6 +61,7 @@ impl Default for TlfrSettings {
             bandwidth_scale: None,
             adaptive: Some(DEFAULT_ADAPTIVE),
             gi: GiMode::Whole,
+            kernel: Kernel::Fused,
         }
     }
 }

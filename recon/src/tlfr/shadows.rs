@@ -33,6 +33,7 @@
 use sampleio::SampleFile;
 
 use super::coverage::tent_filter;
+use super::fused::{Entries, Fused, FusedScratch, LitTest, Query};
 use super::light_space::{decode_octahedral, lambertian_direct, LightSpace};
 use super::query::{covering_blocker, covering_surface, QueryStats, Scene, Scratch};
 use super::reprojection::{reproject, LensTime, LensTimeSample};
@@ -391,6 +392,121 @@ pub fn reconstruct_with_shadow(
     Some(value)
 }
 
+/// The fused kernel's view of a soft-shadow scene: the camera entries carrying
+/// `radiance_without_light`, the light entries carrying the light's radiance.
+pub struct FusedShadows<'a> {
+    pub scene: &'a ShadowScene<'a>,
+    pub camera: &'a Entries,
+    pub light: &'a Entries,
+    pub has_lens: bool,
+    pub has_time: bool,
+}
+
+/// Per-thread scratch of `reconstruct_with_shadow_fused`.
+#[derive(Default)]
+pub struct FusedShadowScratch {
+    camera: FusedScratch,
+    light: FusedScratch,
+}
+
+/// `reconstruct_with_shadow` through the fused kernel (`fused::covering_surface` on both
+/// sides, the lit test folded into the light side's pass): the same steps, the same surfaces
+/// and samples, the filters' sums in the kernel's order.
+pub fn reconstruct_with_shadow_fused(
+    fused: &FusedShadows,
+    pixel: (u32, u32),
+    screen: [f32; 2],
+    at: LensTime,
+    light_uv: (f32, f32),
+    scratch: &mut FusedShadowScratch,
+    stats: &mut ShadowStats,
+) -> Option<[f32; 3]> {
+    let scene = fused.scene;
+    let camera_view =
+        Fused { scene: scene.camera, entries: fused.camera, has_lens: fused.has_lens, has_time: fused.has_time };
+    let query = Query { pixel: Some(pixel), location: screen, at, light: None, nearest: true };
+    let covering = super::fused::covering_surface(&camera_view, &query, &mut scratch.camera, &mut stats.camera)?;
+    let mut value = covering.value(fused.camera, None, scene.camera.lens, at, scene.camera.z_near);
+
+    // The visible point: the covering surface's sample nearest to the location.
+    let Some((_, nearest)) = covering.nearest else {
+        return Some(value);
+    };
+    let nearest = nearest as usize;
+    let Some(moved) = fused.camera.position(nearest, at, scene.camera.lens, scene.camera.z_near) else {
+        return Some(value);
+    };
+    let depth = moved[2];
+    if !depth.is_finite() || scene.shading.normal[nearest] == [0.0; 3] {
+        return Some(value); // a miss: nothing to shade
+    }
+    let normal = scene.shading.normal[nearest];
+    let receiver = visible_point(scene.camera.lens, &scene.pose, screen, at, moved, normal);
+    let space = &scene.light_samples.space;
+    let in_light = space.to_light(receiver, at.t);
+    let (light_u, light_v) = light_uv;
+    if in_light[2].is_nan() || in_light[2] <= 0.0 {
+        return Some(value); // above the light's plane: it cannot light p
+    }
+    if space.is_grazing(in_light) {
+        stats.grazing += 1;
+        let light_point = space.light_point(light_u, light_v, at.t);
+        let albedo = scene.shading.albedo[nearest];
+        let emission = scene.light_samples.emission;
+        let direct = lambertian_direct(albedo, normal, receiver, light_point, space.normal, scene.area, emission);
+        return Some([0, 1, 2].map(|c| value[c] + direct[c]));
+    }
+    let Some(light_centre) = space.centre_screen(in_light) else {
+        return Some(value);
+    };
+    let light_lens = scene.light.lens;
+    let light_coc = light_lens.coc(in_light[2]);
+    let light_screen = [light_centre[0] + light_u * light_coc, light_centre[1] + light_v * light_coc];
+    let light_at = LensTime { u: light_u, v: light_v, t: at.t };
+
+    let record = scene.file_index[nearest] as usize;
+    let rho = scene.light_samples.density.get(record).copied().filter(|&d| d > 0.0);
+    let relative = rho.map_or(1.0, |d| d / scene.light_samples.median_density);
+    let light_scene = Scene { radius: scene.light.radius * relative, ..*scene.light };
+    stats.shaded += 1;
+    let plane = ReceiverPlane::new(space, in_light, normal, light_u, light_v);
+    let median = scene.light_samples.median_density;
+    let first_test = plane.lit_test(in_light[2], light_scene.radius * median);
+    let blocks = |i: u32| {
+        let end = fused.light.position(i as usize, light_at, light_lens, scene.light.z_near);
+        !end.is_some_and(|end| first_test.reaches(end))
+    };
+    let lit_for = |radius: f32| plane.lit_test(in_light[2], radius * median);
+    let light_view = Fused { scene: &light_scene, entries: fused.light, has_lens: true, has_time: fused.has_time };
+    let query =
+        Query { pixel: None, location: light_screen, at: light_at, light: Some((&lit_for, &blocks)), nearest: false };
+    let Some(light_covering) =
+        super::fused::covering_surface(&light_view, &query, &mut scratch.light, &mut stats.light)
+    else {
+        stats.blocked += 1;
+        return Some(value); // no light sample within 16R: no light (counted as blocked)
+    };
+    if light_covering.lit == 0 {
+        stats.blocked += 1;
+    }
+    let lit = lit_for(light_covering.radius);
+    let arriving = light_covering.value(fused.light, Some(&lit), light_lens, light_at, scene.light.z_near);
+    let light_point = space.light_point(light_u, light_v, at.t);
+    let direct = lambertian_direct(
+        scene.shading.albedo[nearest],
+        normal,
+        receiver,
+        light_point,
+        space.normal,
+        scene.area,
+        arriving,
+    );
+    for c in 0..3 {
+        value[c] += direct[c];
+    }
+    Some(value)
+}
+
 /// The visible point p of a location: where the location's camera ray (through (x̂, ŷ) =
 /// `screen` from the lens point (û, v̂)) meets the tangent plane of the covering surface's nearest
 /// sample, which lies at `nearest` = (x′, y′, z′) reprojected to the location's (û, v̂, t̂) with
@@ -458,6 +574,24 @@ impl ReceiverPlane {
             per_unit: [half_u / space.scale, half_v / space.scale],
             screen_offset: space.offset,
             plane_distance: space.plane_distance,
+        }
+    }
+
+    /// The lit test of `reaches` in the form the fused pass evaluates per sample: a light
+    /// sample reaches when it ends no nearer than `depth_at` (with `fallback`) less
+    /// `SHADOW_BIAS_RELATIVE` of it and `SHADOW_BIAS_FOOTPRINTS` × `footprint`.
+    pub fn lit_test(&self, fallback: f32, footprint: f32) -> LitTest {
+        use super::light_space::dot;
+        LitTest {
+            normal: self.normal,
+            numerator: self.offset - dot(self.normal, self.from),
+            from: self.from,
+            per_unit: self.per_unit,
+            screen_offset: self.screen_offset,
+            plane_distance: self.plane_distance,
+            fallback,
+            relative: SHADOW_BIAS_RELATIVE,
+            footprint_tolerance: SHADOW_BIAS_FOOTPRINTS * footprint,
         }
     }
 
@@ -595,17 +729,43 @@ pub fn reconstruct_soft_shadow(
         area,
         file_index: &camera.file_index,
     };
-    let (image, stats) = super::integrate::integrate_locations(
-        (width, height),
-        (locations, None),
-        (camera.has_lens, camera.has_time),
-        settings.seed,
-        |(x, y, j), screen, at, scratch: &mut ShadowScratch, stats: &mut ShadowStats| {
-            let light_uv = light_coordinates(settings.seed, x, y, j);
-            reconstruct_with_shadow(&scene, screen, at, light_uv, scratch, stats)
-        },
-        |x, y| box_image.pixels[(y * width + x) as usize],
-    );
+    let has = (camera.has_lens, camera.has_time);
+    let fallback = |x: u32, y: u32| box_image.pixels[(y * width + x) as usize];
+    let (image, stats) = match settings.kernel {
+        super::settings::Kernel::Fused => {
+            let camera_entries = Entries::new(&camera.samples, &shading.without_light, &camera.lens, &tree);
+            let light_entries = Entries::new(&light.samples, &light.radiance, &light_lens, &light_tree);
+            let fused = FusedShadows {
+                scene: &scene,
+                camera: &camera_entries,
+                light: &light_entries,
+                has_lens: has.0,
+                has_time: has.1,
+            };
+            super::integrate::integrate_locations(
+                (width, height),
+                (locations, None),
+                has,
+                settings.seed,
+                |(x, y, j), screen, at, scratch: &mut FusedShadowScratch, stats: &mut ShadowStats| {
+                    let light_uv = light_coordinates(settings.seed, x, y, j);
+                    reconstruct_with_shadow_fused(&fused, (x, y), screen, at, light_uv, scratch, stats)
+                },
+                fallback,
+            )
+        }
+        super::settings::Kernel::Oracle => super::integrate::integrate_locations(
+            (width, height),
+            (locations, None),
+            has,
+            settings.seed,
+            |(x, y, j), screen, at, scratch: &mut ShadowScratch, stats: &mut ShadowStats| {
+                let light_uv = light_coordinates(settings.seed, x, y, j);
+                reconstruct_with_shadow(&scene, screen, at, light_uv, scratch, stats)
+            },
+            fallback,
+        ),
+    };
     let recon_s = start.elapsed().as_secs_f64();
     let mut notes = vec![
         format!(
