@@ -21,7 +21,7 @@ run sponza-ao --scene scenes/sponza.toml --effect ao --width 160 --height 90 --s
 run monkeys-glossy --scene scenes/monkeys.toml --effect glossy --width 160 --height 90 --spp 1,8 --max-bounces 2 \
   --methods ilfr,ilfr+oidn,oidn
 run monkeys-dof --scene scenes/monkeys-dof-depths.toml --effect dof --width 160 --height 90 --spp 4,16 \
-  --methods tlfr,tlfr:gi=split,tlfr+oidn,tlfr+oidn:aux=centre,ilfr-dof,oidn
+  --methods tlfr,tlfr:gi=whole,tlfr+oidn,tlfr+oidn:aux=centre,ilfr-dof,oidn
 run monkeys-dof-direct --scene scenes/monkeys-dof-depths.toml --effect dof --width 160 --height 90 --spp 4,16 \
   --max-bounces 1 --methods tlfr,tlfr+oidn,tlfr+oidn:aux=centre,oidn
 run monkeys-dof-motion --scene scenes/monkeys-defocus-motion.toml --effect dof-motion --width 160 --height 90 \

@@ -45,8 +45,13 @@ pub struct TlfrMethod {
 /// 250-320 B a sample over a fixed ~46 MB; rounded up.
 pub const BYTES_PER_SAMPLE: u64 = 384;
 
-pub const TLFR: TlfrMethod =
-    TlfrMethod { name: "tlfr", value: None, bandwidth_scale: None, gi: GiMode::Whole, kernel: Kernel::Fused };
+pub const TLFR: TlfrMethod = TlfrMethod {
+    name: "tlfr",
+    value: None,
+    bandwidth_scale: None,
+    gi: GiMode::Split { radius: super::global_illumination::DEFAULT_GI_RADIUS },
+    kernel: Kernel::Fused,
+};
 
 /// `tlfr-nn`: the same reconstruction with the nearest sample's radiance instead of the filter
 /// (`nearest`); effects `dof`, `motion`, `dof-motion`.
