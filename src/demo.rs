@@ -1,7 +1,7 @@
 //! `lfr demo`: the product in one command on the embedded default scene (the Cornell box), no
 //! file needed. It is `lfr compare` with fixed arguments, printed before the run so that the
 //! user can rerun or change them: indirect light at 128 × 128, inputs of 1, 4 and 16 samples per
-//! pixel (so that OIDN's curve reaches the reconstructions' quality), the indirect light field
+//! pixel (OIDN runs on every rung of path tracing's ladder as well), the indirect light field
 //! reconstruction (`ilfr`, its default variant, at 16 reconstruction rays: its equal-time best),
 //! the same fed to the denoiser (`ilfr+oidn`) and the denoiser alone (`oidn`), path tracing up to
 //! 64 spp, against a 2048-spp reference (its own PSNR about 43 dB, 6 dB above the best run). About

@@ -182,13 +182,13 @@ fn summarise(method: &str, mine: &[(&Run, PeerReading)], curves: &PeerCurves) ->
     let name = display_name(method);
     let (cheapest, best_peer) = (curves.median.first(), curves.median.last());
     // The run of highest PSNR above OIDN's best run, named whatever else is said: a quality OIDN
-    // did not reach at the input counts it ran (more `--spp` values would read it).
+    // did not reach at the input counts it ran (a larger `--pt-max-spp` would read it).
     let above =
         mine.iter().filter(|(_, x)| x.position == Position::Above).max_by(|a, b| a.0.psnr_db.total_cmp(&b.0.psnr_db));
     let above_text = |run: &Run| {
         format!(
             "{name} reaches {:.2} dB ({} in {:.3} s), above OIDN's range: OIDN's best run here reaches {:.2} dB \
-             (larger --spp values would read OIDN there)",
+             (a larger --pt-max-spp runs OIDN on more of the ladder)",
             run.psnr_db,
             run_label(run),
             run.total_s,

@@ -57,9 +57,8 @@ pub fn progress_bar(show: bool) -> indicatif::ProgressBar {
 pub fn first_pass_steps(plan: &Plan) -> u64 {
     let traces_per_spp =
         input_selections(&plan.methods, plan.effect).len() + usize::from(needs(&plan.methods, Input::Guide));
-    let method_runs: usize = plan.methods.iter().map(|m| plan.rays_of(m).len()).sum();
-    let per_spp = traces_per_spp + method_runs;
-    (plan.ladder.len() + plan.input_spp().len() * per_spp + plan.probe_methods.len()) as u64
+    let method_runs: usize = plan.methods.iter().map(|m| plan.rays_of(m).len() * plan.spp_of(m).len()).sum();
+    (plan.ladder.len() + plan.input_spp().len() * traces_per_spp + method_runs + plan.probe_methods.len()) as u64
 }
 
 fn not_deterministic(pass: u32) -> String {
@@ -112,7 +111,7 @@ pub fn execute(
         // The previous run of this method: how long the next one may take when it reports no
         // stage of its own (OIDN).
         let mut previous_s: Option<f64> = None;
-        for &spp in plan.input_spp() {
+        for &spp in plan.spp_of(method) {
             let (inputs, key, light_trace) = traced.for_method(plan, method, spp);
             for recon_rays in plan.rays_of(method) {
                 let message = format!("{}, {spp} spp{}", method.name(), rays_label(recon_rays));

@@ -119,7 +119,8 @@ impl Traced {
             rungs.push(Rung { spp, image: traced.frame.color.clone(), seconds: traced.seconds, peak_rss_mb });
             times.insert(TraceKey::Pt(spp), vec![traced.seconds]);
             order.push(TraceKey::Pt(spp));
-            if plan.input_spp().contains(&spp) {
+            if needs(&plan.methods, Input::Frame) {
+                // The frame readers run on every rung (`Plan::spp_of`).
                 frames.insert(spp, traced.frame);
             }
             bar.inc(1);

@@ -159,6 +159,18 @@ impl<'a> Plan<'a> {
         &self.args.spp
     }
 
+    /// The sample counts `method` runs at: a method that reads the path-traced frame (the
+    /// denoiser, `Input::Frame`) runs on every rung of the ladder, whose frames are traced
+    /// anyway, so that the peer's curve spans path tracing's time range and a reconstruction's
+    /// quality is read on it rather than beyond it; every other method at `--spp`.
+    pub fn spp_of(&self, method: &Registered) -> &[u32] {
+        if method.input() == recon::method::Input::Frame {
+            &self.ladder
+        } else {
+            &self.args.spp
+        }
+    }
+
     /// The reconstruction rays `method` sweeps: `--recon-rays`, else its own default (`[0]`
     /// for a method without such a parameter, whatever `--recon-rays` says).
     pub fn rays_of(&self, method: &Registered) -> Vec<u32> {
@@ -289,8 +301,14 @@ fn check_memory(
     let ladder_runs = ladder(args.pt_max_spp, &args.spp).len() as u64;
     let rays = args.recon_rays.as_ref().map_or(3, Vec::len) as u64;
     let method_runs = (methods.len() + probe_methods.len()) as u64 * args.spp.len() as u64 * rays;
+    // A method reading the traced frame runs on every rung, and every rung's frame (colour,
+    // albedo, normal: 36 bytes a pixel) is kept for it.
+    let frame_readers = methods.iter().filter(|m| m.input() == recon::method::Input::Frame).count() as u64;
+    let method_runs = method_runs + frame_readers * ladder_runs;
+    let kept_frames = if frame_readers > 0 { 36 * ladder_runs } else { 0 };
     let inputs = args.spp.len() as u64;
-    let per_pixel = tracer::memory::RENDER_BYTES_PER_PIXEL + 3 * 12 + 24 * (ladder_runs + method_runs) + 100 * inputs;
+    let per_pixel =
+        tracer::memory::RENDER_BYTES_PER_PIXEL + 3 * 12 + 24 * (ladder_runs + method_runs) + 100 * inputs + kept_frames;
     let images = width as u64 * height as u64 * per_pixel;
     let what = format!("a comparison at {width}x{height} with {} runs", ladder_runs + method_runs);
     let largest_probes = probe_methods
