@@ -65,7 +65,9 @@ def main(paths):
     for path in paths:
         results = json.load(open(path))
         scene = results["scene"].split("/")[-1]
-        label = f"{scene}, {results['effect']} ({results['width']}×{results['height']})"
+        bounces = results.get("max_bounces")
+        light = "direct light only" if bounces == 1 else f"{bounces} bounces"
+        label = f"{scene}, {results['effect']} ({results['width']}×{results['height']}, {light})"
         methods = []
         for run in results["runs"]:
             if run["method"] != "pt" and run["method"] not in methods:
