@@ -59,7 +59,9 @@ pub fn indirect_pixel_means(
     for p in 0..pixels {
         let n = counts[p].max(1) as f64;
         image.pixels[p] = sums[p].map(|s| (s / n) as f32);
-        guide[p] = (inverse_depth[p] / n) as f32;
+        // A first hit at depth 0 (or below f32's smallest normal) has an infinite inverse
+        // depth: the guide saturates at f32::MAX so that `smooth_indirect` stays finite.
+        guide[p] = (inverse_depth[p] / n).clamp(0.0, f32::MAX as f64) as f32;
     }
     (image, guide)
 }
@@ -137,6 +139,35 @@ mod tests {
         let (image, guide) = indirect_pixel_means((2, 2), [0usize, 0, 3].into_iter(), &indirect, &depth);
         assert_eq!(image.pixels, [[2.0, 2.0, 2.0], [0.0; 3], [0.0; 3], [5.0, 5.0, 5.0]]);
         assert_eq!(guide, [0.25, 0.0, 0.0, 0.25]);
+    }
+
+    #[test]
+    fn stiff_depths_one_pixel_and_extreme_scales() {
+        // One pixel: its mean, unchanged by any radius.
+        let (one, guide) =
+            indirect_pixel_means((1, 1), [0usize, 0].into_iter(), &[[1.0, 2.0, 3.0], [3.0, 2.0, 1.0]], &[1e-3, 2e-3]);
+        assert_eq!(one.pixels, [[2.0, 2.0, 2.0]]);
+        assert_eq!(smooth_indirect(&one, &guide, 3).pixels, one.pixels);
+        // Depth 0, a subnormal depth and a miss beside ordinary ones: every pixel finite, and the
+        // ordinary pixels do not take the zero-depth pixels' light.
+        let depth = [0.0, 1e-40, f32::INFINITY, 1.0, 1.0, 1.0];
+        let indirect = [[9.0; 3], [9.0; 3], [0.0; 3], [1.0; 3], [1.0; 3], [1.0; 3]];
+        let (image, guide) = indirect_pixel_means((6, 1), 0..6usize, &indirect, &depth);
+        assert!(guide.iter().all(|g| g.is_finite()), "{guide:?}");
+        let smoothed = smooth_indirect(&image, &guide, 3);
+        assert!(smoothed.pixels.iter().flatten().all(|v| v.is_finite()), "{:?}", smoothed.pixels);
+        assert!((smoothed.pixels[4][0] - 1.0).abs() < 1e-3, "{:?}", smoothed.pixels);
+        // The depth test is relative: scenes at 1e-6 and 1e9 scale smooth alike.
+        let (noisy, depth) = noisy_plane(9, 5, 4);
+        let base = smooth_indirect(&noisy, &depth, 2);
+        for scale in [1e-6f32, 1e9] {
+            let scaled: Vec<f32> = depth.iter().map(|d| d / scale).collect();
+            for (p, q) in smooth_indirect(&noisy, &scaled, 2).pixels.iter().zip(&base.pixels) {
+                for c in 0..3 {
+                    assert!((p[c] - q[c]).abs() <= 1e-5 * q[c].abs().max(1.0), "scale {scale}: {p:?} vs {q:?}");
+                }
+            }
+        }
     }
 
     fn noisy_plane(width: u32, height: u32, seed: u64) -> (Image, Vec<f32>) {
