@@ -110,6 +110,8 @@ impl Traced {
         let mut times = BTreeMap::new();
         let mut rungs = Vec::new();
         let mut frames = BTreeMap::new();
+        // The frame readers run on every rung (`Plan::spp_of`), so every rung's frame is kept.
+        let keep_frames = needs(&plan.methods, Input::Frame);
         for &spp in &plan.ladder {
             let message = TraceKey::Pt(spp).label();
             bar.set_message(message.clone());
@@ -119,8 +121,7 @@ impl Traced {
             rungs.push(Rung { spp, image: traced.frame.color.clone(), seconds: traced.seconds, peak_rss_mb });
             times.insert(TraceKey::Pt(spp), vec![traced.seconds]);
             order.push(TraceKey::Pt(spp));
-            if needs(&plan.methods, Input::Frame) {
-                // The frame readers run on every rung (`Plan::spp_of`).
+            if keep_frames {
                 frames.insert(spp, traced.frame);
             }
             bar.inc(1);
