@@ -12,6 +12,7 @@ use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use probes::cache::CacheKey;
 use probes::cpca::{Cpca, CpcaSettings, Precision};
+use probes::defaults;
 use probes::direct::direct_irradiance;
 use probes::error::CacheProblem;
 use probes::frame::{indirect, indirect_timed, surfel_albedo, Indirect, ReceiverTransport};
@@ -77,13 +78,13 @@ enum BounceLoop {
 #[derive(clap::Args, Clone, Debug)]
 pub struct PlacementArgs {
     /// Number of probes.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = defaults::PROBES)]
     probes: usize,
     /// Receiver budget (surfels; the count comes close to it).
-    #[arg(long, default_value_t = 100_000)]
+    #[arg(long, default_value_t = defaults::RECEIVERS)]
     receivers: usize,
     /// N_overlap: mean number of probes covering a receiver (sets the support radius).
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = defaults::OVERLAP)]
     overlap: f64,
     /// Candidate rule for probe positions.
     #[arg(long, value_enum, default_value_t = Candidates::Front)]
@@ -121,7 +122,7 @@ pub struct StatsArgs {
     #[arg(long, default_value_t = 0)]
     time_transport: usize,
     /// Directions per receiver for --time-transport.
-    #[arg(long, default_value_t = 2048)]
+    #[arg(long, default_value_t = defaults::DIRECTIONS)]
     directions: u32,
     /// Run the whole dense pipeline once on every receiver (transport with --directions, relight
     /// rays, direct light, bounces to convergence or --max-bounces) and time a relit frame; slow
@@ -129,7 +130,7 @@ pub struct StatsArgs {
     #[arg(long)]
     frame: bool,
     /// Relight rays per probe for --frame.
-    #[arg(long, default_value_t = 8000)]
+    #[arg(long, default_value_t = defaults::RELIGHT_RAYS)]
     relight_rays: u32,
     /// Also write the report as JSON here.
     #[arg(long)]
@@ -419,10 +420,10 @@ fn run_frame(
     let precompute_relight_s = t.elapsed().as_secs_f64();
     let albedo = surfel_albedo(scene, &layout.surfels);
     let t = Instant::now();
-    let direct = direct_irradiance(scene, &accel, &layout.surfels, 16, seed, scale)?;
+    let direct = direct_irradiance(scene, &accel, &layout.surfels, defaults::LIGHT_SAMPLES, seed, scale)?;
     let direct_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let out = indirect(&transports, &table, &albedo, &direct, max_bounces.max(1) as usize, 1e-3)?;
+    let out = indirect(&transports, &table, &albedo, &direct, max_bounces.max(1) as usize, defaults::BOUNCE_TOLERANCE)?;
     let bounces_s = t.elapsed().as_secs_f64();
     let n = out.irradiance.len().max(1) as f32;
     let mean = out.irradiance.iter().fold(glam::Vec3::ZERO, |a, e| a + *e) / n;
@@ -544,6 +545,15 @@ fn print_report(r: &Report) {
     );
 }
 
+/// A boolean default as its flag's value (`--cpca=on|off`).
+const fn on_off(value: bool) -> &'static str {
+    if value {
+        "on"
+    } else {
+        "off"
+    }
+}
+
 /// The precompute's settings and its cache, shared by `precompute`, `relight` and `animate`.
 #[derive(clap::Args, Clone, Debug)]
 pub struct PrecomputeOptions {
@@ -554,13 +564,13 @@ pub struct PrecomputeOptions {
     #[command(flatten)]
     placement: PlacementArgs,
     /// SH order of the probes (0 to 7).
-    #[arg(long, default_value_t = 7)]
+    #[arg(long, default_value_t = defaults::ORDER)]
     order: usize,
     /// Directions per receiver of the transport.
-    #[arg(long, default_value_t = 2048)]
+    #[arg(long, default_value_t = defaults::DIRECTIONS)]
     directions: u32,
     /// Relight rays per probe.
-    #[arg(long, default_value_t = 8000)]
+    #[arg(long, default_value_t = defaults::RELIGHT_RAYS)]
     relight_rays: u32,
 }
 
@@ -599,22 +609,23 @@ pub struct FrameOptions {
     #[arg(long, value_delimiter = ',', num_args = 1, value_name = "V|R,G,B", allow_negative_numbers = true)]
     light_intensity: Option<Vec<f32>>,
     /// Light samples per sender and per primary ray for the direct light.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = defaults::LIGHT_SAMPLES)]
     light_samples: u32,
     /// Primary rays per pixel (1: through the centre; more: stratified, averaged).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = defaults::PIXEL_SAMPLES)]
     pixel_samples: u32,
-    /// Compress the transport with CPCA before relighting.
-    #[arg(long)]
+    /// Compress the transport with CPCA before relighting (`--cpca=off`: the dense transport).
+    #[arg(long, value_name = "on|off", num_args = 0..=1, require_equals = true, default_value = on_off(defaults::CPCA),
+        default_missing_value = "on", value_parser = clap::builder::BoolishValueParser::new())]
     cpca: bool,
     /// CPCA: the largest relative residual energy per cluster.
-    #[arg(long, default_value_t = 0.005)]
+    #[arg(long, default_value_t = CpcaSettings::default().tolerance)]
     cpca_tolerance: f64,
     /// CPCA: the most coefficients per cluster.
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = CpcaSettings::default().max_coefficients)]
     cpca_coefficients: usize,
     /// CPCA: clusters hold fewer receivers than this.
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, default_value_t = CpcaSettings::default().cluster_limit)]
     cpca_cluster_limit: usize,
     /// CPCA: store the compressed transport in fp16.
     #[arg(long)]
@@ -623,7 +634,7 @@ pub struct FrameOptions {
     /// 1 is the paper's projection (radiance zero along them); smaller fits the SH to the hit
     /// rays only, which are the only directions a receiver reads a probe in (docs/probes.md:
     /// Cornell's image 0.90 → 0.97 as bright as the path tracer's).
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = defaults::MISS_WEIGHT)]
     relight_miss_weight: f64,
     /// Unseen directions (hits no covering probe sees) take the mean of the receiver's seen
     /// ones instead of zero (the paper's): its transport scaled by hits / seen hits.
@@ -683,7 +694,7 @@ impl FrameOptions {
             );
         }
         if self.fp16 && !self.cpca {
-            anyhow::bail!("fp16: stores the CPCA-compressed transport; add --cpca");
+            anyhow::bail!("fp16: stores the CPCA-compressed transport, which --cpca=off turns off");
         }
         if !(self.relight_miss_weight > 0.0 && self.relight_miss_weight <= 1.0) {
             anyhow::bail!(
@@ -692,7 +703,7 @@ impl FrameOptions {
             );
         }
         if self.renormalise_unseen && self.cpca {
-            anyhow::bail!("renormalise-unseen: applies to the dense transport only (the CPCA cache holds the paper's)");
+            anyhow::bail!("renormalise-unseen: applies to the dense transport only (the CPCA cache holds the paper's); add --cpca=off");
         }
         let cpca = CpcaSettings {
             cluster_limit: self.cpca_cluster_limit,
@@ -1396,7 +1407,7 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
         anyhow::bail!("bounces: must be at most 10000 (0: to convergence), got {}", args.bounces);
     }
     if args.bounce_loop == Some(BounceLoop::Projected) && cpca_settings.is_none() {
-        anyhow::bail!("bounce-loop: projected runs in CPCA's projected space; add --cpca");
+        anyhow::bail!("bounce-loop: projected runs in CPCA's projected space, which --cpca=off turns off");
     }
     let position = args.light_position.as_deref().map(|v| point_option("light-position", v)).transpose()?;
     if intensity.is_some() && position.is_none() {
@@ -1437,7 +1448,8 @@ fn run_relight(args: &RelightArgs) -> Result<()> {
     let (op, cpca) = operator(&pre, cpca_settings, &pool, &args.pre.cache, &key)?;
     bar.set_message("relighting");
     let max_bounces = args.trace.size.max_bounces.unwrap_or(scene.max_bounces).max(1) as usize;
-    let (bounces, tolerance) = if args.bounces == 0 { (max_bounces, 1e-3) } else { (args.bounces as usize, 0.0) };
+    let (bounces, tolerance) =
+        if args.bounces == 0 { (max_bounces, defaults::BOUNCE_TOLERANCE) } else { (args.bounces as usize, 0.0) };
     // The bounces' matrix in CPCA's projected space depends on the albedo, not the light:
     // formed once per run, as `lfr compare` does.
     let mut projected_report = None;
@@ -1839,4 +1851,45 @@ fn run_animate(args: &AnimateArgs) -> Result<()> {
     write_json(&timings, &report)?;
     println!("wrote {} frames and {}", report.frames.len(), timings.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::compare::probes_method::ProbesMethod;
+    use clap::Parser;
+
+    /// `lfr probes relight`'s precompute and frame flags, alone.
+    #[derive(Parser)]
+    struct RelightFlags {
+        #[command(flatten)]
+        pre: PrecomputeOptions,
+        #[command(flatten)]
+        frame: FrameOptions,
+    }
+
+    #[test]
+    fn relight_and_compare_run_the_same_defaults() {
+        let seed = 7;
+        let cli = RelightFlags::try_parse_from(["relight", "--cache", "c.probes"]).unwrap();
+        let method = ProbesMethod::parse("probes", seed).unwrap().unwrap();
+        assert_eq!(cli.pre.settings(seed), method.precompute);
+        let (cpca, intensity) = cli.frame.validated().unwrap();
+        assert_eq!(cpca, method.cpca);
+        assert!(cpca.is_some() && intensity.is_none());
+        assert_eq!(cli.frame.pixel_samples, method.pixel_samples);
+        assert_eq!(cli.frame.light_samples, method.light_samples);
+        assert_eq!(cli.frame.relight_miss_weight, method.miss_weight);
+        assert_eq!(cli.frame.drop_hidden_senders, method.drop_hidden_senders);
+    }
+
+    #[test]
+    fn cpca_is_on_unless_turned_off() {
+        for (flags, expected) in [(&[][..], true), (&["--cpca"][..], true), (&["--cpca=off"][..], false)] {
+            let mut argv = vec!["relight", "--cache", "c.probes"];
+            argv.extend_from_slice(flags);
+            assert_eq!(RelightFlags::try_parse_from(argv).unwrap().frame.cpca, expected, "{flags:?}");
+        }
+        assert!(RelightFlags::try_parse_from(["relight", "--cache", "c", "--cpca=perhaps"]).is_err());
+    }
 }

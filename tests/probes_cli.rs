@@ -117,10 +117,15 @@ fn relight_builds_the_cache_once_and_reuses_it_whatever_the_lights() {
     let dir = tempfile::tempdir().unwrap();
     let (cache, a, b, j) =
         (dir.path().join("c.probes"), dir.path().join("a.exr"), dir.path().join("b.exr"), dir.path().join("r.json"));
-    let out = relight(&cache, &a, &j, &[]);
+    // The dense transport first: the oracle CPCA is checked against below. One ray per pixel,
+    // so that the layers' relation holds per pixel (with more, the product's mean is not the
+    // product of the means at edges).
+    let dense = ["--cpca=off", "--pixel-samples", "1"];
+    let out = relight(&cache, &a, &j, &dense);
     assert!(out.status.success(), "{}", stderr(&out));
     let report = json(&j);
     assert_eq!(report["precompute"]["precompute_from_cache"], false);
+    assert!(report["cpca"].is_null(), "{report}");
     assert!(a.with_extension("png").is_file());
     // The frame split as the paper's Table 2, and the camera's kept lookups.
     let times = &report["times"];
@@ -152,7 +157,7 @@ fn relight_builds_the_cache_once_and_reuses_it_whatever_the_lights() {
     assert!(c["probes.Y"].iter().any(|p| *p > 0.0));
 
     // Again: from the cache, the same image bit for bit, the cache untouched.
-    let out = relight(&cache, &b, &j, &[]);
+    let out = relight(&cache, &b, &j, &dense);
     assert!(out.status.success(), "{}", stderr(&out));
     assert_eq!(json(&j)["precompute"]["precompute_from_cache"], true);
     assert_eq!(channels(&b), c);
@@ -163,7 +168,7 @@ fn relight_builds_the_cache_once_and_reuses_it_whatever_the_lights() {
         &cache,
         &b,
         &j,
-        &["--no-scene-lights", "--light-position", "150,300,250", "--light-intensity", "40000"],
+        &[&dense[..], &["--no-scene-lights", "--light-position", "150,300,250", "--light-intensity", "40000"]].concat(),
     );
     assert!(out.status.success(), "{}", stderr(&out));
     assert_eq!(json(&j)["precompute"]["precompute_from_cache"], true);
@@ -172,8 +177,8 @@ fn relight_builds_the_cache_once_and_reuses_it_whatever_the_lights() {
     assert_ne!(moved["indirect.R"], c["indirect.R"]);
     assert!(moved["indirect.R"].iter().any(|v| *v > 0.0));
 
-    // CPCA at the default tolerance: close to the dense image, smaller per receiver.
-    let out = relight(&cache, &b, &j, &["--cpca", "--cpca-coefficients", "16"]);
+    // CPCA at the default tolerance (default on): close to the dense image, smaller per receiver.
+    let out = relight(&cache, &b, &j, &["--cpca", "--cpca-coefficients", "16", "--pixel-samples", "1"]);
     assert!(out.status.success(), "{}", stderr(&out));
     let r = json(&j);
     let cpca = &r["cpca"];
@@ -183,7 +188,7 @@ fn relight_builds_the_cache_once_and_reuses_it_whatever_the_lights() {
     assert!(Path::new(&format!("{}.cpca", cache.display())).is_file());
     let compressed = channels(&b);
     // Again: the compressed transport from its cache, the same image.
-    let out = relight(&cache, &b, &j, &["--cpca", "--cpca-coefficients", "16"]);
+    let out = relight(&cache, &b, &j, &["--cpca", "--cpca-coefficients", "16", "--pixel-samples", "1"]);
     assert!(out.status.success(), "{}", stderr(&out));
     assert_eq!(json(&j)["cpca"]["from_cache"], true);
     assert_eq!(channels(&b), compressed);
@@ -302,11 +307,11 @@ fn relight_and_animate_refuse_bad_parameters_before_any_work() {
         ("relight", vec!["--probes", "0"], "probes:"),
         ("relight", vec!["--cpca", "--cpca-tolerance", "2"], "tolerance:"),
         ("relight", vec!["--cpca", "--cpca-coefficients", "0"], "coefficients:"),
-        ("relight", vec!["--fp16"], "fp16:"),
+        ("relight", vec!["--cpca=off", "--fp16"], "fp16:"),
         ("relight", vec!["--light-samples", "0"], "light-samples:"),
         ("relight", vec!["--pixel-samples", "0"], "pixel-samples:"),
         ("relight", vec!["--bounces", "20000"], "bounces:"),
-        ("relight", vec!["--bounce-loop", "projected"], "bounce-loop:"),
+        ("relight", vec!["--cpca=off", "--bounce-loop", "projected"], "bounce-loop:"),
         ("relight", vec!["--cpca", "--bounce-loop", "some"], "--bounce-loop"),
         ("animate", vec!["--frames", "0"], "frames:"),
         ("animate", vec!["--light-to", "1,2"], "light-to:"),

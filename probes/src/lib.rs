@@ -35,6 +35,7 @@
 //!   value, `precompute`, and its cache keyed by geometry and settings, `cache`.
 //! - — Brute-force surfel radiosity, the oracle of the probes' reconstruction (same receivers
 //!   and senders, no probes): `gather`.
+//! - The one set of defaults of every front end: `defaults`.
 //! - ✓ `lfr compare` method `probes` (phase 6): in the root crate, `src/compare/probes_method.rs`.
 
 #![forbid(unsafe_code)]
@@ -42,6 +43,7 @@
 
 pub mod cache;
 pub mod cpca;
+pub mod defaults;
 pub mod direct;
 pub mod error;
 pub mod frame;

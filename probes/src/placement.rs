@@ -55,7 +55,11 @@ pub struct PlacementSettings {
 
 impl Default for PlacementSettings {
     fn default() -> Self {
-        PlacementSettings { probes: 64, overlap: 10.0, rule: CandidateRule::FrontFacing }
+        PlacementSettings {
+            probes: crate::defaults::PROBES,
+            overlap: crate::defaults::OVERLAP,
+            rule: CandidateRule::FrontFacing,
+        }
     }
 }
 

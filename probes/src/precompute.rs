@@ -31,7 +31,7 @@ impl Default for PrecomputeSettings {
             surfels: SurfelSettings::default(),
             placement: PlacementSettings::default(),
             transport: TransportSettings::default(),
-            relight_rays: 8000,
+            relight_rays: crate::defaults::RELIGHT_RAYS,
         }
     }
 }

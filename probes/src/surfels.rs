@@ -42,7 +42,7 @@ pub struct SurfelSettings {
 
 impl Default for SurfelSettings {
     fn default() -> Self {
-        SurfelSettings { budget: 100_000, samples_per_cell: 8.0, seed: 0 }
+        SurfelSettings { budget: crate::defaults::RECEIVERS, samples_per_cell: 8.0, seed: 0 }
     }
 }
 

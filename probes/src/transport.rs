@@ -50,8 +50,8 @@ pub struct TransportSettings {
 impl Default for TransportSettings {
     fn default() -> Self {
         TransportSettings {
-            order: MAX_ORDER,
-            directions: 2048,
+            order: crate::defaults::ORDER,
+            directions: crate::defaults::DIRECTIONS,
             seed: 0,
             reconstruction: Reconstruction::VisibilityAware,
         }

@@ -22,9 +22,10 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use probes::cache::CacheKey;
 use probes::cpca::{CpcaSettings, Precision};
+use probes::defaults;
 use probes::image::ImageSettings;
 use probes::memory::MemoryEstimate;
-use probes::placement::{CandidateRule, PlacementSettings};
+use probes::placement::PlacementSettings;
 use probes::precompute::PrecomputeSettings;
 use probes::surfels::SurfelSettings;
 use probes::transport::{Reconstruction, TransportSettings};
@@ -93,21 +94,21 @@ impl ProbesMethod {
             return Ok(None);
         }
         let mut precompute = PrecomputeSettings {
-            surfels: SurfelSettings { budget: 20_000, seed, ..Default::default() },
-            placement: PlacementSettings { probes: 64, overlap: 10.0, rule: CandidateRule::FrontFacing },
-            transport: TransportSettings { directions: 512, seed, ..Default::default() },
-            relight_rays: 8000,
+            surfels: SurfelSettings { seed, ..Default::default() },
+            placement: PlacementSettings::default(),
+            transport: TransportSettings { seed, ..Default::default() },
+            relight_rays: defaults::RELIGHT_RAYS,
         };
-        let mut cpca = true;
+        let mut cpca = defaults::CPCA;
         let mut fp16 = false;
         let mut method = ProbesMethod {
             name: spec.to_string(),
             precompute,
             cpca: None,
-            miss_weight: 0.01,
-            light_samples: 16,
-            pixel_samples: 16,
-            tolerance: 1e-3,
+            miss_weight: defaults::MISS_WEIGHT,
+            light_samples: defaults::LIGHT_SAMPLES,
+            pixel_samples: defaults::PIXEL_SAMPLES,
+            tolerance: defaults::BOUNCE_TOLERANCE,
             kept_lookups: true,
             projected_bounces: true,
             drop_hidden_senders: false,
