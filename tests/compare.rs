@@ -653,7 +653,7 @@ fn exr_channels(path: &Path) -> std::collections::HashMap<String, Vec<f32>> {
     channels.into_iter().collect()
 }
 
-/// Pipelines run through the harness: `ilfr+oidn` and `box+oidn` on indirect light, their time
+/// Pipelines run through the harness: `ilfr+oidn`, `gif+oidn` and `box+oidn` on indirect light, their time
 /// the sum of their stages with the denoiser's in the stats; every run read against OIDN's
 /// curve, a verdict per method against it, and a headline naming a winner; OIDN's ambient
 /// occlusion (alone and as a pipeline's last stage) a grey visibility in [0, 1]; `tlfr+oidn` on
@@ -669,9 +669,17 @@ fn pipelines_run_with_verdicts_against_oidn_and_a_headline() {
     let results = tiny_compare(
         &out,
         &cache,
-        &["--methods", "box+oidn,ilfr+oidn:quality=fast,oidn", "--recon-rays", "4", "--repeats", "1"],
+        &["--methods", "box+oidn,gif+oidn,ilfr+oidn:quality=fast,oidn", "--recon-rays", "4", "--repeats", "1"],
     );
     check_schema(&results);
+    // A filter of guide buffers then OIDN: the guide's auxiliaries, the denoiser's time in the sum.
+    let guided = runs(&results, "gif+oidn");
+    assert_eq!(guided.len(), 2, "one run per input spp");
+    for run in guided {
+        let parts = number(&run["trace_s"]) + number(&run["preprocess_s"]) + number(&run["recon_s"]);
+        assert!((number(&run["total_s"]) - parts).abs() < 1e-9, "{run}");
+        assert!(number(&run["stats"]["pipeline_denoise_s"]) > 0.0 && run["oidn_curve_position"].is_string(), "{run}");
+    }
     let pipeline = runs(&results, "ilfr+oidn:quality=fast");
     assert_eq!(pipeline.len(), 2, "one run per input spp");
     for run in &pipeline {
@@ -688,7 +696,7 @@ fn pipelines_run_with_verdicts_against_oidn_and_a_headline() {
     assert!(number(&box_oidn["psnr_db"]) > number(&pt4["psnr_db"]) + 3.0, "{box_oidn} vs {pt4}");
     let peer: Vec<&str> =
         results["verdicts_against_oidn"].as_array().unwrap().iter().map(|v| v["method"].as_str().unwrap()).collect();
-    assert_eq!(peer, ["pt", "box+oidn", "ilfr+oidn:quality=fast"]);
+    assert_eq!(peer, ["pt", "box+oidn", "gif+oidn", "ilfr+oidn:quality=fast"]);
     assert!(runs(&results, "oidn").iter().all(|r| r["oidn_curve_position"].is_null()));
     let headline = results["headline"].as_str().unwrap();
     assert!(headline.starts_with("Winner by PSNR at each time budget"), "{headline}");

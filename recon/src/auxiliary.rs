@@ -88,6 +88,14 @@ impl Reader<'_> {
     }
 }
 
+/// The auxiliary images of a guide-buffer input (`Input::Guide`: one ray through each pixel's
+/// centre): its first-hit albedo and normal, as the filter that reads it sees them. There is no
+/// lens or shutter to integrate over: guide buffers exist for `indirect` and `glossy` only.
+pub fn from_guide(guide: &crate::method::GuideInput) -> Auxiliary {
+    let (width, height) = (guide.guide.width, guide.guide.height);
+    Auxiliary { albedo: guide.albedo.clone(), normal: Image::from_pixels(width, height, guide.guide.normal.clone()) }
+}
+
 /// The auxiliary images of the samples in `path` for `effect`, made as `mode` says.
 pub fn from_samples(path: &Path, effect: Effect, mode: AuxiliaryMode) -> Result<Auxiliary, MethodError> {
     let file = SampleFile::open(path)?;
@@ -160,6 +168,34 @@ pub fn from_samples(path: &Path, effect: Effect, mode: AuxiliaryMode) -> Result<
 mod tests {
     use super::*;
     use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleWriter};
+
+    #[test]
+    fn a_guides_auxiliaries_are_its_own_albedo_and_normal_pixel_for_pixel() {
+        let (width, height) = (3, 2);
+        let normal: Vec<[f32; 3]> =
+            (0..6).map(|i| if i == 4 { [0.0; 3] } else { [0.0, (i % 2) as f32, 1.0] }).collect();
+        let albedo: Vec<[f32; 3]> = (0..6).map(|i| [0.1 * i as f32, 0.5, 1.0 - 0.1 * i as f32]).collect();
+        let guide = crate::method::GuideInput {
+            guide: crate::gif::guide::GuideBuffers {
+                width,
+                height,
+                normal: normal.clone(),
+                depth: vec![1.0; 6],
+                position: vec![[0.0; 3]; 6],
+                secondary_normal: None,
+            },
+            albedo: Image::from_pixels(width, height, albedo.clone()),
+            indirect: Image::from_pixels(width, height, vec![[9.0; 3]; 6]),
+            direct: Image::from_pixels(width, height, vec![[7.0; 3]; 6]),
+            eye_rays: Default::default(),
+        };
+        let aux = from_guide(&guide);
+        for i in 0..6u32 {
+            let (x, y) = (i % width, i / width);
+            assert_eq!(aux.albedo.get(x, y), albedo[i as usize]);
+            assert_eq!(aux.normal.get(x, y), normal[i as usize], "a miss keeps its zero normal");
+        }
+    }
 
     /// The octahedral pair of a unit vector (the encoder of docs/sample-format.md, written here
     /// as a second implementation: the inverse of `crate::octahedral::decode`).

@@ -1,7 +1,8 @@
 //! A reconstruction followed by a denoiser, as one method: `A+oidn` (`crate::registry`). A runs
 //! on its samples; its image is denoised by OIDN with auxiliary images made from **the same
 //! samples** (`crate::auxiliary`: for depth of field and motion blur the lens- and
-//! time-integrated first-hit albedo and normal, not a pinhole's).
+//! time-integrated first-hit albedo and normal, not a pinhole's). A filter that reads guide
+//! buffers (`gif`, `atrous`) gives OIDN the guide's own albedo and normal.
 //!
 //! Its time is the sum of its stages': `preprocess_s` is A's preprocessing plus the auxiliary
 //! images' making, `recon_s` is A's reconstruction plus OIDN's timed call. Its stats are A's
@@ -17,7 +18,7 @@ use crate::method::{Effect, Input, Inputs, Method, MethodError, Output};
 /// `first`, then OIDN on its image.
 #[derive(Debug)]
 pub struct Denoised {
-    /// The reconstruction (a method that reads samples).
+    /// The reconstruction (a method that reads samples or guide buffers).
     pub first: Box<dyn Method>,
     /// Its name, for messages.
     pub first_name: String,
@@ -62,10 +63,19 @@ impl Method for Denoised {
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
         let name = format!("{}+oidn", self.first_name);
-        let samples = inputs.samples(&name)?;
+        // The auxiliaries come from A's own input: its samples, or its guide buffers.
+        let guide = match self.first.input() {
+            Input::Guide => Some(inputs.guide(&name)?),
+            _ => None,
+        };
+        let samples = if guide.is_none() { Some(inputs.samples(&name)?) } else { None };
         let first = self.first.run(inputs, recon_rays)?;
         let started = Instant::now();
-        let aux = auxiliary::from_samples(samples, inputs.effect, self.auxiliary)?;
+        let aux = match (guide, samples) {
+            (Some(guide), _) => auxiliary::from_guide(guide),
+            (None, Some(samples)) => auxiliary::from_samples(samples, inputs.effect, self.auxiliary)?,
+            (None, None) => unreachable!("a pipeline's input is its guide buffers or its samples"),
+        };
         let auxiliary_s = started.elapsed().as_secs_f64();
         let denoised = self.denoiser.denoise(&first.image, &aux.albedo, &aux.normal, inputs.effect)?;
         Ok(chain(first, denoised, auxiliary_s))

@@ -336,9 +336,13 @@ pub struct PipelineSpec {
 }
 
 const DENOISER_OPTIONS: &[OptionSpec] = &[QUALITY, AUXILIARY];
+/// After a filter of guide buffers the auxiliaries are the guide's (one ray per pixel centre):
+/// nothing to integrate, so no `aux` option.
+const GUIDE_DENOISER_OPTIONS: &[OptionSpec] = &[QUALITY];
 
 /// Every pipeline: each reconstruction that reads samples (and `box`, their plain average),
-/// then OIDN with albedo and normal from the same samples.
+/// then OIDN with albedo and normal from the same samples; the guided and the À-Trous filters
+/// then OIDN with the guide's albedo and normal.
 pub const PIPELINES: &[PipelineSpec] = &[
     PipelineSpec { first: "box", last: "oidn", options: DENOISER_OPTIONS },
     PipelineSpec { first: "tlfr", last: "oidn", options: DENOISER_OPTIONS },
@@ -347,6 +351,8 @@ pub const PIPELINES: &[PipelineSpec] = &[
     PipelineSpec { first: "ilfr", last: "oidn", options: DENOISER_OPTIONS },
     PipelineSpec { first: "ilfr-recursive", last: "oidn", options: DENOISER_OPTIONS },
     PipelineSpec { first: "ilfr-dof", last: "oidn", options: DENOISER_OPTIONS },
+    PipelineSpec { first: "gif", last: "oidn", options: GUIDE_DENOISER_OPTIONS },
+    PipelineSpec { first: "atrous", last: "oidn", options: GUIDE_DENOISER_OPTIONS },
 ];
 
 impl PipelineSpec {
@@ -554,12 +560,17 @@ mod tests {
     }
 
     #[test]
-    fn every_pipeline_starts_with_a_method_that_reads_samples_and_builds() {
+    fn every_pipeline_starts_with_a_method_that_reads_samples_or_guides_and_builds() {
+        use crate::method::Input;
         for pipeline in PIPELINES {
             let first = pipeline.first_spec();
             let built = find(&pipeline.name()).unwrap().unwrap();
             assert_eq!(built.name(), pipeline.name(), "no options, plain name");
-            assert_eq!(built.input(), crate::method::Input::Samples, "{}", pipeline.name());
+            let input = built.input();
+            assert!(matches!(input, Input::Samples | Input::Guide), "{}: {input:?}", pipeline.name());
+            // Only the sample readers' auxiliaries can be integrated over lens and time.
+            let has_aux = pipeline.options.iter().any(|o| o.key == "aux");
+            assert_eq!(has_aux, input == Input::Samples, "{}", pipeline.name());
             for effect in Effect::ALL {
                 assert_eq!(built.supports(effect), first.effects.contains(&effect), "{}: {effect:?}", pipeline.name());
             }
@@ -583,10 +594,13 @@ mod tests {
         assert!(error.contains("grain"), "{error}");
         // A pipeline that does not exist: an error listing the ones that do; an unknown first
         // stage is an unknown method.
-        let error = find("gif+oidn").err().unwrap().to_string();
+        let error = find("bilateral+oidn").err().unwrap().to_string();
         assert!(error.contains("no such pipeline") && error.contains("tlfr+oidn"), "{error}");
         assert!(find("nonsense+oidn").unwrap().is_none());
         assert!(find("ilfr:grain=maybe+oidn").is_err());
+        // After a guide filter there is nothing to integrate: `aux` is not its option.
+        assert_eq!(find("gif:radius=8+oidn:quality=fast").unwrap().unwrap().name(), "gif:radius=8+oidn:quality=fast");
+        assert!(find("gif+oidn:aux=centre").is_err());
     }
 
     #[test]
