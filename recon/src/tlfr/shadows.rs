@@ -270,6 +270,97 @@ pub struct ShadowScene<'a> {
     pub file_index: &'a [u32],
 }
 
+/// The light's side of a shaded location, from the visible point: where it lies in light space,
+/// the light-view location and lens/time of the light point (ũ, ṽ), the light scene with R
+/// scaled by the receiver's own light-sample density ρ (in units of the median), and the
+/// receiver's plane.
+struct LightSide<'a> {
+    in_light: [f32; 3],
+    light_screen: [f32; 2],
+    light_at: LensTime,
+    light_lens: &'a super::lens::LensModel,
+    light_scene: Scene<'a>,
+    plane: ReceiverPlane,
+    /// The visible point p, its shading normal and albedo, and the light point in the world.
+    receiver: [f32; 3],
+    normal: [f32; 3],
+    albedo: [f32; 3],
+    light_point: [f32; 3],
+}
+
+impl LightSide<'_> {
+    /// The direct light p reflects towards the camera from `arriving`, the light's radiance
+    /// reconstructed at (ũ, ṽ) as seen from p.
+    fn direct(&self, scene: &ShadowScene, arriving: [f32; 3]) -> [f32; 3] {
+        let space = &scene.light_samples.space;
+        lambertian_direct(self.albedo, self.normal, self.receiver, self.light_point, space.normal, scene.area, arriving)
+    }
+}
+
+/// The steps from the visible point (camera-view position `moved` of sample `nearest`) to the
+/// light's side, shared by the oracle and the fused path; `Err` holds the location's final
+/// value where no shadow test is needed: `value` for a miss, a point above the light's plane
+/// or one outside the light's view, `value` plus the unshadowed light where the receiver is
+/// grazing (outside the light-space domain).
+#[allow(clippy::too_many_arguments)]
+fn light_side<'a>(
+    scene: &ShadowScene<'a>,
+    screen: [f32; 2],
+    at: LensTime,
+    moved: [f32; 3],
+    nearest: usize,
+    (light_u, light_v): (f32, f32),
+    value: [f32; 3],
+    stats: &mut ShadowStats,
+) -> Result<LightSide<'a>, [f32; 3]> {
+    let depth = moved[2];
+    if !depth.is_finite() || scene.shading.normal[nearest] == [0.0; 3] {
+        return Err(value); // a miss: nothing to shade
+    }
+    let normal = scene.shading.normal[nearest];
+    let receiver = visible_point(scene.camera.lens, &scene.pose, screen, at, moved, normal);
+    let space = &scene.light_samples.space;
+    let in_light = space.to_light(receiver, at.t);
+    if in_light[2].is_nan() || in_light[2] <= 0.0 {
+        return Err(value); // above the light's plane: it cannot light p
+    }
+    if space.is_grazing(in_light) {
+        // Outside the light-space domain: no shadow test, the emitter's radiance.
+        stats.grazing += 1;
+        let light_point = space.light_point(light_u, light_v, at.t);
+        let albedo = scene.shading.albedo[nearest];
+        let emission = scene.light_samples.emission;
+        let direct = lambertian_direct(albedo, normal, receiver, light_point, space.normal, scene.area, emission);
+        return Err([0, 1, 2].map(|c| value[c] + direct[c]));
+    }
+    let Some(light_centre) = space.centre_screen(in_light) else {
+        return Err(value);
+    };
+    let light_lens = scene.light.lens;
+    let light_coc = light_lens.coc(in_light[2]);
+    let light_screen = [light_centre[0] + light_u * light_coc, light_centre[1] + light_v * light_coc];
+    let light_at = LensTime { u: light_u, v: light_v, t: at.t };
+    let record = scene.file_index[nearest] as usize;
+    let rho = scene.light_samples.density.get(record).copied().filter(|&d| d > 0.0);
+    let relative = rho.map_or(1.0, |d| d / scene.light_samples.median_density);
+    let light_scene = Scene { radius: scene.light.radius * relative, ..*scene.light };
+    stats.shaded += 1;
+    let plane = ReceiverPlane::new(space, in_light, normal, light_u, light_v);
+    let (albedo, light_point) = (scene.shading.albedo[nearest], space.light_point(light_u, light_v, at.t));
+    Ok(LightSide {
+        in_light,
+        light_screen,
+        light_at,
+        light_lens,
+        light_scene,
+        plane,
+        receiver,
+        normal,
+        albedo,
+        light_point,
+    })
+}
+
 /// Per-thread scratch of the two reconstructions.
 #[derive(Default)]
 pub struct ShadowScratch {
@@ -292,7 +383,7 @@ pub fn reconstruct_with_shadow(
     let covering = &scratch.camera.covering;
     scratch.values.clear();
     scratch.values.extend(covering.iter().map(|&i| scene.shading.without_light[i as usize]));
-    let mut value = tent_filter(&scratch.camera.points, &scratch.values, screen, radius)?;
+    let value = tent_filter(&scratch.camera.points, &scratch.values, screen, radius)?;
 
     // The visible point: the covering surface's sample nearest to the location.
     let squared = |p: [f32; 2]| (p[0] - screen[0]).powi(2) + (p[1] - screen[1]).powi(2);
@@ -308,42 +399,13 @@ pub fn reconstruct_with_shadow(
     let Some(moved) = reproject(sample, scene.camera.lens, at, scene.camera.z_near) else {
         return Some(value);
     };
-    let depth = moved.z;
-    if !depth.is_finite() || scene.shading.normal[nearest] == [0.0; 3] {
-        return Some(value); // a miss: nothing to shade
-    }
-    let normal = scene.shading.normal[nearest];
-    let receiver = visible_point(scene.camera.lens, &scene.pose, screen, at, [moved.x, moved.y, depth], normal);
-    let space = &scene.light_samples.space;
-    let in_light = space.to_light(receiver, at.t);
-    let (light_u, light_v) = light_uv;
-    if in_light[2].is_nan() || in_light[2] <= 0.0 {
-        return Some(value); // above the light's plane: it cannot light p
-    }
-    if space.is_grazing(in_light) {
-        // Outside the light-space domain: no shadow test, the emitter's radiance.
-        stats.grazing += 1;
-        let light_point = space.light_point(light_u, light_v, at.t);
-        let albedo = scene.shading.albedo[nearest];
-        let emission = scene.light_samples.emission;
-        let direct = lambertian_direct(albedo, normal, receiver, light_point, space.normal, scene.area, emission);
-        return Some([0, 1, 2].map(|c| value[c] + direct[c]));
-    }
-    let Some(light_centre) = space.centre_screen(in_light) else {
-        return Some(value);
+    let side = match light_side(scene, screen, at, [moved.x, moved.y, moved.z], nearest, light_uv, value, stats) {
+        Ok(side) => side,
+        Err(done) => return Some(done),
     };
-    let light_lens = scene.light.lens;
-    let light_coc = light_lens.coc(in_light[2]);
-    let light_screen = [light_centre[0] + light_u * light_coc, light_centre[1] + light_v * light_coc];
-    let light_at = LensTime { u: light_u, v: light_v, t: at.t };
-
-    // R·ρ in light-space units: ρ of the receiver's own light sample, in units of the median.
-    let record = scene.file_index[nearest] as usize;
-    let rho = scene.light_samples.density.get(record).copied().filter(|&d| d > 0.0);
-    let relative = rho.map_or(1.0, |d| d / scene.light_samples.median_density);
-    let light_scene = Scene { radius: scene.light.radius * relative, ..*scene.light };
-    stats.shaded += 1;
-    let plane = ReceiverPlane::new(space, in_light, normal, light_u, light_v);
+    let (in_light, light_screen, light_at, light_lens, plane) =
+        (side.in_light, side.light_screen, side.light_at, side.light_lens, &side.plane);
+    let light_scene = &side.light_scene;
     let reaches = |i: u32, footprint: f32| {
         let light_sample = &scene.light_samples.samples[i as usize];
         reproject(light_sample, light_lens, light_at, scene.light.z_near).is_some_and(|end| {
@@ -355,7 +417,7 @@ pub fn reconstruct_with_shadow(
     let first_footprint = light_scene.radius * scene.light_samples.median_density;
     let blocks = |i: u32| !reaches(i, first_footprint);
     let Some(light_radius) =
-        covering_blocker(&light_scene, light_screen, light_at, &blocks, &mut scratch.light, &mut stats.light)
+        covering_blocker(light_scene, light_screen, light_at, &blocks, &mut scratch.light, &mut stats.light)
     else {
         stats.blocked += 1;
         return Some(value); // no light sample within 16R: no light (counted as blocked)
@@ -376,20 +438,8 @@ pub fn reconstruct_with_shadow(
     let Some(arriving) = tent_filter(&scratch.points, &scratch.values, light_screen, light_radius) else {
         return Some(value);
     };
-    let light_point = space.light_point(light_u, light_v, at.t);
-    let direct = lambertian_direct(
-        scene.shading.albedo[nearest],
-        normal,
-        receiver,
-        light_point,
-        space.normal,
-        scene.area,
-        arriving,
-    );
-    for c in 0..3 {
-        value[c] += direct[c];
-    }
-    Some(value)
+    let direct = side.direct(scene, arriving);
+    Some([0, 1, 2].map(|c| value[c] + direct[c]))
 }
 
 /// The fused kernel's view of a soft-shadow scene: the camera entries carrying
@@ -426,7 +476,7 @@ pub fn reconstruct_with_shadow_fused(
         Fused { scene: scene.camera, entries: fused.camera, has_lens: fused.has_lens, has_time: fused.has_time };
     let query = Query { pixel: Some(pixel), location: screen, at, light: None, nearest: true };
     let covering = super::fused::covering_surface(&camera_view, &query, &mut scratch.camera, &mut stats.camera)?;
-    let mut value = covering.value(fused.camera, None, scene.camera.lens, at, scene.camera.z_near);
+    let value = covering.value(fused.camera, None, scene.camera.lens, at, scene.camera.z_near);
 
     // The visible point: the covering surface's sample nearest to the location.
     let Some((_, nearest)) = covering.nearest else {
@@ -436,40 +486,13 @@ pub fn reconstruct_with_shadow_fused(
     let Some(moved) = fused.camera.position(nearest, at, scene.camera.lens, scene.camera.z_near) else {
         return Some(value);
     };
-    let depth = moved[2];
-    if !depth.is_finite() || scene.shading.normal[nearest] == [0.0; 3] {
-        return Some(value); // a miss: nothing to shade
-    }
-    let normal = scene.shading.normal[nearest];
-    let receiver = visible_point(scene.camera.lens, &scene.pose, screen, at, moved, normal);
-    let space = &scene.light_samples.space;
-    let in_light = space.to_light(receiver, at.t);
-    let (light_u, light_v) = light_uv;
-    if in_light[2].is_nan() || in_light[2] <= 0.0 {
-        return Some(value); // above the light's plane: it cannot light p
-    }
-    if space.is_grazing(in_light) {
-        stats.grazing += 1;
-        let light_point = space.light_point(light_u, light_v, at.t);
-        let albedo = scene.shading.albedo[nearest];
-        let emission = scene.light_samples.emission;
-        let direct = lambertian_direct(albedo, normal, receiver, light_point, space.normal, scene.area, emission);
-        return Some([0, 1, 2].map(|c| value[c] + direct[c]));
-    }
-    let Some(light_centre) = space.centre_screen(in_light) else {
-        return Some(value);
+    let side = match light_side(scene, screen, at, moved, nearest, light_uv, value, stats) {
+        Ok(side) => side,
+        Err(done) => return Some(done),
     };
-    let light_lens = scene.light.lens;
-    let light_coc = light_lens.coc(in_light[2]);
-    let light_screen = [light_centre[0] + light_u * light_coc, light_centre[1] + light_v * light_coc];
-    let light_at = LensTime { u: light_u, v: light_v, t: at.t };
-
-    let record = scene.file_index[nearest] as usize;
-    let rho = scene.light_samples.density.get(record).copied().filter(|&d| d > 0.0);
-    let relative = rho.map_or(1.0, |d| d / scene.light_samples.median_density);
-    let light_scene = Scene { radius: scene.light.radius * relative, ..*scene.light };
-    stats.shaded += 1;
-    let plane = ReceiverPlane::new(space, in_light, normal, light_u, light_v);
+    let (in_light, light_screen, light_at, light_lens, plane) =
+        (side.in_light, side.light_screen, side.light_at, side.light_lens, &side.plane);
+    let light_scene = &side.light_scene;
     let median = scene.light_samples.median_density;
     let first_test = plane.lit_test(in_light[2], light_scene.radius * median);
     let blocks = |i: u32| {
@@ -477,7 +500,7 @@ pub fn reconstruct_with_shadow_fused(
         !end.is_some_and(|end| first_test.reaches(end))
     };
     let lit_for = |radius: f32| plane.lit_test(in_light[2], radius * median);
-    let light_view = Fused { scene: &light_scene, entries: fused.light, has_lens: true, has_time: fused.has_time };
+    let light_view = Fused { scene: light_scene, entries: fused.light, has_lens: true, has_time: fused.has_time };
     let query =
         Query { pixel: None, location: light_screen, at: light_at, light: Some((&lit_for, &blocks)), nearest: false };
     let Some(light_covering) =
@@ -491,20 +514,8 @@ pub fn reconstruct_with_shadow_fused(
     }
     let lit = lit_for(light_covering.radius);
     let arriving = light_covering.value(fused.light, Some(&lit), light_lens, light_at, scene.light.z_near);
-    let light_point = space.light_point(light_u, light_v, at.t);
-    let direct = lambertian_direct(
-        scene.shading.albedo[nearest],
-        normal,
-        receiver,
-        light_point,
-        space.normal,
-        scene.area,
-        arriving,
-    );
-    for c in 0..3 {
-        value[c] += direct[c];
-    }
-    Some(value)
+    let direct = side.direct(scene, arriving);
+    Some([0, 1, 2].map(|c| value[c] + direct[c]))
 }
 
 /// The visible point p of a location: where the location's camera ray (through (x̂, ŷ) =
