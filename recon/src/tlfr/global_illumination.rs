@@ -5,7 +5,7 @@
 //! the light the first hit reflects straight from emitters, the tracer's `direct` field), whose
 //! only noise is the distribution effect's, goes through the reconstruction; the rest, the light
 //! of longer paths, is averaged per pixel (`indirect_pixel_means`) and smoothed across pixels of
-//! similar depth (`smooth_indirect`), then added. Measured in docs/tlfr.md ("Full global
+//! similar depth (`smooth_indirect`), then added. Measured in docs/history/tlfr.md ("Full global
 //! illumination").
 
 use crate::image::Image;
@@ -21,7 +21,7 @@ pub enum GiMode {
     Split { radius: u32 },
 }
 
-/// `gi_radius`'s default (docs/tlfr.md, "Full global illumination").
+/// `gi_radius`'s default (docs/history/tlfr.md, "Full global illumination").
 pub const DEFAULT_GI_RADIUS: u32 = 3;
 
 /// Relative inverse-depth difference at which a neighbour's weight in `smooth_indirect` has

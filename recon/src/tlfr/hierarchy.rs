@@ -49,7 +49,7 @@
 //! loosely: x ∝ 1/z'(t), and the lens term û·C(z'(t)) is bilinear in (û, t), which a plane
 //! cannot bound closer than the change of C over the span (Eq. 4: C ∝ 1/z'). Time segments
 //! shrink both per segment, but not to a pixel with a handful of segments: on the bench scene
-//! with a card flying through the camera (docs/tlfr.md) 8 segments cut the leaves per location
+//! with a card flying through the camera (docs/history/tlfr.md) 8 segments cut the leaves per location
 //! from 517 to 428 at 3.7× the memory, with about the same locations per CPU second. Queries
 //! stay exact either way (the tests check that against a scan).
 //!

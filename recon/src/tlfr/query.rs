@@ -396,7 +396,7 @@ fn choose_surface(
 /// the boundary of the nearest-sample decision between two patterns, whatever their densities.
 /// It neither erodes a silhouette (as the hull of its samples does) nor dilates it towards the
 /// denser pattern (as the plain nearest sample does: a blocker's samples are dense where the
-/// receiver beside it is mostly shadowed, sparse in an outer penumbra, docs/tlfr.md).
+/// receiver beside it is mostly shadowed, sparse in an outer penumbra, docs/history/tlfr.md).
 pub fn takes_rim(front: &[(u32, Point)], behind: &[(u32, Point)], location: Point) -> bool {
     let nearest = |set: &[(u32, Point)]| {
         set.iter()

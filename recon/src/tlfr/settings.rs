@@ -14,9 +14,10 @@ pub const DEFAULT_BANDWIDTH_SCALE: f32 = 0.5;
 
 /// The default `AdaptiveRule`: 16 first locations, values within 5 %. Measured on
 /// monkeys-defocus-motion (direct light, 128×72, 4 and 16 spp, 32 and 128 locations, dof-motion;
-/// docs/tlfr.md): 8 first locations keep the PSNR within 0.02 dB at 16-51 locations per pixel
-/// instead of 32-128, 4 lose 0.8-3.7 dB (a surface that crosses the pixel in a small part of
-/// the shutter or lens is missed by all of them); 16 keep a margin, within 0.02 dB at 21-57.
+/// docs/history/tlfr.md, "Adaptive locations"): 8 first locations keep the PSNR within 0.02 dB
+/// at 16-51 locations per pixel instead of 32-128, 4 lose 0.8-3.7 dB (a surface that crosses
+/// the pixel in a small part of the shutter or lens is missed by all of them); 16 keep a
+/// margin, within 0.02 dB at 21-57.
 /// Spreads from 0.05 to 0.2 stop about as many pixels: the one-surface test decides.
 pub const DEFAULT_ADAPTIVE: AdaptiveRule = AdaptiveRule { first: 16, spread: 0.05 };
 
