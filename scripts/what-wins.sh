@@ -13,9 +13,9 @@ lfr=target/release/lfr
 common=(--reference-spp 1024 --pt-max-spp 256 --repeats 3 --cache-dir "$cache" --quiet --force)
 run() { local name=$1; shift; echo "== $name: lfr compare $*" >&2; "$lfr" compare "$@" "${common[@]}" --out "$out/$name"; }
 run cornell-indirect --scene scenes/cornell.toml --effect indirect --width 128 --height 128 --spp 1,4 \
-  --methods ilfr,ilfr:variant=paper,ilfr:grain=filter,ilfr+oidn,gif,oidn
+  --methods ilfr,ilfr:variant=paper,ilfr:grain=filter,ilfr+oidn,ilfr-recursive,ilfr-recursive+oidn,gif,gif+oidn,oidn
 run sponza-indirect --scene scenes/sponza.toml --effect indirect --width 160 --height 90 --spp 4,8 \
-  --methods ilfr,ilfr:variant=paper,ilfr:grain=filter,ilfr+oidn,gif,oidn
+  --methods ilfr,ilfr:variant=paper,ilfr:grain=filter,ilfr+oidn,ilfr-recursive,ilfr-recursive+oidn,gif,gif+oidn,oidn
 run sponza-ao --scene scenes/sponza.toml --effect ao --width 160 --height 90 --spp 1,4 \
   --methods ilfr,ilfr:variant=paper,ilfr+oidn,oidn
 run monkeys-glossy --scene scenes/monkeys.toml --effect glossy --width 160 --height 90 --spp 1,8 --max-bounces 2 \
