@@ -311,8 +311,12 @@ pub fn load_scene(path: Option<&Path>, access: FileAccess, lighting: &LightingAr
             scene
         }
     };
+    let source = format!("{}: ", scene.source.display());
     for warning in &scene.warnings {
-        eprintln!("warning: {}: {warning}", scene.source.display());
+        // A warning that names its own file (a mesh or material file, or the scene itself) keeps
+        // its name; the others get the scene's.
+        let prefix = if warning.starts_with(&source) { "" } else { &source };
+        eprintln!("warning: {prefix}{warning}");
     }
     lighting.apply(&mut scene)?;
     Ok(scene)

@@ -97,10 +97,11 @@ pub fn preview_of(out: &Path) -> PathBuf {
 /// Whether `path` names a folder by its spelling: a trailing `/`, or a last component of `.`,
 /// `..` or none at all.
 fn names_a_folder(path: &Path) -> bool {
+    // Read off the spelling, not `components()`, which drops a trailing `.` (`x.exr/.` would
+    // read as the file `x.exr` and fail only when renamed into place, after the work).
     let text = path.as_os_str().as_encoded_bytes();
-    text.ends_with(b"/")
-        || text.ends_with(std::path::MAIN_SEPARATOR_STR.as_bytes())
-        || !matches!(path.components().next_back(), Some(Component::Normal(_)))
+    let last = text.rsplit(|&b| b == b'/').next().unwrap_or(text);
+    matches!(last, b"" | b"." | b"..") || !matches!(path.components().next_back(), Some(Component::Normal(_)))
 }
 
 impl OutputPlan {
@@ -278,6 +279,16 @@ fn check_file_output(output: &Output, writable: &mut std::collections::HashSet<P
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_folder_is_read_off_the_spelling_whatever_components_make_of_it() {
+        for folder in ["o.exr/", "o.exr/.", "o.exr/..", "d/o.exr//", ".", "..", "/", "./", "a/b/."] {
+            assert!(names_a_folder(Path::new(folder)), "{folder}");
+        }
+        for file in ["o.exr", "a/./o.exr", "./o.exr", "../o.exr", "a/../o.exr", ".o.exr", "o.exr."] {
+            assert!(!names_a_folder(Path::new(file)), "{file}");
+        }
+    }
 
     fn refusal(plan: &OutputPlan) -> String {
         plan.check().expect_err("refused").to_string()

@@ -187,10 +187,12 @@ fn probes_relight_never_replaces_its_reference_cache_or_json() {
 fn folders_spelled_as_outputs_files_as_folders_and_standard_output_are_refused_before_work() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let slash = format!("{}/o.exr/", d.display());
-    let mut args = vec!["render", "--out", slash.as_str()];
-    args.extend(SMALL);
-    refused(&args, &["names a folder"]);
+    for spelled in ["o.exr/", "o.exr/."] {
+        let folder = format!("{}/{spelled}", d.display());
+        let mut args = vec!["render", "--out", folder.as_str()];
+        args.extend(SMALL);
+        refused(&args, &["names a folder"]);
+    }
     let samples = format!("{}/x.lfrs/", d.display());
     refused(&["dump", "--kind", "lens-time", "--spp", "1", "--out", &samples, "--quiet"], &["names a folder"]);
     // A regular file where a folder of the output should be: refused before the work, whichever

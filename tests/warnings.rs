@@ -193,3 +193,35 @@ fn reconstruct_warns_about_an_all_nan_radiance() {
     assert!(message.contains("the image is black"), "{message}");
     assert_eq!(message.matches("warning").count(), 1, "one warning: {message}");
 }
+
+/// A scene's warning names the file once: a base colour above 1 in a TOML scene reads
+/// `warning: FILE: material[i] 'grey'.base_color: ...`, not `FILE: FILE: ...`.
+#[test]
+fn a_scene_warning_names_its_file_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("bright-grey.toml");
+    let text =
+        BRIGHT_POINT_LIGHT.replace("3e38", "1").replace("base_color = [0.5, 0.5, 0.5]", "base_color = [1.5, 0.5, 0.5]");
+    std::fs::write(&scene, text).unwrap();
+    let out = dir.path().join("o.exr");
+    let result = lfr(&[
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--width",
+        "4",
+        "--height",
+        "4",
+        "--spp",
+        "1",
+        "--quiet",
+    ]);
+    let message = stderr(&result);
+    assert!(result.status.success(), "{message}");
+    let name = scene.display().to_string();
+    let line = message.lines().find(|l| l.contains("base_color")).unwrap_or_else(|| panic!("no warning: {message}"));
+    assert!(line.starts_with(&format!("warning: {name}: material[")) && line.contains("'grey'.base_color"), "{line}");
+    assert_eq!(line.matches(&name).count(), 1, "{line}");
+}

@@ -28,7 +28,9 @@ pub fn prepare(dir: &Path, force: bool) -> Result<usize> {
     // A symbolic link to a folder is that folder.
     match std::fs::metadata(dir) {
         Err(error) if error.kind() == std::io::ErrorKind::NotFound => {
-            std::fs::create_dir_all(dir).with_context(|| format!("--out: creating {}", dir.display()))?;
+            // By its components: `create_dir_all` cannot make `new/.` (its parent reads as "").
+            let folder: std::path::PathBuf = dir.components().collect();
+            std::fs::create_dir_all(&folder).with_context(|| format!("--out: creating {}", dir.display()))?;
             return Ok(0);
         }
         Err(error) => bail!("--out {}: {error}", dir.display()),
@@ -114,6 +116,15 @@ mod tests {
         assert!(out.join("results.json").exists(), "nothing removed on refusal");
         assert_eq!(prepare(&out, true).unwrap(), 1);
         assert!(out.join("thesis.tex").exists() && !out.join("results.json").exists());
+    }
+
+    #[test]
+    fn a_new_folder_spelled_with_a_trailing_dot_or_slash_is_made() {
+        let dir = tempfile::tempdir().unwrap();
+        for (spelled, made) in [("a/.", "a"), ("b/", "b"), ("c/d/./", "c/d"), ("e/f/..", "e")] {
+            assert_eq!(prepare(&dir.path().join(spelled), false).unwrap(), 0, "{spelled}");
+            assert!(dir.path().join(made).is_dir(), "{spelled}");
+        }
     }
 
     #[test]
