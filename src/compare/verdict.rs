@@ -248,6 +248,15 @@ pub fn verdicts_against_path_tracing(runs: &mut [Run]) -> Vec<Verdict> {
     verdicts
 }
 
+/// A per-frame speedup in words: "3.2× faster", or "2.0× slower" below 1 (never "0.5× faster").
+fn per_frame_ratio(speedup: f64) -> String {
+    if speedup >= 1.0 {
+        format!("{speedup:.1}× faster")
+    } else {
+        format!("{:.1}× slower", 1.0 / speedup.max(1e-12))
+    }
+}
+
 /// `method`'s verdict from its runs and their readings against `baseline`.
 fn summarise(method: &str, mine: &[(&Run, Option<&Readings>)], baseline: &Baseline) -> Verdict {
     let speedup_of = |(_, x): &&(&Run, &Readings)| x.speedup.unwrap_or(0.0);
@@ -314,9 +323,10 @@ fn summarise(method: &str, mine: &[(&Run, Option<&Readings>)], baseline: &Baseli
     };
     let summary = match best_frame.and_then(|(r, x)| x.per_frame_speedup.map(|s| (s, r, x))) {
         Some((speedup, run, x)) => format!(
-            "{summary}; after a precompute of {:.2} s one frame takes {:.4} s: {speedup:.1}× faster than {name} to {:.2} dB, {}",
+            "{summary}; after a precompute of {:.2} s one frame takes {:.4} s: {} than {name} to {:.2} dB, {}",
             run.preprocess_s,
             run.recon_s,
+            per_frame_ratio(speedup),
             run.psnr_db,
             match x.break_even_frames {
                 Some(n) => format!("the precompute pays for itself after {n:.1} frames"),
@@ -343,6 +353,13 @@ fn summarise(method: &str, mine: &[(&Run, Option<&Readings>)], baseline: &Baseli
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_per_frame_ratio_below_one_reads_slower() {
+        assert_eq!(per_frame_ratio(174.0), "174.0× faster");
+        assert_eq!(per_frame_ratio(1.0), "1.0× faster");
+        assert_eq!(per_frame_ratio(0.5), "2.0× slower");
+    }
 
     fn run(method: &str, spp: u32, total_s: f64, psnr_db: f64, valid: bool) -> Run {
         let mut run = Run::example(method, spp, total_s, psnr_db);

@@ -66,7 +66,7 @@ impl<'a> Plan<'a> {
         };
         // With --effect given, the methods are checked before the scene is read.
         let resolve = |effect: Effect| -> Result<_> {
-            let (names, probe_methods) = split_probes(&args.methods, effect, seed)?;
+            let (names, probe_methods) = split_probes(&args.methods, effect, seed, args.recon_rays.as_deref())?;
             Ok((resolve_methods(&names, effect)?, probe_methods))
         };
         let early = args.effect.map(resolve).transpose()?;
@@ -208,25 +208,47 @@ fn check_counts(args: &CompareArgs) -> Result<()> {
 }
 
 /// `--methods` split into the registry's names and the `probes` methods, which sit on the
-/// tracer (the harness's hook, `probes_method`), without repeats.
+/// tracer (the harness's hook, `probes_method`), without repeats. A probes method traces no
+/// input, so `--spp` does not apply to it; `--recon-rays` sets its primary rays per pixel
+/// (`pixel_samples`), one run per count, unless its spec sets `pixel_samples` itself.
 fn split_probes(
     methods: &[String],
     effect: Effect,
     seed: u32,
+    recon_rays: Option<&[u32]>,
 ) -> Result<(Vec<String>, Vec<probes_method::ProbesMethod>)> {
     let mut probe_methods: Vec<probes_method::ProbesMethod> = Vec::new();
     let mut names: Vec<String> = Vec::new();
     for name in methods {
-        match probes_method::ProbesMethod::parse(name, seed)? {
-            Some(method) => {
-                if effect != Effect::Indirect {
-                    bail!("--methods: probes handles --effect indirect only, not {}", effect.name());
+        let Some(method) = probes_method::ProbesMethod::parse(name, seed)? else {
+            names.push(name.clone());
+            continue;
+        };
+        if effect != Effect::Indirect {
+            bail!("--methods: probes handles --effect indirect only, not {}", effect.name());
+        }
+        let sets_rays = method.name.split(':').any(|option| option.starts_with("pixel_samples="));
+        let runs = match recon_rays {
+            Some(rays) if !sets_rays => {
+                let mut runs = Vec::new();
+                for rays in rays {
+                    let spec = format!("{}:pixel_samples={rays}", method.name);
+                    runs.push(probes_method::ProbesMethod::parse(&spec, seed)?.expect("a probes spec stays one"));
                 }
-                if !probe_methods.iter().any(|m| m.name == method.name) {
-                    probe_methods.push(method);
-                }
+                let specs: Vec<&str> = runs.iter().map(|m| m.name.as_str()).collect();
+                eprintln!(
+                    "compare: {}: --recon-rays sets its primary rays per pixel: {}",
+                    method.name,
+                    specs.join(", ")
+                );
+                runs
             }
-            None => names.push(name.clone()),
+            _ => vec![method],
+        };
+        for method in runs {
+            if !probe_methods.iter().any(|m| m.name == method.name) {
+                probe_methods.push(method);
+            }
         }
     }
     Ok((names, probe_methods))
@@ -356,6 +378,25 @@ pub fn ladder(max: u32, input_spp: &[u32]) -> Vec<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn recon_rays_set_the_probes_rays_per_pixel_unless_the_spec_does() {
+        let methods = |list: &[&str]| list.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let (names, probes) =
+            split_probes(&methods(&["ilfr", "probes:order=3"]), Effect::Indirect, 1, Some(&[4, 16])).unwrap();
+        assert_eq!(names, ["ilfr"]);
+        let runs: Vec<(&str, u32, usize)> =
+            probes.iter().map(|m| (m.name.as_str(), m.pixel_samples, m.precompute.transport.order)).collect();
+        assert_eq!(runs, [("probes:order=3:pixel_samples=4", 4, 3), ("probes:order=3:pixel_samples=16", 16, 3)]);
+        // Its own count wins; without --recon-rays the default stays.
+        let (_, probes) = split_probes(&methods(&["probes:pixel_samples=2"]), Effect::Indirect, 1, Some(&[4])).unwrap();
+        assert_eq!(probes.iter().map(|m| m.pixel_samples).collect::<Vec<_>>(), [2]);
+        let (_, probes) = split_probes(&methods(&["probes"]), Effect::Indirect, 1, None).unwrap();
+        assert_eq!(probes.iter().map(|m| m.pixel_samples).collect::<Vec<_>>(), [probes::defaults::PIXEL_SAMPLES]);
+        // A count the image cannot take is refused, naming the option.
+        let error = split_probes(&methods(&["probes"]), Effect::Indirect, 1, Some(&[4096])).unwrap_err().to_string();
+        assert!(error.contains("pixel_samples"), "{error}");
+    }
 
     #[test]
     fn ladder_is_powers_of_two_plus_inputs() {
