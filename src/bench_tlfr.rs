@@ -1,5 +1,5 @@
 //! `lfr bench-tlfr`: the temporal light field reconstruction's cost per location beside the
-//! tracer's cost per sample on the same scene in the same run (issue 24, item 3), and where the
+//! tracer's cost per sample on the same scene in the same run, and where the
 //! reconstruction's time goes.
 //!
 //! For every scene and input spp the tracer first renders the image at that spp (timed: traced

@@ -102,7 +102,7 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
         kernel: if args.oracle { Kernel::Oracle } else { Kernel::Fused },
     };
     let pool = args.run.worker_pool()?;
-    // Memory before any work (issue 22, class 5): the sample count from the file's header
+    // Memory before any work: the sample count from the file's header
     // (the full check of its chunks follows in `reconstruct_file`).
     let samples =
         sampleio::SampleFile::open_unchecked(&args.samples).map_err(|e| anyhow::anyhow!("{}", e))?.len() as u64;

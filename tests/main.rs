@@ -7,6 +7,7 @@ mod common;
 #[path = "common/cli.rs"]
 mod lfr_runner;
 
+mod architecture;
 mod cli;
 mod compare;
 mod confinement;

@@ -1,7 +1,6 @@
 //! Sparse radiance probes: Silvennoinen & Lehtinen 2017, "Real-time Global Illumination by
 //! Precomputed Local Reconstruction from Sparse Radiance Probes" (ACM TOG 36(6) 230; text in
 //! `shared/papers/sparse-radiance-probes-2017.txt`, design in `docs/probes-design.md`).
-//! Issue 25, landed in phases.
 //!
 //! Paper → code:
 //! - ✓ Eq. 3, probe radiance as real SH of order 7, and the clamped-cosine measurement of

@@ -1,5 +1,5 @@
 //! The peak memory of a precompute and of a relit frame, estimated from the settings alone
-//! (issue 25, bad input: "an estimated memory above the machine's" is refused before any long
+//! (an estimated memory above the machine's is refused before any long
 //! work). The CLI compares [`MemoryEstimate::total`] with `tracer::memory::available_bytes`
 //! after the scene is read (so the scene's meshes and textures are already out of the measured
 //! available memory) and before the precompute, the cache read or a frame.
@@ -181,7 +181,7 @@ mod tests {
         let e = MemoryEstimate::precompute(&settings(100_000, 160, 7), 2);
         assert_eq!(e.receivers, 150_000);
         assert_eq!(e.transport, 150_000 * (10 * (64 * 4 + 4) + 64));
-        // The dense transport must dominate the issue's 600 B per receiver target's scale.
+        // The dense transport must dominate the design's 600 B per receiver target's scale.
         assert!(e.transport / e.receivers > 2000);
     }
 

@@ -1,4 +1,4 @@
-//! The per-frame pipeline's stiff cases (issue 25's list), end to end through the pieces a
+//! The per-frame pipeline's stiff cases, end to end through the pieces a
 //! relit frame uses: precompute, the relight fit, CPCA, the bounces (the full loop of `frame`
 //! and the projected loop of `projected_bounce`) and the camera's kept lookups
 //! (`image_operator`, with `image::render_image` as its oracle). Each test names the case.

@@ -5,8 +5,8 @@
 //! [`AuxiliaryMode::Integrated`] (the default) is each pixel's mean over its samples. For depth
 //! of field and motion blur the samples spread over the lens and the shutter, so the mean is the
 //! lens- and time-integrated albedo and normal, blurred as the colour is: a pinhole's sharp
-//! auxiliaries inside bokeh make OIDN draw edges that the colour does not have (OIDN issue 22,
-//! three-gpu-pathtracer issue 829). [`AuxiliaryMode::Centre`] takes each pixel's sample nearest
+//! auxiliaries inside bokeh make OIDN draw edges that the colour does not have (RenderKit/oidn#22,
+//! gkjohnson/three-gpu-pathtracer#829). [`AuxiliaryMode::Centre`] takes each pixel's sample nearest
 //! the lens centre and mid-shutter instead: a pinhole-like, sharp auxiliary from the same
 //! samples, kept to measure the difference (docs/compare.md, "Pipelines").
 //!

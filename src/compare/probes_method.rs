@@ -1,4 +1,4 @@
-//! The tracer-side method `probes` of `lfr compare` (issue 25 item 4): sparse radiance probes
+//! The tracer-side method `probes` of `lfr compare`: sparse radiance probes
 //! (crate `probes`, docs/probes.md) for `--effect indirect`. The `recon` crate must not use
 //! the tracer, so this method is not in `recon::registry`: the harness recognises its name here
 //! and runs it once, after the registry's methods, on the comparison's scene.

@@ -16,11 +16,11 @@ use super::effect::Tracing;
 use crate::convert::rgb_channels;
 
 /// Bumped whenever the tracer's estimators change what a reference contains (4: normal maps,
-/// single-sided materials, rectangle lights by solid angle, scale-free offsets; session 16).
+/// single-sided materials, rectangle lights by solid angle, scale-free offsets).
 const ESTIMATOR_VERSION: &str = "lfr-reference/4";
 
 /// Added to the key of ambient-occlusion references only, bumped when the AO estimator changes
-/// (2: a cosine direction below the geometric surface is occluded, no longer an escape; issue 23).
+/// (2: a cosine direction below the geometric surface is occluded, no longer an escape).
 const AO_ESTIMATOR_VERSION: &str = "ao/2";
 
 /// A reference: the mean of two halves, and the halves (none for an external reference given as
@@ -69,9 +69,8 @@ pub enum SeedPurpose {
 
 /// The seed for `purpose` derived from comparison seed `seed`: the hash of (purpose, seed) as
 /// one 64-bit word, so distinct pairs hash distinct words (the finaliser is a bijection; only
-/// the kept high half can collide, as any two random seeds can). Before session 28 the halves'
-/// seeds hashed `seed ^ salt` with salts one bit apart, so seeds 1 and 2 got the same two
-/// reference seeds, swapped.
+/// the kept high half can collide, as any two random seeds can). Hashing `seed ^ salt` with
+/// salts one bit apart instead would give seeds 1 and 2 the same two reference seeds, swapped.
 pub fn derived_seed(seed: u32, purpose: SeedPurpose) -> u32 {
     hashed((purpose as u64) << 32 | seed as u64, 0x5245_4645_5245_4e43)
 }
@@ -295,7 +294,7 @@ mod tests {
     /// truth of 16 times the reference's samples whose own error (1/16 of the reference's) is
     /// taken out. Measured spread of the estimate at this size: about ±0.5 dB on the branch that
     /// wrote it, −1.03 dB with the same seeds once rectangle lights were sampled by solid angle
-    /// (issue 26 changes every path's random decisions, not the expectation); hence 1.5 dB.
+    /// (that changes every path's random decisions, not the expectation); hence 1.5 dB.
     #[test]
     fn the_estimate_from_two_halves_matches_a_much_longer_render() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));

@@ -17,8 +17,8 @@
 //! environment uniformly over the sphere. A rectangle light (a static quad of constant emission)
 //! is sampled uniformly in the solid angle it subtends from nearby points (Ureña et al. 2013,
 //! `RectangleEmitter`), by area from far away. `pdf_*` functions give the densities the
-//! integrator needs for multiple importance sampling when a BSDF-sampled ray hits an emitter. The sampling
-//! before issue 26 stays available as [`LightStrategy::Legacy`], the oracle of the tests.
+//! integrator needs for multiple importance sampling when a BSDF-sampled ray hits an emitter. Sampling
+//! by power alone stays available as [`LightStrategy::Legacy`], the oracle of the tests.
 
 use std::f32::consts::PI;
 
@@ -43,7 +43,7 @@ pub enum LightStrategy {
     /// angle (see the module documentation).
     #[default]
     ByContribution,
-    /// The sampling before issue 26: one table over every emitter by power, the environment's
+    /// Sampling by power alone: one table over every emitter by power, the environment's
     /// and directional lights' power taken over the scene's bounding sphere, sphere lights
     /// sampled over their whole surface. Same expected value; kept as the tests' oracle.
     Legacy,

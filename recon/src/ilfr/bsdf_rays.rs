@@ -12,7 +12,7 @@
 //! takes the points from `first` on (a prefix at `first` = 0; the final gather gives hit k of a
 //! pixel `first` = k·N of sequences scrambled per pixel where all its directions come from one
 //! lobe ([`single_lobe`]), so that the pixel's hits share one stratification, as the cosine rays
-//! of `directions` do, issue 23), so both sets stay
+//! of `directions` do), so both sets stay
 //! stratified; a random lobe choice per ray would add noise for nothing. When both lobes
 //! exist and N ≥ 2, each gets at least one direction; with N = 1 the lobe is chosen by a hash
 //! with probability P_s and the one-sample mixture weight is used.

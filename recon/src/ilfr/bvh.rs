@@ -14,11 +14,11 @@
 //!   [`DiscBvh::collect_hits`] — *every* disc the ray hits within (t_min, t_max), not the
 //!   nearest; an unordered stack walk of a 4-wide hierarchy collapsed from the binary one (same
 //!   leaves and boxes; four child boxes per step in one slab test, 128-byte nodes) over 32-byte
-//!   disc records in leaf order (issue 23). The binary walk of before,
+//!   disc records in leaf order. The binary walk of before,
 //!   [`DiscBvh::for_each_hit_binary`], is kept as its oracle: the same hits bit for bit.
 //! - "the bounding boxes of the BVH nodes are recomputed to accommodate the new sizes"
 //!   (§2.3.1): [`DiscBvh::set_radii`] (bottom-up refit, same topology); splats trimmed wedge by
-//!   wedge (issue 23): [`DiscBvh::set_wedge_radii`], boxed by their wedges, a hit kept only
+//!   wedge: [`DiscBvh::set_wedge_radii`], boxed by their wedges, a hit kept only
 //!   within the radius of the wedge it lands in.
 //!
 //! Boxes are padded by a small scene-relative margin so that rounding in the box test can never

@@ -1,10 +1,10 @@
-//! Beyond the paper (issue 23): an edge-aware filter of the final gather's per-pixel grain,
+//! Beyond the paper: an edge-aware filter of the final gather's per-pixel grain,
 //! `ilfr:grain=filter` (the paper's method keeps the grain: `grain=keep`, the default).
 //!
 //! Why: the error that more reconstruction rays remove is mostly per-pixel grain of the final
 //! gather (Eq. 3 with N rays per pixel), not the reconstruction's bias (Cornell 64², 16 spp:
 //! 128 → 512 rays lift 32.95 → 37.47 dB). Taking it out with a filter that costs milliseconds
-//! buys the PSNR of more rays at the time of fewer (measured in docs/history/ilfr.md, "Issue 23: the
+//! buys the PSNR of more rays at the time of fewer (measured in docs/history/ilfr.md, "the
 //! final gather's grain, filtered").
 //!
 //! What: the pixel's indirect light divided by its primary hits' mean albedo (so textures are
@@ -25,7 +25,7 @@
 //! camera rays all escaped keep their value and are never read by surface pixels. Only for
 //! diffuse `indirect` files: a glossy file's light is not albedo times irradiance, and
 //! filtering it would blur reflections. Chosen by measurement against one level without the
-//! luminance term (session 24) and other levels and σ_l: docs/history/ilfr.md, "the final gather's
+//! luminance term and other levels and σ_l: docs/history/ilfr.md, "the final gather's
 //! grain, filtered".
 
 use rayon::prelude::*;

@@ -123,7 +123,7 @@ impl Default for IlfrChoices {
 /// The conflict test used for `effect` unless one is chosen: the event line asked off the
 /// tangent planes ([`SurfaceParams::default`]), except for ambient occlusion, where the paper's
 /// plain event line measured better (Sponza's foliage: +0.4 to +0.5 dB at 4 and 16 spp;
-/// docs/ilfr.md, "Issue 23").
+/// docs/history/ilfr.md, "The conflict test").
 pub fn conflict_test_for(effect: Effect) -> ConflictTest {
     match effect {
         Effect::Ao => ConflictTest::EventLine,
@@ -136,7 +136,7 @@ pub fn conflict_test_for(effect: Effect) -> ConflictTest {
 /// occluder within the radius than a spurious one: on Sponza (160 × 90, 4 spp) the rule turned
 /// 1.8 % of the rays from occluded to visible against 1.2 % from spuriously occluded to
 /// visible, and without it ILFR gains 1.2 dB at 4 spp and 2.3 dB at 16 spp, relative MSE −42 %
-/// and −51 % (docs/ilfr.md, "Issue 23: ambient occlusion").
+/// and −51 % (docs/history/ilfr.md, "ambient occlusion (Deliver 4)").
 pub fn merge_small_surfaces_for(effect: Effect) -> bool {
     effect != Effect::Ao
 }
@@ -146,8 +146,8 @@ pub fn merge_small_surfaces_for(effect: Effect) -> bool {
 /// splats; +0.6 to +3 dB on Sponza, the glossy monkeys, the roughness sweep and the bunny,
 /// Cornell unchanged), otherwise the whole disc (the paper): for ambient occlusion, which has
 /// no small-surface rule, the wedges left whole beside a trimmed one overhang silhouettes as
-/// false occluders (Sponza −3.4 dB), and in the lens mode they measured no better (docs/ilfr.md,
-/// "Issue 23: trimming wedges").
+/// false occluders (Sponza −3.4 dB), and in the lens mode they measured no better (docs/history/ilfr.md,
+/// "trimming wedges, not whole discs").
 pub fn trim_for(effect: Effect) -> Trim {
     match effect {
         Effect::Indirect | Effect::Glossy => Trim::Wedges,
@@ -383,7 +383,7 @@ pub struct IlfrSettings {
     pub robust: RobustParams,
     /// The final gather's directions (cosine rays, and each BSDF lobe's at glossy hits) of a
     /// pixel's primary hits as one stratified set ([`GatherSettings::pixel_stratified`]);
-    /// false: one set per hit (before issue 23).
+    /// false: one set per hit.
     pub pixel_stratified: bool,
     /// Reconstruction rays start this fraction of the scene diagonal above their primary (and,
     /// recursing, secondary) hit.
@@ -981,7 +981,7 @@ pub(crate) mod tests {
         // walls varies over the hemisphere, so the gather's error is its sampling noise; against
         // the same splats gathered with 4096 rays per pixel, one scrambled Sobol' set split over
         // the pixel's hits (each hit a consecutive block) must be clearly better than 16
-        // independent 4-ray sets (issue 23: the error grew with the input spp at fixed rays).
+        // independent 4-ray sets (with one set per hit the error grew with the input spp at fixed rays).
         let samples = box_samples(8, 16, SampleKind::Indirect, None, |h| [h[2]; 3]);
         let (per_pixel, per_hit) = stratification_errors(&samples);
         assert!(per_pixel < 0.5 * per_hit, "MSE one set per pixel {per_pixel:.3e}, one per hit {per_hit:.3e}");
@@ -1111,7 +1111,7 @@ pub(crate) mod tests {
         // the floor reflects the height ramp of the walls through its own BSDF, 16 hits and 64
         // rays per pixel. A rough metal (one lobe): against the same splats gathered with 4096
         // rays per pixel, the directions taken as consecutive blocks of one scrambled sequence
-        // per pixel must beat 16 independent sets (issue 23: glossy files kept one set per
+        // per pixel must beat 16 independent sets (one set per
         // hit). A rough dielectric (both lobes, split per hit) keeps one set per hit
         // (`bsdf_rays::single_lobe`: blocks measured 3× worse there), the same image bit for bit.
         let eye = [0.3, -0.2, 1.9];
@@ -1386,7 +1386,7 @@ pub(crate) mod tests {
         assert!(result.image.pixels.iter().all(|p| *p == [1.0; 3]), "{variant:?}: {:?}", result.image.pixels);
     }
 
-    /// Stiff inputs of issue 7 item 11: zero-length secondary rays (the secondary hit on the
+    /// Stiff inputs: zero-length secondary rays (the secondary hit on the
     /// primary hit, as a ray that hits its own surface at once would give) and coincident hits
     /// (several samples on the same point with the same normal). In the furnace (constant L)
     /// every reconstruction is a convex combination of L, so every pixel must still be albedo ×
@@ -1476,7 +1476,7 @@ pub(crate) mod tests {
         assert!(error.to_string().contains("AO radius"), "{error}");
     }
 
-    /// Issue 23's outlier test at the pixel level: one 1e4 spike among smooth samples (radiance
+    /// The outlier test at the pixel level: one 1e4 spike among smooth samples (radiance
     /// 1.0–1.2, grey) in the closed box, the whole method run with and without it.
     /// - `robust=clamp`: the spike's splat keeps at most c × the second largest luminance of its
     ///   jury (≤ c · 1.2) and no other splat changes (rank 2: one outlier raises no one's level),

@@ -1,7 +1,7 @@
 //! Indirect light field reconstruction (Lehtinen, Aila, Laine, Durand 2012, "Reconstructing the
 //! Indirect Light Field for Global Illumination"; the text is in
 //! `shared/papers/indirect-light-field-reconstruction-2012.txt`, the design in
-//! `docs/ilfr-design.md`, results in `docs/ilfr.md`). Issue 7: every slice of the design's
+//! `docs/ilfr-design.md`, results in `docs/ilfr.md`). Every slice of the design's
 //! implementation order has landed.
 //!
 //! Paper → code:
@@ -12,8 +12,8 @@
 //!   `neighbours` (kd-tree and the ordered walk), `splats` (radius, relaxation, fallbacks).
 //! - ✓ Section 2.3, the splats as oriented discs (`disc`: ray–disc intersection, exact disc
 //!   boxes) in our own BVH (`bvh`: binned SAH, every disc along a ray walked on a 4-wide
-//!   collapse of it over compact disc records (issue 23), refit). Embree's
-//!   oriented-disc points, the alternative of issue item 2, are measured against it in
+//!   collapse of it over compact disc records, refit). Embree's
+//!   oriented-disc points, the alternative, are measured against it in
 //!   `benches/ilfr_discs.rs` and checked hit for hit in `tests/ilfr_embree_discs.rs`: 1.2–1.5×
 //!   faster walks, 20× slower refits; we keep ours (docs/ilfr-design.md, "Slice 7"). Motion
 //!   boxes are not built yet (Section 3.4 with moving geometry).
@@ -31,7 +31,7 @@
 //!   ambient occlusion (Section 3.3): `gather`; at glossy primary hits, directions and weights
 //!   f·cos/p from o's own BSDF (read from the file, the tracer's `shading::Bsdf`), split between
 //!   the lobes with multi-sample MIS: `bsdf_rays`.
-//! - Beyond the paper (issue 23): splats far brighter than their neighbours in the lobe keep a
+//! - Beyond the paper: splats far brighter than their neighbours in the lobe keep a
 //!   bounded radiance and share the excess with them, power kept (`robust`); for indirect light
 //!   and glossy reflections a blocked input ray trims only the 45° wedges of a splat towards
 //!   it, as far as a straight edge through the crossing needs, so that trimmed rim splats leave

@@ -1,4 +1,4 @@
-//! Robust splat radiance (issue 23, "Fireflies pass through"): a splat whose radiance is far
+//! Robust splat radiance, so that fireflies do not pass through: a splat whose radiance is far
 //! above that of its neighbours in the reconstruction keeps only a bounded part of it, and the
 //! rest is shared with those neighbours, so that a lone bright sample becomes a wide, faint
 //! patch instead of a bright disc (diffuse tent) or a bright blob (glossy nearest neighbour).
@@ -9,7 +9,7 @@
 //! while the fireflies grow in number as spp, so the reconstructed field's squared contrast
 //! over directions (∫ L̃² dω, what the final gather's fixed number of rays samples) stays
 //! constant in spp, and grows while rare paths first appear: the image's error stops falling,
-//! or rises, with more input (docs/history/ilfr.md, "Issue 23": Cornell's relative MSE rose from 4 to
+//! or rises, with more input (docs/history/ilfr.md, "the error that grew with the input": Cornell's relative MSE rose from 4 to
 //! 16 spp).
 //!
 //! The rule, per splat i, from the input alone and the same for any thread count:

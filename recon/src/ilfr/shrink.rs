@@ -15,7 +15,7 @@
 //! - "Finally, the bounding boxes of the BVH nodes are recomputed": the refit
 //!   ([`DiscBvh::set_radii`]) at the end of [`shrink_splats`].
 //!
-//! - Beyond the paper (issue 23, [`Trim::Wedges`]): each of a splat's eight 45° wedges keeps its
+//! - Beyond the paper ([`Trim::Wedges`]): each of a splat's eight 45° wedges keeps its
 //!   own radius, and a blocking ray bounds only the wedges towards it, by
 //!   [`half_plane_wedge_radii`] (the crossing's own wedge to s_i exactly).
 //!
@@ -60,7 +60,7 @@ pub struct ShrinkParams {
     /// Whether input rays that escaped the scene shrink the splats they cross (the paper's
     /// "all the input rays", our default) or only rays that hit (the authors' code: +0.5 dB on
     /// the glossy monkeys, −0.2 dB on Cornell, ±0 on Sponza, and silhouettes that overhang the
-    /// sky in the lens mode; docs/history/ilfr.md, "Issue 23").
+    /// sky in the lens mode; docs/history/ilfr.md, "Shrinking with escaped rays").
     pub escaped_rays: bool,
     /// What a blocked ray trims: the whole disc (the paper) or the disc's wedges towards it.
     pub trim: Trim,
@@ -75,7 +75,7 @@ pub enum Trim {
     /// one by one, each only as far as a straight edge through the crossing, across its
     /// direction, needs ([`half_plane_wedge_radii`]): the crossing's wedge to the ray's
     /// distance, wedges facing away not at all. A rim splat trimmed on its outer side then
-    /// leaves no hole on its inner side (docs/history/ilfr.md, "Issue 23: trimming wedges").
+    /// leaves no hole on its inner side (docs/history/ilfr.md, "trimming wedges, not whole discs").
     Wedges,
 }
 

@@ -12,10 +12,10 @@
 //!   event line formed by connecting the two endpoints h_i and h_j. If the intersection point
 //!   lies within the positive halfspaces of both samples, a conflict is declared" (Figure 5):
 //!   [`conflicts`] with [`ConflictTest::EventLine`]; the authors' code's active test
-//!   ("facing / coplanar") as [`ConflictTest::FacingOrCoplanar`]; the default (issue 23),
+//!   ("facing / coplanar") as [`ConflictTest::FacingOrCoplanar`]; the default,
 //!   [`ConflictTest::EventLineOffPlane`], asks the event line only of pairs whose connecting line
 //!   leaves both tangent planes by more than [`COPLANAR_DEGREES`], so that neighbours of one
-//!   noisy surface never fragment it while stacked surfaces stay apart (docs/history/ilfr.md, "Issue 23").
+//!   noisy surface never fragment it while stacked surfaces stay apart (docs/history/ilfr.md, "The conflict test").
 //! - §2.5 two-sided splats: "back-facing splats contribute to \[visibility\] similarly to
 //!   front-facing splats … contribute to radiance only if all splats of the first surface are
 //!   back-facing": the flipped normal n̂ in [`conflicts`] and [`Surface::radiance_from_back_faces`]
@@ -49,7 +49,7 @@ pub enum ConflictTest {
     /// centre, or both away (within sin 2°), or either centre is within min(r_a, r_b) of the
     /// other's tangent plane.
     FacingOrCoplanar,
-    /// Ours (issue 23): the paper's event-line test, asked only when the event line leaves both
+    /// Ours: the paper's event-line test, asked only when the event line leaves both
     /// tangent planes by more than [`COPLANAR_DEGREES`]; a pair closer to coplanar is one
     /// surface. The event line of two neighbours side by side across the ray on one noisy
     /// surface crosses the st plane far away, on a side that normal noise picks, so the plain
@@ -70,7 +70,7 @@ pub struct SurfaceParams {
     /// Footprint scale of the small-surface test for surfaces of 1, 2, 3 splats.
     pub small_surface_scale: [f32; 3],
     /// Whether the small-surface rule (§2.5) runs; off, every surface counts whatever its size
-    /// (ambient occlusion's default: docs/history/ilfr.md, "Issue 23: ambient occlusion").
+    /// (ambient occlusion's default: docs/history/ilfr.md, "ambient occlusion (Deliver 4)").
     pub merge_small_surfaces: bool,
 }
 
@@ -451,7 +451,7 @@ mod tests {
         }
     }
 
-    /// Issue 23: neighbouring splats of one noisy surface, side by side across the ray, must not
+    /// Neighbouring splats of one noisy surface, side by side across the ray, must not
     /// fragment it. A jittered lattice of splats on the plane y = 2 (spacing 0.1, radius 0.2, as
     /// k-NN sizing makes them), each normal tilted by up to 10° at random (shading-normal noise),
     /// seen by rays from the origin up to 60° off the plane's normal. Under the default test (and

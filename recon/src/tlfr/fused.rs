@@ -1583,7 +1583,7 @@ mod tests {
         }
     }
 
-    /// The first TLFR issue's stiff cases through the fused kernel, each against the oracle
+    /// TLFR's stiff cases through the fused kernel, each against the oracle
     /// within 1e-5 and finite: one sample per pixel, a 1×1 image, a card moving through the
     /// camera plane, and the layered scene at 1e-6 and 1e9 of its size (depths, motion and the
     /// lens scaled alike leave every screen position the same, so the image must be the unit

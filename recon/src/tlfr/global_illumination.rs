@@ -1,4 +1,4 @@
-//! Not in the paper (issue 24 item 5): TLFR on full global illumination. The paper's samples
+//! Not in the paper: TLFR on full global illumination. The paper's samples
 //! carry noise-free shading; a path-traced sample's radiance carries the noise of its path
 //! beyond the first hit, which reprojection does not average away. With `gi=split` each sample's
 //! radiance is cut in two (`split_sample`): its `direct` part (emission seen by the camera and

@@ -9,7 +9,7 @@
 //! 0.5. A location with nothing within 16R is left out (`query::reconstruct` = `None`); a pixel
 //! with no location left gets the mean of its own input samples, or 0 without any.
 //!
-//! Adaptive locations (issue 24, not in the paper, which spends the same N everywhere;
+//! Adaptive locations (not in the paper, which spends the same N everywhere;
 //! `AdaptiveRule`): a pixel whose first few locations all saw one surface and agree stops
 //! there.
 //!
@@ -350,7 +350,7 @@ mod tests {
 
     const PINHOLE: LensModel = LensModel { c1: 0.0, c2: 0.0, fx: 16.0, fy: 16.0, cx: 8.0, cy: 8.0 };
 
-    /// Stiff cases of issue 6 item 11 with exact answers: the output is a convex combination of
+    /// Stiff cases with exact answers: the output is a convex combination of
     /// the input radiance, so a constant scene must come back exactly.
     #[test]
     fn constant_scenes_come_back_exactly() {

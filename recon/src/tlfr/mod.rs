@@ -30,7 +30,7 @@
 //!   shadows); the methods `tlfr`, `tlfr-nn` and `tlfr-bw`, and the preparation before the
 //!   first location that `lfr bench-tlfr` times (`prepare`): `method`.
 //! - Not in the paper: fewer locations in a pixel whose first ones all saw one surface and
-//!   agree (`integrate::AdaptiveRule`, issue 24), and the clock of each location's stages for
+//!   agree (`integrate::AdaptiveRule`), and the clock of each location's stages for
 //!   `lfr bench-tlfr` (`query::StageClock`).
 //! - The synthetic scenes of the tests and the `tlfr` bench: `test_scenes`.
 //! - Section 3, the input: `lens-time` files read through `sampleio`: `samples`.
@@ -40,7 +40,7 @@
 //!   weighted by a Gaussian in lens distance matched to its BRDF's bandwidth: `bandwidth`
 //!   (method `tlfr-bw`).
 //! - Not in the paper: full global illumination with each sample's `direct` part through the
-//!   reconstruction and the rest filtered per pixel (`gi=split`, issue 24 item 5):
+//!   reconstruction and the rest filtered per pixel (`gi=split`):
 //!   `global_illumination`.
 //! - Section 5 and Appendix B, soft shadows: the light's samples as a second camera
 //!   (`light_space`) and the two reconstructions per location (`shadows`).

@@ -10,7 +10,7 @@
 //! sample is moved to the lens centre, back-projected, moved along its 3D motion to t̂,
 //! projected again and moved to the lens point (û, v̂).
 //!
-//! Robustness (issue 6, item 1): a sample whose depth at t̂ falls below `z_near` (it nears or
+//! Robustness: a sample whose depth at t̂ falls below `z_near` (it nears or
 //! passes the camera plane, where Eq. 3 divides by ~0 or changes sign) cannot be seen at t̂ and
 //! reprojects to `None`, before any division. Misses (z = +∞: the ray escaped) never move on
 //! screen except by û·C(∞) = û·c2 and keep depth +∞.

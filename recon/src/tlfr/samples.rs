@@ -120,7 +120,7 @@ pub fn read_lens_time(file: &SampleFile) -> Result<LensTimeSamples, Error> {
     })
 }
 
-/// Refocusing after the fact (paper Section 6; issue 6 item 7): every sample keeps its lens
+/// Refocusing after the fact (paper Section 6): every sample keeps its lens
 /// coordinate, but is seen through the lens focused at `focus_distance` with radius
 /// `aperture_radius`: moved to the lens centre with the file's C(z), then off it with the new
 /// C'(z) = c1'/z + c2' (`LensModel::refocused`), before anything is built on the samples.

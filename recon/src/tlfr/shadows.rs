@@ -28,7 +28,7 @@
 //! each light sample's own depth with its light-space depth gradient (format gap G2): either way
 //! a receiver seen steeply from the light does not shadow itself. Receivers within
 //! atan(1/`light_space::GRAZING_LIMIT`) of the light's plane, outside the light-space domain,
-//! are lit without a shadow test (issue 24; their light is below 5 % of normal incidence).
+//! are lit without a shadow test (their light is below 5 % of normal incidence).
 
 use sampleio::SampleFile;
 
@@ -166,7 +166,7 @@ pub fn read_light(file: &SampleFile, camera_records: usize) -> Result<LightSampl
     // Rays that end just below the light's plane cross Π far away (l_x ∝ 1/z): one such sample
     // made the offset below 1e7 units at 64×48 on the Cornell box, where f32 positions are
     // 1 unit apart, far coarser than the filter radius R·ρ (0.1 unit on the walls), and the lit
-    // test then compared samples reprojected to the wrong places (issue 24). Only the domain of
+    // test then compared samples reprojected to the wrong places. Only the domain of
     // `LightSpace::is_grazing` is reconstructed.
     let before = raw.len();
     raw.retain(|(s, _)| !space.is_grazing(space.ray_end(s.u, s.v, s.x, s.y, s.z)));

@@ -1,0 +1,202 @@
+//! `docs/ARCHITECTURE.md` held to the tree: it names every product source file, and every `.rs`
+//! file it names exists.
+//!
+//! **Product source files** are all `.rs` files under the crates' `src/` folders: the root
+//! package's `src/`, `sampleio/src/`, `shading/src/`, `tracer/src/`, `recon/src/` and
+//! `probes/src/`. Nothing under them is excluded (unit-test support such as
+//! `tlfr/test_scenes.rs` lives there too, and is named like the rest); files under `tests/`,
+//! `benches/`, `examples/` and `fuzz/` are outside `src/` and not product.
+//!
+//! **Named.** Each crate has one section of the document: the `## ` heading that
+//! [`CRATE_SECTIONS`] gives, up to the next `## ` heading. A line of the section that starts
+//! with a folder in backticks (`` `tlfr/` — … ``, `` `compare/stages/` — … ``) opens that
+//! folder's block, which runs to the next such line or the end of the section; the lines before
+//! the first such line are the block of `src/` itself. A file whose path below its crate's
+//! `src/` is `DIR/NAME.rs` is named when the section holds `` `DIR/NAME.rs` `` in backticks
+//! anywhere, or `` `NAME.rs` `` in the block of `DIR/` (for a file directly in `src/`: its block).
+//!
+//! **Exists.** Every path ending in `.rs` that the document names, in backticks or not, is a
+//! path from the repository root or the end (after a `/`) of the path of a file in the
+//! repository; and every `.rs` file in the first cell of a table row of a crate section is, in
+//! that crate, the file the row's block gives it (`DIR/NAME.rs`), or the path below `src/` as
+//! written.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// Each crate's `src/` folder (from the repository root) and the heading of its section.
+const CRATE_SECTIONS: [(&str, &str); 6] = [
+    ("sampleio/src", "## sampleio, file by file"),
+    ("shading/src", "## shading, file by file"),
+    ("tracer/src", "## The tracer, file by file (one concept per file)"),
+    ("recon/src", "## recon, folder by folder"),
+    ("probes/src", "## probes, file by file"),
+    ("src", "## The command, file by file"),
+];
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn document() -> String {
+    let path = root().join("docs/ARCHITECTURE.md");
+    std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// Every file below `dir`, as paths relative to `base` with `/` separators. Skips `target`
+/// and hidden folders (`.git`, `.ci`).
+fn files_below(base: &Path, dir: &Path, out: &mut Vec<String>) {
+    let entries = std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+    for entry in entries {
+        let entry = entry.unwrap();
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let path = entry.path();
+        let kind = entry.file_type().unwrap();
+        if kind.is_dir() {
+            if name.starts_with('.') || name == "target" {
+                continue;
+            }
+            files_below(base, &path, out);
+        } else if kind.is_file() {
+            let relative = path.strip_prefix(base).unwrap();
+            let parts: Vec<_> = relative.components().map(|c| c.as_os_str().to_string_lossy()).collect();
+            out.push(parts.join("/"));
+        }
+    }
+}
+
+/// The product source files of the crate whose `src/` is `src`, relative to it, sorted.
+fn product_files(src: &str) -> Vec<String> {
+    let base = root().join(src);
+    let mut files = Vec::new();
+    files_below(&base, &base, &mut files);
+    files.retain(|f| f.ends_with(".rs"));
+    files.sort();
+    files
+}
+
+/// The lines of the section under `heading`, up to the next `## ` heading.
+fn section<'a>(doc: &'a str, heading: &str) -> Option<Vec<&'a str>> {
+    let mut lines = doc.lines().skip_while(|l| l.trim_end() != heading);
+    lines.next()?;
+    Some(lines.take_while(|l| !l.starts_with("## ")).collect())
+}
+
+/// The spans in backticks on `line`.
+fn backticked(line: &str) -> Vec<&str> {
+    line.split('`').skip(1).step_by(2).collect()
+}
+
+/// The folder (`tlfr/`, `compare/stages/`) whose block `line` opens, if it opens one.
+fn opened_block(line: &str) -> Option<&str> {
+    let rest = line.strip_prefix('`')?;
+    let folder = &rest[..rest.find('`')?];
+    (folder.ends_with('/') && !folder.contains(' ')).then_some(folder)
+}
+
+/// A section split into its blocks: (folder, `""` for `src/` itself; the block's lines).
+fn blocks<'a>(lines: &[&'a str]) -> Vec<(&'a str, Vec<&'a str>)> {
+    let mut out = vec![("", Vec::new())];
+    for &line in lines {
+        if let Some(folder) = opened_block(line) {
+            out.push((folder, Vec::new()));
+        }
+        out.last_mut().unwrap().1.push(line);
+    }
+    out
+}
+
+/// Every path ending in `.rs` that `text` names: a run of letters, digits, `_`, `-`, `.` and
+/// `/` that ends in `.rs` not followed by a letter or digit.
+fn rs_paths(text: &str) -> BTreeSet<String> {
+    let is_path_char = |c: char| c.is_ascii_alphanumeric() || "_-./".contains(c);
+    let mut out = BTreeSet::new();
+    let mut current = String::new();
+    for c in text.chars().chain(std::iter::once(' ')) {
+        if is_path_char(c) {
+            current.push(c);
+            continue;
+        }
+        let word = current.trim_end_matches('.').trim_start_matches(['.', '/']);
+        if word.ends_with(".rs") && word.len() > 3 {
+            out.insert(word.to_string());
+        }
+        current.clear();
+    }
+    out
+}
+
+#[test]
+fn architecture_md_names_every_product_source_file() {
+    let doc = document();
+    let mut missing = Vec::new();
+    for (src, heading) in CRATE_SECTIONS {
+        let Some(lines) = section(&doc, heading) else {
+            missing.push(format!("{src}/: no section `{heading}`"));
+            continue;
+        };
+        let whole: BTreeSet<&str> = lines.iter().flat_map(|l| backticked(l)).collect();
+        let blocks = blocks(&lines);
+        for file in product_files(src) {
+            let (folder, name) = match file.rfind('/') {
+                Some(i) => (&file[..=i], &file[i + 1..]),
+                None => ("", file.as_str()),
+            };
+            let in_block = blocks
+                .iter()
+                .filter(|(f, _)| *f == folder)
+                .any(|(_, lines)| lines.iter().any(|l| backticked(l).contains(&name)));
+            if !in_block && !whole.contains(file.as_str()) {
+                missing.push(format!("{src}/{file} (under `{heading}`)"));
+            }
+        }
+    }
+    assert!(
+        missing.is_empty(),
+        "docs/ARCHITECTURE.md does not name {} product source file(s) (see tests/architecture.rs \
+         for the rule):\n  {}",
+        missing.len(),
+        missing.join("\n  ")
+    );
+}
+
+#[test]
+fn every_rs_file_architecture_md_names_exists() {
+    let doc = document();
+    let root = root();
+    let mut all = Vec::new();
+    files_below(&root, &root, &mut all);
+    let mut missing = Vec::new();
+
+    for path in rs_paths(&doc) {
+        let exists = all.iter().any(|f| *f == path || f.ends_with(&format!("/{path}")));
+        if !exists {
+            missing.push(format!("`{path}`: no such file in the repository"));
+        }
+    }
+
+    for (src, heading) in CRATE_SECTIONS {
+        let Some(lines) = section(&doc, heading) else { continue };
+        for (folder, lines) in blocks(&lines) {
+            for line in lines {
+                let Some(first_cell) = line.strip_prefix('|').and_then(|l| l.split('|').next()) else {
+                    continue;
+                };
+                for name in backticked(first_cell).into_iter().filter(|n| n.ends_with(".rs")) {
+                    let in_block = root.join(src).join(folder).join(name);
+                    let below_src = root.join(src).join(name);
+                    if !in_block.is_file() && !below_src.is_file() {
+                        missing.push(format!("`{name}` in the row of `{src}/{folder}`: no such file"));
+                    }
+                }
+            }
+        }
+    }
+
+    assert!(
+        missing.is_empty(),
+        "docs/ARCHITECTURE.md names {} file(s) that do not exist:\n  {}",
+        missing.len(),
+        missing.join("\n  ")
+    );
+}
