@@ -784,3 +784,21 @@ fn pipelines_run_with_verdicts_against_oidn_and_a_headline() {
         .count();
     assert_eq!(with_aux, 1, "only the pipeline's input carries the auxiliary fields");
 }
+
+/// The per-run lines printed during a comparison show each run's first timing while the
+/// verdicts use the median of the repetitions: with repetitions, the output says so.
+#[test]
+fn the_printed_run_lines_say_they_are_first_timings() {
+    let dir = tempfile::tempdir().unwrap();
+    let (out, cache) = (dir.path().join("out"), dir.path().join("cache"));
+    let (out, cache) = (out.to_str().unwrap(), cache.to_str().unwrap());
+    let size = ["--width", "8", "--height", "8", "--spp", "1", "--reference-spp", "8", "--pt-max-spp", "2"];
+    let mut args = vec!["compare", "--effect", "indirect", "--methods", "box", "--out", out, "--cache-dir", cache];
+    args.extend_from_slice(&size);
+    args.extend_from_slice(&["--repeats", "2"]);
+    let result = lfr(&args);
+    let text = String::from_utf8_lossy(&result.stderr);
+    assert!(result.status.success(), "{text}");
+    assert!(text.contains("the lines above show each run's first timing"), "{text}");
+    assert!(text.contains("use the median of up to 2 repetitions"), "{text}");
+}
