@@ -63,18 +63,21 @@ impl Method for Denoised {
 
     fn run(&self, inputs: &Inputs, recon_rays: u32) -> Result<Output, MethodError> {
         let name = format!("{}+oidn", self.first_name);
-        // The auxiliaries come from A's own input: its samples, or its guide buffers.
-        let guide = match self.first.input() {
-            Input::Guide => Some(inputs.guide(&name)?),
-            _ => None,
+        // The auxiliaries come from A's own input, checked before A runs: its guide buffers or
+        // its samples.
+        enum Source<'a> {
+            Guide(&'a crate::method::GuideInput),
+            Samples(&'a std::path::Path),
+        }
+        let source = match self.first.input() {
+            Input::Guide => Source::Guide(inputs.guide(&name)?),
+            _ => Source::Samples(inputs.samples(&name)?),
         };
-        let samples = if guide.is_none() { Some(inputs.samples(&name)?) } else { None };
         let first = self.first.run(inputs, recon_rays)?;
         let started = Instant::now();
-        let aux = match (guide, samples) {
-            (Some(guide), _) => auxiliary::from_guide(guide),
-            (None, Some(samples)) => auxiliary::from_samples(samples, inputs.effect, self.auxiliary)?,
-            (None, None) => unreachable!("a pipeline's input is its guide buffers or its samples"),
+        let aux = match source {
+            Source::Guide(guide) => auxiliary::from_guide(guide),
+            Source::Samples(samples) => auxiliary::from_samples(samples, inputs.effect, self.auxiliary)?,
         };
         let auxiliary_s = started.elapsed().as_secs_f64();
         let denoised = self.denoiser.denoise(&first.image, &aux.albedo, &aux.normal, inputs.effect)?;
