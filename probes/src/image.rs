@@ -14,6 +14,8 @@
 //! (the paper's order-1 glossy transport, Eq. 8–9, is not planned). Also per pixel: the
 //! interpolated irradiance, the albedo, the receivers' unseen-direction fraction and covering
 //! probe count, and whether the lookup found no receiver (a hole: E = 0, counted).
+//! [`specular_share`] measures how much of the image that leaves out, so that the front ends
+//! warn instead of showing a near-black metal without a word.
 
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -262,6 +264,24 @@ pub fn render_image(
     })
 }
 
+/// The share of the pixels whose surface, seen through the pixel's centre, has a specular
+/// lobe that outweighs its diffuse one (`shading::Bsdf::specular_outweighs_diffuse`, textures
+/// resolved): metals and coats over dark bases, whose indirect light the probes' diffuse image
+/// leaves out. 0 for an image of diffuse surfaces and sky; 1 when every pixel sees a metal.
+pub fn specular_share(scene: &Scene, accel: &Accel, width: u32, height: u32) -> f64 {
+    let tan = scene.camera.tan_half_fov(width, height);
+    let specular: u64 = (0..width * height)
+        .into_par_iter()
+        .map(|index| {
+            let film = Vec2::new((index % width) as f32 + 0.5, (index / width) as f32 + 0.5);
+            let (origin, dir) = scene.camera.generate_ray_with_tan(tan, film, Vec2::ZERO, width, height);
+            let Some(hit) = accel.intersect(origin, dir, 0.0, f32::INFINITY, 0.0) else { return 0 };
+            u64::from(SurfacePoint::new(scene, &hit, -dir, 0.0, 0.0).bsdf.specular_outweighs_diffuse())
+        })
+        .sum();
+    specular as f64 / (u64::from(width) * u64::from(height)).max(1) as f64
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -284,6 +304,38 @@ mod tests {
 
     fn image_settings() -> ImageSettings {
         ImageSettings { width: 24, height: 16, light_samples: 4, pixel_samples: 1, seed: 0 }
+    }
+
+    /// Inside a diffuse room with a metal plate across the right half of the view (in a plane
+    /// facing the camera, its edge on the optical axis): half of the columns see the metal, so
+    /// the share is exactly 1/2; 0 with the plate diffuse and 1 with the room metal too.
+    #[test]
+    fn the_specular_share_counts_the_pixels_that_see_a_metal() {
+        use tracer::scene::shapes::polygon;
+        let plate = polygon(
+            "plate",
+            &[Vec3::new(0.5, -2.0, 0.9), Vec3::new(3.0, -2.0, 0.9), Vec3::new(3.0, 3.0, 0.9), Vec3::new(0.5, 3.0, 0.9)],
+            1,
+        );
+        let mut scene = scene_of(vec![room(Vec3::new(-3.0, -3.0, 0.0), Vec3::new(4.0, 4.0, 1.0)), plate], Vec3::ZERO);
+        scene.camera = Camera::look_at(
+            Vec3::new(0.5, 0.5, 0.05),
+            Vec3::new(0.5, 0.5, 1.0),
+            Vec3::Y,
+            70.0,
+            tracer::camera::FovAxis::Smaller,
+        );
+        scene.materials[0].metallic = 0.0;
+        scene.materials[0].specular = 1.0;
+        let mut metal = scene.materials[0].clone();
+        metal.metallic = 1.0;
+        scene.materials.push(metal.clone());
+        let share = |scene: &Scene| specular_share(scene, &Accel::build(scene).unwrap(), 24, 16);
+        assert_eq!(share(&scene), 0.5);
+        scene.materials[1].metallic = 0.0;
+        assert_eq!(share(&scene), 0.0, "a coat over a light base is diffuse-dominated");
+        scene.materials = vec![metal.clone(), metal];
+        assert_eq!(share(&scene), 1.0);
     }
 
     #[test]

@@ -34,8 +34,11 @@
 //!   value, `precompute`, and its cache keyed by geometry and settings, `cache`.
 //! - — Brute-force surfel radiosity, the oracle of the probes' reconstruction (same receivers
 //!   and senders, no probes): `gather`.
-//! - The one set of defaults of every front end: `defaults`.
-//! - ✓ `lfr compare` method `probes` (phase 6): in the root crate, `src/compare/probes_method.rs`.
+//! - The one set of defaults of every front end: `defaults`; the one relight pipeline of every
+//!   front end (cache or build, CPCA cache or compress, the projected bounce, the camera's
+//!   lookups, a relit frame, its memory): `pipeline`.
+//! - ✓ `lfr compare` method `probes`: declared in the root crate's scene-level method table
+//!   (`src/compare/scene_methods.rs`) over `pipeline`.
 
 #![forbid(unsafe_code)]
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -54,6 +57,7 @@ pub mod kernel;
 pub mod layout;
 pub mod lookup;
 pub mod memory;
+pub mod pipeline;
 pub mod placement;
 pub mod precompute;
 pub mod projected_bounce;

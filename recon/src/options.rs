@@ -16,6 +16,8 @@ pub enum OptionKind {
     Positive,
     /// One of these words.
     Choice(&'static [&'static str]),
+    /// A finite number between `min` and `max`, each end included unless it is open.
+    Interval { min: f32, min_open: bool, max: f32, max_open: bool },
 }
 
 /// One option of a method.
@@ -35,6 +37,9 @@ impl OptionSpec {
             OptionKind::Count { min, max } => format!("{min}..={max}"),
             OptionKind::Positive => "> 0".to_string(),
             OptionKind::Choice(words) => words.join("|"),
+            OptionKind::Interval { min, min_open, max, max_open } => {
+                format!("{}{min}, {max}{}", if min_open { "(" } else { "[" }, if max_open { ")" } else { "]" })
+            }
         }
     }
 
@@ -56,6 +61,17 @@ impl OptionSpec {
                 Some(word) => Ok(OptionValue::Choice(word)),
                 None => Err(bad(format!("{key} must be one of {}", words.join(", ")))),
             },
+            OptionKind::Interval { min, min_open, max, max_open } => {
+                let inside = |x: f32| {
+                    x.is_finite()
+                        && if min_open { x > min } else { x >= min }
+                        && if max_open { x < max } else { x <= max }
+                };
+                match value.parse::<f32>() {
+                    Ok(x) if inside(x) => Ok(OptionValue::Real(x)),
+                    _ => Err(bad(format!("{key} must be a number in {}", self.range()))),
+                }
+            }
         }
     }
 }
@@ -216,5 +232,33 @@ mod tests {
         }
         let none = Options::parse("box", "k=1", &[], |_| false).unwrap_err().to_string();
         assert!(none.contains("box takes no options"), "{none}");
+    }
+
+    #[test]
+    fn an_interval_keeps_its_closed_ends_and_refuses_its_open_ones() {
+        const HALF_OPEN: &[OptionSpec] = &[
+            OptionSpec {
+                key: "tolerance",
+                kind: OptionKind::Interval { min: 0.0, min_open: false, max: 1.0, max_open: true },
+                default: "0.001",
+                help: "",
+            },
+            OptionSpec {
+                key: "weight",
+                kind: OptionKind::Interval { min: 0.0, min_open: true, max: 1.0, max_open: false },
+                default: "1",
+                help: "",
+            },
+        ];
+        let parse = |text: &str| Options::parse("m", text, HALF_OPEN, |_| false);
+        assert_eq!(HALF_OPEN[0].range(), "[0, 1)");
+        assert_eq!(HALF_OPEN[1].range(), "(0, 1]");
+        assert_eq!(parse("tolerance=0").unwrap().real("tolerance"), Some(0.0));
+        assert_eq!(parse("weight=1").unwrap().real("weight"), Some(1.0));
+        assert_eq!(parse("tolerance=0.5:weight=0.25").unwrap().canonical(), "tolerance=0.5:weight=0.25");
+        for bad in ["tolerance=1", "tolerance=-0.1", "tolerance=nan", "weight=0", "weight=1.01", "weight=inf"] {
+            let error = parse(bad).unwrap_err().to_string();
+            assert!(error.contains(&format!("`m:{bad}`")) && error.contains("must be a number in"), "{bad}: {error}");
+        }
     }
 }

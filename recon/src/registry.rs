@@ -508,22 +508,29 @@ pub fn find(spec_text: &str) -> Result<Option<Registered>, Error> {
     spec.build(&options).map(Some)
 }
 
+/// One method's block of `--list-methods`: its name, description, effects and options (range,
+/// default, help). The harness lists its scene-level methods with it too.
+pub fn method_block(name: &str, description: &str, effects: &[Effect], options: &[OptionSpec]) -> String {
+    let effects: Vec<&str> = effects.iter().map(|e| e.name()).collect();
+    let mut text = format!("{name}\n    {description}\n    effects: {}\n", effects.join(", "));
+    if options.is_empty() {
+        text.push_str("    options: none\n");
+    } else {
+        text.push_str(&format!("    options ({name}:key=value:...):\n"));
+    }
+    for option in options {
+        let (key, range, default, help) = (option.key, option.range(), option.default, option.help);
+        text.push_str(&format!("      {key} = {range}, default {default}: {help}\n"));
+    }
+    text
+}
+
 /// `lfr compare --list-methods`: every method with its effects, options (range, default, help)
 /// and description, one block per method.
 pub fn listing() -> String {
     let mut text = String::new();
     for spec in METHODS {
-        let effects: Vec<&str> = spec.effects.iter().map(|e| e.name()).collect();
-        text.push_str(&format!("{}\n    {}\n    effects: {}\n", spec.name, spec.description, effects.join(", ")));
-        if spec.options.is_empty() {
-            text.push_str("    options: none\n");
-        } else {
-            text.push_str(&format!("    options ({}:key=value:...):\n", spec.name));
-        }
-        for option in spec.options {
-            let (key, range, default, help) = (option.key, option.range(), option.default, option.help);
-            text.push_str(&format!("      {key} = {range}, default {default}: {help}\n"));
-        }
+        text.push_str(&method_block(spec.name, spec.description, spec.effects, spec.options));
     }
     for pipeline in PIPELINES {
         let first = pipeline.first_spec();

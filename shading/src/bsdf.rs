@@ -170,6 +170,16 @@ impl Bsdf {
         (spec / (spec + diff)).clamp(0.1, 0.9)
     }
 
+    /// Whether the specular lobe reflects more than the diffuse one at normal incidence (a
+    /// metal, or a dielectric coat over a dark base): the rule by which a surface counts as
+    /// glossy for the sample format's bandwidth κ and for the methods that carry diffuse light
+    /// only (the probes).
+    pub fn specular_outweighs_diffuse(&self) -> bool {
+        let specular = (1.0 - self.metallic) * self.specular * self.f0 + self.metallic * luminance(self.base_color);
+        let diffuse = (1.0 - self.metallic) * (1.0 - self.specular * self.f0) * luminance(self.base_color);
+        specular > diffuse
+    }
+
     /// Diffuse albedo for the albedo AOV: what the surface reflects at normal incidence.
     pub fn albedo(&self) -> Vec3 {
         let (fd, fm) = self.fresnel(1.0);
@@ -266,6 +276,20 @@ mod tests {
 
     fn direction(theta: f32) -> Vec3 {
         Vec3::new(theta.sin(), 0.0, theta.cos())
+    }
+
+    /// At normal incidence a dielectric coat reflects f0 = ((ior − 1)/(ior + 1))² = 0.04 for
+    /// ior 1.5, and a metal its base colour: the specular lobe outweighs the diffuse one for a
+    /// metal, for a coat over a base darker than 0.04 / 0.96, and for neither otherwise.
+    #[test]
+    fn the_specular_lobe_outweighs_the_diffuse_one_for_metals_and_coats_over_dark_bases() {
+        assert!(Bsdf::new(Vec3::splat(0.9), 1.0, 0.5, 1.0).specular_outweighs_diffuse());
+        assert!(!Bsdf::new(Vec3::splat(0.9), 0.0, 0.5, 0.0).specular_outweighs_diffuse());
+        assert!(!Bsdf::new(Vec3::splat(0.9), 0.0, 0.5, 1.0).specular_outweighs_diffuse(), "a coat over white");
+        let edge = 0.04 / 0.96;
+        assert!(Bsdf::new(Vec3::splat(0.9 * edge), 0.0, 0.5, 1.0).specular_outweighs_diffuse());
+        assert!(!Bsdf::new(Vec3::splat(1.1 * edge), 0.0, 0.5, 1.0).specular_outweighs_diffuse());
+        assert!(!Bsdf::new(Vec3::ZERO, 0.0, 0.5, 0.0).specular_outweighs_diffuse(), "black, no lobe at all");
     }
 
     /// Directional albedo ∫ f cos dωi by BSDF importance sampling.

@@ -4,7 +4,8 @@
 //! [`run`] is a pipeline of stages (`stages`): plan → reference → inputs → execute → score →
 //! write. The parts they use: what each effect means for the tracer and its image layer
 //! (`effect`), the cached reference (`reference`), its check (`reference_check`), a reference
-//! rendered elsewhere (`external`), the `probes` method on the tracer's side (`probes_method`),
+//! rendered elsewhere (`external`), the scene-level methods (`scene_methods`: `probes`, on the
+//! tracer's side, `probes_method`),
 //! the output folder (`out_dir`), peak memory (`memory`), repeated timings (`timing`), the
 //! verdicts (`verdict`), the images (`images`), and the record and its reports (`results`,
 //! `report`, `html`, `plot`).
@@ -23,6 +24,7 @@ pub mod reference;
 pub mod reference_check;
 pub mod report;
 pub mod results;
+pub mod scene_methods;
 pub mod stages;
 pub mod timing;
 pub mod verdict;
@@ -122,17 +124,10 @@ pub struct CompareArgs {
     pub force: bool,
 }
 
-/// Every method the harness runs: the registry's methods and pipelines, and `probes`, which the
-/// harness builds itself because it needs the tracer (`probes_method`).
+/// Every method the harness runs: the registry's methods and pipelines, and the scene-level
+/// methods the harness builds itself because they need the tracer (`scene_methods`).
 pub fn method_listing() -> String {
-    format!(
-        "{}{}\n    sparse radiance probes (Silvennoinen and Lehtinen 2017), built and run by the harness on the scene\n    \
-         effects: indirect\n    options ({}:key=value:...): {}\n",
-        registry::listing(),
-        probes_method::NAME,
-        probes_method::NAME,
-        probes_method::OPTIONS
-    )
+    format!("{}{}", registry::listing(), scene_methods::listing())
 }
 
 /// Runs the comparison `args` asks for, stage by stage (`stages`).
@@ -175,7 +170,7 @@ mod tests {
         }
         let mut expected: Vec<String> = registry::METHODS.iter().map(|m| m.name.to_string()).collect();
         expected.extend(registry::PIPELINES.iter().map(|p| p.name()));
-        expected.push(probes_method::NAME.to_string());
+        expected.extend(scene_methods::SCENE_METHODS.iter().map(|m| m.name.to_string()));
         for name in &expected {
             assert!(listed.contains(&name.as_str()), "not listed: {name}");
         }

@@ -1,47 +1,148 @@
-//! The tracer-side method `probes` of `lfr compare`: sparse radiance probes
-//! (crate `probes`, docs/probes.md) for `--effect indirect`. The `recon` crate must not use
-//! the tracer, so this method is not in `recon::registry`: the harness recognises its name here
-//! and runs it once, after the registry's methods, on the comparison's scene.
+//! The tracer-side method `probes` of `lfr compare`: sparse radiance probes (crate `probes`,
+//! docs/probes.md) for `--effect indirect`. The `recon` crate must not use the tracer, so this
+//! method is declared in the harness's table of scene-level methods (`scene_methods`) with its
+//! options as data ([`OPTIONS`], parsed by `recon::options` into the same errors as every other
+//! method's), and runs after the registry's methods on the comparison's scene.
 //!
-//! A run precomputes (or reads the precompute from `CACHE_DIR/probes/`, keyed by geometry and
-//! settings as `lfr probes precompute` does), then relights one frame with the scene's own
-//! lights, bounces to convergence, and renders the image from the receivers. `preprocess_s` is
-//! the precompute's (and CPCA's) build time, also when read from the cache (its build time is
-//! kept beside it; `precompute_from_cache` says which); `recon_s` is one relit frame to the
-//! image (direct light at the senders, the bounces, the image), the median of `--repeats`
-//! frames. The image's primary rays and lookups depend on the camera, not the light: they are
-//! traced once per run (`probes::image_operator`, not cached on disk) and their time is added to
-//! `preprocess_s` (stat `image_operator_s`); a frame's image is one weighted sum per pixel. The
-//! first frame's split as the paper's Table 2 is in the stats and notes. The options are the ablations: `probes=N`, `order=0..7`, `cpca=on|off`,
-//! `reconstruction=visibility|spatial` (Eq. 2 or the spatial-only Eq. 1), and the
-//! precompute's sizes.
+//! A run goes through `probes::pipeline`, as `lfr probes relight` does: it precomputes (or reads
+//! the precompute from `CACHE_DIR/probes/`, keyed by geometry and settings), relights one frame
+//! with the scene's own lights, bounces to convergence, and renders the image from the
+//! receivers. `preprocess_s` is the precompute's (and CPCA's) build time, also when read from
+//! the cache (its build time is kept beside it; `precompute_from_cache` says which); `recon_s`
+//! is one relit frame to the image (direct light at the senders, the bounces, the image), the
+//! median of `--repeats` frames. The image's primary rays and lookups depend on the camera, not
+//! the light: they are traced once per run (`probes::image_operator`, not cached on disk) and
+//! their time is added to `preprocess_s` (stat `image_operator_s`); a frame's image is one
+//! weighted sum per pixel. The first frame's split as the paper's Table 2 is in the stats and
+//! notes.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use probes::cache::CacheKey;
 use probes::cpca::{CpcaSettings, Precision};
 use probes::defaults;
 use probes::image::ImageSettings;
 use probes::memory::MemoryEstimate;
+use probes::pipeline::{
+    frame_estimate, image_operator, obtain, operator, projected_bounce, relit_frame, Bounces, FrameSettings,
+    FrameTimes, Obtained, Stale,
+};
 use probes::placement::PlacementSettings;
 use probes::precompute::PrecomputeSettings;
 use probes::surfels::SurfelSettings;
 use probes::transport::{Reconstruction, TransportSettings};
+use recon::options::{OptionKind, OptionSpec, Options};
 use recon::Image;
 
 /// The method's name on `--methods`.
 pub const NAME: &str = "probes";
 
-/// The most projected values (Σ CPCA ranks) for `bounces=projected`: its matrix is 12 R² bytes
-/// and takes about R² × (probes × coefficients) operations to form.
-pub const MAX_PROJECTED: usize = 4096;
+const ON_OFF: OptionKind = OptionKind::Choice(&["on", "off"]);
+
+/// `probes`' options as data, in the order its canonical name lists them. The defaults are
+/// `probes::defaults` and `lfr probes relight`'s (test
+/// `the_declared_defaults_are_the_methods_defaults`).
+pub const OPTIONS: &[OptionSpec] = &[
+    OptionSpec {
+        key: "probes",
+        kind: OptionKind::Count { min: 1, max: probes::placement::MAX_PROBES as u32 },
+        default: "64",
+        help: "number of probes",
+    },
+    OptionSpec {
+        key: "receivers",
+        kind: OptionKind::Count { min: 1, max: probes::surfels::MAX_RECEIVERS as u32 },
+        default: "20000",
+        help: "receiver budget (surfels; the count comes close to it)",
+    },
+    OptionSpec {
+        key: "overlap",
+        kind: OptionKind::Interval { min: 1.0, min_open: false, max: 1000.0, max_open: false },
+        default: "10",
+        help: "mean number of probes covering a receiver (sets the support radius)",
+    },
+    OptionSpec {
+        key: "order",
+        kind: OptionKind::Count { min: 0, max: probes::sh::MAX_ORDER as u32 },
+        default: "7",
+        help: "SH order of the probes",
+    },
+    OptionSpec {
+        key: "directions",
+        kind: OptionKind::Count { min: 1, max: probes::transport::MAX_DIRECTIONS },
+        default: "512",
+        help: "directions per receiver of the transport",
+    },
+    OptionSpec {
+        key: "relight_rays",
+        kind: OptionKind::Count { min: 1, max: probes::relight::MAX_RAYS },
+        default: "8000",
+        help: "relight rays per probe (at least 4 per SH coefficient)",
+    },
+    OptionSpec {
+        key: "reconstruction",
+        kind: OptionKind::Choice(&["visibility", "spatial"]),
+        default: "visibility",
+        help: "visibility: Eq. 2; spatial: the spatial-only Eq. 1",
+    },
+    OptionSpec { key: "cpca", kind: ON_OFF, default: "on", help: "compress the transport with CPCA (Eq. 11)" },
+    OptionSpec { key: "fp16", kind: ON_OFF, default: "off", help: "store the CPCA-compressed transport in fp16" },
+    OptionSpec {
+        key: "miss_weight",
+        kind: OptionKind::Interval { min: 0.0, min_open: true, max: 1.0, max_open: false },
+        default: "0.01",
+        help: "weight of missed relight rays in the probes' SH fit (1: the paper's projection)",
+    },
+    OptionSpec {
+        key: "light_samples",
+        kind: OptionKind::Count { min: 1, max: probes::direct::MAX_SAMPLES },
+        default: "16",
+        help: "shadow rays per sender for the direct light",
+    },
+    OptionSpec {
+        key: "pixel_samples",
+        kind: OptionKind::Count { min: 1, max: probes::image::MAX_PIXEL_SAMPLES },
+        default: "16",
+        help: "primary rays per pixel (--recon-rays sets it when the spec does not)",
+    },
+    OptionSpec {
+        key: "tolerance",
+        kind: OptionKind::Interval { min: 0.0, min_open: false, max: 1.0, max_open: true },
+        default: "0.001",
+        help: "bounces stop when the largest change and the tail it predicts are under this share of the largest \
+               irradiance (0: all)",
+    },
+    OptionSpec {
+        key: "image",
+        kind: OptionKind::Choice(&["kept", "lookups"]),
+        default: "kept",
+        help: "kept: the camera's lookups traced once, in preprocess_s; lookups: traced every frame (the same image)",
+    },
+    OptionSpec {
+        key: "bounces",
+        kind: OptionKind::Choice(&["projected", "full"]),
+        default: "projected",
+        help: "projected: bounces after the first as R x R products in CPCA's projected space (needs cpca=on); full: \
+               every bounce through the relight rays",
+    },
+    OptionSpec {
+        key: "hidden_senders",
+        kind: OptionKind::Choice(&["keep", "drop"]),
+        default: "keep",
+        help: "drop: relight hits read no hidden sender beside a valid one",
+    },
+];
+
+/// The method's one line for `--list-methods` and reports.
+pub const DESCRIPTION: &str =
+    "sparse radiance probes (Silvennoinen and Lehtinen 2017), precomputed on the scene and relit per frame by the harness";
 
 /// One `probes[:key=value...]` of `--methods`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ProbesMethod {
-    /// As given (options in the order written): the run's `method`.
+    /// Its canonical name (the options given, in [`OPTIONS`]' order): the run's `method`.
     pub name: String,
     pub precompute: PrecomputeSettings,
     pub cpca: Option<CpcaSettings>,
@@ -63,141 +164,70 @@ pub struct ProbesMethod {
     pub drop_hidden_senders: bool,
 }
 
-/// The options with their defaults, for `--list-methods` and errors.
-pub const OPTIONS: &str = "probes=N (64), receivers=N (20000), overlap=X (10), order=0..7 (7), directions=M (512), \
-relight_rays=R (8000), reconstruction=visibility|spatial (visibility: Eq. 2; spatial: Eq. 1), cpca=on|off (on), \
-fp16=on|off (off), miss_weight=(0,1] (0.01; 1 = the paper's projection), light_samples=N (16), pixel_samples=N (16), \
-tolerance=X (0.001: bounces stop when the largest change and the tail it predicts are under X of the largest irradiance; 0: all), \
-image=kept|lookups (kept: the camera's lookups traced once, in preprocess_s; lookups: traced every frame), \
-bounces=projected|full (projected: bounces after the first as R x R products in CPCA's projected space, its matrix \
-formed once, in preprocess_s; needs cpca=on; full: every bounce through the relight rays), \
-hidden_senders=keep|drop (keep; drop: relight hits read no hidden sender beside a valid one)";
-
-fn on_off(key: &str, value: &str) -> Result<bool> {
-    match value {
-        "on" | "true" | "1" => Ok(true),
-        "off" | "false" | "0" => Ok(false),
-        _ => bail!("--methods: probes: {key} takes on or off, got `{value}`"),
-    }
-}
-
-fn number<T: std::str::FromStr>(key: &str, value: &str) -> Result<T> {
-    value.parse().map_err(|_| anyhow::anyhow!("--methods: probes: {key} takes a number, got `{value}`"))
-}
-
 impl ProbesMethod {
-    /// `spec` parsed when it names this method (`probes` or `probes:...`), else `None`.
+    /// `spec` parsed when it names this method (`probes` or `probes:...`), else `None`. Errors
+    /// are `recon::Error::Option`'s: "`SPEC`: what is wrong".
     pub fn parse(spec: &str, seed: u32) -> Result<Option<ProbesMethod>> {
         let spec = spec.trim();
-        let (name, options) = spec.split_once(':').unwrap_or((spec, ""));
+        let (name, text) = spec.split_once(':').unwrap_or((spec, ""));
         if name != NAME {
             return Ok(None);
         }
-        let mut precompute = PrecomputeSettings {
-            surfels: SurfelSettings { seed, ..Default::default() },
-            placement: PlacementSettings::default(),
-            transport: TransportSettings { seed, ..Default::default() },
-            relight_rays: defaults::RELIGHT_RAYS,
+        let known_elsewhere =
+            |key: &str| recon::registry::METHODS.iter().any(|m| m.options.iter().any(|o| o.key == key));
+        let options = Options::parse(NAME, text, OPTIONS, known_elsewhere)?;
+        let canonical = if options.is_empty() { NAME.to_string() } else { format!("{NAME}:{}", options.canonical()) };
+        let bad = |message: String| recon::Error::Option { spec: canonical.clone(), message };
+        let count = |key: &str, default: usize| options.count(key).map_or(default, |n| n as usize);
+        let word = |key: &str, default: &'static str| options.choice(key).unwrap_or(default);
+        // The number as written (an f32's shortest decimal), not the f32 widened: `0.01` is 0.01.
+        let real = |key: &str, default: f64| {
+            options.real(key).map_or(default, |x| x.to_string().parse().unwrap_or(f64::from(x)))
         };
-        let mut cpca = defaults::CPCA;
-        let mut fp16 = false;
-        let mut method = ProbesMethod {
-            name: spec.to_string(),
-            precompute,
-            cpca: None,
-            miss_weight: defaults::MISS_WEIGHT,
-            light_samples: defaults::LIGHT_SAMPLES,
-            pixel_samples: defaults::PIXEL_SAMPLES,
-            tolerance: defaults::BOUNCE_TOLERANCE,
-            kept_lookups: true,
-            projected_bounces: true,
-            drop_hidden_senders: false,
+        let precompute = PrecomputeSettings {
+            surfels: SurfelSettings { seed, budget: count("receivers", defaults::RECEIVERS), ..Default::default() },
+            placement: PlacementSettings {
+                probes: count("probes", defaults::PROBES),
+                overlap: real("overlap", defaults::OVERLAP),
+                ..Default::default()
+            },
+            transport: TransportSettings {
+                seed,
+                order: count("order", defaults::ORDER),
+                directions: options.count("directions").unwrap_or(defaults::DIRECTIONS),
+                reconstruction: match word("reconstruction", "visibility") {
+                    "spatial" => Reconstruction::SpatialOnly,
+                    _ => Reconstruction::VisibilityAware,
+                },
+            },
+            relight_rays: options.count("relight_rays").unwrap_or(defaults::RELIGHT_RAYS),
         };
-        for option in options.split(':').filter(|o| !o.is_empty()) {
-            let Some((key, value)) = option.split_once('=') else {
-                bail!("--methods: probes: option `{option}` is not key=value; options: {OPTIONS}");
-            };
-            match key {
-                "probes" => precompute.placement.probes = number(key, value)?,
-                "receivers" => precompute.surfels.budget = number(key, value)?,
-                "overlap" => precompute.placement.overlap = number(key, value)?,
-                "order" => precompute.transport.order = number(key, value)?,
-                "directions" => precompute.transport.directions = number(key, value)?,
-                "relight_rays" => precompute.relight_rays = number(key, value)?,
-                "reconstruction" => {
-                    precompute.transport.reconstruction = match value {
-                        "visibility" => Reconstruction::VisibilityAware,
-                        "spatial" => Reconstruction::SpatialOnly,
-                        _ => bail!("--methods: probes: reconstruction takes visibility or spatial, got `{value}`"),
-                    }
-                }
-                "cpca" => cpca = on_off(key, value)?,
-                "fp16" => fp16 = on_off(key, value)?,
-                "miss_weight" => method.miss_weight = number(key, value)?,
-                "light_samples" => method.light_samples = number(key, value)?,
-                "pixel_samples" => method.pixel_samples = number(key, value)?,
-                "tolerance" => method.tolerance = number(key, value)?,
-                "bounces" => {
-                    method.projected_bounces = match value {
-                        "projected" => true,
-                        "full" => false,
-                        _ => bail!("--methods: probes: bounces takes projected or full, got `{value}`"),
-                    }
-                }
-                "hidden_senders" => {
-                    method.drop_hidden_senders = match value {
-                        "drop" => true,
-                        "keep" => false,
-                        _ => bail!("--methods: probes: hidden_senders takes drop or keep, got `{value}`"),
-                    }
-                }
-                "image" => {
-                    method.kept_lookups = match value {
-                        "kept" => true,
-                        "lookups" => false,
-                        _ => bail!("--methods: probes: image takes kept or lookups, got `{value}`"),
-                    }
-                }
-                _ => bail!("--methods: probes: unknown option `{key}`; options: {OPTIONS}"),
-            }
-        }
-        precompute.validate().map_err(|e| anyhow::anyhow!("--methods: probes: {e}"))?;
-        if !(method.miss_weight > 0.0 && method.miss_weight <= 1.0) {
-            bail!("--methods: probes: miss_weight must be in (0, 1], got {}", method.miss_weight);
-        }
-        if method.light_samples == 0 || method.light_samples > probes::direct::MAX_SAMPLES {
-            bail!(
-                "--methods: probes: light_samples must be between 1 and {}, got {}",
-                probes::direct::MAX_SAMPLES,
-                method.light_samples
-            );
-        }
-        if method.pixel_samples == 0 || method.pixel_samples > probes::image::MAX_PIXEL_SAMPLES {
-            bail!(
-                "--methods: probes: pixel_samples must be between 1 and {}, got {}",
-                probes::image::MAX_PIXEL_SAMPLES,
-                method.pixel_samples
-            );
-        }
-        if !(method.tolerance >= 0.0 && method.tolerance < 1.0) {
-            bail!("--methods: probes: tolerance must be in [0, 1), got {}", method.tolerance);
-        }
-        if !cpca {
-            // The dense transport has no projected space.
-            method.projected_bounces = false;
-        }
+        precompute.validate().map_err(|e| bad(e.to_string()))?;
+        let cpca = word("cpca", if defaults::CPCA { "on" } else { "off" }) == "on";
+        let fp16 = word("fp16", "off") == "on";
         if fp16 && !cpca {
-            bail!("--methods: probes: fp16 stores the CPCA-compressed transport; it needs cpca=on");
+            return Err(bad("fp16 stores the CPCA-compressed transport; it needs cpca=on".into()).into());
         }
-        method.precompute = precompute;
-        method.cpca = cpca.then_some(CpcaSettings {
+        let cpca = cpca.then_some(CpcaSettings {
             precision: if fp16 { Precision::F16 } else { Precision::F32 },
             ..Default::default()
         });
-        if let Some(c) = &method.cpca {
-            c.validate().map_err(|e| anyhow::anyhow!("--methods: probes: {e}"))?;
+        if let Some(c) = &cpca {
+            c.validate().map_err(|e| bad(e.to_string()))?;
         }
-        Ok(Some(method))
+        Ok(Some(ProbesMethod {
+            precompute,
+            // The dense transport has no projected space.
+            projected_bounces: cpca.is_some() && word("bounces", "projected") == "projected",
+            cpca,
+            miss_weight: real("miss_weight", defaults::MISS_WEIGHT),
+            light_samples: options.count("light_samples").unwrap_or(defaults::LIGHT_SAMPLES),
+            pixel_samples: options.count("pixel_samples").unwrap_or(defaults::PIXEL_SAMPLES),
+            tolerance: options.real("tolerance").unwrap_or(defaults::BOUNCE_TOLERANCE),
+            kept_lookups: word("image", "kept") == "kept",
+            drop_hidden_senders: word("hidden_senders", "keep") == "drop",
+            name: canonical,
+        }))
     }
 }
 
@@ -239,11 +269,11 @@ fn write_seconds(file: &Path, seconds: f64) -> Result<()> {
 }
 
 /// What `run` holds at its peak for `method` at `width` x `height` on `threads` workers: a
-/// relit frame's estimate (`crate::probes::frame_estimate`: the precompute or its cache read,
+/// relit frame's estimate (`probes::pipeline::frame_estimate`: the precompute or its cache read,
 /// CPCA and the projected bounce when the method uses them, the image with its lookups).
 pub fn memory_estimate(method: &ProbesMethod, (width, height): (u32, u32), threads: usize) -> MemoryEstimate {
     let image = ImageSettings { width, height, light_samples: 0, pixel_samples: method.pixel_samples, seed: 0 };
-    crate::probes::frame_estimate(&method.precompute, method.cpca.as_ref(), method.projected_bounces, &image, threads)
+    frame_estimate(&method.precompute, method.cpca.as_ref(), method.projected_bounces, &image, threads)
 }
 
 /// Runs `method` on `scene` (set up for `--effect indirect`): the precompute from the cache or
@@ -272,8 +302,11 @@ pub fn run(
         std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
     }
     let mut notes = Vec::new();
-    let (mut pre, from_cache, seconds) =
-        crate::probes::obtain(scene, &method.precompute, &file, crate::probes::Stale::Replace, &pool, bar)?;
+    let step = |name: &str| bar.set_message(format!("{}: {name}", method.name));
+    let mut note = |text: String| bar.suspend(|| eprintln!("note: {text}"));
+    let Obtained { precompute: mut pre, from_cache, seconds } =
+        obtain(scene, &method.precompute, &file, Stale::Replace, &pool, &step, &mut note)
+            .with_context(|| format!("precompute on {}", scene.source.display()))?;
     let mut preprocess_s = if from_cache {
         read_seconds(&file).unwrap_or_else(|| {
             notes.push(format!(
@@ -306,9 +339,9 @@ pub fn run(
         stats.insert("relight_fit_s".into(), t.elapsed().as_secs_f64());
     }
     bar.set_message(format!("{}: compressing the transport", method.name));
-    let (op, cpca) = crate::probes::operator(&pre, method.cpca, &pool, &file, &key)?;
+    let (op, cpca) = operator(&pre, method.cpca, &pool, &file, &key, &mut note)?;
     if let Some(c) = &cpca {
-        let cpca_file = crate::probes::cpca_path(&file);
+        let cpca_file = probes::pipeline::cpca_path(&file);
         let compress_s = if c.from_cache {
             read_seconds(&cpca_file).unwrap_or(c.compress_s)
         } else {
@@ -326,7 +359,7 @@ pub fn run(
     // frame); every frame's image is then one weighted sum per pixel.
     let (camera, image_operator_s) = if method.kept_lookups {
         bar.set_message(format!("{}: tracing the camera's lookups", method.name));
-        let (camera, seconds) = crate::probes::image_operator(scene, accel, &pre, &image_settings, &pool)?;
+        let (camera, seconds) = image_operator(scene, accel, &pre, &image_settings, &pool)?;
         preprocess_s += seconds;
         stats.insert("image_operator_s".into(), seconds);
         stats.insert("image_operator_bytes".into(), camera.bytes() as f64);
@@ -335,47 +368,40 @@ pub fn run(
     } else {
         (None, 0.0)
     };
+    let specular = probes::image::specular_share(scene, accel, width, height);
+    stats.insert("specular_share".into(), specular);
+    if let Some(text) = probes::pipeline::specular_warning(specular) {
+        notes.push(recon::method::warning(text));
+    }
     // The bounces' matrix in CPCA's projected space depends on the albedo, not the light: formed
     // once per run (not cached) and charged to preprocess_s like the camera's lookups.
-    let projected = match (&op, method.projected_bounces) {
-        (crate::probes::Operator::Cpca(c), true) => {
-            let size: usize = c.clusters.iter().map(|c| c.rank).sum();
-            if size > MAX_PROJECTED {
-                notes.push(format!(
-                    "bounces=projected: {size} projected values (over {MAX_PROJECTED}): the bounces run in full"
-                ));
-                None
-            } else {
-                bar.set_message(format!("{}: forming the projected bounce", method.name));
-                let t = Instant::now();
-                let albedo = pool.install(|| probes::frame::surfel_albedo(scene, &pre.surfels));
-                let projected =
-                    pool.install(|| probes::projected_bounce::ProjectedBounce::build(c, &pre.table, &albedo))?;
-                let seconds = t.elapsed().as_secs_f64();
-                preprocess_s += seconds;
-                stats.insert("projected_bounce_s".into(), seconds);
-                stats.insert("projected_size".into(), projected.size as f64);
-                stats.insert("projected_bounce_bytes".into(), projected.bytes() as f64);
-                Some(projected)
-            }
+    let projected = if method.projected_bounces {
+        bar.set_message(format!("{}: forming the projected bounce", method.name));
+        let mut note = |text: String| notes.push(format!("bounces=projected: {text}"));
+        let projected = projected_bounce(&op, scene, &pre, &pool, &mut note)?;
+        if let Some((_, report)) = &projected {
+            preprocess_s += report.build_s;
+            stats.insert("projected_bounce_s".into(), report.build_s);
+            stats.insert("projected_size".into(), report.size as f64);
+            stats.insert("projected_bounce_bytes".into(), report.bytes as f64);
         }
-        _ => None,
+        projected
+    } else {
+        None
     };
     let bounces = max_bounces.saturating_sub(1).max(1) as usize;
     let mut timings = Vec::new();
-    let mut first: Option<(Vec<glam::Vec3>, crate::probes::FrameTimes, u64)> = None;
+    let mut first: Option<(Vec<glam::Vec3>, FrameTimes, u64)> = None;
+    let frame_settings =
+        FrameSettings { bounces, start: None, tolerance: method.tolerance, light_samples: method.light_samples };
     for frame in 0..frames.max(1) {
         bar.set_message(format!("{}: relit frame {}", method.name, frame + 1));
-        let (out, img, times) = crate::probes::relit_frame(
+        let (out, img, times) = relit_frame(
             scene,
             accel,
             &pre,
-            &op,
-            projected.as_ref(),
-            None,
-            bounces,
-            method.tolerance,
-            method.light_samples,
+            &Bounces::of(&op, projected.as_ref().map(|(p, _)| p)),
+            &frame_settings,
             &image_settings,
             camera.as_ref(),
             &pool,
@@ -449,10 +475,11 @@ mod tests {
         assert_eq!(m.precompute.surfels.seed, 3);
         assert!(m.cpca.is_some());
         assert_eq!(m.pixel_samples, 16, "Cornell's edges need 16 rays per pixel (docs/probes.md)");
-        let m = ProbesMethod::parse("probes:probes=29:order=2:cpca=off:reconstruction=spatial:miss_weight=1", 1)
+        let m = ProbesMethod::parse("probes:miss_weight=1:probes=29:cpca=off:order=2:reconstruction=spatial", 1)
             .unwrap()
             .unwrap();
-        assert_eq!(m.name, "probes:probes=29:order=2:cpca=off:reconstruction=spatial:miss_weight=1");
+        assert_eq!(m.name, "probes:probes=29:order=2:reconstruction=spatial:cpca=off:miss_weight=1", "canonical order");
+        assert_eq!(ProbesMethod::parse(&m.name, 1).unwrap().unwrap(), m, "the canonical name parses back");
         assert_eq!(m.precompute.placement.probes, 29);
         assert_eq!(m.precompute.transport.order, 2);
         assert_eq!(m.precompute.transport.reconstruction, Reconstruction::SpatialOnly);
@@ -463,24 +490,44 @@ mod tests {
             .unwrap()
             .unwrap();
         assert!(m.drop_hidden_senders && !m.projected_bounces && !m.kept_lookups && m.tolerance == 0.01);
+        assert_eq!(ProbesMethod::parse("probes:tolerance=0", 1).unwrap().unwrap().tolerance, 0.0, "0: every bounce");
+        // Every error in recon's one format: "`SPEC`: what is wrong", naming the option.
         for (bad, names) in [
-            ("probes:order=8", "order"),
-            ("probes:probes=0", "probes"),
-            ("probes:cpca=maybe", "cpca"),
+            ("probes:order=8", "`probes:order=8`"),
+            ("probes:probes=0", "`probes:probes=0`"),
+            ("probes:cpca=maybe", "cpca must be one of on, off"),
             ("probes:fp16=on:cpca=off", "fp16"),
-            ("probes:miss_weight=0", "miss_weight"),
-            ("probes:colour=red", "colour"),
+            ("probes:miss_weight=0", "miss_weight must be a number in (0, 1]"),
+            ("probes:colour=red", "unknown option `colour`"),
+            ("probes:radius=8", "radius does not apply to probes"),
             ("probes:reconstruction=magic", "reconstruction"),
-            ("probes:order", "order"),
+            ("probes:order", "`order` is not key=value"),
             ("probes:pixel_samples=0", "pixel_samples"),
-            ("probes:tolerance=1", "tolerance"),
+            ("probes:tolerance=1", "tolerance must be a number in [0, 1)"),
             ("probes:tolerance=-0.1", "tolerance"),
             ("probes:image=cached", "image"),
             ("probes:bounces=some", "bounces"),
             ("probes:hidden_senders=maybe", "hidden_senders"),
+            ("probes:relight_rays=16", "relight_rays"),
+            ("probes:order=2:order=3", "given twice"),
         ] {
             let error = ProbesMethod::parse(bad, 1).err().unwrap().to_string();
             assert!(error.contains(names), "{bad}: {error}");
+        }
+    }
+
+    /// The defaults written in [`OPTIONS`] (what `--list-methods` shows) are the ones the
+    /// method runs with: every option given at its declared default builds the same method
+    /// as none.
+    #[test]
+    fn the_declared_defaults_are_the_methods_defaults() {
+        let plain = ProbesMethod::parse(NAME, 5).unwrap().unwrap();
+        let every: Vec<String> = OPTIONS.iter().map(|o| format!("{}={}", o.key, o.default)).collect();
+        let spelled = ProbesMethod::parse(&format!("{NAME}:{}", every.join(":")), 5).unwrap().unwrap();
+        assert_eq!(ProbesMethod { name: plain.name.clone(), ..spelled }, plain);
+        for option in OPTIONS {
+            let one = ProbesMethod::parse(&format!("{NAME}:{}={}", option.key, option.default), 5).unwrap().unwrap();
+            assert_eq!(ProbesMethod { name: plain.name.clone(), ..one }, plain, "{}", option.key);
         }
     }
 }

@@ -51,7 +51,7 @@ use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleKind};
 
 use super::{camera_header, write_samples, DumpReport, DumpTarget, FieldSelection};
 use crate::accel::Accel;
-use crate::bsdf::{luminance, sample_cosine_hemisphere, Bsdf, Frame};
+use crate::bsdf::{sample_cosine_hemisphere, Bsdf, Frame};
 use crate::error::RenderError;
 use crate::integrator::{FirstHit, Integrator, NoRecording, PathStart, TracedRay};
 use crate::lights::LightSampler;
@@ -117,9 +117,7 @@ pub fn decode_octahedral(q: [f32; 2]) -> Vec3 {
 
 /// The angular bandwidth κ at a surface (see the module documentation).
 pub fn bandwidth(bsdf: &Bsdf) -> f32 {
-    let specular = (1.0 - bsdf.metallic) * bsdf.specular * bsdf.f0 + bsdf.metallic * luminance(bsdf.base_color);
-    let diffuse = (1.0 - bsdf.metallic) * (1.0 - bsdf.specular * bsdf.f0) * luminance(bsdf.base_color);
-    if !(specular > diffuse) {
+    if !bsdf.specular_outweighs_diffuse() {
         return 0.0;
     }
     let alpha2 = bsdf.alpha * bsdf.alpha;
