@@ -1,5 +1,5 @@
 //! `lfr probes`: sparse radiance probes (Silvennoinen & Lehtinen 2017, crate `probes`,
-//! docs/probes-design.md). `lfr probes stats` builds the receivers and places the probes, and
+//! docs/probes.md). `lfr probes stats` builds the receivers and places the probes, and
 //! prints the placement, the coverage it gives and the memory the precompute will need;
 //! `precompute` writes the cache; `relight` renders one relit frame from it (building it first
 //! when there is none), optionally with a light moved; `animate` moves a point light along a
