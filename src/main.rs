@@ -81,7 +81,7 @@ enum Command {
     /// blur), optionally refocused: --focus-distance D --aperture A.
     Reconstruct(reconstruct::ReconstructArgs),
     /// Sparse radiance probes (Silvennoinen & Lehtinen 2017): `stats` reports receivers, probe
-    /// placement, coverage and memory (docs/probes-design.md).
+    /// placement, coverage and memory (docs/probes.md).
     Probes(probes::ProbesArgs),
 }
 

@@ -3,11 +3,11 @@
 //! defaults), so that "the defaults" give one image whichever front end runs them.
 //!
 //! Each value is the measured best at equal time where it was measured (docs/probes.md,
-//! "Defaults"): on Cornell 128², 4× the receivers changed PSNR by ±0.03 dB at 1.5–2.5× the
-//! precompute; 16 primary rays per pixel gave 35.07 dB against 33.2 dB with 4 and was 118×
-//! path tracing per frame; CPCA cost 0.07 dB and halved the bounces' time; a relight fit that
-//! weights escaped rays at 0.01 instead of the paper's 1 brought the image from 0.90 to 0.97 of
-//! the path tracer's brightness. The paper's own settings remain options (`miss_weight=1`,
+//! "Choices beyond the paper"): on Cornell 128², 4× the receivers changed PSNR by ±0.03 dB at
+//! 1.5–2.5× the precompute; 16 primary rays per pixel gave 35.07 dB against 33.2 dB with 4 and
+//! was 118× path tracing per frame; CPCA cost 0.07 dB and halved the bounces' time; a relight
+//! fit that weights escaped rays at 0.01 instead of the paper's 1 brought the image from 0.90 to
+//! 0.97 of the path tracer's brightness. The paper's own settings remain options (`miss_weight=1`,
 //! `cpca=off`, `reconstruction=spatial`, `--candidates paper`).
 
 /// Probes placed (Section 4.1).

@@ -185,15 +185,15 @@ pub fn pixel_gather(
         .collect()
 }
 
-/// Diagnosis of the brightness deficit (docs/probes.md, "Brightness"): the one-bounce gather at
-/// the camera's own hits of [`pixel_gather`], with the same rays, reading at each secondary hit
-/// (a) the senders through the lookup, as `pixel_gather` does, (b) the direct light evaluated
-/// there exactly through the tracer's surface (textured albedo at the hit, `samples` light
-/// samples about the geometric normal facing the ray, as the senders are lit), and (c) the same
-/// about the hit's shading normal (as the path tracer's next-event estimation). Returns the
+/// Diagnosis of the brightness deficit (docs/history/probes.md, "Brightness"): the one-bounce
+/// gather at the camera's own hits of [`pixel_gather`], with the same rays, reading at each
+/// secondary hit (a) the senders through the lookup, as `pixel_gather` does, (b) the direct light
+/// evaluated there exactly through the tracer's surface (textured albedo at the hit, `samples`
+/// light samples about the geometric normal facing the ray, as the senders are lit), and (c) the
+/// same about the hit's shading normal (as the path tracer's next-event estimation). Returns the
 /// three images' sums (radiance summed over the pixels). (a) ≈ (b) clears the senders and the
-/// lookup from the camera's side; (b) against (c) measures the shading normals; (d) is (a)
-/// with hidden senders (no transport) dropped beside valid ones.
+/// lookup from the camera's side; (b) against (c) measures the shading normals; (d) is (a) with
+/// hidden senders (no transport) dropped beside valid ones.
 #[allow(clippy::too_many_arguments)]
 pub fn pixel_gather_split(
     scene: &tracer::Scene,

@@ -1,6 +1,6 @@
 //! Sparse radiance probes: Silvennoinen & Lehtinen 2017, "Real-time Global Illumination by
 //! Precomputed Local Reconstruction from Sparse Radiance Probes" (ACM TOG 36(6) 230; text in
-//! `shared/papers/sparse-radiance-probes-2017.txt`, design in `docs/probes-design.md`).
+//! `shared/papers/sparse-radiance-probes-2017.txt`; reference page `docs/probes.md`).
 //!
 //! Paper → code:
 //! - ✓ Eq. 3, probe radiance as real SH of order 7, and the clamped-cosine measurement of
@@ -20,7 +20,7 @@
 //! - ✓ Section 4.2, "Probe Transport": relight rays and the per-frame probe SH λ: `relight`;
 //!   our extension, the SH fitted to the rays that hit a surface instead of projected with the
 //!   escaped ones read as zero (the paper's projection darkens every probe that sees the sky):
-//!   `relight::RelightTable::fit` (docs/probes.md, "Brightness").
+//!   `relight::RelightTable::fit` (docs/probes.md, "Choices beyond the paper").
 //! - ✓ Section 4.2, receiver irradiance (dense, Eq. 7 per receiver) and the feedback loop of
 //!   bounces: `frame`.
 //! - ✓ Section 4.2, "Scene relight": direct irradiance at the senders through the tracer's light

@@ -221,9 +221,9 @@ impl RelightTable {
     /// relight hit that also reads a valid one, the rest renormalised; a hit that reads only
     /// hidden senders keeps them. Returns the number of (ray, sender) entries dropped.
     ///
-    /// Why (docs/probes.md, "Brightness"): most hidden surfels lie inside or under geometry
-    /// (70 % of Sponza's), where no light reaches them, yet within a lookup's reach of the
-    /// visible surface a ray hits; read with their weight they darken every hit near them. On
+    /// Why (docs/probes.md, "Choices beyond the paper"): most hidden surfels lie inside or under
+    /// geometry (70 % of Sponza's), where no light reaches them, yet within a lookup's reach of
+    /// the visible surface a ray hits; read with their weight they darken every hit near them. On
     /// Sponza, one bounce of sun light gathered at the camera's hits through the senders was 0.62
     /// of the same gather with the direct light evaluated exactly at each hit, 0.87 with hidden
     /// senders dropped (`lfr probes relight --brute-force-rays`). The same rule as the image's

@@ -1,6 +1,6 @@
 //! Receivers and senders: world-space surface elements ("surfels"), the crate's stand-in for
 //! the paper's light-map texels (Section 5: "any other set of receivers can be used just as
-//! well"; lfr has no light-map UVs). Design: `docs/probes-design.md`, "Receivers".
+//! well"; lfr has no light-map UVs). Design: `docs/probes.md`, "Choices beyond the paper".
 //!
 //! Construction, deterministic for any thread count:
 //! 1. the cell size `h = √(A₂ / budget)` from the two-sided surface area `A₂` and the receiver
