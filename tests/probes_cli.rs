@@ -596,6 +596,40 @@ fn compare_runs_probes_with_its_precompute_times_and_per_frame_verdicts() {
     }
 }
 
+/// The CLI and the harness run one pipeline (`probes::pipeline`): `lfr probes relight` with the
+/// scene's own lights and `lfr compare`'s `probes` with the same settings, seed, size and
+/// bounces give the same indirect image, bit for bit.
+#[test]
+fn relight_and_compare_give_the_same_image_for_the_same_settings() {
+    let dir = tempfile::tempdir().unwrap();
+    let relit = dir.path().join("relit.exr");
+    #[rustfmt::skip]
+    let out = lfr(&[
+        "probes", "relight", "--quiet", "--width", "32", "--height", "32", "--seed", "3",
+        "--probes", "4", "--receivers", "1500", "--directions", "32", "--relight-rays", "1024", "--order", "3",
+        "--pixel-samples", "1", "--cache", dir.path().join("c.probes").to_str().unwrap(), "--out", relit.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let compared = dir.path().join("compare");
+    let spec = "probes:probes=4:receivers=1500:directions=32:relight_rays=1024:order=3:pixel_samples=1";
+    let out = probes_compare(&compared, &dir.path().join("cache"), spec, "indirect");
+    assert!(out.status.success(), "{}", stderr(&out));
+    let results = json(&compared.join("results.json"));
+    let run = results["runs"].as_array().unwrap().iter().find(|r| r["method"] != "pt").expect("the probes run");
+    let (w, h, harness) = tracer::output::read_exr(&compared.join(run["image"].as_str().unwrap())).unwrap();
+    let (_, _, cli) = tracer::output::read_exr(&relit).unwrap();
+    assert_eq!((w, h), (32, 32));
+    let layer = |list: &[(String, Vec<f32>)], c: &str| -> Vec<u32> {
+        let found = list.iter().find(|(name, _)| name == &format!("indirect.{c}")).unwrap_or_else(|| panic!("{c}"));
+        found.1.iter().map(|v| v.to_bits()).collect()
+    };
+    for c in ["R", "G", "B"] {
+        let (a, b) = (layer(&cli, c), layer(&harness, c));
+        assert!(a.iter().any(|&v| f32::from_bits(v) > 0.0), "a lit image");
+        assert!(a == b, "channel {c}: the relight's and the comparison's images differ");
+    }
+}
+
 /// Same seed, same output whatever the thread count: the whole precompute (the cache file, byte
 /// for byte) and a relit frame with CPCA and the projected bounces (every layer, bit for bit)
 /// with one, two and three worker threads.

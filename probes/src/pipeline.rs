@@ -191,6 +191,14 @@ pub fn operator<'a>(
     Ok((Operator::Cpca(cpca), Some(report)))
 }
 
+/// The probes' bounces for a path tracer's `max_bounces`: the path tracer counts the bounce that
+/// brings the direct light, the probes only the indirect ones after it, so `max_bounces − 1`,
+/// at least 1. `lfr probes relight` and `lfr compare` both stop there (or sooner by the
+/// tolerance), so that the same settings give the same image.
+pub fn indirect_bounces(max_bounces: u32) -> usize {
+    max_bounces.saturating_sub(1).max(1) as usize
+}
+
 /// The projected bounce's figures, for reports.
 #[derive(Serialize, Clone, Copy, Debug)]
 pub struct ProjectedReport {
@@ -384,6 +392,12 @@ pub fn specular_warning(share: f64) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_probes_bounce_the_path_tracers_indirect_bounces() {
+        let bounces: Vec<usize> = [0, 1, 2, 5].into_iter().map(indirect_bounces).collect();
+        assert_eq!(bounces, [1, 1, 1, 4], "one bounce at least; else one fewer than the path's");
+    }
 
     #[test]
     fn the_specular_warning_starts_at_one_percent_and_gives_the_share() {

@@ -389,7 +389,7 @@ pub fn run(
     } else {
         None
     };
-    let bounces = max_bounces.saturating_sub(1).max(1) as usize;
+    let bounces = probes::pipeline::indirect_bounces(max_bounces);
     let mut timings = Vec::new();
     let mut first: Option<(Vec<glam::Vec3>, FrameTimes, u64)> = None;
     let frame_settings =

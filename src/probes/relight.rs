@@ -14,8 +14,8 @@ use probes::direct::direct_irradiance;
 use probes::frame::surfel_albedo;
 use probes::image::{render_image, ProbeImage};
 use probes::pipeline::{
-    cpca_path, frame_estimate, image_operator, operator, projected_bounce, relit_frame, Bounces, CpcaReport,
-    FrameSettings, FrameTimes, Obtained, ProjectedReport, Stale,
+    cpca_path, frame_estimate, image_operator, indirect_bounces, operator, projected_bounce, relit_frame, Bounces,
+    CpcaReport, FrameSettings, FrameTimes, Obtained, ProjectedReport, Stale,
 };
 use serde::Serialize;
 
@@ -46,7 +46,8 @@ pub(super) struct RelightArgs {
     /// Add a point light at X,Y,Z (with --light-intensity).
     #[arg(long, value_delimiter = ',', num_args = 1, value_name = "X,Y,Z", allow_negative_numbers = true)]
     light_position: Option<Vec<f32>>,
-    /// Bounces of indirect light (0: to convergence, at most --max-bounces or the scene's).
+    /// Bounces of indirect light (0: to convergence, at most --max-bounces − 1 or the scene's,
+    /// as the path tracer's indirect light).
     #[arg(long, default_value_t = 0)]
     bounces: u32,
     /// With --cpca, how the bounces after the first run: `projected` (the default: R × R
@@ -232,9 +233,9 @@ pub(super) fn run_relight(args: &RelightArgs) -> Result<()> {
     let key = CacheKey::of(&scene, &settings);
     let mut note = |text: String| bar.suspend(|| eprintln!("note: {text}"));
     let (op, cpca) = operator(&pre, cpca_settings, &pool, &args.pre.cache, &key, &mut note)?;
-    let max_bounces = args.trace.size.max_bounces.unwrap_or(scene.max_bounces).max(1) as usize;
+    let most = indirect_bounces(args.trace.size.max_bounces.unwrap_or(scene.max_bounces));
     let (bounces, tolerance) =
-        if args.bounces == 0 { (max_bounces, defaults::BOUNCE_TOLERANCE) } else { (args.bounces as usize, 0.0) };
+        if args.bounces == 0 { (most, defaults::BOUNCE_TOLERANCE) } else { (args.bounces as usize, 0.0) };
     // The bounces' matrix in CPCA's projected space depends on the albedo, not the light:
     // formed once per run, as `lfr compare` does.
     let projected = if args.bounce_loop.unwrap_or(BounceLoop::Projected) == BounceLoop::Projected {
