@@ -643,7 +643,7 @@ fn compare_lists_every_method_with_its_options() {
     assert!(!out.exists(), "nothing is written");
 }
 
-/// Issue 22, class 1 and 4: an output path that names a device node, a symbolic link or the
+/// An output path that names a device node, a symbolic link or the
 /// command's own input is refused before any work, and left as it was.
 #[test]
 fn outputs_never_replace_devices_links_or_inputs() {
@@ -702,7 +702,7 @@ fn outputs_never_replace_devices_links_or_inputs() {
     assert!(!path("x.exr").exists());
 }
 
-/// Issue 22, classes 12 and 13: special files as inputs are clear errors at once, never a read
+/// Special files as inputs are clear errors at once, never a read
 /// until memory runs out or a wait forever, and each error names what is wrong.
 #[test]
 fn special_files_as_inputs_are_refused_at_once() {

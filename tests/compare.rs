@@ -448,7 +448,7 @@ fn a_missing_denoiser_is_skipped_with_a_notice() {
     assert!(!runs(&results, "box").is_empty());
 }
 
-/// Issue 22, class 3: a cached reference is used only when its record matches the comparison
+/// A cached reference is used only when its record matches the comparison
 /// and its image matches the record's checksum; a poisoned one is traced again, with a warning.
 #[test]
 fn a_poisoned_reference_cache_is_traced_again() {
@@ -496,7 +496,7 @@ fn a_poisoned_reference_cache_is_traced_again() {
     assert_eq!(rechecked["reference"]["estimated_psnr_db"], first["reference"]["estimated_psnr_db"]);
 }
 
-/// ILFR runs carry their statistics as named numbers (issue 23, item 5), consistent with the
+/// ILFR runs carry their statistics as named numbers, consistent with the
 /// run: the paper's gather shoots `recon_rays` rays per pixel whose primary hit it gathers (in
 /// the Cornell box all but the lamp's pixels, a few percent); each splat is one input sample
 /// that hit; fractions are fractions. The default's records count themselves. Other methods

@@ -1,5 +1,5 @@
 //! File references inside scene files stay inside the referencing file's folder (or the shared
-//! scenes folder) unless `--allow-outside-scene-dir` (issue 22, class 14): glTF buffer URIs,
+//! scenes folder) unless `--allow-outside-scene-dir`: glTF buffer URIs,
 //! TOML mesh files and textures, OBJ material libraries and texture maps. `..` and symbolic
 //! links that lead out are refused; the error names the file, the field and the reference and
 //! shows nothing of the refused file.

@@ -1,4 +1,4 @@
-//! Errors that used to come late or unclear (issue 22, class 12): `lfr compare` refuses a
+//! Errors that used to come late or unclear: `lfr compare` refuses a
 //! reference cache it cannot write and a soft-shadow scene whose light is not planar before it
 //! traces anything; a bad MTL line is named with its file and line number.
 

@@ -1,9 +1,9 @@
-//! Issue 23, "Fireflies pass through": ILFR's error must not grow as its input grows on a scene
+//! "Fireflies pass through": ILFR's error must not grow as its input grows on a scene
 //! whose sample radiance has outliers (the Cornell box's indirect light: rare paths that reach
 //! the small ceiling light after a bounce or two), judged against a traced reference of many
-//! more samples. Before issue 23 (one gather set per primary hit, no robust splat radiance) this
-//! very comparison gave a relative MSE of 2.999e-3 at 4 spp and 3.109e-3 at 16 spp; after it
-//! 2.606e-3 and 1.676e-3 (docs/history/ilfr.md, "Issue 23: the error that grew with the input").
+//! more samples. With one gather set per primary hit and no robust splat radiance, this
+//! very comparison gave a relative MSE of 2.999e-3 at 4 spp and 3.109e-3 at 16 spp; with them
+//! 2.606e-3 and 1.676e-3 (docs/history/ilfr.md, the section on the error that grew with the input).
 
 use crate::lfr_runner as cli;
 
@@ -66,7 +66,7 @@ fn ilfr_error_does_not_grow_with_the_input_on_a_scene_with_outliers() {
     assert!(result.status.success(), "lfr compare failed: {}", String::from_utf8_lossy(&result.stderr));
     let results: Value = serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
 
-    // Issue 23 is the paper's gather (one gather set per primary hit); the default gather (records)
+    // The test above is the paper's gather (one gather set per primary hit); the default gather (records)
     // must not grow its error with the input either.
     let robust = runs(&results, "ilfr:variant=paper");
     let plain = runs(&results, "ilfr:variant=paper:robust=off");

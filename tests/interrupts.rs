@@ -1,4 +1,4 @@
-//! Interrupts leave no litter (issue 22, class 6): SIGINT or SIGTERM while `lfr dump` writes its
+//! Interrupts leave no litter: SIGINT or SIGTERM while `lfr dump` writes its
 //! sample file, or while `lfr compare` runs its methods, removes the temporary file
 //! (`NAME.<pid>.tmp`) and the comparison's input samples, writes no half file under the target's
 //! name, and exits with 130.

@@ -1,4 +1,4 @@
-//! Lighting for the scenes users bring (issue 26, item 2): a file without lights gets the
+//! Lighting for the scenes users bring: a file without lights gets the
 //! documented default lighting with a notice; `--environment`, `--sun` and `--sun-irradiance`
 //! light any scene, `--camera N` picks among a glTF file's cameras, and bad values are refused.
 

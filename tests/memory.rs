@@ -1,4 +1,4 @@
-//! Memory estimated before allocation (issue 22, class 5): a size within the option limits that
+//! Memory estimated before allocation: a size within the option limits that
 //! this machine cannot hold is refused at once with the estimate and what is available, before
 //! any tracing and without writing anything, instead of an aborted allocation or the OOM killer.
 

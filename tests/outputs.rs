@@ -1,7 +1,7 @@
-//! Outputs never replace an input or another output, and every refusal comes before the work
-//! (issue 51, classes 1, 2 and 5): each command plans all its output paths (`src/outputs.rs`)
-//! and checks them against every file it reads, the scene's textures and buffers included, and
-//! against each other, by the file they lead to; a dump too large for its file system, a folder
+//! Outputs never replace an input or another output, and every refusal comes before the work:
+//! each command plans all its output paths (`src/outputs.rs`) and checks them against every
+//! file it reads, the scene's textures and buffers included, and against each other, by the
+//! file they lead to; a dump too large for its file system, a folder
 //! spelled as an output and `-` are refused before tracing; errors name the file and the line or
 //! key.
 

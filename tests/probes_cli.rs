@@ -1,4 +1,4 @@
-//! `lfr probes` (issue 25): bad parameters are refused with an error naming the field before the
+//! `lfr probes`: bad parameters are refused with an error naming the field before the
 //! scene is read; a small `stats` run on the embedded Cornell box reports a placement whose
 //! numbers agree with each other; `relight` builds the cache once and reuses it bit for bit
 //! whatever the lights, writes the image's named layers consistently, refuses corrupt,

@@ -1,5 +1,5 @@
 //! `lfr reconstruct` and `lfr export` on sample files the format allows but the command cannot
-//! read (issue 22, class 2): a known field with another type or component count. Each must
+//! read: a known field with another type or component count. Each must
 //! exit non-zero with an error naming the file (once) and the field, without a panic and
 //! without leaving any file (no output, no `OUT.<pid>.tmp`).
 

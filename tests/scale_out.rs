@@ -1,4 +1,4 @@
-//! Scale-out (issue 27): `lfr render --shard I/N` in separate processes and `lfr merge` give the
+//! Scale-out: `lfr render --shard I/N` in separate processes and `lfr merge` give the
 //! image one process renders, bit for bit in every channel; shards of different renders,
 //! missing or repeated shards are refused before anything is written. Shards by sample ranges
 //! (`--shard-by samples`) merge into it within float rounding.

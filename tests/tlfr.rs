@@ -373,7 +373,7 @@ fn image_mean(pixels: &[Vec3], keep: &[bool]) -> f64 {
     pixels.iter().zip(keep).filter(|(_, &k)| k).map(|(p, _)| (p.x + p.y + p.z) as f64).sum::<f64>() / (3.0 * kept)
 }
 
-/// Issue 24: on the Cornell box, whose ceiling light (130 × 105 mm, 0.5 mm below the ceiling)
+/// On the Cornell box, whose ceiling light (130 × 105 mm, 0.5 mm below the ceiling)
 /// lights the whole room from close by, the reconstruction was biased dark, and more so with
 /// more input samples (29.98 / 31.81 dB at 4 / 16 spp against the box filter's 30.95 / 33.10 at
 /// 64×48): rays to the walls' tops cross the light's plane Π far away, the light-space offset
@@ -421,11 +421,11 @@ fn the_cornell_ceiling_light_is_not_biased_dark() {
         assert!(bias.abs() < 0.01, "{spp} spp: mean {:+.2} % off the reference", 100.0 * bias);
         // At 16 spp the bright bias the lamp test shows (+0.5 %) holds the error near the box
         // filter's (measured 1.07×), hence the looser bound there. Since the tracer samples
-        // rectangle lights by solid angle near them (issue 26) the inputs, and so the box
+        // rectangle lights by solid angle near them, the inputs, and so the box
         // filter, are less noisy: 4 spp measured 0.63× the box before, 0.78× after, with tlfr's
         // own error unchanged (0.0037); at 16 spp 1.44× (0.0027 against the box's 0.0019, which
-        // fell from about 0.0025): tlfr's +0.55 % bright bias now dominates there (issue 24,
-        // open). The bounds follow the box, not tlfr; the bias bound above is the point.
+        // fell from about 0.0025): tlfr's +0.55 % bright bias now dominates there (not
+        // solved: docs/tlfr.md, "Limits"). The bounds follow the box, not tlfr; the bias bound above is the point.
         let bound = if spp == 4 { 0.85 } else { 1.6 };
         assert!(run.tlfr_error < bound * run.box_error, "{spp} spp: RMSE {} vs box {}", run.tlfr_error, run.box_error);
         errors.push(run.tlfr_error);
@@ -441,7 +441,7 @@ fn the_cornell_ceiling_light_is_not_biased_dark() {
 fn soft_shadows_from_4_spp_approach_the_converged_image() {
     let (output, tlfr_error, box_error) = soft_shadow_errors(&lamp_and_blocker([0.0; 3]));
     // 0.62× the box measured (0.0062 against 0.0096; the box's input is the tracer's solid-angle
-    // sampling of the rectangular lamp since issue 26, 0.0131 by area before).
+    // sampling of the rectangular lamp by solid angle, 0.0131 by area before).
     assert!(tlfr_error < 0.7 * box_error, "tlfr RMSE {tlfr_error} vs box {box_error}: {:?}", output.notes);
     // The penumbra stays soft: many floor pixels lie well between the darkest and brightest.
     let luminance: Vec<f32> = output.image.pixels.iter().map(|p| p[0]).collect();
@@ -507,7 +507,7 @@ fn fused_soft_shadows_match_the_oracle() {
     }
 }
 
-/// Issue 24: the lamp-and-blocker image's mean within 0.2 % of the converged image's, at 4 and
+/// The lamp-and-blocker image's mean within 0.2 % of the converged image's, at 4 and
 /// 16 spp. Measured −0.06 % / +0.12 % since the light side keeps a blocker's rim
 /// (`query::takes_rim`; before: +0.80 % / +0.58 %, the box filter of the same samples −0.34 % /
 /// −0.10 %). The margin is small against the input's own noise: over the seeds 5–9 the mean is
@@ -574,7 +574,7 @@ fn soft_shadow_inputs_that_do_not_belong_together_are_clear_errors() {
     assert!(error.contains("light.lfrs") && error.contains("lens-time"), "{error}");
 }
 
-/// `--seed` reaches the reconstructions' own random numbers (issue 21): through the registry,
+/// `--seed` reaches the reconstructions' own random numbers: through the registry,
 /// as `lfr compare` runs them, one seed gives the same bits twice, another seed other bits of
 /// the same quality (error against a converged render within noise), for TLFR's locations on
 /// the moving square and ILFR's reconstruction rays on the Cornell box.
@@ -648,7 +648,7 @@ fn the_seed_reaches_every_reconstruction_and_keeps_its_quality() {
     }
 }
 
-/// `tlfr:gi=split` (issue 24 item 5; the default) on the monkeys' full global illumination, run through the
+/// `tlfr:gi=split` (the default) on the monkeys' full global illumination, run through the
 /// registry as `lfr compare` runs it, against second computations: with one bounce (no light
 /// beyond the first hit) it is `tlfr`'s image bit for bit; with four bounces and `gi_radius=0`
 /// it is `tlfr` on the one-bounce file (whose radiance is the direct part, tested in the

@@ -1,5 +1,4 @@
-//! Dropped non-finite values are warned about, with their count, once per run (issue 22,
-//! class 9): an emitter too bright for f32 in `lfr render` and `lfr dump`, and a sample file
+//! Dropped non-finite values are warned about, with their count, once per run: an emitter too bright for f32 in `lfr render` and `lfr dump`, and a sample file
 //! whose radiance is all NaN in `lfr reconstruct`, no longer give a silently black image.
 
 use crate::common;

@@ -1,4 +1,4 @@
-//! Sample files the format allows but a method cannot read (issue 22, class 2): a known field
+//! Sample files the format allows but a method cannot read: a known field
 //! declared with another type or component count. Every method of the registry that reads
 //! sample files, on every effect it handles, must refuse them with an error naming the file and
 //! the field (what it is, what is needed), never panic nor read past the field's end.

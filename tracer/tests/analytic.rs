@@ -204,7 +204,7 @@ fn stiff_cases_one_pixel_one_sample_empty_scene_and_spikes_stay_finite() {
     assert_eq!(frame.invalid_samples, 0);
 
     // Radiance of 1e30 half the time: its variance (~1e59) is beyond f32 and is stored as
-    // f32::MAX and counted, never as infinity (issue 22, class 9).
+    // f32::MAX and counted, never as infinity.
     let blinding = SceneToml::new(0, None)
         .camera([0.0, 0.0, 4.0], [0.0; 3], 40.0, "")
         .emitter("sun", [1e30; 3], "")

@@ -1,4 +1,4 @@
-//! Light selection by contribution and sphere lights by solid angle (issue 26, item 1): on a
+//! Light selection by contribution and sphere lights by solid angle: on a
 //! sphere light over a large floor under a dim sky, the beauty's mean relative variance at
 //! 16 spp falls by at least 30 % against the sampling before (kept as
 //! `LightStrategy::Legacy`, the oracle), with the same mean within noise.
@@ -163,9 +163,8 @@ fn rectangle_over_floor(height: f32) -> Scene {
     ))
 }
 
-/// Rectangle lights by solid angle (issue 26, item 1, "rectangles by solid angle where it
-/// pays"): against `LightStrategy::Legacy`, which samples them by area, the same image mean
-/// within noise and no more variance than noise allows on any scene, and much less where the
+/// Rectangle lights by solid angle: against `LightStrategy::Legacy`, which samples them by
+/// area, the same image mean within noise and no more variance than noise allows on any scene, and much less where the
 /// light is close to what it lights. The ratios go to docs/performance.md.
 #[test]
 fn rectangle_lights_by_solid_angle_keep_the_mean_and_lower_the_variance() {

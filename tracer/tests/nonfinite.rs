@@ -1,4 +1,4 @@
-//! Contributions that overflow f32 are dropped, and counted (issue 22, class 9): a point light
+//! Contributions that overflow f32 are dropped, and counted: a point light
 //! of intensity 3e38 half a unit above a plane gives I/d² above f32's range (+inf) wherever
 //! d < 0.94, which covers the whole narrow view, so every shadow ray that reaches it carries an
 //! infinite value. The frame and the sample dumps report

@@ -1,4 +1,4 @@
-//! PLY meshes (issue 26, item 4): ASCII and binary files of the same geometry load the same,
+//! PLY meshes: ASCII and binary files of the same geometry load the same,
 //! a truncated file is an error naming it, PLY works as a `[[mesh]] file` in a description,
 //! and the shared Stanford bunny's PLY equals its verbatim OBJ conversion.
 

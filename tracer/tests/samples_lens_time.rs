@@ -185,7 +185,7 @@ fn glossy_scenes_add_the_brdf_bandwidth_within_64_bytes() {
     assert!(bandwidth.iter().any(|&k| k > 0.0), "the metal heads and floor are glossy");
 }
 
-/// `direct` (issue 24 item 5): written only when a selection names it, so full dumps keep their
+/// `direct`: written only when a selection names it, so full dumps keep their
 /// size. With one bounce every sample's radiance is its direct part; with more bounces the
 /// direct part is the one-bounce radiance of the same seed (the first hit draws the same
 /// numbers), and the rest is what the longer paths add (never negative per channel here: every

@@ -157,7 +157,7 @@ fn a_lens_a_millionth_from_a_wall_gives_finite_depths_and_gradients() {
     }
 }
 
-/// Issue 22, class 9: f16 fields are clamped to 65504 as docs/sample-format.md promises, never
+/// f16 fields are clamped to 65504 as docs/sample-format.md promises, never
 /// stored as infinity: an (energy-gaining) base colour of 1e6 gives albedo 65504 in the file.
 #[test]
 fn f16_fields_are_clamped_not_infinite() {

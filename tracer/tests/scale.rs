@@ -1,4 +1,4 @@
-//! Scale invariance (issue 22, class 10): the same scene built at 1e-6 and at 1e9 times its size
+//! Scale invariance: the same scene built at 1e-6 and at 1e9 times its size
 //! renders the same image. Every length scales by s; a point light's intensity scales by s² (its
 //! irradiance falls with the squared distance), radiance (emitters, sphere lights, the
 //! environment) does not change. With the same seed the paths take the same random numbers, so
