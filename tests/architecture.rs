@@ -200,3 +200,40 @@ fn every_rs_file_architecture_md_names_exists() {
         missing.join("\n  ")
     );
 }
+
+/// Whether `comment` cites an issue or a session by number (the word, a space, a digit): a
+/// comment states the rule and the number; git keeps the story.
+fn cites_an_issue_or_session(comment: &str) -> bool {
+    let lower = comment.to_lowercase();
+    ["issue ", "session "].iter().any(|word| {
+        lower.match_indices(word).any(|(at, _)| {
+            let before = lower[..at].chars().next_back();
+            let after = lower[at + word.len()..].chars().next();
+            !before.is_some_and(|c| c.is_alphanumeric()) && after.is_some_and(|c| c.is_ascii_digit())
+        })
+    })
+}
+
+/// No comment in the repository's Rust files, product or test (every `.rs` file outside
+/// `target/`, hidden folders and `experiments/`), cites an issue or a session by number.
+#[test]
+fn no_comment_cites_an_issue_or_a_session() {
+    assert!(cites_an_issue_or_session("fixed in issue 22, class 9"));
+    assert!(cites_an_issue_or_session("Session 20: the default"));
+    assert!(!cites_an_issue_or_session("the tissue 3 layers; an issue with 0-sized images"));
+    let base = root();
+    let mut files = Vec::new();
+    files_below(&base, &base, &mut files);
+    let mut citing = Vec::new();
+    for file in files.iter().filter(|f| f.ends_with(".rs") && !f.starts_with("experiments/")) {
+        let text = std::fs::read_to_string(base.join(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+        for (number, line) in text.lines().enumerate() {
+            if let Some(at) = line.find("//") {
+                if cites_an_issue_or_session(&line[at..]) {
+                    citing.push(format!("{file}:{}: {}", number + 1, line.trim()));
+                }
+            }
+        }
+    }
+    assert!(citing.is_empty(), "{} comment(s) cite an issue or a session:\n  {}", citing.len(), citing.join("\n  "));
+}

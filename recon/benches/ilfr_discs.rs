@@ -1,4 +1,4 @@
-//! Issue 7 item 2 (docs/ilfr-design.md §4, slice 7): the splat hierarchy — our `DiscBvh` against
+//! The splat hierarchy (docs/ilfr-design.md §4) — our `DiscBvh` against
 //! Embree 3's oriented-disc points (`RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT`, vertex buffer
 //! (x, y, z, r), normal buffer) with an intersection filter that records every hit (primitive id,
 //! t) and rejects it, so that traversal goes on and collects *every* disc along the ray, as
