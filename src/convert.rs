@@ -16,7 +16,7 @@ pub fn guide_input(buffers: &tracer::samples::guide::GuideBuffers) -> GuideInput
     let (width, height) = (buffers.width, buffers.height);
     let arrays = |values: &[Vec3]| values.iter().map(|v| v.to_array()).collect::<Vec<_>>();
     GuideInput {
-        guide: recon::gif::guide::GuideBuffers {
+        guide: recon::guide::GuideBuffers {
             width,
             height,
             normal: arrays(&buffers.normal),
@@ -27,12 +27,12 @@ pub fn guide_input(buffers: &tracer::samples::guide::GuideBuffers) -> GuideInput
         albedo: image_from_vec3(width, height, &buffers.albedo),
         indirect: image_from_vec3(width, height, &buffers.indirect),
         direct: image_from_vec3(width, height, &buffers.direct),
-        eye_rays: recon::gif::guide::EyeRays {
+        eye_rays: recon::guide::EyeRays {
             per_pixel: buffers.eye_rays_per_pixel,
             rays: buffers
                 .eye_rays
                 .iter()
-                .map(|ray| recon::gif::guide::EyeRay {
+                .map(|ray| recon::guide::EyeRay {
                     film: ray.film.to_array(),
                     normal: ray.normal.to_array(),
                     depth: ray.depth,

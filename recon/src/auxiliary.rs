@@ -176,7 +176,7 @@ mod tests {
             (0..6).map(|i| if i == 4 { [0.0; 3] } else { [0.0, (i % 2) as f32, 1.0] }).collect();
         let albedo: Vec<[f32; 3]> = (0..6).map(|i| [0.1 * i as f32, 0.5, 1.0 - 0.1 * i as f32]).collect();
         let guide = crate::method::GuideInput {
-            guide: crate::gif::guide::GuideBuffers {
+            guide: crate::guide::GuideBuffers {
                 width,
                 height,
                 normal: normal.clone(),

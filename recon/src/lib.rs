@@ -6,7 +6,8 @@
 //! `baselines/` (box average, cross-bilateral, À-Trous, Intel Open Image Denoise) and
 //! `metrics/` (PSNR, relative MSE, SSIM, error maps, HDR-FLIP). `method` is the interface the
 //! comparison harness runs them through, `progress` how far the running one is, `registry` the one list of the methods with their
-//! effects and options (parsed by `options`). `image`, `octahedral`, `python` and `lcg` are the
+//! effects and options (parsed by `options`). `image`, `guide` (the per-pixel guide buffers),
+//! `octahedral`, `python` and `lcg` are the
 //! shared pieces below them (`lcg` generates test data only).
 
 #![forbid(unsafe_code)]
@@ -15,6 +16,7 @@ pub mod auxiliary;
 pub mod baselines;
 pub mod error;
 pub mod gif;
+pub mod guide;
 pub mod ilfr;
 pub mod image;
 pub mod lcg;

@@ -83,7 +83,7 @@ pub enum Input {
 /// the noisy outgoing indirect light estimated at that very point with `spp` paths.
 #[derive(Clone, Debug)]
 pub struct GuideInput {
-    pub guide: crate::gif::guide::GuideBuffers,
+    pub guide: crate::guide::GuideBuffers,
     pub albedo: Image,
     /// Mean of `spp` estimates of the light the guide hit reflects after at least one more
     /// bounce (the indirect layer at the pixel centre).
@@ -91,7 +91,7 @@ pub struct GuideInput {
     /// Emitted plus directly reflected light at the guide hit (the environment for a miss).
     pub direct: Image,
     /// `spp − 1` additional eye rays per pixel (none at 1 spp).
-    pub eye_rays: crate::gif::guide::EyeRays,
+    pub eye_rays: crate::guide::EyeRays,
 }
 
 /// A path-traced frame: the effect's layer and the first-hit albedo and world-space normal.

@@ -65,7 +65,7 @@ use crate::baselines::bilateral::{
     FilterReport, MAX_EXPONENT, TILE,
 };
 use crate::error::Error;
-use crate::gif::guide::GuideBuffers;
+use crate::guide::GuideBuffers;
 use crate::image::Image;
 
 /// The 1D B3-spline kernel; the 2D kernel is its outer product.

@@ -53,7 +53,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::Error;
-use crate::gif::guide::GuideBuffers;
+use crate::guide::GuideBuffers;
 use crate::image::Image;
 
 /// Parameters of `cross_bilateral`; see the module documentation for the weight formulas.

@@ -32,8 +32,8 @@
 use rayon::prelude::*;
 
 use crate::error::Error;
-use crate::gif::guide::{EyeRay, EyeRays, GuideBuffers};
 use crate::gif::modulation::remodulated;
+use crate::guide::{EyeRay, EyeRays, GuideBuffers};
 use crate::image::Image;
 
 /// The reconstructed image, split as the tracer splits it.

@@ -345,7 +345,7 @@ impl Method for FilteredIndirect {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gif::guide::GuideBuffers;
+    use crate::guide::GuideBuffers;
 
     fn flat_input(width: u32, height: u32, albedo: [f32; 3], noisy: impl Fn(u32, u32) -> [f32; 3]) -> GuideInput {
         let n = (width * height) as usize;
@@ -362,7 +362,7 @@ mod tests {
             albedo: Image::from_pixels(width, height, vec![albedo; n]),
             indirect: Image::from_pixels(width, height, indirect),
             direct: Image::from_pixels(width, height, vec![[0.0; 3]; n]),
-            eye_rays: crate::gif::guide::EyeRays::default(),
+            eye_rays: crate::guide::EyeRays::default(),
         }
     }
 

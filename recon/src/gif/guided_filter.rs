@@ -109,7 +109,7 @@
 use rayon::prelude::*;
 
 use crate::error::Error;
-use crate::gif::guide::GuideBuffers;
+use crate::guide::GuideBuffers;
 use crate::image::Image;
 
 /// Which guide the filter uses (paper, Figure 5: guide dimensionality).

@@ -34,7 +34,7 @@ use super::robust::luminance;
 use super::samples::{IndirectSamples, SampleClass};
 use crate::baselines::atrous::{AtrousParams, B3};
 use crate::error::Error;
-use crate::gif::guide::GuideBuffers;
+use crate::guide::GuideBuffers;
 use crate::image::Image;
 
 /// Albedo below which a channel is not divided (its light stays as gathered).
