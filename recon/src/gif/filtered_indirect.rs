@@ -9,7 +9,7 @@
 //! | 4 radius 24–32 px (at ~800 px) | `scaled_radius`: the radius scales with the image |
 //! | 3.2 additional eye rays with the geometry-aware lookup (Eq. 3–5), direct light per eye ray, box filter, composite | `FilteredIndirect::reconstruct` → `eye_rays::composite` |
 //!
-//! Methods: `gif` (guided image filter, normal + depth guide, `guided_filter.rs`), `gif-normal`
+//! Methods: `gif` (guided image filter, normal + depth guide, `guided_filter`), `gif-normal`
 //! and `gif-grey` (the 3-channel normal and 1-channel grey-normal guides of the paper's
 //! Figure 5), `bilateral` (cross-bilateral on normal and depth, `baselines/bilateral.rs`), `atrous`
 //! (edge-avoiding À-Trous, `baselines/atrous.rs`) and `atrous-sn` (À-Trous with the extra range term on
