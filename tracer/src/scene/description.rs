@@ -14,7 +14,7 @@ use serde::de::{self, Deserializer, SeqAccess, Visitor};
 use serde::Deserialize;
 use toml::Spanned;
 
-use super::input::{confine, FileAccess};
+use super::input::{confine, shared_scenes_dir, FileAccess};
 use super::obj::ObjOptions;
 use super::shapes;
 use super::{Material, PunctualLight, Scene};
@@ -407,14 +407,6 @@ impl LightDesc {
 
 fn default_outer() -> f32 {
     45.0
-}
-
-/// The folder that `@shared/` paths resolve to.
-pub fn shared_scenes_dir(description_dir: &Path) -> PathBuf {
-    match std::env::var_os("LFR_SCENES") {
-        Some(dir) if !dir.is_empty() => PathBuf::from(dir),
-        _ => description_dir.join("../../shared/scenes"),
-    }
 }
 
 fn resolve(path: &str, dir: &Path) -> PathBuf {

@@ -39,7 +39,7 @@ pub fn confine(
     }
     let Ok(canonical) = std::fs::canonicalize(target) else { return Ok(()) };
     let folder = referencing_file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let roots = [folder.to_path_buf(), super::description::shared_scenes_dir(folder)];
+    let roots = [folder.to_path_buf(), shared_scenes_dir(folder)];
     if roots.iter().filter_map(|root| std::fs::canonicalize(root).ok()).any(|root| canonical.starts_with(root)) {
         return Ok(());
     }
@@ -117,6 +117,14 @@ pub fn read_input(path: &Path, max_bytes: u64, referenced_from: &Path, field: &s
     let mut bytes = Vec::with_capacity(len as usize);
     file.take(max_bytes).read_to_end(&mut bytes).map_err(error)?;
     Ok(bytes)
+}
+
+/// The folder that `@shared/` paths resolve to.
+pub fn shared_scenes_dir(description_dir: &Path) -> PathBuf {
+    match std::env::var_os("LFR_SCENES") {
+        Some(dir) if !dir.is_empty() => PathBuf::from(dir),
+        _ => description_dir.join("../../shared/scenes"),
+    }
 }
 
 #[cfg(test)]
