@@ -9,24 +9,11 @@
 //! against a reference whose error is at least half of the error measured: the headline says
 //! the ranking there is limited by the reference (raise `--reference-spp`).
 
-use serde::Serialize;
-
-use super::results::Run;
+use super::results::{Entry, Run, Span};
 
 /// How close to the reference's own PSNR a winner may be before the headline says the
 /// reference limits the ranking (10·log10 2: the reference's error is then at least half).
 pub const REFERENCE_LIMITED_DB: f64 = 3.010_299_956_639_812;
-
-/// One run named in the headline.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Entry {
-    pub method: String,
-    pub input_spp: u32,
-    pub recon_rays: u32,
-    pub total_s: f64,
-    pub psnr_db: f64,
-    pub flip: Option<f64>,
-}
 
 impl Entry {
     fn of(run: &Run) -> Entry {
@@ -47,19 +34,6 @@ impl Entry {
         let flip = self.flip.map(|f| format!(", FLIP {f:.3}")).unwrap_or_default();
         format!("{name} ({} spp{rays}, {:.2} dB{flip})", self.input_spp, self.psnr_db)
     }
-}
-
-/// The winners from `from_s` up to `to_s` seconds of budget (`to_s` null: any larger budget).
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Span {
-    pub from_s: f64,
-    pub to_s: Option<f64>,
-    /// The highest PSNR within the budget.
-    pub by_psnr: Entry,
-    /// The lowest HDR-FLIP within the budget (null without FLIP).
-    pub by_flip: Option<Entry>,
-    /// Whether the PSNR winner lies within [`REFERENCE_LIMITED_DB`] of the reference's own PSNR.
-    pub reference_limited: bool,
 }
 
 fn same_run(a: &Entry, b: &Entry) -> bool {

@@ -40,7 +40,7 @@ use tracer::Accel;
 use crate::common::TraceArgs;
 
 use stages::plan::Plan;
-use stages::{execute, inputs, reference as reference_stage, score, write};
+use stages::{execute, inputs, measure, reference as reference_stage, score, write};
 
 fn parse_effect(name: &str) -> Result<Effect, String> {
     Effect::from_name(name)
@@ -145,7 +145,7 @@ pub fn run(args: &CompareArgs) -> Result<()> {
     let measure = reference_stage::settle(&plan, &tracing, source)?;
     let bar = execute::progress_bar(plan.progress);
     bar.set_length(execute::first_pass_steps(&plan));
-    let scorer = score::Scorer::new(&plan, &measure, &bar);
+    let scorer = measure::Scorer::new(&plan, &measure, &bar);
     let traced = inputs::Traced::trace(&plan, &tracing, &bar)?;
     let executed = execute::execute(&plan, &tracing, &accel, traced, &scorer, &bar)?;
     let results = score::score(&plan, &measure, executed, start);

@@ -130,6 +130,19 @@ pub struct PeerVerdict {
     pub sentence: String,
 }
 
+/// The record's form of a verdict against the peer (`results.json`).
+impl From<PeerVerdict> for super::results::PeerVerdict {
+    fn from(v: PeerVerdict) -> super::results::PeerVerdict {
+        super::results::PeerVerdict {
+            method: v.method,
+            best_speedup: v.best_speedup,
+            best_speedup_range: v.best_speedup_range,
+            difference: v.difference,
+            summary: v.sentence,
+        }
+    }
+}
+
 /// Reads every run other than the peer's own off the peer's curve, writing
 /// `speedup_over_oidn`, its range and `oidn_curve_position` into the runs, and returns each
 /// method's verdict against the peer (path tracing's included, first); nothing when the peer

@@ -31,7 +31,7 @@ pub struct Results {
     /// The winner at each time budget, in words (`compare::budget`).
     pub headline: String,
     /// The winners behind the headline: by PSNR and by HDR-FLIP, per span of budgets.
-    pub budgets: Vec<super::budget::Span>,
+    pub budgets: Vec<Span>,
     pub runs: Vec<Run>,
     pub skipped: Vec<Skipped>,
     pub verdicts: Vec<Verdict>,
@@ -171,16 +171,29 @@ pub struct PeerVerdict {
     pub summary: String,
 }
 
-impl From<super::peer::PeerVerdict> for PeerVerdict {
-    fn from(v: super::peer::PeerVerdict) -> PeerVerdict {
-        PeerVerdict {
-            method: v.method,
-            best_speedup: v.best_speedup,
-            best_speedup_range: v.best_speedup_range,
-            difference: v.difference,
-            summary: v.sentence,
-        }
-    }
+/// The headline's winners (`compare::budget`), as the record keeps them.
+/// One run named in the headline.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Entry {
+    pub method: String,
+    pub input_spp: u32,
+    pub recon_rays: u32,
+    pub total_s: f64,
+    pub psnr_db: f64,
+    pub flip: Option<f64>,
+}
+
+/// The winners from `from_s` up to `to_s` seconds of budget (`to_s` null: any larger budget).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Span {
+    pub from_s: f64,
+    pub to_s: Option<f64>,
+    /// The highest PSNR within the budget.
+    pub by_psnr: Entry,
+    /// The lowest HDR-FLIP within the budget (null without FLIP).
+    pub by_flip: Option<Entry>,
+    /// Whether the PSNR winner lies within [`super::budget::REFERENCE_LIMITED_DB`] of the reference's own PSNR.
+    pub reference_limited: bool,
 }
 
 #[derive(Clone, Debug, Serialize)]

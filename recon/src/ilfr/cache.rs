@@ -31,7 +31,7 @@ use shading::sampling::hash_u32;
 use super::bsdf_rays::WeightedRay;
 use super::directions::cosine_rays;
 use super::disc::{dot, length, sub};
-use super::gather::trace_in_direction_order;
+use super::ray_order::trace_in_direction_order;
 use super::reconstruct::{or_sky, ReconstructStats, Reconstructor, Scratch, SkyFallbacks, SkySample};
 use super::samples::{IndirectSamples, SampleClass};
 

@@ -77,6 +77,7 @@ pub mod lens;
 pub mod method;
 pub mod neighbours;
 pub mod prefilter;
+pub mod ray_order;
 pub mod reconstruct;
 pub mod recursive;
 pub mod robust;

@@ -1,4 +1,4 @@
-//! Stage 4, execute: every run, timed and measured as it finishes (`score::Scorer`). Path
+//! Stage 4, execute: every run, timed and measured as it finishes (`measure::Scorer`). Path
 //! tracing's runs are the ladder's traces; each registry method runs at every input spp and
 //! each of its reconstruction-ray counts on the inputs traced for it, its `trace_s` the time of
 //! those traces; a method that finds a dependency missing when it runs is skipped whole. The
@@ -16,8 +16,8 @@ use super::super::effect::Tracing;
 use super::super::results::Skipped;
 use super::super::{memory, probes_method, timing};
 use super::inputs::{input_selections, needs, TraceKey, Traced};
+use super::measure::{rays_label, Measured, Scorer};
 use super::plan::Plan;
-use super::score::{rays_label, Measured, Scorer};
 
 /// A timed unit that the repetitions run again.
 enum Job {

@@ -2,7 +2,7 @@
 //! (`tracer::output::write_atomically`): the error-against-time plot (`report::write_plot`),
 //! `report.md` (`report`), `report.html` (`html`) and `results.json` (`results`), last, so that
 //! a `results.json` always sits beside the images and reports it describes. The images were
-//! written as they were measured (`score::Scorer`). Prints the verdicts.
+//! written as they were measured (`measure::Scorer`). Prints the verdicts.
 
 use std::path::Path;
 
