@@ -20,6 +20,9 @@
 //! repository; and every `.rs` file in the first cell of a table row of a crate section is, in
 //! that crate, the file the row's block gives it (`DIR/NAME.rs`), or the path below `src/` as
 //! written.
+//!
+//! **No import cycle** among a crate's modules (files), and no comment in any Rust file cites an
+//! issue or a session by number.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -236,4 +239,140 @@ fn no_comment_cites_an_issue_or_a_session() {
         }
     }
     assert!(citing.is_empty(), "{} comment(s) cite an issue or a session:\n  {}", citing.len(), citing.join("\n  "));
+}
+
+/// The module path of a file below a crate's `src/` (`a/b.rs` → `a::b`, `a/mod.rs` → `a`,
+/// `lib.rs` and `main.rs` → the root, ``).
+fn module_of(file: &str) -> String {
+    let path = file.trim_end_matches(".rs");
+    let path = path.strip_suffix("/mod").unwrap_or(path);
+    if path == "lib" || path == "main" || path == "mod" {
+        return String::new();
+    }
+    path.replace('/', "::")
+}
+
+/// The module paths a file's code (of module `module`) refers to through `crate::…` and
+/// `super::…` (any number of them) and their `{…}` groups, each resolved to the longest prefix
+/// that is one of `modules`. Comments and everything from the first `#[cfg(test)]` on are left
+/// out.
+fn references(module: &str, text: &str, modules: &BTreeSet<String>) -> BTreeSet<String> {
+    let code: String = text
+        .lines()
+        .take_while(|line| line.trim() != "#[cfg(test)]")
+        .map(|line| line.split("//").next().unwrap_or(""))
+        .collect::<Vec<_>>()
+        .join("\n");
+    // `super` is the module above this one (for a folder's `mod.rs` too).
+    let mut above: Vec<&str> = if module.is_empty() { Vec::new() } else { module.split("::").collect() };
+    above.pop();
+    let mut out = BTreeSet::new();
+    let mut resolve = |segments: Vec<&str>| {
+        for k in (1..=segments.len()).rev() {
+            let candidate = segments[..k].join("::");
+            if modules.contains(&candidate) {
+                out.insert(candidate);
+                return;
+            }
+        }
+    };
+    let bytes = code.as_bytes();
+    let is_path_char = |c: u8| c.is_ascii_alphanumeric() || c == b'_' || c == b':';
+    for start in ["crate::", "super::"] {
+        for (at, _) in code.match_indices(start) {
+            if at > 0 && is_path_char(bytes[at - 1]) {
+                continue;
+            }
+            let (base, rest) = match code[at..].strip_prefix("crate::") {
+                Some(rest) => (Vec::new(), rest),
+                None => {
+                    let (mut base, mut rest) = (above.clone(), &code[at + "super::".len()..]);
+                    while let Some(r) = rest.strip_prefix("super::") {
+                        base.pop();
+                        rest = r;
+                    }
+                    (base, rest)
+                }
+            };
+            let end = rest.find(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == ':')).unwrap_or(rest.len());
+            let mut prefix = base;
+            prefix.extend(rest[..end].split("::").filter(|s| !s.is_empty()));
+            match rest[end..].strip_prefix('{') {
+                // A group: `prefix::{a, b::c, …}`.
+                Some(group) if rest[..end].is_empty() || rest[..end].ends_with("::") => {
+                    for item in group[..group.find('}').unwrap_or(group.len())].split(',') {
+                        let mut segments = prefix.clone();
+                        segments.extend(item.split("::").map(str::trim).filter(|s| !s.is_empty() && *s != "self"));
+                        resolve(segments);
+                    }
+                }
+                _ => resolve(prefix),
+            }
+        }
+    }
+    out
+}
+
+/// No import cycle among a crate's modules: in every crate the graph of the files' references
+/// to other modules (a module to its own ancestors or descendants left out: a folder declares
+/// its files) has no cycle. A cycle is printed as the modules it runs through.
+#[test]
+fn no_crate_has_an_import_cycle() {
+    let modules: BTreeSet<String> = ["a", "a::c", "a::d", "f"].iter().map(|m| m.to_string()).collect();
+    let text = "use super::{c, d::E};\nuse crate::f::G; // crate::a::x\n#[cfg(test)]\nuse super::super::a::b;";
+    let found: Vec<String> = references("a::b", text, &modules).into_iter().collect();
+    assert_eq!(found, ["a::c", "a::d", "f"], "groups, crate paths; comments and tests left out");
+    for (src, _) in CRATE_SECTIONS {
+        let files = product_files(src);
+        let modules: BTreeSet<String> = files.iter().map(|f| module_of(f)).collect();
+        let related = |a: &str, b: &str| {
+            a == b
+                || a.is_empty()
+                || b.is_empty()
+                || a.starts_with(&format!("{b}::"))
+                || b.starts_with(&format!("{a}::"))
+        };
+        let mut edges: std::collections::BTreeMap<String, BTreeSet<String>> = Default::default();
+        for file in &files {
+            let module = module_of(file);
+            let text = std::fs::read_to_string(root().join(src).join(file)).unwrap();
+            let targets = references(&module, &text, &modules);
+            edges.entry(module.clone()).or_default().extend(targets.into_iter().filter(|t| !related(&module, t)));
+        }
+        // Depth-first search for a back edge; the cycle is the stack from its target.
+        fn visit(
+            node: &str,
+            edges: &std::collections::BTreeMap<String, BTreeSet<String>>,
+            state: &mut std::collections::BTreeMap<String, u8>,
+            stack: &mut Vec<String>,
+        ) -> Option<Vec<String>> {
+            state.insert(node.to_string(), 1);
+            stack.push(node.to_string());
+            for next in edges.get(node).into_iter().flatten() {
+                match state.get(next.as_str()).copied().unwrap_or(0) {
+                    1 => {
+                        let from = stack.iter().position(|m| m == next).unwrap();
+                        let mut cycle = stack[from..].to_vec();
+                        cycle.push(next.clone());
+                        return Some(cycle);
+                    }
+                    0 => {
+                        if let Some(cycle) = visit(next, edges, state, stack) {
+                            return Some(cycle);
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            stack.pop();
+            state.insert(node.to_string(), 2);
+            None
+        }
+        let mut state = Default::default();
+        for module in edges.keys() {
+            if let Some(cycle) = visit(module, &edges, &mut state, &mut Vec::new()) {
+                panic!("{src}: an import cycle: {}", cycle.join(" → "));
+            }
+        }
+    }
 }

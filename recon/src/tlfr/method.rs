@@ -19,7 +19,7 @@ use super::nearest::reconstruct_nearest;
 use super::query::{max_reach, reconstruct, Scene};
 use super::reprojection::{near_limit, LensTimeSample};
 use super::same_surface::window_half_width;
-use super::samples::{read_lens_time, refocus};
+use super::samples::{dropped_warning, read_lens_time, refocus};
 use super::settings::{Kernel, TlfrSettings, DEFAULT_BANDWIDTH_SCALE, RADIUS_TRIALS};
 use crate::baselines::box_filter::average;
 use crate::error::Error;
@@ -142,17 +142,6 @@ impl Method for TlfrMethod {
         }
         Ok(output)
     }
-}
-
-/// The warning for `dropped` of `total` samples of the file at `path` that
-/// `read_lens_time` could not use (non-finite or impossible values).
-pub fn dropped_warning(path: &std::path::Path, dropped: usize, total: usize) -> String {
-    crate::method::warning(format!(
-        "{}: {dropped} of {total} samples have a non-finite or impossible position, lens, time, depth, motion or \
-         radiance and were dropped{}",
-        path.display(),
-        if dropped == total { "; the image is black" } else { "" }
-    ))
 }
 
 /// Reconstructs the image of a `lens-time` file.

@@ -135,6 +135,17 @@ pub fn refocus(samples: &mut LensTimeSamples, focus_distance: f32, aperture_radi
     Ok(())
 }
 
+/// The warning for `dropped` of `total` samples of the file at `path` that
+/// `read_lens_time` could not use (non-finite or impossible values).
+pub fn dropped_warning(path: &std::path::Path, dropped: usize, total: usize) -> String {
+    crate::method::warning(format!(
+        "{}: {dropped} of {total} samples have a non-finite or impossible position, lens, time, depth, motion or \
+         radiance and were dropped{}",
+        path.display(),
+        if dropped == total { "; the image is black" } else { "" }
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

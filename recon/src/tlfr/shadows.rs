@@ -802,7 +802,7 @@ pub fn reconstruct_soft_shadow(
     ];
     if camera.dropped > 0 {
         let total = camera.samples.len() + camera.dropped;
-        notes.push(super::method::dropped_warning(camera_path, camera.dropped, total));
+        notes.push(super::samples::dropped_warning(camera_path, camera.dropped, total));
     }
     Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes, stats: Stats::new() })
 }
