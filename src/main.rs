@@ -2,8 +2,6 @@
 //! reconstructions and times them; this file only dispatches to one module per subcommand
 //! (`common` holds what they share, `convert` the tracer-to-recon conversions).
 
-#![forbid(unsafe_code)]
-
 mod bench;
 mod bench_filters;
 mod bench_ilfr;

@@ -40,9 +40,6 @@
 //! - ✓ `lfr compare` method `probes`: declared in the root crate's scene-level method table
 //!   (`src/compare/scene_methods.rs`) over `pipeline`.
 
-#![forbid(unsafe_code)]
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 pub mod cache;
 pub mod cpca;
 pub mod defaults;

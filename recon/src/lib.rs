@@ -10,8 +10,6 @@
 //! `octahedral`, `python` and `lcg` are the
 //! shared pieces below them (`lcg` generates test data only).
 
-#![forbid(unsafe_code)]
-
 pub mod auxiliary;
 pub mod baselines;
 pub mod error;

@@ -16,6 +16,7 @@ struct Tracking;
 static LARGEST: AtomicUsize = AtomicUsize::new(0);
 
 // SAFETY: delegates to the system allocator unchanged; only records the largest request.
+#[allow(unsafe_code)]
 unsafe impl GlobalAlloc for Tracking {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         LARGEST.fetch_max(layout.size(), Ordering::Relaxed);

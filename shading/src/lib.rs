@@ -10,9 +10,6 @@
 //! two cannot drift apart (docs/ilfr-design.md, gap G4). `recon` never depends on the tracer;
 //! both depend on this crate.
 
-#![forbid(unsafe_code)]
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 mod bsdf;
 mod frame;
 pub mod progress;

@@ -10,8 +10,6 @@
 //! that root ignores). CI runs the tests as root and then these cases again as an unprivileged
 //! user with `LFR_CI_UNPRIVILEGED=1`, where they must run.
 
-#![forbid(unsafe_code)]
-
 use std::io::Write;
 
 /// The variable `.ci/run` sets: every case must run.

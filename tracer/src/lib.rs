@@ -4,8 +4,6 @@
 //! Data flow: `scene::Scene::load` → `accel::Accel::build` → `render::render` → `output`.
 
 // `!(x > 0.0)` is used on purpose throughout: unlike `x <= 0.0` it also rejects NaN.
-#![forbid(unsafe_code)]
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod accel;
 /// The BSDF lives in the workspace crate `shading`, shared with `recon` (docs/ilfr-design.md, G4).

@@ -26,6 +26,7 @@ fn collect_every_hit(rays: RayN, hits: HitN, mut valid: ValidityN, context: &mut
     // (repr(C), base context first) by exclusive reference; Embree hands that same context to the
     // filter synchronously on the querying thread, so the bytes after the base context are that
     // `Collected`, and nothing else aliases it during the call.
+    #[allow(unsafe_code)]
     let out = unsafe { context.ext_mut::<Collected>() };
     for i in 0..hits.len() {
         if valid[i] != 0 {
