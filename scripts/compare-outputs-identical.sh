@@ -2,9 +2,10 @@
 # Runs a fixed set of small `lfr compare` runs, and `lfr dump` of every kind, with two `lfr`
 # binaries and checks that they write the same outputs: every sample file and every image (EXR
 # and PNG) byte for byte, and results.json with the fields that measure time removed (times,
-# timing spreads, speedups, verdict sentences, peak memory, durations in the notes). Every
-# effect, every method that handles it (probes for indirect light), an external reference,
-# repetitions, explicit reconstruction rays and the reference check switched off.
+# timing spreads, speedups, the winners per time budget, verdict sentences, peak memory,
+# durations in the notes). Every effect, every method that handles it (probes for indirect
+# light), an external reference, repetitions, explicit reconstruction rays and the reference
+# check switched off.
 #
 #   scripts/compare-outputs-identical.sh BASE_LFR NEW_LFR [WORK_DIR]
 #
@@ -76,13 +77,14 @@ run_side() {
 }
 
 # results.json without what measures time: every field named *_s or *seconds, the repetitions'
-# timings and their spread, the verdicts read off them, peak memory, the verdict sentences, and
+# timings and their spread, the verdicts read off them (against path tracing and against OIDN,
+# and the headline's winners per time budget), peak memory, the verdict sentences, and
 # in the notes every duration ("0.012 s", "3 ms" become "T s", "T ms").
 normalise() {
     jq -S '
         walk(if type == "object" then
                 with_entries(select(
-                    (.key | test("(_s|seconds|^timings|timing_spread|speedup|speedup_range|equal_time_psnr_gain_db|verdict_extrapolated|break_even_frames|peak_rss_mb|summary|difference|best_speedup_input_spp|best_speedup_recon_rays)$")) | not))
+                    (.key | test("(_s|seconds|^timings|timing_spread|speedup|speedup_range|equal_time_psnr_gain_db|verdict_extrapolated|break_even_frames|peak_rss_mb|summary|difference|best_speedup_input_spp|best_speedup_recon_rays|speedup_over_oidn|speedup_over_oidn_range|oidn_curve_position|budgets|headline)$")) | not))
             elif type == "string" then
                 gsub("[0-9]+(\\.[0-9]+)?(e-?[0-9]+)? (?<unit>s|ms|µs)\\b"; "T \(.unit)")
             else . end)' "$1"
