@@ -156,12 +156,6 @@ pub fn trim_for(effect: Effect) -> Trim {
 }
 
 impl IlfrChoices {
-    /// What `ilfr` runs for `effect` by default, with `recon_rays` reconstruction rays per pixel
-    /// and `seed`: the default settings with the default choices applied.
-    pub fn defaults_for(effect: Effect, recon_rays: u32, seed: u32) -> IlfrSettings {
-        IlfrChoices::default().apply(IlfrSettings { recon_rays, seed, ..IlfrSettings::default() }, effect)
-    }
-
     /// `settings` with these choices, for `effect`.
     pub fn apply(&self, settings: IlfrSettings, effect: Effect) -> IlfrSettings {
         let conflict_test = self.conflict_test.unwrap_or_else(|| conflict_test_for(effect));
