@@ -146,20 +146,15 @@ fn morton(x: u32, y: u32) -> u64 {
     spread(x) | (spread(y) << 1)
 }
 
-/// An entry (a sample, or one time segment of it) with its position and depth at the time it
-/// is binned at.
-struct Entry {
-    index: u32,
-    bounds: Bounds,
-    times: [f32; 2],
-    position: [f32; 2],
-    depth: f32,
-}
+/// Samples per chunk of the entries' parallel construction.
+const ENTRY_CHUNK: usize = 4096;
 
-/// An entry ready for binning.
+/// An entry (a sample, or one time segment of it) ready for binning.
 #[derive(Clone, Copy)]
 struct Placed {
+    /// The Morton code of its bin.
     code: u64,
+    /// Its depth at the time it is binned at.
     depth: f32,
     /// The sample.
     index: u32,
@@ -197,22 +192,38 @@ impl Hierarchy {
             let p = reproject(sample, lens, LensTime { u: 0.0, v: 0.0, t }, z_near);
             p.map_or(([0.0, 0.0], f32::INFINITY), |p| ([p.x, p.y], p.z))
         };
-        let entries: Vec<Entry> = samples
-            .par_iter()
+        // Every sample's entries, in sample order, with their positions at the binning time (the
+        // Morton codes follow once the bin grid is known). Chunks of the samples fill their own
+        // vectors in parallel, joined once.
+        let chunks: Vec<(Vec<Placed>, Vec<[f32; 2]>)> = samples
+            .par_chunks(ENTRY_CHUNK)
             .enumerate()
-            .flat_map_iter(|(index, s)| {
-                let segments = sample_segments(s, lens, z_near, area);
-                let segmented = segments.len() > 1;
-                segments.into_iter().map(move |segment| {
-                    let (position, depth) = centre_of(s, &segment.bounds, segmented);
-                    let times = if segmented { segment.times } else { [f32::NEG_INFINITY, f32::INFINITY] };
-                    Entry { index: index as u32, bounds: segment.bounds, times, position, depth }
-                })
+            .map(|(chunk_index, chunk)| {
+                let mut placed = Vec::with_capacity(chunk.len());
+                let mut positions = Vec::with_capacity(chunk.len());
+                for (k, s) in chunk.iter().enumerate() {
+                    let index = (chunk_index * ENTRY_CHUNK + k) as u32;
+                    let segments = sample_segments(s, lens, z_near, area);
+                    let segmented = segments.len() > 1;
+                    for segment in segments {
+                        let (position, depth) = centre_of(s, &segment.bounds, segmented);
+                        let times = if segmented { segment.times } else { [f32::NEG_INFINITY, f32::INFINITY] };
+                        placed.push(Placed { code: 0, depth, index, bounds: segment.bounds, times });
+                        positions.push(position);
+                    }
+                }
+                (placed, positions)
             })
             .collect();
-        let entry_count = entries.len();
+        let entry_count: usize = chunks.iter().map(|c| c.0.len()).sum();
+        let mut placed: Vec<Placed> = Vec::with_capacity(entry_count);
+        let mut positions: Vec<[f32; 2]> = Vec::with_capacity(entry_count);
+        for (chunk, chunk_positions) in chunks {
+            placed.extend_from_slice(&chunk);
+            positions.extend_from_slice(&chunk_positions);
+        }
         let placed_count = {
-            let mut distinct: Vec<u32> = entries.iter().map(|e| e.index).collect();
+            let mut distinct: Vec<u32> = placed.iter().map(|e| e.index).collect();
             distinct.dedup();
             distinct.len()
         };
@@ -233,17 +244,10 @@ impl Hierarchy {
         let bins = 1u32 << levels;
         let scale = bins as f32 / side;
         let to_bin = |v: f32| ((v * scale).floor().max(0.0) as u32).min(bins - 1);
-        let mut placed: Vec<Placed> = entries
-            .par_iter()
-            .map(|entry| Placed {
-                code: morton(to_bin(entry.position[0]), to_bin(entry.position[1])),
-                depth: entry.depth,
-                index: entry.index,
-                bounds: entry.bounds,
-                times: entry.times,
-            })
-            .collect();
-        drop(entries);
+        placed.par_iter_mut().zip(positions.par_iter()).for_each(|(entry, position)| {
+            entry.code = morton(to_bin(position[0]), to_bin(position[1]));
+        });
+        drop(positions);
         // Entries of one sample are in time order: the time breaks ties between them.
         placed.par_sort_unstable_by(|a, b| {
             (a.code, a.index).cmp(&(b.code, b.index)).then(a.times[0].total_cmp(&b.times[0]))
@@ -255,10 +259,20 @@ impl Hierarchy {
         quadtree(&placed, (0, placed.len()), 0, levels, 0, &mut walk);
         let quad_leaves: Vec<(usize, usize)> =
             walk.iter().filter_map(|step| if let Walk::Leaf(a, b) = step { Some((*a, *b)) } else { None }).collect();
-        // Runs of one surface in each quadtree leaf.
-        let runs: Vec<Vec<Vec<Placed>>> = quad_leaves
+        // Runs of one surface in each quadtree leaf, with their bounds and extent boxes (the BVH
+        // leaves', computed here in parallel rather than in the serial build below).
+        let runs: Vec<Vec<(Vec<Placed>, Bounds, [f64; 4])>> = quad_leaves
             .par_iter()
-            .map(|&(start, end)| split_into_runs(&placed[start..end], samples, lens, z_near))
+            .map(|&(start, end)| {
+                let runs = split_into_runs(&placed[start..end], samples, lens, z_near);
+                runs.into_iter()
+                    .map(|run| {
+                        let bounds = Bounds::merge_all(run.iter().map(|p| &p.bounds));
+                        let extent = bounds.extent_box();
+                        (run, bounds, extent)
+                    })
+                    .collect()
+            })
             .collect();
         drop(placed);
 
@@ -493,23 +507,32 @@ struct Builder {
 }
 
 impl Builder {
-    /// BVH leaves for the runs of a quadtree leaf; their entries join the order.
-    fn leaves(&mut self, runs: Vec<Vec<Placed>>) -> Vec<u32> {
+    /// BVH leaves for the runs of a quadtree leaf (each with its bounds and extent box); their
+    /// entries join the order.
+    fn leaves(&mut self, runs: Vec<(Vec<Placed>, Bounds, [f64; 4])>) -> Vec<u32> {
         runs.into_iter()
-            .map(|run| {
+            .map(|(run, bounds, extent)| {
                 let first = self.order.len() as u32;
                 self.order.extend(run.iter().map(|p| p.index));
                 self.times.extend(run.iter().map(|p| p.times));
-                let bounds = Bounds::merge_all(run.iter().map(|p| &p.bounds));
                 let count = run.len() as u32;
                 let segmented = run[0].segmented();
-                self.push(BuildNode { bounds, samples: count, a: first, b: count, leaf: true, segmented })
+                self.push_with_box(
+                    BuildNode { bounds, samples: count, a: first, b: count, leaf: true, segmented },
+                    extent,
+                )
             })
             .collect()
     }
 
     fn push(&mut self, node: BuildNode) -> u32 {
-        self.boxes.push(node.bounds.extent_box());
+        let extent = node.bounds.extent_box();
+        self.push_with_box(node, extent)
+    }
+
+    /// `push` with the node's extent box (`Bounds::extent_box`) already computed.
+    fn push_with_box(&mut self, node: BuildNode, extent: [f64; 4]) -> u32 {
+        self.boxes.push(extent);
         self.nodes.push(node);
         (self.nodes.len() - 1) as u32
     }
