@@ -149,11 +149,9 @@ fn morton(x: u32, y: u32) -> u64 {
 /// Samples per chunk of the entries' parallel construction.
 const ENTRY_CHUNK: usize = 4096;
 
-/// An entry (a sample, or one time segment of it) ready for binning.
+/// An entry (a sample, or one time segment of it).
 #[derive(Clone, Copy)]
 struct Placed {
-    /// The Morton code of its bin.
-    code: u64,
     /// Its depth at the time it is binned at.
     depth: f32,
     /// The sample.
@@ -161,6 +159,16 @@ struct Placed {
     bounds: Bounds,
     /// The query times the entry takes (`bounds::Segment::times`).
     times: [f32; 2],
+}
+
+/// What the entries are sorted by (bin, sample, time), and where the entry is.
+#[derive(Clone, Copy)]
+struct SortKey {
+    code: u64,
+    index: u32,
+    time: f32,
+    chunk: u32,
+    offset: u32,
 }
 
 impl Placed {
@@ -194,7 +202,7 @@ impl Hierarchy {
         };
         // Every sample's entries, in sample order, with their positions at the binning time (the
         // Morton codes follow once the bin grid is known). Chunks of the samples fill their own
-        // vectors in parallel, joined once.
+        // vectors in parallel.
         let chunks: Vec<(Vec<Placed>, Vec<[f32; 2]>)> = samples
             .par_chunks(ENTRY_CHUNK)
             .enumerate()
@@ -208,7 +216,7 @@ impl Hierarchy {
                     for segment in segments {
                         let (position, depth) = centre_of(s, &segment.bounds, segmented);
                         let times = if segmented { segment.times } else { [f32::NEG_INFINITY, f32::INFINITY] };
-                        placed.push(Placed { code: 0, depth, index, bounds: segment.bounds, times });
+                        placed.push(Placed { depth, index, bounds: segment.bounds, times });
                         positions.push(position);
                     }
                 }
@@ -216,16 +224,11 @@ impl Hierarchy {
             })
             .collect();
         let entry_count: usize = chunks.iter().map(|c| c.0.len()).sum();
-        let mut placed: Vec<Placed> = Vec::with_capacity(entry_count);
-        let mut positions: Vec<[f32; 2]> = Vec::with_capacity(entry_count);
-        for (chunk, chunk_positions) in chunks {
-            placed.extend_from_slice(&chunk);
-            positions.extend_from_slice(&chunk_positions);
-        }
+        // A sample's entries are consecutive: count the samples that have any.
         let placed_count = {
-            let mut distinct: Vec<u32> = placed.iter().map(|e| e.index).collect();
-            distinct.dedup();
-            distinct.len()
+            let mut previous = None;
+            let indices = chunks.iter().flat_map(|c| c.0.iter().map(|e| e.index));
+            indices.filter(|&index| previous.replace(index) != Some(index)).count()
         };
         let unplaced = samples.len() - placed_count;
         if entry_count == 0 {
@@ -244,35 +247,47 @@ impl Hierarchy {
         let bins = 1u32 << levels;
         let scale = bins as f32 / side;
         let to_bin = |v: f32| ((v * scale).floor().max(0.0) as u32).min(bins - 1);
-        placed.par_iter_mut().zip(positions.par_iter()).for_each(|(entry, position)| {
-            entry.code = morton(to_bin(position[0]), to_bin(position[1]));
-        });
-        drop(positions);
+        // The entries sorted by bin through small keys (each naming its chunk and place), then
+        // gathered in that order.
+        let key_chunks: Vec<Vec<SortKey>> = chunks
+            .par_iter()
+            .enumerate()
+            .map(|(chunk, (entries, positions))| {
+                let keys = entries.iter().zip(positions).enumerate();
+                keys.map(|(offset, (entry, position))| SortKey {
+                    code: morton(to_bin(position[0]), to_bin(position[1])),
+                    index: entry.index,
+                    time: entry.times[0],
+                    chunk: chunk as u32,
+                    offset: offset as u32,
+                })
+                .collect()
+            })
+            .collect();
+        let mut keys: Vec<SortKey> = Vec::with_capacity(entry_count);
+        for chunk in key_chunks {
+            keys.extend_from_slice(&chunk);
+        }
         // Entries of one sample are in time order: the time breaks ties between them.
-        placed.par_sort_unstable_by(|a, b| {
-            (a.code, a.index).cmp(&(b.code, b.index)).then(a.times[0].total_cmp(&b.times[0]))
-        });
+        keys.par_sort_unstable_by(|a, b| (a.code, a.index).cmp(&(b.code, b.index)).then(a.time.total_cmp(&b.time)));
+        let placed: Vec<Placed> =
+            keys.par_iter().map(|key| chunks[key.chunk as usize].0[key.offset as usize]).collect();
+        drop(chunks);
 
         // The quadtree as a walk: inner nodes opened and closed, leaves (ranges of `placed`) in
         // Morton order.
         let mut walk = Vec::new();
-        quadtree(&placed, (0, placed.len()), 0, levels, 0, &mut walk);
+        let codes: Vec<u64> = keys.par_iter().map(|key| key.code).collect();
+        drop(keys);
+        quadtree(&codes, (0, codes.len()), 0, levels, 0, &mut walk);
+        drop(codes);
         let quad_leaves: Vec<(usize, usize)> =
             walk.iter().filter_map(|step| if let Walk::Leaf(a, b) = step { Some((*a, *b)) } else { None }).collect();
         // Runs of one surface in each quadtree leaf, with their bounds and extent boxes (the BVH
         // leaves', computed here in parallel rather than in the serial build below).
-        let runs: Vec<Vec<(Vec<Placed>, Bounds, [f64; 4])>> = quad_leaves
+        let runs: Vec<Vec<Run>> = quad_leaves
             .par_iter()
-            .map(|&(start, end)| {
-                let runs = split_into_runs(&placed[start..end], samples, lens, z_near);
-                runs.into_iter()
-                    .map(|run| {
-                        let bounds = Bounds::merge_all(run.iter().map(|p| &p.bounds));
-                        let extent = bounds.extent_box();
-                        (run, bounds, extent)
-                    })
-                    .collect()
-            })
+            .map(|&(start, end)| split_into_runs(&placed[start..end], samples, lens, z_near))
             .collect();
         drop(placed);
 
@@ -424,9 +439,9 @@ enum Walk {
     Close,
 }
 
-/// Records the walk over the quadtree node holding `placed[start..end]`, at depth `level` of
-/// `levels`, whose Morton codes start at `code`.
-fn quadtree(placed: &[Placed], (start, end): (usize, usize), level: u32, levels: u32, code: u64, walk: &mut Vec<Walk>) {
+/// Records the walk over the quadtree node holding the entries `start..end` (`codes`: the sorted
+/// entries' Morton codes), at depth `level` of `levels`, whose Morton codes start at `code`.
+fn quadtree(codes: &[u64], (start, end): (usize, usize), level: u32, levels: u32, code: u64, walk: &mut Vec<Walk>) {
     if end - start <= MAX_LEAF_SAMPLES || level == levels {
         walk.push(Walk::Leaf(start, end));
         return;
@@ -436,9 +451,9 @@ fn quadtree(placed: &[Placed], (start, end): (usize, usize), level: u32, levels:
     let mut child_start = start;
     for k in 0..4u64 {
         let limit = code + (k + 1) * quarter;
-        let child_end = child_start + placed[child_start..end].partition_point(|p| p.code < limit);
+        let child_end = child_start + codes[child_start..end].partition_point(|&c| c < limit);
         if child_end > child_start {
-            quadtree(placed, (child_start, child_end), level + 1, levels, code + k * quarter, walk);
+            quadtree(codes, (child_start, child_end), level + 1, levels, code + k * quarter, walk);
         }
         child_start = child_end;
     }
@@ -469,30 +484,49 @@ fn same_surface_throughout(a: &Placed, b: &Placed, samples: &[LensTimeSample], l
     same_surface_at(sa, sb, lens, corners, BUILD_CROSSING_TOLERANCE_PX, z_near)
 }
 
+/// A leaf of the BVH under construction: its entries' samples and query times, whether they are
+/// time segments, their merged bounds and its extent box (`Bounds::extent_box`).
+struct Run {
+    entries: Vec<(u32, [f32; 2])>,
+    segmented: bool,
+    bounds: Bounds,
+    extent: [f64; 4],
+}
+
 /// A quadtree leaf's entries, front to back, cut into runs of one surface of at most
 /// `MAX_LEAF_SAMPLES`; whole samples and time segments never share a run (the whole samples'
 /// runs first).
-fn split_into_runs(cell: &[Placed], samples: &[LensTimeSample], lens: &LensModel, z_near: f32) -> Vec<Vec<Placed>> {
-    let mut sorted = cell.to_vec();
+fn split_into_runs(cell: &[Placed], samples: &[LensTimeSample], lens: &LensModel, z_near: f32) -> Vec<Run> {
+    let mut sorted: Vec<&Placed> = cell.iter().collect();
     sorted.sort_unstable_by(|a, b| {
         (a.segmented().cmp(&b.segmented()))
             .then(a.depth.total_cmp(&b.depth))
             .then(a.index.cmp(&b.index))
             .then(a.times[0].total_cmp(&b.times[0]))
     });
-    let mut runs: Vec<Vec<Placed>> = Vec::new();
-    let mut current: Vec<Placed> = Vec::new();
+    let finish = |run: &[&Placed]| {
+        let bounds = Bounds::merge_all(run.iter().map(|p| &p.bounds));
+        Run {
+            entries: run.iter().map(|p| (p.index, p.times)).collect(),
+            segmented: run[0].segmented(),
+            bounds,
+            extent: bounds.extent_box(),
+        }
+    };
+    let mut runs = Vec::new();
+    let mut current: Vec<&Placed> = Vec::with_capacity(MAX_LEAF_SAMPLES);
     for p in sorted {
         let fits = current.len() < MAX_LEAF_SAMPLES
             && current.first().map_or(true, |q| q.segmented() == p.segmented())
-            && current.iter().all(|q| same_surface_throughout(&p, q, samples, lens, z_near));
+            && current.iter().all(|q| same_surface_throughout(p, q, samples, lens, z_near));
         if !fits && !current.is_empty() {
-            runs.push(std::mem::take(&mut current));
+            runs.push(finish(&current));
+            current.clear();
         }
         current.push(p);
     }
     if !current.is_empty() {
-        runs.push(current);
+        runs.push(finish(&current));
     }
     runs
 }
@@ -507,16 +541,14 @@ struct Builder {
 }
 
 impl Builder {
-    /// BVH leaves for the runs of a quadtree leaf (each with its bounds and extent box); their
-    /// entries join the order.
-    fn leaves(&mut self, runs: Vec<(Vec<Placed>, Bounds, [f64; 4])>) -> Vec<u32> {
+    /// BVH leaves for the runs of a quadtree leaf; their entries join the order.
+    fn leaves(&mut self, runs: Vec<Run>) -> Vec<u32> {
         runs.into_iter()
-            .map(|(run, bounds, extent)| {
+            .map(|Run { entries, segmented, bounds, extent }| {
                 let first = self.order.len() as u32;
-                self.order.extend(run.iter().map(|p| p.index));
-                self.times.extend(run.iter().map(|p| p.times));
-                let count = run.len() as u32;
-                let segmented = run[0].segmented();
+                self.order.extend(entries.iter().map(|e| e.0));
+                self.times.extend(entries.iter().map(|e| e.1));
+                let count = entries.len() as u32;
                 self.push_with_box(
                     BuildNode { bounds, samples: count, a: first, b: count, leaf: true, segmented },
                     extent,
