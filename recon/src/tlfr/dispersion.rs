@@ -17,6 +17,8 @@
 //! dispersion. Samples from an apron of `MAX_SHIFT_PX` around the window keep it populated
 //! after the shift. The random numbers come from a fixed seed: the same file gives the same R.
 
+use std::sync::atomic::{AtomicU32, Ordering};
+
 use rayon::prelude::*;
 
 use super::reprojection::LensTimeSample;
@@ -108,20 +110,33 @@ impl<'a> Buckets<'a> {
     }
 }
 
-/// Fine grid steps per side of the blocks that `dispersion` bounds before scanning them.
-const BLOCK_STEPS: usize = 4;
+/// Grid steps per side of the coarsest blocks that `dispersion` bounds; each level halves them
+/// down to single grid points (8, 4, 2, 1).
+const COARSEST_BLOCK_STEPS: usize = 8;
 
 /// The radius of the largest circle free of `points` whose centre lies in `region`
 /// ([x0, y0, x1, y1]), measured on a grid of step `step` (at most `step / √2` too small).
 /// `None` when there are no points or the region is empty.
 ///
-/// Branch and bound, exact: the distance to the nearest point is 1-Lipschitz, so a block of
-/// `BLOCK_STEPS` × `BLOCK_STEPS` grid points whose corner lies at distance d from the points holds
-/// no grid point farther than d + (the block's diagonal). Blocks whose bound falls below the
-/// largest corner distance cannot hold the maximum and are skipped; the others are scanned
-/// point by point. The result is the maximum over the full grid, bit for bit (the test compares
-/// it with the plain scan), at a small fraction of the queries.
+/// Branch and bound, exact: see `dispersion_above`, here with no floor. The result is the
+/// maximum over the full grid, bit for bit (the test compares it with the plain scan).
 pub fn dispersion(points: &[[f32; 2]], region: [f32; 4], step: f32) -> Option<f32> {
+    dispersion_above(points, region, step, &AtomicU32::new(0))
+}
+
+/// `dispersion` for a caller that only needs the maximum where it exceeds `floor` (the bits of
+/// a non-negative f32, shared between measurements whose largest value is wanted): returns the
+/// grid maximum when it exceeds the floor, otherwise a value that is no larger than the
+/// maximum; raises the floor to every grid value it finds.
+///
+/// The distance to the nearest point is 1-Lipschitz, so a block of s × s grid points whose
+/// representative (the grid point s/2 steps in from its first corner, clamped to the grid)
+/// lies at distance d holds no grid point farther than d + (s/2)·√2 steps. Blocks of
+/// `COARSEST_BLOCK_STEPS` steps are bounded first; those whose bound reaches the largest value
+/// found (or the floor) are split into four, down to single grid points. A block is dropped
+/// only when its bound is below a value some grid point has, with room for f32 rounding of the
+/// grid positions and distances, so the grid maximum is never dropped.
+fn dispersion_above(points: &[[f32; 2]], region: [f32; 4], step: f32, floor: &AtomicU32) -> Option<f32> {
     let [x0, y0, x1, y1] = region;
     let usable = x1 >= x0 && y1 >= y0 && step > 0.0;
     if points.is_empty() || !usable {
@@ -133,25 +148,43 @@ pub fn dispersion(points: &[[f32; 2]], region: [f32; 4], step: f32) -> Option<f3
     let nx = ((x1 - x0) / step).round() as usize;
     let ny = ((y1 - y0) / step).round() as usize;
     let grid_point = |i: usize, j: usize| [x0 + i as f32 * step, y0 + j as f32 * step];
-    // Corners of the blocks: grid points whose indices are multiples of BLOCK_STEPS.
-    let (blocks_x, blocks_y) = (nx / BLOCK_STEPS + 1, ny / BLOCK_STEPS + 1);
-    let corner_distance: Vec<f32> = (0..blocks_x * blocks_y)
-        .map(|b| buckets.nearest_distance(grid_point((b % blocks_x) * BLOCK_STEPS, (b / blocks_x) * BLOCK_STEPS)))
+    // Rounding of the grid positions (each coordinate within an ulp of its magnitude, two
+    // points) and of the distances (a few ulps each).
+    let magnitude = [x0, y0, x1, y1].iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let slack = 8.0 * magnitude * f32::EPSILON + 1e-5 * step;
+    let reach = |size: usize| step * (size / 2) as f32 * std::f32::consts::SQRT_2 * (1.0 + 1e-4) + slack;
+    // A block: its first grid indices and its representative's distance.
+    let evaluate = |bi: usize, bj: usize, size: usize| {
+        let distance = buckets.nearest_distance(grid_point((bi + size / 2).min(nx), (bj + size / 2).min(ny)));
+        (bi, bj, distance)
+    };
+    let mut size = COARSEST_BLOCK_STEPS;
+    let mut blocks: Vec<(usize, usize, f32)> = (0..=ny / size)
+        .flat_map(|bj| (0..=nx / size).map(move |bi| (bi * size, bj * size)))
+        .map(|(bi, bj)| evaluate(bi, bj, size))
         .collect();
-    let mut largest = corner_distance.iter().fold(0.0f32, |m, &d| m.max(d));
-    // The farthest grid point of a block from its corner, with room for rounding.
-    let diagonal = step * ((2 * (BLOCK_STEPS - 1) * (BLOCK_STEPS - 1)) as f32).sqrt() * (1.0 + 1e-4) + 1e-5 * step;
-    for (b, &corner) in corner_distance.iter().enumerate() {
-        if corner + diagonal * (1.0 + 1e-5) + 1e-6 * corner < largest {
-            continue;
-        }
-        let (bi, bj) = ((b % blocks_x) * BLOCK_STEPS, (b / blocks_x) * BLOCK_STEPS);
-        for j in bj..(bj + BLOCK_STEPS).min(ny + 1) {
-            for i in bi..(bi + BLOCK_STEPS).min(nx + 1) {
-                largest = largest.max(buckets.nearest_distance(grid_point(i, j)));
+    let mut largest = blocks.iter().fold(0.0f32, |m, b| m.max(b.2));
+    while size > 1 {
+        floor.fetch_max(largest.to_bits(), Ordering::Relaxed);
+        let cut = largest.max(f32::from_bits(floor.load(Ordering::Relaxed)));
+        let bound = reach(size);
+        let half = size / 2;
+        let mut children = Vec::new();
+        for &(bi, bj, distance) in &blocks {
+            if distance * (1.0 + 1e-5) + bound < cut {
+                continue;
+            }
+            for (ci, cj) in [(bi, bj), (bi + half, bj), (bi, bj + half), (bi + half, bj + half)] {
+                if ci <= nx && cj <= ny {
+                    children.push(evaluate(ci, cj, half));
+                }
             }
         }
+        largest = children.iter().fold(largest, |m, b| m.max(b.2));
+        blocks = children;
+        size = half;
     }
+    floor.fetch_max(largest.to_bits(), Ordering::Relaxed);
     Some(largest)
 }
 
@@ -202,69 +235,100 @@ pub fn measure_radius(
     trials: u32,
     seed: u32,
 ) -> Option<f32> {
-    if samples.is_empty() || spp == 0 || width == 0 || height == 0 {
-        return None;
-    }
-    let side = ((WINDOW_SAMPLES as f32 / spp as f32).sqrt().ceil() as u32).clamp(1, width.min(height));
-    let x0 = (width - side) / 2;
-    let y0 = (height - side) / 2;
-    let mut chosen: Vec<&LensTimeSample> = Vec::new();
-    for y in y0..y0 + side {
-        for x in x0..x0 + side {
-            let first = (y as usize * width as usize + x as usize) * spp as usize;
-            let pixel = samples.iter().skip(first).take(spp as usize);
-            chosen.extend(pixel.filter(|s| s.x.is_finite() && s.y.is_finite() && s.u.is_finite() && s.t.is_finite()));
+    let trials = Trials::new(samples, width, height, spp, trials, seed)?;
+    // The trials run in parallel and share the largest value found so far: a trial skips what
+    // cannot beat it, and the maximum over the trials stays exact (`dispersion_above`) whatever
+    // order they finish in.
+    let floor = AtomicU32::new(0);
+    let largest = (0..trials.reprojections.len())
+        .into_par_iter()
+        .map(|k| dispersion_above(&trials.points(k), trials.region, trials.step, &floor).unwrap_or(0.0))
+        .reduce(|| 0.0f32, f32::max);
+    Some(largest)
+}
+
+/// The point sets `measure_radius` takes the dispersion of: the window's samples, and their
+/// region and grid step.
+struct Trials<'a> {
+    chosen: Vec<&'a LensTimeSample>,
+    /// The window's corner and side, pixels.
+    lo: [f32; 2],
+    size: f32,
+    /// Copies across the window's edges within this margin make the window a torus.
+    margin: f32,
+    step: f32,
+    region: [f32; 4],
+    /// Per trial: circle of confusion, velocity and the target (û, v̂, t̂) (`None`: the identity).
+    reprojections: Vec<(f32, [f32; 2], Option<[f32; 3]>)>,
+}
+
+impl<'a> Trials<'a> {
+    fn new(samples: &'a [LensTimeSample], width: u32, height: u32, spp: u32, trials: u32, seed: u32) -> Option<Self> {
+        if samples.is_empty() || spp == 0 || width == 0 || height == 0 {
+            return None;
         }
-    }
-    if chosen.is_empty() {
-        return None;
-    }
-    let (lo, size) = ([x0 as f32, y0 as f32], side as f32);
-    // Copies across the window's edges within this margin make the window a torus.
-    let margin = (3.0 + 4.0 / (spp as f32).sqrt()).min(size);
-    let step = 0.1 / (spp as f32).sqrt();
-    let region = [lo[0], lo[1], lo[0] + size, lo[1] + size];
-    let mut rng = SplitMix(REPROJECTION_SEED ^ u64::from(seed));
-    // The trials' random reprojections, drawn in order; the trials then run in parallel and
-    // their maximum does not depend on the order they finish in.
-    let reprojections: Vec<(f32, [f32; 2], Option<[f32; 3]>)> = (0..=trials)
-        .map(|trial| {
-            if trial == 0 {
-                (0.0, [0.0, 0.0], None)
-            } else {
-                let coc = 16.0 * rng.next() - 8.0;
-                let velocity = [16.0 * rng.next() - 8.0, 16.0 * rng.next() - 8.0];
-                (coc, velocity, Some([2.0 * rng.next() - 1.0, 2.0 * rng.next() - 1.0, rng.next()]))
+        let side = ((WINDOW_SAMPLES as f32 / spp as f32).sqrt().ceil() as u32).clamp(1, width.min(height));
+        let x0 = (width - side) / 2;
+        let y0 = (height - side) / 2;
+        let mut chosen: Vec<&LensTimeSample> = Vec::new();
+        for y in y0..y0 + side {
+            for x in x0..x0 + side {
+                let first = (y as usize * width as usize + x as usize) * spp as usize;
+                let pixel = samples.iter().skip(first).take(spp as usize);
+                chosen
+                    .extend(pixel.filter(|s| s.x.is_finite() && s.y.is_finite() && s.u.is_finite() && s.t.is_finite()));
             }
-        })
-        .collect();
-    let largest = reprojections
-        .par_iter()
-        .map(|&(coc, velocity, target)| {
-            let mut points = Vec::with_capacity(chosen.len() * 2);
-            for s in &chosen {
-                let shifted = match target {
-                    None => [s.x, s.y],
-                    Some([u, v, t]) => {
-                        let dt = t - s.t;
-                        [s.x + (u - s.u) * coc + dt * velocity[0], s.y + (v - s.v) * coc + dt * velocity[1]]
-                    }
-                };
-                let wrapped = [0, 1].map(|k| lo[k] + (shifted[k] - lo[k]).rem_euclid(size));
-                for dy in [-1.0f32, 0.0, 1.0] {
-                    for dx in [-1.0f32, 0.0, 1.0] {
-                        let copy = [wrapped[0] + dx * size, wrapped[1] + dy * size];
-                        let inside = |k: usize| copy[k] >= lo[k] - margin && copy[k] <= lo[k] + size + margin;
-                        if inside(0) && inside(1) {
-                            points.push(copy);
-                        }
+        }
+        if chosen.is_empty() {
+            return None;
+        }
+        let (lo, size) = ([x0 as f32, y0 as f32], side as f32);
+        let margin = (3.0 + 4.0 / (spp as f32).sqrt()).min(size);
+        let step = 0.1 / (spp as f32).sqrt();
+        let region = [lo[0], lo[1], lo[0] + size, lo[1] + size];
+        let mut rng = SplitMix(REPROJECTION_SEED ^ u64::from(seed));
+        // The trials' random reprojections, drawn in order.
+        let reprojections = (0..=trials)
+            .map(|trial| {
+                if trial == 0 {
+                    (0.0, [0.0, 0.0], None)
+                } else {
+                    let coc = 16.0 * rng.next() - 8.0;
+                    let velocity = [16.0 * rng.next() - 8.0, 16.0 * rng.next() - 8.0];
+                    (coc, velocity, Some([2.0 * rng.next() - 1.0, 2.0 * rng.next() - 1.0, rng.next()]))
+                }
+            })
+            .collect();
+        Some(Trials { chosen, lo, size, margin, step, region, reprojections })
+    }
+
+    /// The points of trial `k`: the window's samples reprojected, wrapped into the window and
+    /// copied across its edges within the margin.
+    fn points(&self, k: usize) -> Vec<[f32; 2]> {
+        let (coc, velocity, target) = self.reprojections[k];
+        let (lo, size, margin) = (self.lo, self.size, self.margin);
+        let mut points = Vec::with_capacity(self.chosen.len() * 2);
+        for s in &self.chosen {
+            let shifted = match target {
+                None => [s.x, s.y],
+                Some([u, v, t]) => {
+                    let dt = t - s.t;
+                    [s.x + (u - s.u) * coc + dt * velocity[0], s.y + (v - s.v) * coc + dt * velocity[1]]
+                }
+            };
+            let wrapped = [0, 1].map(|k| lo[k] + (shifted[k] - lo[k]).rem_euclid(size));
+            for dy in [-1.0f32, 0.0, 1.0] {
+                for dx in [-1.0f32, 0.0, 1.0] {
+                    let copy = [wrapped[0] + dx * size, wrapped[1] + dy * size];
+                    let inside = |k: usize| copy[k] >= lo[k] - margin && copy[k] <= lo[k] + size + margin;
+                    if inside(0) && inside(1) {
+                        points.push(copy);
                     }
                 }
             }
-            dispersion(&points, region, step).unwrap_or(0.0)
-        })
-        .reduce(|| 0.0f32, f32::max);
-    Some(largest)
+        }
+        points
+    }
 }
 
 #[cfg(test)]
@@ -310,9 +374,41 @@ mod tests {
                 (0..count).map(|_| [spread * rng.uniform() - 1.0, spread * rng.uniform() - 2.0]).collect();
             let region = [0.0, -1.0, 8.0, 7.5];
             let step = [0.05, 0.13, 0.3][case % 3];
+            // Far from the origin as well, where the grid positions round coarsely.
+            let offset = if case % 2 == 0 { 0.0 } else { 900.0 };
+            let points: Vec<[f32; 2]> = points.iter().map(|p| [p[0] + offset, p[1] + offset]).collect();
+            let region = [region[0] + offset, region[1] + offset, region[2] + offset, region[3] + offset];
             let bounded = dispersion(&points, region, step);
             let scanned = dispersion_by_scan(&points, region, step);
             assert_eq!(bounded.map(f32::to_bits), scanned.map(f32::to_bits), "case {case}: {bounded:?} {scanned:?}");
+            // A floor below the maximum changes nothing; one above it gives at most the
+            // maximum and is not lowered.
+            let maximum = scanned.unwrap();
+            let below = AtomicU32::new((0.5 * maximum).to_bits());
+            assert_eq!(dispersion_above(&points, region, step, &below).map(f32::to_bits), Some(maximum.to_bits()));
+            assert_eq!(below.load(Ordering::Relaxed), maximum.to_bits());
+            let above = AtomicU32::new((2.0 * maximum + 1.0).to_bits());
+            assert!(dispersion_above(&points, region, step, &above).unwrap() <= maximum);
+            assert_eq!(above.load(Ordering::Relaxed), (2.0 * maximum + 1.0).to_bits());
+        }
+    }
+
+    /// R is the largest of the trials' dispersions, each measured alone, bit for bit, with 1 and
+    /// 3 threads sharing the floor.
+    #[test]
+    fn shared_floor_keeps_the_largest_trial_for_any_thread_count() {
+        for (spp, seed) in [(1u32, 0u32), (4, 3), (16, 7)] {
+            let (w, h) = (40, 36);
+            let samples = jittered(w, h, spp, 11 + spp as u64);
+            let trials = Trials::new(&samples, w, h, spp, 12, seed).unwrap();
+            let alone = (0..trials.reprojections.len())
+                .map(|k| dispersion(&trials.points(k), trials.region, trials.step).unwrap())
+                .fold(0.0f32, f32::max);
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                let measured = pool.install(|| measure_radius(&samples, w, h, spp, 12, seed)).unwrap();
+                assert_eq!(measured.to_bits(), alone.to_bits(), "spp {spp}, {threads} threads: {measured} vs {alone}");
+            }
         }
     }
 

@@ -146,26 +146,29 @@ fn morton(x: u32, y: u32) -> u64 {
     spread(x) | (spread(y) << 1)
 }
 
-/// An entry (a sample, or one time segment of it) with its position and depth at the time it
-/// is binned at.
-struct Entry {
-    index: u32,
-    bounds: Bounds,
-    times: [f32; 2],
-    position: [f32; 2],
-    depth: f32,
-}
+/// Samples per chunk of the entries' parallel construction.
+const ENTRY_CHUNK: usize = 4096;
 
-/// An entry ready for binning.
+/// An entry (a sample, or one time segment of it).
 #[derive(Clone, Copy)]
 struct Placed {
-    code: u64,
+    /// Its depth at the time it is binned at.
     depth: f32,
     /// The sample.
     index: u32,
     bounds: Bounds,
     /// The query times the entry takes (`bounds::Segment::times`).
     times: [f32; 2],
+}
+
+/// What the entries are sorted by (bin, sample, time), and where the entry is.
+#[derive(Clone, Copy)]
+struct SortKey {
+    code: u64,
+    index: u32,
+    time: f32,
+    chunk: u32,
+    offset: u32,
 }
 
 impl Placed {
@@ -197,24 +200,35 @@ impl Hierarchy {
             let p = reproject(sample, lens, LensTime { u: 0.0, v: 0.0, t }, z_near);
             p.map_or(([0.0, 0.0], f32::INFINITY), |p| ([p.x, p.y], p.z))
         };
-        let entries: Vec<Entry> = samples
-            .par_iter()
+        // Every sample's entries, in sample order, with their positions at the binning time (the
+        // Morton codes follow once the bin grid is known). Chunks of the samples fill their own
+        // vectors in parallel.
+        let chunks: Vec<(Vec<Placed>, Vec<[f32; 2]>)> = samples
+            .par_chunks(ENTRY_CHUNK)
             .enumerate()
-            .flat_map_iter(|(index, s)| {
-                let segments = sample_segments(s, lens, z_near, area);
-                let segmented = segments.len() > 1;
-                segments.into_iter().map(move |segment| {
-                    let (position, depth) = centre_of(s, &segment.bounds, segmented);
-                    let times = if segmented { segment.times } else { [f32::NEG_INFINITY, f32::INFINITY] };
-                    Entry { index: index as u32, bounds: segment.bounds, times, position, depth }
-                })
+            .map(|(chunk_index, chunk)| {
+                let mut placed = Vec::with_capacity(chunk.len());
+                let mut positions = Vec::with_capacity(chunk.len());
+                for (k, s) in chunk.iter().enumerate() {
+                    let index = (chunk_index * ENTRY_CHUNK + k) as u32;
+                    let segments = sample_segments(s, lens, z_near, area);
+                    let segmented = segments.len() > 1;
+                    for segment in segments {
+                        let (position, depth) = centre_of(s, &segment.bounds, segmented);
+                        let times = if segmented { segment.times } else { [f32::NEG_INFINITY, f32::INFINITY] };
+                        placed.push(Placed { depth, index, bounds: segment.bounds, times });
+                        positions.push(position);
+                    }
+                }
+                (placed, positions)
             })
             .collect();
-        let entry_count = entries.len();
+        let entry_count: usize = chunks.iter().map(|c| c.0.len()).sum();
+        // A sample's entries are consecutive: count the samples that have any.
         let placed_count = {
-            let mut distinct: Vec<u32> = entries.iter().map(|e| e.index).collect();
-            distinct.dedup();
-            distinct.len()
+            let mut previous = None;
+            let indices = chunks.iter().flat_map(|c| c.0.iter().map(|e| e.index));
+            indices.filter(|&index| previous.replace(index) != Some(index)).count()
         };
         let unplaced = samples.len() - placed_count;
         if entry_count == 0 {
@@ -233,30 +247,45 @@ impl Hierarchy {
         let bins = 1u32 << levels;
         let scale = bins as f32 / side;
         let to_bin = |v: f32| ((v * scale).floor().max(0.0) as u32).min(bins - 1);
-        let mut placed: Vec<Placed> = entries
+        // The entries sorted by bin through small keys (each naming its chunk and place), then
+        // gathered in that order.
+        let key_chunks: Vec<Vec<SortKey>> = chunks
             .par_iter()
-            .map(|entry| Placed {
-                code: morton(to_bin(entry.position[0]), to_bin(entry.position[1])),
-                depth: entry.depth,
-                index: entry.index,
-                bounds: entry.bounds,
-                times: entry.times,
+            .enumerate()
+            .map(|(chunk, (entries, positions))| {
+                let keys = entries.iter().zip(positions).enumerate();
+                keys.map(|(offset, (entry, position))| SortKey {
+                    code: morton(to_bin(position[0]), to_bin(position[1])),
+                    index: entry.index,
+                    time: entry.times[0],
+                    chunk: chunk as u32,
+                    offset: offset as u32,
+                })
+                .collect()
             })
             .collect();
-        drop(entries);
+        let mut keys: Vec<SortKey> = Vec::with_capacity(entry_count);
+        for chunk in key_chunks {
+            keys.extend_from_slice(&chunk);
+        }
         // Entries of one sample are in time order: the time breaks ties between them.
-        placed.par_sort_unstable_by(|a, b| {
-            (a.code, a.index).cmp(&(b.code, b.index)).then(a.times[0].total_cmp(&b.times[0]))
-        });
+        keys.par_sort_unstable_by(|a, b| (a.code, a.index).cmp(&(b.code, b.index)).then(a.time.total_cmp(&b.time)));
+        let placed: Vec<Placed> =
+            keys.par_iter().map(|key| chunks[key.chunk as usize].0[key.offset as usize]).collect();
+        drop(chunks);
 
         // The quadtree as a walk: inner nodes opened and closed, leaves (ranges of `placed`) in
         // Morton order.
         let mut walk = Vec::new();
-        quadtree(&placed, (0, placed.len()), 0, levels, 0, &mut walk);
+        let codes: Vec<u64> = keys.par_iter().map(|key| key.code).collect();
+        drop(keys);
+        quadtree(&codes, (0, codes.len()), 0, levels, 0, &mut walk);
+        drop(codes);
         let quad_leaves: Vec<(usize, usize)> =
             walk.iter().filter_map(|step| if let Walk::Leaf(a, b) = step { Some((*a, *b)) } else { None }).collect();
-        // Runs of one surface in each quadtree leaf.
-        let runs: Vec<Vec<Vec<Placed>>> = quad_leaves
+        // Runs of one surface in each quadtree leaf, with their bounds and extent boxes (the BVH
+        // leaves', computed here in parallel rather than in the serial build below).
+        let runs: Vec<Vec<Run>> = quad_leaves
             .par_iter()
             .map(|&(start, end)| split_into_runs(&placed[start..end], samples, lens, z_near))
             .collect();
@@ -410,9 +439,9 @@ enum Walk {
     Close,
 }
 
-/// Records the walk over the quadtree node holding `placed[start..end]`, at depth `level` of
-/// `levels`, whose Morton codes start at `code`.
-fn quadtree(placed: &[Placed], (start, end): (usize, usize), level: u32, levels: u32, code: u64, walk: &mut Vec<Walk>) {
+/// Records the walk over the quadtree node holding the entries `start..end` (`codes`: the sorted
+/// entries' Morton codes), at depth `level` of `levels`, whose Morton codes start at `code`.
+fn quadtree(codes: &[u64], (start, end): (usize, usize), level: u32, levels: u32, code: u64, walk: &mut Vec<Walk>) {
     if end - start <= MAX_LEAF_SAMPLES || level == levels {
         walk.push(Walk::Leaf(start, end));
         return;
@@ -422,9 +451,9 @@ fn quadtree(placed: &[Placed], (start, end): (usize, usize), level: u32, levels:
     let mut child_start = start;
     for k in 0..4u64 {
         let limit = code + (k + 1) * quarter;
-        let child_end = child_start + placed[child_start..end].partition_point(|p| p.code < limit);
+        let child_end = child_start + codes[child_start..end].partition_point(|&c| c < limit);
         if child_end > child_start {
-            quadtree(placed, (child_start, child_end), level + 1, levels, code + k * quarter, walk);
+            quadtree(codes, (child_start, child_end), level + 1, levels, code + k * quarter, walk);
         }
         child_start = child_end;
     }
@@ -455,30 +484,49 @@ fn same_surface_throughout(a: &Placed, b: &Placed, samples: &[LensTimeSample], l
     same_surface_at(sa, sb, lens, corners, BUILD_CROSSING_TOLERANCE_PX, z_near)
 }
 
+/// A leaf of the BVH under construction: its entries' samples and query times, whether they are
+/// time segments, their merged bounds and its extent box (`Bounds::extent_box`).
+struct Run {
+    entries: Vec<(u32, [f32; 2])>,
+    segmented: bool,
+    bounds: Bounds,
+    extent: [f64; 4],
+}
+
 /// A quadtree leaf's entries, front to back, cut into runs of one surface of at most
 /// `MAX_LEAF_SAMPLES`; whole samples and time segments never share a run (the whole samples'
 /// runs first).
-fn split_into_runs(cell: &[Placed], samples: &[LensTimeSample], lens: &LensModel, z_near: f32) -> Vec<Vec<Placed>> {
-    let mut sorted = cell.to_vec();
+fn split_into_runs(cell: &[Placed], samples: &[LensTimeSample], lens: &LensModel, z_near: f32) -> Vec<Run> {
+    let mut sorted: Vec<&Placed> = cell.iter().collect();
     sorted.sort_unstable_by(|a, b| {
         (a.segmented().cmp(&b.segmented()))
             .then(a.depth.total_cmp(&b.depth))
             .then(a.index.cmp(&b.index))
             .then(a.times[0].total_cmp(&b.times[0]))
     });
-    let mut runs: Vec<Vec<Placed>> = Vec::new();
-    let mut current: Vec<Placed> = Vec::new();
+    let finish = |run: &[&Placed]| {
+        let bounds = Bounds::merge_all(run.iter().map(|p| &p.bounds));
+        Run {
+            entries: run.iter().map(|p| (p.index, p.times)).collect(),
+            segmented: run[0].segmented(),
+            bounds,
+            extent: bounds.extent_box(),
+        }
+    };
+    let mut runs = Vec::new();
+    let mut current: Vec<&Placed> = Vec::with_capacity(MAX_LEAF_SAMPLES);
     for p in sorted {
         let fits = current.len() < MAX_LEAF_SAMPLES
             && current.first().map_or(true, |q| q.segmented() == p.segmented())
-            && current.iter().all(|q| same_surface_throughout(&p, q, samples, lens, z_near));
+            && current.iter().all(|q| same_surface_throughout(p, q, samples, lens, z_near));
         if !fits && !current.is_empty() {
-            runs.push(std::mem::take(&mut current));
+            runs.push(finish(&current));
+            current.clear();
         }
         current.push(p);
     }
     if !current.is_empty() {
-        runs.push(current);
+        runs.push(finish(&current));
     }
     runs
 }
@@ -494,22 +542,29 @@ struct Builder {
 
 impl Builder {
     /// BVH leaves for the runs of a quadtree leaf; their entries join the order.
-    fn leaves(&mut self, runs: Vec<Vec<Placed>>) -> Vec<u32> {
+    fn leaves(&mut self, runs: Vec<Run>) -> Vec<u32> {
         runs.into_iter()
-            .map(|run| {
+            .map(|Run { entries, segmented, bounds, extent }| {
                 let first = self.order.len() as u32;
-                self.order.extend(run.iter().map(|p| p.index));
-                self.times.extend(run.iter().map(|p| p.times));
-                let bounds = Bounds::merge_all(run.iter().map(|p| &p.bounds));
-                let count = run.len() as u32;
-                let segmented = run[0].segmented();
-                self.push(BuildNode { bounds, samples: count, a: first, b: count, leaf: true, segmented })
+                self.order.extend(entries.iter().map(|e| e.0));
+                self.times.extend(entries.iter().map(|e| e.1));
+                let count = entries.len() as u32;
+                self.push_with_box(
+                    BuildNode { bounds, samples: count, a: first, b: count, leaf: true, segmented },
+                    extent,
+                )
             })
             .collect()
     }
 
     fn push(&mut self, node: BuildNode) -> u32 {
-        self.boxes.push(node.bounds.extent_box());
+        let extent = node.bounds.extent_box();
+        self.push_with_box(node, extent)
+    }
+
+    /// `push` with the node's extent box (`Bounds::extent_box`) already computed.
+    fn push_with_box(&mut self, node: BuildNode, extent: [f64; 4]) -> u32 {
+        self.boxes.push(extent);
         self.nodes.push(node);
         (self.nodes.len() - 1) as u32
     }
