@@ -302,6 +302,17 @@ mod tests {
         }
     }
 
+    /// A camera just inside the unit room's z = 0 wall, looking along +z at its centre line.
+    fn camera_in_the_unit_room() -> Camera {
+        Camera::look_at(
+            Vec3::new(0.5, 0.5, 0.05),
+            Vec3::new(0.5, 0.5, 1.0),
+            Vec3::Y,
+            70.0,
+            tracer::camera::FovAxis::Smaller,
+        )
+    }
+
     fn image_settings() -> ImageSettings {
         ImageSettings { width: 24, height: 16, light_samples: 4, pixel_samples: 1, seed: 0 }
     }
@@ -318,13 +329,7 @@ mod tests {
             1,
         );
         let mut scene = scene_of(vec![room(Vec3::new(-3.0, -3.0, 0.0), Vec3::new(4.0, 4.0, 1.0)), plate], Vec3::ZERO);
-        scene.camera = Camera::look_at(
-            Vec3::new(0.5, 0.5, 0.05),
-            Vec3::new(0.5, 0.5, 1.0),
-            Vec3::Y,
-            70.0,
-            tracer::camera::FovAxis::Smaller,
-        );
+        scene.camera = camera_in_the_unit_room();
         scene.materials[0].metallic = 0.0;
         scene.materials[0].specular = 1.0;
         let mut metal = scene.materials[0].clone();
@@ -336,18 +341,19 @@ mod tests {
         assert_eq!(share(&scene), 0.0, "a coat over a light base is diffuse-dominated");
         scene.materials = vec![metal.clone(), metal];
         assert_eq!(share(&scene), 1.0);
+        // Stiff cases: one pixel, the scene at 1e-6 and 1e9 of its size, and nothing to hit.
+        assert_eq!(specular_share(&scene, &Accel::build(&scene).unwrap(), 1, 1), 1.0);
+        for s in [1e-6, 1e9] {
+            assert_eq!(share(&crate::test_scenes::scaled(&scene, s)), 1.0, "scale {s}");
+        }
+        let empty = scene_of(Vec::new(), Vec3::ZERO);
+        assert_eq!(specular_share(&empty, &Accel::build(&empty).unwrap(), 24, 16), 0.0, "no surface, no share");
     }
 
     #[test]
     fn constant_receiver_irradiance_gives_albedo_over_pi_at_every_hit() {
         let mut scene = scene_of(vec![room(Vec3::ZERO, Vec3::ONE)], Vec3::new(0.5, 0.5, 0.1));
-        scene.camera = Camera::look_at(
-            Vec3::new(0.5, 0.5, 0.05),
-            Vec3::new(0.5, 0.5, 1.0),
-            Vec3::Y,
-            70.0,
-            tracer::camera::FovAxis::Smaller,
-        );
+        scene.camera = camera_in_the_unit_room();
         scene.materials[0].base_color = Vec3::new(0.6, 0.4, 0.2);
         scene.materials[0].metallic = 0.0;
         let pre = Precompute::build(&scene, &settings(), &mut |_| {}).unwrap();
@@ -388,13 +394,7 @@ mod tests {
         // still reads the constant E of the valid ones (before the fix the hidden ones' share
         // darkened it: Sponza's image was 0.56 as bright as the path tracer's instead of 0.67).
         let mut scene = scene_of(vec![room(Vec3::ZERO, Vec3::ONE)], Vec3::new(0.5, 0.5, 0.1));
-        scene.camera = Camera::look_at(
-            Vec3::new(0.5, 0.5, 0.05),
-            Vec3::new(0.5, 0.5, 1.0),
-            Vec3::Y,
-            70.0,
-            tracer::camera::FovAxis::Smaller,
-        );
+        scene.camera = camera_in_the_unit_room();
         scene.materials[0].base_color = Vec3::splat(0.5);
         scene.materials[0].metallic = 0.0;
         let mut pre = Precompute::build(&scene, &settings(), &mut |_| {}).unwrap();
