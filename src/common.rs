@@ -17,7 +17,7 @@ pub const DEFAULT_SCENE_NAME: &str = "<embedded>/cornell.toml";
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct RunArgs {
     /// Seed of every random number, the reconstructions' too (default 0; `compare`,
-    /// `bench-filters` and `bench-ilfr` 1).
+    /// `lfr-bench filters` and `lfr-bench ilfr` 1).
     #[arg(long)]
     pub seed: Option<u32>,
     /// Worker threads (0 = all cores).
@@ -52,7 +52,7 @@ impl RunArgs {
 }
 
 /// The scene and how to trace it: what `render`, `dump`, `filter`, `compare` and
-/// `bench-filters` take.
+/// `lfr-bench filters` take.
 #[derive(clap::Args, Clone, Debug)]
 pub struct TraceArgs {
     /// Scene file (.toml, .gltf, .glb, .obj, .ply); the embedded Cornell box when omitted.
@@ -75,7 +75,7 @@ pub struct TraceArgs {
 
 /// Lighting and camera choices on top of any scene file (docs/scene-format.md, "Default
 /// lighting"). Flattened into `TraceArgs`: `render`, `dump`, `filter`, `compare` and
-/// `bench-filters`.
+/// `lfr-bench filters`.
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct LightingArgs {
     /// Constant environment radiance, one value (grey) or R,G,B; replaces the scene's. With
@@ -176,10 +176,10 @@ impl LightingArgs {
 /// the benchmarks). Shared by `TraceArgs` and `SceneListArgs`.
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct SizeArgs {
-    /// Image width (default: the scene's; `bench` 256, `bench-ilfr` 128, `bench-filters` 1024).
+    /// Image width (default: the scene's; `lfr-bench tracer` 256, `lfr-bench ilfr` 128, `lfr-bench filters` 1024).
     #[arg(long)]
     pub width: Option<u32>,
-    /// Image height (default: the scene's; `bench` 256, `bench-ilfr` 128, `bench-filters` 768).
+    /// Image height (default: the scene's; `lfr-bench tracer` 256, `lfr-bench ilfr` 128, `lfr-bench filters` 768).
     #[arg(long)]
     pub height: Option<u32>,
     /// Maximum number of bounces (default: the scene's).
@@ -221,7 +221,7 @@ impl SizeArgs {
     }
 }
 
-/// The benchmarks' scenes: several at one size (`bench`, `bench-ilfr`).
+/// The benchmarks' scenes: several at one size (`lfr-bench tracer`, `lfr-bench ilfr`).
 #[derive(clap::Args, Clone, Debug)]
 pub struct SceneListArgs {
     /// Scene files, comma-separated; the embedded Cornell box and scenes/sponza.toml when

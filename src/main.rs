@@ -1,36 +1,20 @@
-//! `lfr`: the one user-facing command. It orchestrates the tracer, the sample dumps and the
-//! reconstructions and times them; this file only dispatches to one module per subcommand
-//! (`common` holds what they share, `convert` the tracer-to-recon conversions).
-
-mod bench;
-mod bench_filters;
-mod bench_ilfr;
-mod bench_tlfr;
-mod common;
-mod compare;
-mod convert;
-mod demo;
-mod dump;
-mod export;
-mod filter;
-mod fingerprint;
-mod merge;
-mod outputs;
-mod probes;
-mod reconstruct;
-mod render;
+//! `lfr`: the user-facing command. It orchestrates the tracer, the sample dumps and the
+//! reconstructions and times them; this file only dispatches to the library's module for each
+//! subcommand. The benchmarks are `lfr-bench` (`bin/lfr-bench.rs`).
 
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use lfr::bench::{filters, ilfr, tlfr, tracer, Benchmark};
+use lfr::{compare, demo, dump, export, filter, merge, probes, reconstruct, render};
 
 /// mimalloc instead of glibc's malloc: glibc hands large freed blocks (image planes, sample
 /// arrays) back to the kernel and faults them in again on the next allocation, which cost the
-/// guided filter about 20 ms of its ~45 ms per 1024×768 call in `lfr bench-filters`; mimalloc
+/// guided filter about 20 ms of its ~45 ms per 1024×768 call in `lfr-bench filters`; mimalloc
 /// keeps them for reuse. Built with `no_thp`: mimalloc otherwise asks for transparent huge
 /// pages on its arenas, and where the system grants them on request (Debian's `madvise`
 /// setting) every fresh 2 MiB page is compacted and zeroed on first touch — 0.9–1.0 s of
-/// kernel time in `lfr bench-ilfr` on Sponza (5.3 → 4.6 s wall) and 0.3–0.4 s in loading and
+/// kernel time in `lfr-bench ilfr` on Sponza (5.3 → 4.6 s wall) and 0.3–0.4 s in loading and
 /// rendering Sponza (1.7–2.0 → 1.5 s), with no gather or tracing time gained by the large pages.
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
@@ -58,20 +42,9 @@ enum Command {
     Dump(dump::DumpArgs),
     /// Convert a sample file to the authors' public sample-buffer formats.
     Export(export::ExportArgs),
-    /// Tracer throughput against raw Embree on the same rays, and thread scaling.
-    Bench(bench::BenchArgs),
     /// Error against run time for path tracing and reconstruction methods, against a cached
     /// high-spp reference: results.json, report.md, images and plots (docs/compare.md).
     Compare(compare::CompareArgs),
-    /// Times the guided filter (1/3/4 guide channels, radii 8-32), A-Trous and the
-    /// cross-bilateral filter on the same guide buffers, with ratios from the same run.
-    BenchFilters(bench_filters::BenchFiltersArgs),
-    /// Indirect light field reconstruction: reconstruction rays per second beside Embree's on the
-    /// same rays, the time split, and time against input spp (the paper's scaling study).
-    BenchIlfr(bench_ilfr::BenchIlfrArgs),
-    /// Temporal light field reconstruction: locations per second beside the tracer's samples
-    /// per second on the same scene in the same run, and the reconstruction's time split.
-    BenchTlfr(bench_tlfr::BenchTlfrArgs),
     /// Filtered path tracing (Bauszat et al. 2011): guide rays, filtered indirect light,
     /// additional eye rays by the geometry-aware lookup, composite; a multi-layer EXR and PNG.
     Filter(filter::FilterArgs),
@@ -81,35 +54,43 @@ enum Command {
     /// Sparse radiance probes (Silvennoinen & Lehtinen 2017): `stats` reports receivers, probe
     /// placement, coverage and memory (docs/probes.md).
     Probes(probes::ProbesArgs),
+    /// `lfr-bench tracer`, kept for scripts that call `lfr bench`.
+    #[command(hide = true)]
+    Bench(tracer::BenchArgs),
+    /// `lfr-bench filters`, kept for scripts that call `lfr-bench filters`.
+    #[command(hide = true)]
+    BenchFilters(filters::BenchFiltersArgs),
+    /// `lfr-bench ilfr`, kept for scripts that call `lfr-bench ilfr`.
+    #[command(hide = true)]
+    BenchIlfr(ilfr::BenchIlfrArgs),
+    /// `lfr-bench tlfr`, kept for scripts that call `lfr bench-tlfr`.
+    #[command(hide = true)]
+    BenchTlfr(tlfr::BenchTlfrArgs),
+}
+
+/// A benchmark reached through its old `lfr bench-*` name: a note naming `lfr-bench`, then the run.
+fn moved_benchmark(benchmark: Benchmark) -> anyhow::Result<()> {
+    eprintln!("note: the benchmarks moved to `lfr-bench`; this is `lfr-bench {}`", benchmark.name());
+    benchmark.run()
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    // SIGINT, SIGTERM and SIGHUP: remove the temporary files and folders being written
-    // (`sampleio::interrupt`) and exit with 130, leaving no half-written output behind.
-    if let Err(error) = ctrlc::set_handler(|| sampleio::interrupt::clean_up_and_exit(130)) {
-        eprintln!("warning: no interrupt handler ({error}); an interrupt may leave temporary files behind");
-    }
-    let result = match &cli.command {
-        Command::Demo(args) => demo::run(args),
-        Command::Render(args) => render::run(args),
-        Command::Merge(args) => merge::run(args),
-        Command::Dump(args) => dump::run(args),
-        Command::Export(args) => export::run(args),
-        Command::Bench(args) => bench::run(args),
-        Command::Compare(args) => compare::run(args),
-        Command::BenchFilters(args) => bench_filters::run(args),
-        Command::BenchIlfr(args) => bench_ilfr::run(args),
-        Command::BenchTlfr(args) => bench_tlfr::run(args),
-        Command::Filter(args) => filter::run(args),
-        Command::Reconstruct(args) => reconstruct::run(args),
-        Command::Probes(args) => probes::run(args),
+    lfr::remove_partial_outputs_on_interrupt();
+    let result = match cli.command {
+        Command::Demo(args) => demo::run(&args),
+        Command::Render(args) => render::run(&args),
+        Command::Merge(args) => merge::run(&args),
+        Command::Dump(args) => dump::run(&args),
+        Command::Export(args) => export::run(&args),
+        Command::Compare(args) => compare::run(&args),
+        Command::Filter(args) => filter::run(&args),
+        Command::Reconstruct(args) => reconstruct::run(&args),
+        Command::Probes(args) => probes::run(&args),
+        Command::Bench(args) => moved_benchmark(Benchmark::Tracer(args)),
+        Command::BenchFilters(args) => moved_benchmark(Benchmark::Filters(args)),
+        Command::BenchIlfr(args) => moved_benchmark(Benchmark::Ilfr(args)),
+        Command::BenchTlfr(args) => moved_benchmark(Benchmark::Tlfr(args)),
     };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    lfr::exit_code(result)
 }

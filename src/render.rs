@@ -9,7 +9,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use tracer::render::{Shard, ShardBy};
-use tracer::{Accel, Frame, RenderSettings};
+use tracer::{Accel, RenderSettings, RenderedImage};
 
 use crate::common::TraceArgs;
 use crate::outputs::{preview_of, OutputPlan};
@@ -75,7 +75,7 @@ fn tiles() -> String {
 }
 
 impl RenderRecord {
-    fn new(scene_sha256: String, settings: &RenderSettings, shard: Shard, frame: &Frame) -> RenderRecord {
+    fn new(scene_sha256: String, settings: &RenderSettings, shard: Shard, frame: &RenderedImage) -> RenderRecord {
         RenderRecord {
             schema: RECORD_SCHEMA.into(),
             lfr_version: env!("CARGO_PKG_VERSION").into(),
@@ -121,7 +121,7 @@ impl RenderRecord {
 }
 
 /// Writes `frame` as the EXR and PNG preview with its record.
-pub fn write_recorded(path: &std::path::Path, frame: &Frame, record: &RenderRecord) -> Result<PathBuf> {
+pub fn write_recorded(path: &std::path::Path, frame: &RenderedImage, record: &RenderRecord) -> Result<PathBuf> {
     let layers = tracer::output::frame_layers(frame);
     tracer::output::write_exr_with_attributes(path, frame.width, frame.height, &layers, &[record.attribute()?])
         .with_context(|| "writing the image")?;

@@ -7,7 +7,7 @@ use crate::lfr_runner as cli;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use cli::{lfr, stderr};
+use cli::{lfr, lfr_bench, stderr};
 use common::{exr_channel, project_root, shared_scenes};
 
 /// Runs `lfr render` on `scene` expecting failure; checks the message and that nothing was written.
@@ -144,7 +144,7 @@ fn impossible_parameters_are_clear_errors() {
         "[[mesh]]\nshape = \"sphere\"\ntransform = { matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0.5, 1]] }\n",
     );
     expect_render_error(&projective, &[], &["projective.toml", "mesh[0].transform.matrix", "last row"]);
-    let result = lfr(&["bench", "--repeats", "0"]);
+    let result = lfr_bench(&["tracer", "--repeats", "0"]);
     assert!(!result.status.success() && stderr(&result).contains("--repeats"), "{}", stderr(&result));
     let zero_res = write(dir.path(), "zero.toml", "[render]\nheight = 0\n");
     expect_render_error(&zero_res, &[], &["zero.toml", "render.height", "got 0"]);
@@ -300,7 +300,7 @@ fn dump_fields_selects_columns_and_refuses_unknown_names() {
     assert_eq!(before, after, "a refused dump writes nothing");
 }
 
-/// `lfr bench` times the tracer and the raw replay of its rays in alternating pairs: the pairs'
+/// `lfr-bench tracer` times the tracer and the raw replay of its rays in alternating pairs: the pairs'
 /// ratios, their median and the best-against-best ratio are consistent with the seconds
 /// reported, and the replay traced exactly the rays the tracer counted (the command itself
 /// fails otherwise).
@@ -308,8 +308,8 @@ fn dump_fields_selects_columns_and_refuses_unknown_names() {
 fn bench_alternates_tracer_and_raw_replay() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("bench.json");
-    let result = lfr(&[
-        "bench",
+    let result = lfr_bench(&[
+        "tracer",
         "--scenes",
         "scenes/cornell.toml",
         "--width",
@@ -342,14 +342,14 @@ fn bench_alternates_tracer_and_raw_replay() {
     assert!(number("speedup_all_threads_over_one") > 0.0, "{row}");
 }
 
-/// `lfr bench-filters` runs every filter on real guide buffers and reports ratios against its
+/// `lfr-bench filters` runs every filter on real guide buffers and reports ratios against its
 /// baseline from the same run (the baseline's own ratio is exactly 1).
 #[test]
 fn bench_filters_reports_ratios_from_one_run() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("bench.json");
-    let result = lfr(&[
-        "bench-filters",
+    let result = lfr_bench(&[
+        "filters",
         "--width",
         "48",
         "--height",
@@ -374,7 +374,7 @@ fn bench_filters_reports_ratios_from_one_run() {
     }
 }
 
-/// `lfr bench-ilfr` traces the gather's own rays through Embree in the same run: as many rays as
+/// `lfr-bench ilfr` traces the gather's own rays through Embree in the same run: as many rays as
 /// the gather reconstructed (rays per hit × primary hits; the command itself fails on any
 /// mismatch), the scaling ratio of the first spp is exactly 1, and every rate is positive.
 #[test]
@@ -382,8 +382,8 @@ fn bench_ilfr_replays_the_gathers_rays_through_embree() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("bench.json");
     let scene = project_root().join("scenes/cornell.toml");
-    let result = lfr(&[
-        "bench-ilfr",
+    let result = lfr_bench(&[
+        "ilfr",
         "--scenes",
         scene.to_str().unwrap(),
         "--width",
@@ -414,11 +414,11 @@ fn bench_ilfr_replays_the_gathers_rays_through_embree() {
             assert!(value.is_finite() && value > 0.0, "{key}: {row}");
         }
     }
-    let result = lfr(&["bench-ilfr", "--spp", "0"]);
+    let result = lfr_bench(&["ilfr", "--spp", "0"]);
     assert!(!result.status.success() && stderr(&result).contains("--spp"));
 }
 
-/// `lfr bench-tlfr` times the tracer and the reconstruction on the same scene in one run: a row
+/// `lfr-bench tlfr` times the tracer and the reconstruction on the same scene in one run: a row
 /// per (spp, locations) with direct light by default, every time and rate positive, the rates
 /// the quotients of their counts and times, and `location_in_traced_samples` the quotient of the
 /// two rates.
@@ -427,8 +427,8 @@ fn bench_tlfr_reports_a_locations_cost_in_traced_samples() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("bench.json");
     let scene = project_root().join("scenes/monkeys-defocus-motion.toml");
-    let result = lfr(&[
-        "bench-tlfr",
+    let result = lfr_bench(&[
+        "tlfr",
         "--scenes",
         scene.to_str().unwrap(),
         "--width",
@@ -504,10 +504,10 @@ fn bench_tlfr_reports_a_locations_cost_in_traced_samples() {
     // of the fused kernel's.
     let both = dir.path().join("both.json");
     let size = ["--width", "16", "--height", "12", "--repeats", "1", "--spp", "2", "--locations", "8"];
-    let mut args = vec!["bench-tlfr", "--scenes", scene.to_str().unwrap(), "--kernel", "fused,oracle", "--json"];
+    let mut args = vec!["tlfr", "--scenes", scene.to_str().unwrap(), "--kernel", "fused,oracle", "--json"];
     args.push(both.to_str().unwrap());
     args.extend_from_slice(&size);
-    let result = lfr(&args);
+    let result = lfr_bench(&args);
     assert!(result.status.success(), "{}", stderr(&result));
     let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&both).unwrap()).unwrap();
     assert_eq!((rows[0]["kernel"].as_str(), rows[1]["kernel"].as_str()), (Some("fused"), Some("oracle")));
@@ -515,21 +515,21 @@ fn bench_tlfr_reports_a_locations_cost_in_traced_samples() {
     let difference = rows[1]["largest_relative_difference"].as_f64().unwrap();
     assert!(difference < 1e-5, "{difference}");
     assert_eq!(rows[0]["evaluated_locations"], rows[1]["evaluated_locations"]);
-    let result = lfr(&["bench-tlfr", "--kernel", "fast"]);
+    let result = lfr_bench(&["tlfr", "--kernel", "fast"]);
     assert!(!result.status.success() && stderr(&result).contains("--kernel"), "{}", stderr(&result));
     // Without the adaptive rule every pixel evaluates all N locations.
     let fixed = dir.path().join("fixed.json");
     let size = ["--width", "16", "--height", "12", "--repeats", "1", "--spp", "1", "--locations", "4"];
-    let mut args = vec!["bench-tlfr", "--scenes", scene.to_str().unwrap(), "--fixed-locations", "--json"];
+    let mut args = vec!["tlfr", "--scenes", scene.to_str().unwrap(), "--fixed-locations", "--json"];
     args.push(fixed.to_str().unwrap());
     args.extend_from_slice(&size);
-    let result = lfr(&args);
+    let result = lfr_bench(&args);
     assert!(result.status.success(), "{}", stderr(&result));
     let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&fixed).unwrap()).unwrap();
     assert_eq!(rows[0]["adaptive"], false);
     assert_eq!(rows[0]["evaluated_locations"], 16 * 12 * 4);
     for bad in [["--spp", "0"], ["--locations", "0"]] {
-        let result = lfr(&["bench-tlfr", bad[0], bad[1]]);
+        let result = lfr_bench(&["tlfr", bad[0], bad[1]]);
         assert!(!result.status.success() && stderr(&result).contains(bad[0]), "{bad:?}: {}", stderr(&result));
     }
 }
@@ -572,19 +572,20 @@ fn every_computing_command_takes_the_shared_options_with_the_same_limits() {
     let dir = tempfile::tempdir().unwrap();
     let out = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
     let (exr, lfrs, compare) = (out("never.exr"), out("never.lfrs"), out("never"));
-    let commands: [Vec<&str>; 9] = [
-        vec!["render", "--out", &exr],
-        vec!["dump", "--kind", "indirect", "--spp", "1", "--out", &lfrs],
-        vec!["filter", "--out", &exr],
-        vec!["compare", "--effect", "indirect", "--out", &compare],
-        vec!["bench"],
-        vec!["bench-ilfr"],
-        vec!["bench-tlfr"],
-        vec!["bench-filters"],
-        vec!["reconstruct", "--samples", &lfrs, "--out", &exr],
+    type Runner = fn(&[&str]) -> std::process::Output;
+    let commands: [(Runner, Vec<&str>); 9] = [
+        (lfr, vec!["render", "--out", &exr]),
+        (lfr, vec!["dump", "--kind", "indirect", "--spp", "1", "--out", &lfrs]),
+        (lfr, vec!["filter", "--out", &exr]),
+        (lfr, vec!["compare", "--effect", "indirect", "--out", &compare]),
+        (lfr_bench, vec!["tracer"]),
+        (lfr_bench, vec!["ilfr"]),
+        (lfr_bench, vec!["tlfr"]),
+        (lfr_bench, vec!["filters"]),
+        (lfr, vec!["reconstruct", "--samples", &lfrs, "--out", &exr]),
     ];
-    for command in &commands {
-        let help = lfr(&[command[0], "--help"]);
+    for (run, command) in &commands {
+        let help = run(&[command[0], "--help"]);
         let text = String::from_utf8_lossy(&help.stdout).to_string();
         for option in ["--seed", "--threads"] {
             assert!(text.contains(option), "{} --help lacks {option}:\n{text}", command[0]);
@@ -596,7 +597,7 @@ fn every_computing_command_takes_the_shared_options_with_the_same_limits() {
         }
         let mut args = command.clone();
         args.extend_from_slice(&["--threads", "100000"]);
-        let result = lfr(&args);
+        let result = run(&args);
         assert!(
             !result.status.success() && stderr(&result).contains("--threads must be at most 1024"),
             "{args:?}: {}",
@@ -604,9 +605,32 @@ fn every_computing_command_takes_the_shared_options_with_the_same_limits() {
         );
     }
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "a refused command wrote a file");
-    for command in ["bench", "bench-ilfr", "bench-tlfr"] {
-        let result = lfr(&[command, "--width", "0"]);
-        assert!(!result.status.success() && stderr(&result).contains("width"), "{command}: {}", stderr(&result));
+    for benchmark in ["tracer", "ilfr", "tlfr"] {
+        let result = lfr_bench(&[benchmark, "--width", "0"]);
+        assert!(!result.status.success() && stderr(&result).contains("width"), "{benchmark}: {}", stderr(&result));
+    }
+}
+
+/// `lfr --help` lists the user's commands only; the benchmarks are `lfr-bench`, and their old
+/// `lfr bench-*` names still run them (same arguments, same checks) with a note naming the new one.
+#[test]
+fn the_benchmarks_are_lfr_bench_and_their_old_names_still_run() {
+    let help = String::from_utf8_lossy(&lfr(&["--help"]).stdout).to_string();
+    assert!(help.contains("compare") && !help.contains("bench"), "{help}");
+    let bench_help = String::from_utf8_lossy(&lfr_bench(&["--help"]).stdout).to_string();
+    for benchmark in ["tracer", "filters", "ilfr", "tlfr"] {
+        assert!(bench_help.lines().any(|line| line.trim_start().starts_with(benchmark)), "{bench_help}");
+    }
+    for (old, new) in
+        [("bench", "tracer"), ("bench-filters", "filters"), ("bench-ilfr", "ilfr"), ("bench-tlfr", "tlfr")]
+    {
+        let result = lfr(&[old, "--threads", "100000"]);
+        let text = stderr(&result);
+        assert!(!result.status.success(), "{old}: {text}");
+        assert!(
+            text.contains(&format!("`lfr-bench {new}`")) && text.contains("--threads must be at most"),
+            "{old}: {text}"
+        );
     }
 }
 

@@ -8,7 +8,7 @@ use crate::lfr_runner as cli;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use cli::{lfr, stderr};
+use cli::{lfr, lfr_bench, stderr};
 use common::exr_channel;
 
 /// A bare glTF file: the square [-1, 1]² in z = 0 facing +z, no material, no light, and two
@@ -203,21 +203,22 @@ fn bad_lighting_values_are_refused_before_any_work() {
     // The same options on every command that traces a scene.
     let out = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
     let (exr, lfrs, compare) = (out("never.exr"), out("never.lfrs"), out("never"));
-    let commands: [Vec<&str>; 5] = [
-        vec!["render", "--out", &exr],
-        vec!["dump", "--kind", "indirect", "--spp", "1", "--out", &lfrs],
-        vec!["filter", "--out", &exr],
-        vec!["compare", "--effect", "indirect", "--out", &compare],
-        vec!["bench-filters"],
+    type Runner = fn(&[&str]) -> Output;
+    let commands: [(Runner, Vec<&str>); 5] = [
+        (lfr, vec!["render", "--out", &exr]),
+        (lfr, vec!["dump", "--kind", "indirect", "--spp", "1", "--out", &lfrs]),
+        (lfr, vec!["filter", "--out", &exr]),
+        (lfr, vec!["compare", "--effect", "indirect", "--out", &compare]),
+        (lfr_bench, vec!["filters"]),
     ];
-    for command in commands {
-        let help = String::from_utf8_lossy(&lfr(&[command[0], "--help"]).stdout).to_string();
+    for (run, command) in commands {
+        let help = String::from_utf8_lossy(&run(&[command[0], "--help"]).stdout).to_string();
         for option in ["--environment", "--sun", "--sun-irradiance", "--camera"] {
             assert!(help.contains(option), "{} --help lacks {option}", command[0]);
         }
         let mut args = command.clone();
         args.extend_from_slice(&["--sun", "0,0,0"]);
-        let result = lfr(&args);
+        let result = run(&args);
         assert!(!result.status.success() && stderr(&result).contains("--sun must be"), "{args:?}: {}", stderr(&result));
     }
     let written: Vec<_> = std::fs::read_dir(dir.path()).unwrap().flatten().map(|e| e.file_name()).collect();

@@ -2,9 +2,8 @@
 //! module drives the `lfr` binary or the library crates end to end. Shared helpers: `common`
 //! (the tracer's test scenes and paths) and `lfr_runner` (runs `lfr` and reads its output).
 
-#[path = "../tracer/tests/common/mod.rs"]
-mod common;
-#[path = "common/cli.rs"]
+use testkit::scenes as common;
+
 mod lfr_runner;
 
 mod architecture;

@@ -10,7 +10,7 @@ use crate::lfr_runner as cli;
 
 use std::path::{Path, PathBuf};
 
-use cli::{lfr, stderr};
+use cli::{lfr, lfr_bench, stderr};
 
 /// A 2×2 PNG (the texture the outputs must not replace).
 fn write_png(path: &Path) -> Vec<u8> {
@@ -397,10 +397,16 @@ fn a_benchmark_json_never_replaces_a_scene_file_and_repeats_are_positive() {
     let dir = tempfile::tempdir().unwrap();
     let scene = d_scene(dir.path());
     let bytes = std::fs::read(&scene).unwrap();
-    refused(&["bench-filters", "--scene", text(&scene), "--json", text(&scene), "--repeats", "1"], &["--json"]);
+    let refused = |args: &[&str], needle: &str| {
+        let result = lfr_bench(args);
+        let message = stderr(&result);
+        assert!(!result.status.success() && !message.contains("panicked"), "{args:?} must be refused: {message}");
+        assert!(message.contains(needle), "{args:?}: expected {needle:?} in {message}");
+    };
+    refused(&["filters", "--scene", text(&scene), "--json", text(&scene), "--repeats", "1"], "--json");
     assert_eq!(std::fs::read(&scene).unwrap(), bytes);
-    for command in ["bench-filters", "bench-ilfr", "bench", "bench-tlfr"] {
-        refused(&[command, "--repeats", "0"], &["--repeats"]);
+    for benchmark in ["filters", "ilfr", "tracer", "tlfr"] {
+        refused(&[benchmark, "--repeats", "0"], "--repeats");
     }
 }
 

@@ -4,15 +4,13 @@
 //! without leaving any file (no output, no `OUT.<pid>.tmp`).
 
 use crate::common;
-#[path = "../recon/tests/common/sample_camera.rs"]
-mod sample_camera;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use common::project_root;
-use sample_camera::camera;
 use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleKind, SampleWriter};
+use testkit::sample_camera::camera;
 
 use FieldType::{F16, F32, U16, U32, U8};
 

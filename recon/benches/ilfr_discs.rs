@@ -37,9 +37,7 @@ use recon::ilfr::splats::{size_splats, GatheredPoints, SplatParams};
 use recon::lcg::Lcg;
 use sampleio::{SampleFile, SampleKind};
 
-#[path = "../tests/support/embree_discs.rs"]
-mod embree_discs;
-use embree_discs::{Collected, EmbreeDiscs};
+use testkit::embree_discs::{Collected, EmbreeDiscs};
 
 /// An Embree device with `threads` build threads (0: all) and a counter of its live bytes.
 fn embree_device(threads: u32) -> (Device, Arc<AtomicIsize>) {

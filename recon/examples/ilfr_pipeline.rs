@@ -16,7 +16,7 @@ use std::path::PathBuf;
 use exr::prelude::*;
 use recon::baselines::oidn::Oidn;
 use recon::ilfr::samples::{read_indirect, SampleClass};
-use recon::method::{Effect, FrameInput, InputData, Inputs, Method};
+use recon::method::{Effect, ImageInput, InputData, Inputs, Method};
 use recon::metrics::{psnr_db, relative_mse, ToneMap};
 use recon::Image;
 
@@ -108,8 +108,8 @@ fn main() {
             let out = outputs[m].take().unwrap();
             let psnr = psnr_db(&reference, &out.image, &tone).unwrap();
             let rel = relative_mse(&reference, &out.image).unwrap();
-            let frame = FrameInput { color: out.image.clone(), albedo: albedo.clone(), normal: normal.clone() };
-            let oidn_inputs = Inputs { data: InputData::Frame(&frame), ..inputs.clone() };
+            let frame = ImageInput { color: out.image.clone(), albedo: albedo.clone(), normal: normal.clone() };
+            let oidn_inputs = Inputs { data: InputData::Image(&frame), ..inputs.clone() };
             let denoised = Oidn::default().run(&oidn_inputs, 0).expect("oidn");
             let opsnr = psnr_db(&reference, &denoised.image, &tone).unwrap();
             let orel = relative_mse(&reference, &denoised.image).unwrap();

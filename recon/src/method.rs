@@ -1,6 +1,6 @@
 //! The one interface every reconstruction and baseline implements (`crate::registry` lists
 //! them and builds them from `NAME:key=value` specs). A method names the inputs it reads (sample files of one
-//! kind, or the path-traced frame with its albedo and normal); the harness traces those inputs,
+//! kind, or the path-traced image with its albedo and normal); the harness traces those inputs,
 //! times the tracing, and hands the method their paths or buffers. The method returns the
 //! reconstructed image of the effect's layer with its own time split into preprocess and
 //! reconstruct.
@@ -73,7 +73,7 @@ pub enum Input {
     /// A sample file of the effect's sample kind (`Effect::sample_kind`).
     Samples,
     /// The path-traced image of the effect with per-pixel albedo and normal (box pixel filter).
-    Frame,
+    Image,
     /// Guide buffers of one guide ray per pixel centre with `spp` indirect estimates at its hit
     /// (the guided image filter's input; effects `indirect` and `glossy` only).
     Guide,
@@ -94,9 +94,9 @@ pub struct GuideInput {
     pub eye_rays: crate::guide::EyeRays,
 }
 
-/// A path-traced frame: the effect's layer and the first-hit albedo and world-space normal.
+/// A path-traced image: the effect's layer and the first-hit albedo and world-space normal.
 #[derive(Clone, Debug)]
-pub struct FrameInput {
+pub struct ImageInput {
     pub color: Image,
     pub albedo: Image,
     pub normal: Image,
@@ -113,8 +113,8 @@ pub enum InputData<'a> {
         /// `normal` and `radiance_without_light`).
         light_samples: Option<&'a Path>,
     },
-    /// `Input::Frame`: the path-traced frame.
-    Frame(&'a FrameInput),
+    /// `Input::Image`: the path-traced image.
+    Image(&'a ImageInput),
     /// `Input::Guide`: the guide buffers.
     Guide(&'a GuideInput),
 }
@@ -124,7 +124,7 @@ impl InputData<'_> {
     pub fn kind(&self) -> Input {
         match self {
             InputData::Samples { .. } => Input::Samples,
-            InputData::Frame(_) => Input::Frame,
+            InputData::Image(_) => Input::Image,
             InputData::Guide(_) => Input::Guide,
         }
     }
@@ -169,11 +169,11 @@ impl<'a> Inputs<'a> {
         }
     }
 
-    /// The path-traced frame, for `method`.
-    pub fn frame(&self, method: &str) -> Result<&'a FrameInput, Error> {
+    /// The path-traced image, for `method`.
+    pub fn image(&self, method: &str) -> Result<&'a ImageInput, Error> {
         match self.data {
-            InputData::Frame(frame) => Ok(frame),
-            _ => Err(Error::missing_input("frame", format!("{method} needs a path-traced frame"))),
+            InputData::Image(image) => Ok(image),
+            _ => Err(Error::missing_input("image", format!("{method} needs a path-traced image"))),
         }
     }
 

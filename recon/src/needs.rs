@@ -95,7 +95,7 @@ macro_rules! ilfr_fields {
     };
 }
 
-/// ILFR (`ilfr`, `ilfr-recursive`, `lfr bench-ilfr`): `indirect` samples
+/// ILFR (`ilfr`, `ilfr-recursive`, `lfr-bench ilfr`): `indirect` samples
 /// (`ilfr::samples::read_indirect`).
 pub const ILFR_INDIRECT: Needs = Needs { consumer: "ILFR", fields: ilfr_fields!(FieldNeed::real("radiance", 3)) };
 

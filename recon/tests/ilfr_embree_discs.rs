@@ -12,8 +12,7 @@ use recon::ilfr::bvh::DiscBvh;
 use recon::ilfr::disc::{intersect, Disc, Ray};
 use recon::lcg::Lcg;
 
-#[path = "support/embree_discs.rs"]
-mod embree_discs;
+use testkit::embree_discs;
 
 /// The Embree scene of `discs` (medium build quality).
 fn embree_scene(device: &Device, discs: &[Disc]) -> embree_discs::EmbreeDiscs {

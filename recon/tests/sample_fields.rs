@@ -7,11 +7,8 @@ use std::path::{Path, PathBuf};
 
 use recon::method::{Effect, Input, InputData, Inputs, MethodError};
 use recon::registry::METHODS;
-#[path = "common/sample_camera.rs"]
-mod sample_camera;
-
-use sample_camera::camera;
 use sampleio::{FieldSpec, FieldType, HeaderSpec, LightGeometry, SampleKind, SampleWriter};
+use testkit::sample_camera::camera;
 
 use FieldType::{F16, F32, U16, U8};
 

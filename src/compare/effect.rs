@@ -2,7 +2,7 @@
 //! off), which estimate gives its image and what the image's layer is called ([`image_layer`],
 //! the one table of it), and which samples the methods read (`Effect::sample_kind`).
 //!
-//! | effect | scene set-up | image (reference, ladder, `Frame` input) | layer | samples |
+//! | effect | scene set-up | image (reference, ladder, `Image` input) | layer | samples |
 //! |---|---|---|---|---|
 //! | `indirect` | as given; needs `max_bounces ≥ 2` | render's `indirect` | `indirect` | `indirect` |
 //! | `glossy` | as given; needs a glossy material | render's `indirect` | `indirect` | `indirect` |
@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Result};
 use glam::Vec3;
-use recon::method::{FrameInput, GuideInput};
+use recon::method::{GuideInput, ImageInput};
 use recon::{Effect, Image};
 use tracer::samples::secondary::{ambient_occlusion_frame, scene_is_glossy};
 use tracer::samples::{DumpTarget, FieldSelection};
@@ -187,7 +187,7 @@ pub struct Dumped {
 
 /// A traced image of the effect with the denoiser's auxiliary buffers and its wall time.
 pub struct Traced {
-    pub frame: FrameInput,
+    pub frame: ImageInput,
     pub seconds: f64,
 }
 
@@ -200,7 +200,7 @@ impl Tracing<'_> {
         let frame = if estimate == Estimate::AmbientVisibility {
             let settings = RenderSettings { progress, ..self.dump_settings(spp, seed) };
             let ao = ambient_occlusion_frame(self.scene, self.accel, &settings, self.ao_radius)?;
-            FrameInput {
+            ImageInput {
                 color: Image::from_pixels(width, height, ao.visibility.iter().map(|&v| [v; 3]).collect()),
                 albedo: image_from_vec3(width, height, &ao.albedo),
                 normal: image_from_vec3(width, height, &ao.normal),
@@ -217,7 +217,7 @@ impl Tracing<'_> {
             };
             let frame = tracer::render(self.scene, self.accel, &settings)?;
             let color = estimate.pick(&frame.beauty, &frame.indirect);
-            FrameInput {
+            ImageInput {
                 color: image_from_vec3(width, height, color),
                 albedo: image_from_vec3(width, height, &frame.albedo),
                 normal: image_from_vec3(width, height, &frame.normal),

@@ -25,5 +25,5 @@ pub mod texture;
 pub use accel::Accel;
 pub use camera::Camera;
 pub use error::{RenderError, SceneError};
-pub use render::{render, Frame, RenderSettings};
+pub use render::{render, RenderSettings, RenderedImage};
 pub use scene::Scene;

@@ -45,8 +45,20 @@ pub enum LightStrategy {
     ByContribution,
     /// Sampling by power alone: one table over every emitter by power, the environment's
     /// and directional lights' power taken over the scene's bounding sphere, sphere lights
-    /// sampled over their whole surface. Same expected value; kept as the tests' oracle.
+    /// sampled over their whole surface. Same expected value; the tests' oracle, built only for
+    /// tests (`cfg(test)`, or the `oracles` feature that the dev-only `testkit` turns on).
+    #[cfg(any(test, feature = "oracles"))]
     Legacy,
+}
+
+impl LightStrategy {
+    /// Whether this is the power-only oracle (`Legacy`); never in a product build.
+    fn is_power_only(self) -> bool {
+        #[cfg(any(test, feature = "oracles"))]
+        return self == LightStrategy::Legacy;
+        #[cfg(not(any(test, feature = "oracles")))]
+        return false;
+    }
 }
 
 /// Which table entries a mesh's emission lives in.
@@ -594,7 +606,7 @@ impl LightSampler {
     }
 
     pub fn with_strategy(scene: &Scene, strategy: LightStrategy) -> LightSampler {
-        let legacy = strategy == LightStrategy::Legacy;
+        let legacy = strategy.is_power_only();
         let (lo, hi) = scene.bounds();
         let radius = (0.5 * (hi - lo).length()).max(1e-3);
         let mut emitters = Vec::new();
@@ -859,7 +871,7 @@ impl LightSampler {
     /// Solid-angle pdf of sampling the environment in any direction from `from`.
     pub fn pdf_environment(&self, from: Vec3) -> f32 {
         match self.environment_index {
-            Some(i) if self.strategy == LightStrategy::Legacy => self.probability[i as usize] / (4.0 * PI),
+            Some(i) if self.strategy.is_power_only() => self.probability[i as usize] / (4.0 * PI),
             Some(i) => {
                 let k = i as usize - self.table_len + usize::from(self.table_len > 0);
                 self.candidate_probability(k, from) / (4.0 * PI)

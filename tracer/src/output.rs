@@ -9,7 +9,7 @@ use exr::prelude::*;
 use glam::Vec3;
 
 use crate::error::RenderError;
-use crate::render::Frame;
+use crate::render::RenderedImage;
 
 /// A named group of channels, e.g. layer `direct` with channels R, G, B → `direct.R`, ...
 pub struct Layer<'a> {
@@ -35,7 +35,7 @@ fn xyz_channels(data: &[Vec3]) -> Vec<(&'static str, Vec<f32>)> {
 }
 
 /// The layers of a rendered frame, in the order documented in the README.
-pub fn frame_layers(frame: &Frame) -> Vec<Layer<'static>> {
+pub fn frame_layers(frame: &RenderedImage) -> Vec<Layer<'static>> {
     vec![
         Layer { name: "", channels: rgb_channels(&frame.beauty) },
         Layer { name: "direct", channels: rgb_channels(&frame.direct) },
@@ -208,7 +208,7 @@ pub fn write_png(
 }
 
 /// Writes the frame's EXR and, beside it, the PNG preview (same name, `.png`).
-pub fn write_frame(path: &Path, frame: &Frame) -> std::result::Result<PathBuf, RenderError> {
+pub fn write_frame(path: &Path, frame: &RenderedImage) -> std::result::Result<PathBuf, RenderError> {
     write_exr(path, frame.width, frame.height, &frame_layers(frame))?;
     let preview = path.with_extension("png");
     write_png(&preview, frame.width, frame.height, &frame.beauty, 1.0)?;

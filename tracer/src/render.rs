@@ -83,7 +83,7 @@ impl RenderSettings {
 
 /// Per-pixel results, row-major from the top-left, all linear.
 #[derive(Clone, Debug, Default)]
-pub struct Frame {
+pub struct RenderedImage {
     pub width: u32,
     pub height: u32,
     pub spp: u32,
@@ -111,7 +111,7 @@ pub struct Frame {
     pub seconds: f64,
 }
 
-impl Frame {
+impl RenderedImage {
     pub fn pixel_count(&self) -> usize {
         self.width as usize * self.height as usize
     }
@@ -408,7 +408,7 @@ impl Shard {
 }
 
 /// Renders the scene; the accelerator is built by the caller so it can be reused.
-pub fn render(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result<Frame, RenderError> {
+pub fn render(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> Result<RenderedImage, RenderError> {
     render_shard(scene, accel, settings, Shard::WHOLE)
 }
 
@@ -418,7 +418,7 @@ pub fn render_shard(
     accel: &Accel,
     settings: &RenderSettings,
     shard: Shard,
-) -> Result<Frame, RenderError> {
+) -> Result<RenderedImage, RenderError> {
     render_shard_with_lights(scene, accel, settings, &LightSampler::new(scene), shard)
 }
 
@@ -429,7 +429,7 @@ pub fn render_with_lights(
     accel: &Accel,
     settings: &RenderSettings,
     lights: &LightSampler,
-) -> Result<Frame, RenderError> {
+) -> Result<RenderedImage, RenderError> {
     render_shard_with_lights(scene, accel, settings, lights, Shard::WHOLE)
 }
 
@@ -440,7 +440,7 @@ pub fn render_shard_with_lights(
     settings: &RenderSettings,
     lights: &LightSampler,
     shard: Shard,
-) -> Result<Frame, RenderError> {
+) -> Result<RenderedImage, RenderError> {
     settings.validate()?;
     let (width, height) = (settings.width, settings.height);
     let samples = shard.sample_range(settings.spp);
@@ -541,9 +541,9 @@ pub fn record_rays(scene: &Scene, accel: &Accel, settings: &RenderSettings) -> R
 }
 
 /// The frame of `results`, each pixel the mean of its `spp` samples (those of its shard).
-fn assemble(settings: &RenderSettings, spp: u32, results: Vec<TileResult>, seconds: f64) -> Frame {
+fn assemble(settings: &RenderSettings, spp: u32, results: Vec<TileResult>, seconds: f64) -> RenderedImage {
     let n = settings.width as usize * settings.height as usize;
-    let mut frame = Frame {
+    let mut frame = RenderedImage {
         width: settings.width,
         height: settings.height,
         spp,

@@ -126,7 +126,8 @@ fn renders_are_bit_identical_across_thread_counts() {
     let one = render_with_threads(&scene, 40, 24, 4, 7, 1);
     let two = render_with_threads(&scene, 40, 24, 4, 7, 2);
     let three = render_with_threads(&scene, 40, 24, 4, 7, 3);
-    let bits = |f: &tracer::Frame| f.beauty.iter().flat_map(|v| v.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+    let bits =
+        |f: &tracer::RenderedImage| f.beauty.iter().flat_map(|v| v.to_array().map(f32::to_bits)).collect::<Vec<_>>();
     assert_eq!(bits(&one), bits(&two));
     assert_eq!(bits(&one), bits(&three));
     assert_eq!(one.rays, two.rays);

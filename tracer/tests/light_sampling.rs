@@ -7,7 +7,7 @@ use crate::common;
 
 use glam::Vec3;
 use tracer::lights::{LightSampler, LightStrategy};
-use tracer::{Accel, Frame, RenderSettings, Scene};
+use tracer::{Accel, RenderSettings, RenderedImage, Scene};
 
 /// A sphere light (radius 0.5, radiance 30) 2 units over a grey floor `half_width` wide each
 /// way, a dim uniform sky, seen from above and in front.
@@ -39,7 +39,7 @@ fn sphere_over_floor(half_width: f32) -> Scene {
     ))
 }
 
-fn render(scene: &Scene, strategy: LightStrategy) -> Frame {
+fn render(scene: &Scene, strategy: LightStrategy) -> RenderedImage {
     let accel = Accel::build(scene).expect("accelerator builds");
     let mut settings = RenderSettings::from_scene(scene);
     (settings.width, settings.height, settings.spp, settings.seed) = (64, 48, 16, 7);
@@ -49,14 +49,14 @@ fn render(scene: &Scene, strategy: LightStrategy) -> Frame {
 
 /// Mean over the lit pixels of the variance of the pixel mean over its square (green), and the
 /// image mean with its standard error.
-fn statistics(frame: &Frame) -> (f64, f64, f64) {
+fn statistics(frame: &RenderedImage) -> (f64, f64, f64) {
     let lit = frame.beauty.iter().filter(|b| b.y > 0.0).count();
     assert!(lit as f64 > 0.9 * frame.beauty.len() as f64, "the floor fills the view");
     lit_statistics(frame)
 }
 
 /// [`statistics`] of a view that may show the black outside (the Cornell boxes' open front).
-fn lit_statistics(frame: &Frame) -> (f64, f64, f64) {
+fn lit_statistics(frame: &RenderedImage) -> (f64, f64, f64) {
     let n = frame.beauty.len() as f64;
     let lit: Vec<f64> = frame
         .beauty

@@ -1,8 +1,8 @@
-//! The tracer's integration tests, one binary (one link) with a module per file; `common` holds
-//! the shared scenes and helpers. `progress.rs` stays a binary of its own: the progress stage it
+//! The tracer's integration tests, one binary (one link) with a module per file; `common` is
+//! `testkit::scenes`, the scenes and helpers the root crate's tests share. `progress.rs` stays a binary of its own: the progress stage it
 //! watches is process-wide, so no other test may trace beside it.
 
-mod common;
+use testkit::scenes as common;
 
 mod analytic;
 mod light_sampling;

@@ -9,7 +9,7 @@
 //! and `preprocess_s` is 0. `external_peak_rss_mb` is the Python process's peak resident memory.
 //!
 //! **Box pixel filter.** OIDN is trained on images whose pixels are independent estimates, i.e.
-//! rendered with a box pixel filter, and `Input::Frame` is traced that way. With a wider filter
+//! rendered with a box pixel filter, and `Input::Image` is traced that way. With a wider filter
 //! (e.g. a Gaussian) every sample is spread over neighbouring pixels, the noise becomes spatially
 //! correlated, looks like image structure to the network, and OIDN removes little of it (33.7 →
 //! 34.4 dB PSNR in one measurement), against a large gain with the box filter.
@@ -100,7 +100,7 @@ fn number(value: &serde_json::Value, key: &str) -> Result<f64, Error> {
 
 impl Method for Oidn {
     fn input(&self) -> Input {
-        Input::Frame
+        Input::Image
     }
 
     fn available(&self) -> Result<(), Error> {
@@ -109,7 +109,7 @@ impl Method for Oidn {
     }
 
     fn run(&self, inputs: &Inputs, _recon_rays: u32) -> Result<Output, MethodError> {
-        let frame = inputs.frame("oidn")?;
+        let frame = inputs.image("oidn")?;
         self.denoise(&frame.color, &frame.albedo, &frame.normal, inputs.effect)
     }
 }
@@ -216,7 +216,7 @@ impl Oidn {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::method::{Effect, FrameInput, InputData};
+    use crate::method::{Effect, ImageInput, InputData};
 
     const SIZE: u32 = 64;
 
@@ -226,7 +226,7 @@ mod tests {
     }
 
     /// A horizontal grey gradient 0.2..0.8 with albedo 0.5 and normal (0, 0, 1).
-    fn smooth_frame() -> FrameInput {
+    fn smooth_frame() -> ImageInput {
         let mut color = Image::new(SIZE, SIZE);
         for y in 0..SIZE {
             for x in 0..SIZE {
@@ -236,7 +236,7 @@ mod tests {
         }
         let albedo = Image::from_pixels(SIZE, SIZE, vec![[0.5; 3]; (SIZE * SIZE) as usize]);
         let normal = Image::from_pixels(SIZE, SIZE, vec![[0.0, 0.0, 1.0]; (SIZE * SIZE) as usize]);
-        FrameInput { color, albedo, normal }
+        ImageInput { color, albedo, normal }
     }
 
     /// `reference * (1 + 0.5 * n)` with `n` uniform in [-1, 1] from a deterministic LCG.
@@ -267,13 +267,13 @@ mod tests {
         sum / (a.pixels.len() * 3) as f64
     }
 
-    fn inputs(frame: &FrameInput) -> Inputs<'_> {
+    fn inputs(frame: &ImageInput) -> Inputs<'_> {
         Inputs {
             effect: Effect::Indirect,
             width: frame.color.width,
             height: frame.color.height,
             spp: 4,
-            data: InputData::Frame(frame),
+            data: InputData::Image(frame),
             ao_radius: 1.0,
             seed: 0,
             threads: 0,
@@ -301,7 +301,7 @@ mod tests {
         }
         let smooth = smooth_frame();
         let reference = smooth.color.clone();
-        let frame = FrameInput { color: noisy(&reference), ..smooth };
+        let frame = ImageInput { color: noisy(&reference), ..smooth };
         let output = Oidn::default().run(&inputs(&frame), 0).unwrap();
         assert_eq!((output.image.width, output.image.height), (SIZE, SIZE));
         assert_eq!(output.image.nonfinite_pixels(), 0);
@@ -354,12 +354,12 @@ mod tests {
     }
 
     #[test]
-    fn missing_frame_fails_and_bad_quality_is_rejected() {
+    fn missing_image_fails_and_bad_quality_is_rejected() {
         let frame = smooth_frame();
         let mut without = inputs(&frame);
         without.data = InputData::Samples { samples: std::path::Path::new("samples.lfrs"), light_samples: None };
         match Oidn::default().run(&without, 0) {
-            Err(MethodError::Failed(error)) => assert!(error.to_string().contains("path-traced frame"), "{error}"),
+            Err(MethodError::Failed(error)) => assert!(error.to_string().contains("path-traced image"), "{error}"),
             other => panic!("expected a failure, got {other:?}"),
         }
         let oidn = Oidn { quality: "ultra".to_string() };
@@ -391,7 +391,7 @@ mod tests {
         let description = crate::registry::spec("oidn").unwrap().description;
         assert!(description.contains("Open Image Denoise 2.5"));
         assert!(description.contains("pyoidn"));
-        assert_eq!(oidn.input(), Input::Frame);
+        assert_eq!(oidn.input(), Input::Image);
         assert!(Effect::ALL.iter().all(|&e| oidn.supports(e)));
     }
 }

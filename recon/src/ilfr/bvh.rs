@@ -15,7 +15,7 @@
 //!   nearest; an unordered stack walk of a 4-wide hierarchy collapsed from the binary one (same
 //!   leaves and boxes; four child boxes per step in one slab test, 128-byte nodes) over 32-byte
 //!   disc records in leaf order. The binary walk of before,
-//!   [`DiscBvh::for_each_hit_binary`], is kept as its oracle: the same hits bit for bit.
+//!   `DiscBvh::for_each_hit_binary` (built for tests only), is kept as its oracle: the same hits bit for bit.
 //! - "the bounding boxes of the BVH nodes are recomputed to accommodate the new sizes"
 //!   (§2.3.1): [`DiscBvh::set_radii`] (bottom-up refit, same topology); splats trimmed wedge by
 //!   wedge: [`DiscBvh::set_wedge_radii`], boxed by their wedges, a hit kept only
@@ -457,7 +457,7 @@ impl DiscBvh {
     }
 
     /// Calls `visit` for every disc the ray hits with t in (t_min, t_max), in walk order (the
-    /// set is that of [`Self::for_each_hit_binary`] and of a scan of every disc, tested).
+    /// set is that of `Self::for_each_hit_binary` and of a scan of every disc, tested).
     /// `stack` is scratch, reused between calls. Walks the wide hierarchy: four child boxes per
     /// step in one slab test, leaves' discs from their compact records.
     pub fn for_each_hit(
@@ -509,7 +509,8 @@ impl DiscBvh {
     }
 
     /// The walk of the binary hierarchy, one box per step (the walk before the wide one, kept as
-    /// its test oracle and for measurements): the same hits as [`Self::for_each_hit`].
+    /// its test oracle, built for tests only): the same hits as [`Self::for_each_hit`].
+    #[cfg(test)]
     pub fn for_each_hit_binary(
         &self,
         ray: &Ray,
@@ -715,7 +716,9 @@ fn next_up(t: f32) -> f32 {
 }
 
 /// The slab test against the ray's (t_min, t_max), with a relative slack so that it is
-/// conservative with respect to [`intersect`]; NaN-free for any finite box (|1/d| ≤ 1e20).
+/// conservative with respect to [`intersect`]; NaN-free for any finite box (|1/d| ≤ 1e20). The
+/// binary walk's (the oracle) test; the wide walk tests four boxes at once.
+#[cfg(test)]
 #[inline]
 fn box_overlaps(node: &Node, origin: [f32; 3], inverse: [f32; 3], t_min: f32, t_max: f32) -> bool {
     let mut near = t_min;

@@ -1046,7 +1046,7 @@ pub fn integrate(
     )
 }
 
-/// `integrate` with every location's stages timed (`lfr bench-tlfr`): the same image bit for bit.
+/// `integrate` with every location's stages timed (`lfr-bench tlfr`): the same image bit for bit.
 pub fn integrate_clocked(
     fused: &Fused,
     size: (u32, u32),

@@ -159,7 +159,7 @@ impl Counters for Clocked {
 }
 
 /// `integrate_adaptive` of `reconstruct` with every location's stages timed
-/// (`query::StageTimes`; `lfr bench-tlfr`): the same image, bit for bit, at the cost of a few
+/// (`query::StageTimes`; `lfr-bench tlfr`): the same image, bit for bit, at the cost of a few
 /// clock reads per location.
 pub fn integrate_clocked(
     scene: &Scene,

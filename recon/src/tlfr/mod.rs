@@ -28,10 +28,10 @@
 //!   filter: `nearest`.
 //! - Eq. 1, N locations per pixel over pixel × lens × time: `integrate` (also for soft
 //!   shadows); the methods `tlfr`, `tlfr-nn` and `tlfr-bw`, and the preparation before the
-//!   first location that `lfr bench-tlfr` times (`prepare`): `method`.
+//!   first location that `lfr-bench tlfr` times (`prepare`): `method`.
 //! - Not in the paper: fewer locations in a pixel whose first ones all saw one surface and
 //!   agree (`integrate::AdaptiveRule`), and the clock of each location's stages for
-//!   `lfr bench-tlfr` (`query::StageClock`).
+//!   `lfr-bench tlfr` (`query::StageClock`).
 //! - The synthetic scenes of the tests and the `tlfr` bench: `test_scenes`.
 //! - Section 3, the input: `lens-time` files read through `sampleio`: `samples`.
 //! - Section 3.3, "Determining R": dispersion of the input pattern under random reprojections:

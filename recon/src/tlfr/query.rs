@@ -107,7 +107,7 @@ pub struct Scratch {
     log_weights: Vec<f64>,
 }
 
-/// The stages of one location that `lfr bench-tlfr` times: the hierarchy walk with the
+/// The stages of one location that `lfr-bench tlfr` times: the hierarchy walk with the
 /// reprojection and grouping of steps 1–2 (`Query`), the surface choice of step 3 (`Coverage`)
 /// and the filter of step 4 (`Filter`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -134,7 +134,7 @@ impl StageClock for NoClock {
     fn lap(&mut self, _: Stage) {}
 }
 
-/// Seconds spent per stage (`lfr bench-tlfr`), summed over locations.
+/// Seconds spent per stage (`lfr-bench tlfr`), summed over locations.
 #[derive(Clone, Debug, Default)]
 pub struct StageTimes {
     pub query_s: f64,

@@ -1,7 +1,7 @@
 //! Stage 3, the inputs: everything traced for the runs, each trace timed as the `trace_s` of
 //! the runs that read it. The path-tracing ladder (1, 2, 4, ... `--pt-max-spp` spp plus every
 //! input spp): its images are path tracing's runs, and those at an input spp with their albedo
-//! and normal are the `Frame` input. Then, once per input spp, the sample files of each field
+//! and normal are the `Image` input. Then, once per input spp, the sample files of each field
 //! selection the methods read (each method pays for the fields it reads: `Method::sample_needs`)
 //! in `OUT/inputs` (removed at the end unless `--keep-samples`), with soft shadows' light
 //! samples beside them, and the guide buffers when a method reads them. The repetitions trace
@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use recon::method::{FrameInput, GuideInput, Input, InputData, Inputs};
+use recon::method::{GuideInput, ImageInput, Input, InputData, Inputs};
 use recon::registry::Registered;
 use recon::{Effect, Image};
 use tracer::samples::FieldSelection;
@@ -20,7 +20,7 @@ use super::super::effect::{Dumped, Tracing};
 use super::super::memory;
 use super::plan::Plan;
 
-/// A trace that the runs share: the ladder's image at some spp (also the `Frame` input), the
+/// A trace that the runs share: the ladder's image at some spp (also the `Image` input), the
 /// input samples or the guide buffers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum TraceKey {
@@ -65,7 +65,7 @@ pub struct Traced {
     pub times: BTreeMap<TraceKey, Vec<f64>>,
     /// Whether each run's peak memory is its own (`memory::reset_peak`).
     pub peak_rss_per_run: bool,
-    frames: BTreeMap<u32, FrameInput>,
+    frames: BTreeMap<u32, ImageInput>,
     samples: BTreeMap<(u32, usize), Dumped>,
     guides: BTreeMap<u32, GuideInput>,
     /// `OUT/inputs`, the sample files' folder.
@@ -111,7 +111,7 @@ impl Traced {
         let mut rungs = Vec::new();
         let mut frames = BTreeMap::new();
         // The frame readers run on every rung (`Plan::spp_of`), so every rung's frame is kept.
-        let keep_frames = needs(&plan.methods, Input::Frame);
+        let keep_frames = needs(&plan.methods, Input::Image);
         for &spp in &plan.ladder {
             let message = TraceKey::Pt(spp).label();
             bar.set_message(message.clone());
@@ -188,7 +188,7 @@ impl Traced {
                     InputData::Samples { samples: &dumped.samples, light_samples: dumped.light_samples.as_deref() };
                 (data, TraceKey::Samples(spp, selection))
             }
-            Input::Frame => (InputData::Frame(&self.frames[&spp]), TraceKey::Pt(spp)),
+            Input::Image => (InputData::Image(&self.frames[&spp]), TraceKey::Pt(spp)),
             Input::Guide => (InputData::Guide(&self.guides[&spp]), TraceKey::Guide(spp)),
         };
         let light = match key {

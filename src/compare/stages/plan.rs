@@ -160,11 +160,11 @@ impl<'a> Plan<'a> {
     }
 
     /// The sample counts `method` runs at: a method that reads the path-traced frame (the
-    /// denoiser, `Input::Frame`) runs on every rung of the ladder, whose frames are traced
+    /// denoiser, `Input::Image`) runs on every rung of the ladder, whose frames are traced
     /// anyway, so that the peer's curve spans path tracing's time range and a reconstruction's
     /// quality is read on it rather than beyond it; every other method at `--spp`.
     pub fn spp_of(&self, method: &Registered) -> &[u32] {
-        if method.input() == recon::method::Input::Frame {
+        if method.input() == recon::method::Input::Image {
             &self.ladder
         } else {
             &self.args.spp
@@ -325,7 +325,7 @@ fn check_memory(
     let method_runs = (methods.len() + probe_methods.len()) as u64 * args.spp.len() as u64 * rays;
     // A method reading the traced frame runs on every rung, and every rung's frame (colour,
     // albedo, normal: 36 bytes a pixel) is kept for it.
-    let frame_readers = methods.iter().filter(|m| m.input() == recon::method::Input::Frame).count() as u64;
+    let frame_readers = methods.iter().filter(|m| m.input() == recon::method::Input::Image).count() as u64;
     let method_runs = method_runs + frame_readers * ladder_runs;
     let kept_frames = if frame_readers > 0 { 36 * ladder_runs } else { 0 };
     let inputs = args.spp.len() as u64;

@@ -1,12 +1,11 @@
-//! Helpers shared by the integration tests: the tracer's own (`tracer/tests`) and, through
-//! `#[path]`, the command's (`tests/` at the workspace root), so there is one copy.
-#![allow(dead_code)]
+//! The scenes the integration tests build and render: the tracer's own (`tracer/tests`) and the
+//! command's (`tests/` at the workspace root).
 
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use tracer::scene::description;
-use tracer::{Accel, Frame, RenderSettings, Scene};
+use tracer::{Accel, RenderSettings, RenderedImage, Scene};
 
 /// Parses a TOML scene description given inline (paths relative to the project root).
 pub fn scene_from_toml(text: &str) -> Scene {
@@ -168,11 +167,18 @@ pub fn shared_scenes() -> PathBuf {
     dir
 }
 
-pub fn render(scene: &Scene, width: u32, height: u32, spp: u32, seed: u32) -> Frame {
+pub fn render(scene: &Scene, width: u32, height: u32, spp: u32, seed: u32) -> RenderedImage {
     render_with_threads(scene, width, height, spp, seed, 0)
 }
 
-pub fn render_with_threads(scene: &Scene, width: u32, height: u32, spp: u32, seed: u32, threads: usize) -> Frame {
+pub fn render_with_threads(
+    scene: &Scene,
+    width: u32,
+    height: u32,
+    spp: u32,
+    seed: u32,
+    threads: usize,
+) -> RenderedImage {
     let accel = Accel::build(scene).expect("accelerator builds");
     let mut settings = RenderSettings::from_scene(scene);
     settings.width = width;

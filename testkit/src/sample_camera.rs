@@ -1,5 +1,5 @@
-//! The camera of the hand-written sample files in the sample-field tests (`recon/tests` and, by
-//! `#[path]`, the root `tests/`), so there is one copy.
+//! The camera of the hand-written sample files in the sample-field tests (`recon/tests` and the
+//! root `tests/`).
 
 use sampleio::{Camera, Coc, FovAxis};
 

@@ -1,8 +1,8 @@
 //! Embree 3's oriented-disc points holding the splats, with an intersection filter that records
 //! every hit and rejects it so that traversal collects every disc along a ray: the second
-//! implementation of `DiscBvh::collect_hits` that `tests/ilfr_embree_discs.rs` checks hit for hit
-//! and `benches/ilfr_discs.rs` times (docs/ilfr-design.md, "Slice 7"). Included by both through
-//! `#[path]`; the library itself does not talk to Embree.
+//! implementation of `DiscBvh::collect_hits` that `recon/tests/ilfr_embree_discs.rs` checks hit for
+//! hit and `recon/benches/ilfr_discs.rs` times (docs/ilfr-design.md, "Slice 7"); recon itself does
+//! not talk to Embree.
 
 use embree3::{
     BufferUsage, BuildQuality, Device, Format, GeometryKind, HitN, IntersectContext, IntersectContextExt, RayHit, RayN,

@@ -1,4 +1,4 @@
-//! `lfr bench-tlfr`: the temporal light field reconstruction's cost per location beside the
+//! `lfr-bench tlfr`: the temporal light field reconstruction's cost per location beside the
 //! tracer's cost per sample on the same scene in the same run, and where the
 //! reconstruction's time goes.
 //!

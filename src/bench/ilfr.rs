@@ -1,4 +1,4 @@
-//! `lfr bench-ilfr`: the indirect light field reconstruction's throughput beside Embree's on
+//! `lfr-bench ilfr`: the indirect light field reconstruction's throughput beside Embree's on
 //! the same rays in the same run, its time split, and how its time grows with
 //! the input sample count (the paper's Section 4 scaling study: 1 → 8 input spp costs "only
 //! about 40 %" more).

@@ -1,4 +1,4 @@
-//! `lfr bench`: the tracer's ray throughput against raw Embree on the very same rays, measured
+//! `lfr-bench tracer`: the tracer's ray throughput against raw Embree on the very same rays, measured
 //! in one run, and the tracer's scaling from one thread to all.
 //!
 //! For each scene the paths are first traced with a recorder that keeps every ray. Then, for

@@ -1,4 +1,4 @@
-//! `lfr bench-filters`: the filters of the filtered path-tracing pipeline timed on the same
+//! `lfr-bench filters`: the filters of the filtered path-tracing pipeline timed on the same
 //! guide buffers in one run (the guided filter's Table 2 of Bauszat et al. 2011): the guided
 //! filter with 1, 3 and 4 guide channels at radii 8–32 (its time must not grow with the
 //! radius), exact and as the fast guided filter with subsampling 2, À-Trous at 4–6 iterations and the cross-bilateral filter at radii 16–32. Ratios are
