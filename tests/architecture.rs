@@ -22,7 +22,8 @@
 //! written.
 //!
 //! **No import cycle** among a crate's modules (files), and no comment in any Rust file cites an
-//! issue or a session by number.
+//! issue or a session by number. **No product file over 1,000 code lines** unless its module
+//! documentation says why, in a paragraph that starts "Why one file".
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -239,6 +240,44 @@ fn no_comment_cites_an_issue_or_a_session() {
         }
     }
     assert!(citing.is_empty(), "{} comment(s) cite an issue or a session:\n  {}", citing.len(), citing.join("\n  "));
+}
+
+/// Lines that are neither blank nor only a comment.
+fn code_lines(text: &str) -> usize {
+    text.lines()
+        .filter(|line| {
+            let line = line.trim();
+            !line.is_empty() && !line.starts_with("//")
+        })
+        .count()
+}
+
+/// The most code lines a product file holds without its module documentation saying why.
+const LONG_FILE: usize = 1_000;
+
+/// A product file over `LONG_FILE` code lines states why it is one file: a paragraph of its
+/// module documentation (`//!`) that starts "Why one file".
+#[test]
+fn a_product_file_over_a_thousand_code_lines_says_why() {
+    assert_eq!(code_lines("//! a\n\nfn f() {}\n    // b\n  x\n"), 2);
+    let mut unexplained = Vec::new();
+    for (src, _) in CRATE_SECTIONS {
+        for file in product_files(src) {
+            let path = root().join(src).join(&file);
+            let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            let lines = code_lines(&text);
+            let says_why = text.lines().take_while(|l| l.starts_with("//!")).any(|l| l.starts_with("//! Why one file"));
+            if lines > LONG_FILE && !says_why {
+                unexplained.push(format!("{src}/{file}: {lines} code lines"));
+            }
+        }
+    }
+    assert!(
+        unexplained.is_empty(),
+        "{} product file(s) over {LONG_FILE} code lines without a \"Why one file\" paragraph:\n  {}",
+        unexplained.len(),
+        unexplained.join("\n  ")
+    );
 }
 
 /// The module path of a file below a crate's `src/` (`a/b.rs` → `a::b`, `a/mod.rs` → `a`,

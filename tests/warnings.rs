@@ -6,7 +6,7 @@ use crate::common;
 use std::process::{Command, Output};
 
 use common::project_root;
-use sampleio::{Camera, Coc, FieldSpec, FieldType, FovAxis, HeaderSpec, SampleKind, SampleWriter};
+use sampleio::{Camera, Coc, FieldSpec, FieldType, HeaderSpec, SampleKind, SampleWriter};
 
 fn lfr(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_lfr")).args(args).current_dir(project_root()).output().expect("lfr runs")
@@ -161,20 +161,9 @@ fn reconstruct_warns_about_an_all_nan_radiance() {
         .field(FieldSpec::new("y", FieldType::F32, 1))
         .field(FieldSpec::new("z", FieldType::F32, 1))
         .field(FieldSpec::new("radiance", FieldType::F32, 3));
-    spec.camera = Some(Camera {
-        position: [0.0; 3],
-        forward: [0.0, 0.0, 1.0],
-        up: [0.0, -1.0, 0.0],
-        right: [1.0, 0.0, 0.0],
-        fov_deg: 40.0,
-        fov_axis: FovAxis::Y,
-        aperture_radius: 0.0,
-        focus_distance: 2.0,
-        coc: Coc { c1: 0.0, c2: 0.0 },
-        shutter: [0.0, 1.0],
-        pixel_to_camera: [[0.02, 0.0, -0.04, 0.0], [0.0, 0.02, -0.04, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
-        world_to_camera: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
-    });
+    // The sample camera as a pinhole.
+    spec.camera =
+        Some(Camera { aperture_radius: 0.0, coc: Coc { c1: 0.0, c2: 0.0 }, ..testkit::sample_camera::camera() });
     let mut writer = SampleWriter::create(&path, spec).unwrap();
     for i in 0..32u32 {
         let pixel = i / 2;

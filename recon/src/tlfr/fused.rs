@@ -41,6 +41,11 @@
 //! x86-64 and picks at run time. Rust never fuses a multiply and an add on its own, so every
 //! path does the same IEEE operations in the same order; the tests check the pass against a
 //! scalar loop that calls `reprojection::reproject` per sample, bit for bit.
+//!
+//! Why one file of about 1,100 code lines: the entries' layout (`Entries`), the passes over them
+//! (`leaf_pass`, `lean_pass`), their scalar oracles and the grouping that reads the sums share one
+//! set of invariants (the same f32 operations in the same order as `query`, lane by lane), which
+//! is what the tests check; apart, a change to one side could not be read against the other.
 
 use multiversion::multiversion;
 

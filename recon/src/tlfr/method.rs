@@ -17,6 +17,7 @@ use super::integrate::{integrate_adaptive, Reconstruct};
 use super::lens::LensModel;
 use super::nearest::reconstruct_nearest;
 use super::query::{max_reach, reconstruct, Scene};
+use super::reconstruction::Reconstruction;
 use super::reprojection::{near_limit, LensTimeSample};
 use super::same_surface::window_half_width;
 use super::samples::{dropped_warning, read_lens_time, refocus};
@@ -123,29 +124,30 @@ impl Method for TlfrMethod {
             kernel: self.kernel,
             ..TlfrSettings::default()
         };
-        let output = if inputs.effect == Effect::SoftShadow {
+        let reconstruction = if inputs.effect == Effect::SoftShadow {
             let light_path = inputs.light_samples(self.name)?;
             super::shadows::reconstruct_soft_shadow(path, light_path, &settings)?
         } else {
             reconstruct_file_with(self.value, path, &settings)?
         };
-        if (output.image.width, output.image.height) != (inputs.width, inputs.height) {
+        let Reconstruction { image, preprocess_s, recon_s, notes } = reconstruction;
+        if (image.width, image.height) != (inputs.width, inputs.height) {
             let message = format!(
                 "{}: samples are {}x{}, the comparison is {}x{}",
                 path.display(),
-                output.image.width,
-                output.image.height,
+                image.width,
+                image.height,
                 inputs.width,
                 inputs.height
             );
             return Err(Error::size_mismatch("samples", message).into());
         }
-        Ok(output)
+        Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes, stats: Stats::new() })
     }
 }
 
 /// Reconstructs the image of a `lens-time` file.
-pub fn reconstruct_file(path: &std::path::Path, settings: &TlfrSettings) -> Result<Output, MethodError> {
+pub fn reconstruct_file(path: &std::path::Path, settings: &TlfrSettings) -> Result<Reconstruction, MethodError> {
     reconstruct_file_with(None, path, settings)
 }
 
@@ -318,7 +320,7 @@ pub fn reconstruct_file_with(
     value: Option<Reconstruct>,
     path: &std::path::Path,
     settings: &TlfrSettings,
-) -> Result<Output, MethodError> {
+) -> Result<Reconstruction, MethodError> {
     let prepared = prepare(path, settings)?;
     let preprocess_s = prepared.read_s + prepared.radius_s + prepared.hierarchy_s;
     let build_s = prepared.hierarchy_s;
@@ -393,5 +395,5 @@ pub fn reconstruct_file_with(
             hierarchy.unplaced
         ));
     }
-    Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes, stats: Stats::new() })
+    Ok(Reconstruction { image, preprocess_s, recon_s, notes })
 }

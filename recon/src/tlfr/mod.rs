@@ -28,7 +28,8 @@
 //!   filter: `nearest`.
 //! - Eq. 1, N locations per pixel over pixel × lens × time: `integrate` (also for soft
 //!   shadows); the methods `tlfr`, `tlfr-nn` and `tlfr-bw`, and the preparation before the
-//!   first location that `lfr-bench tlfr` times (`prepare`): `method`.
+//!   first location that `lfr-bench tlfr` times (`prepare`): `method`, which makes the method's
+//!   output from either reconstruction's `reconstruction::Reconstruction`.
 //! - Not in the paper: fewer locations in a pixel whose first ones all saw one surface and
 //!   agree (`integrate::AdaptiveRule`), and the clock of each location's stages for
 //!   `lfr-bench tlfr` (`query::StageClock`).
@@ -58,6 +59,7 @@ pub mod light_space;
 pub mod method;
 pub mod nearest;
 pub mod query;
+pub mod reconstruction;
 pub mod reprojection;
 pub mod same_surface;
 pub mod samples;

@@ -640,7 +640,7 @@ pub fn reconstruct_soft_shadow(
     camera_path: &std::path::Path,
     light_path: &std::path::Path,
     settings: &super::settings::TlfrSettings,
-) -> Result<crate::method::Output, crate::method::MethodError> {
+) -> Result<super::reconstruction::Reconstruction, crate::method::MethodError> {
     use super::bounds::ScreenArea;
     use super::dispersion::measure_radius;
     use super::hierarchy::{reorder, Hierarchy};
@@ -649,7 +649,7 @@ pub fn reconstruct_soft_shadow(
     use super::same_surface::window_half_width;
     use super::samples::read_lens_time;
     use super::settings::RADIUS_TRIALS;
-    use crate::method::{Effect, Output, Stats};
+    use crate::method::Effect;
     use std::time::Instant;
 
     let start = Instant::now();
@@ -804,7 +804,7 @@ pub fn reconstruct_soft_shadow(
         let total = camera.samples.len() + camera.dropped;
         notes.push(super::samples::dropped_warning(camera_path, camera.dropped, total));
     }
-    Ok(Output { image, preprocess_s, recon_s, external_peak_rss_mb: None, notes, stats: Stats::new() })
+    Ok(super::reconstruction::Reconstruction { image, preprocess_s, recon_s, notes })
 }
 
 #[cfg(test)]
