@@ -33,3 +33,9 @@ pub const CPCA: bool = true;
 /// The bounces stop when the largest change and the tail it predicts fall under this share of
 /// the largest irradiance (when the bounce count is not given).
 pub const BOUNCE_TOLERANCE: f32 = 1e-3;
+/// The near field (`near_field`): hits nearer than [`NEAR_RADIUS`] support radii gathered from
+/// their senders directly, the rest through the probes. The front ends' default; the crate's
+/// `TransportSettings::default()` is the paper's transport (off).
+pub const NEAR_FIELD: bool = false;
+/// The near field's radius, a share of the probes' support radius.
+pub const NEAR_RADIUS: f64 = 0.5;

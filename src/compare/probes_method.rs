@@ -128,6 +128,18 @@ pub const OPTIONS: &[OptionSpec] = &[
                every bounce through the relight rays",
     },
     OptionSpec {
+        key: "near_field",
+        kind: ON_OFF,
+        default: "off",
+        help: "gather the hits nearer than near_radius from their senders directly, the rest through the probes",
+    },
+    OptionSpec {
+        key: "near_radius",
+        kind: OptionKind::Interval { min: 0.0, min_open: true, max: 4.0, max_open: false },
+        default: "0.5",
+        help: "the near field's radius, a share of the probes' support radius (needs near_field=on)",
+    },
+    OptionSpec {
         key: "hidden_senders",
         kind: OptionKind::Choice(&["keep", "drop"]),
         default: "keep",
@@ -199,6 +211,8 @@ impl ProbesMethod {
                     "spatial" => Reconstruction::SpatialOnly,
                     _ => Reconstruction::VisibilityAware,
                 },
+                near: (word("near_field", if defaults::NEAR_FIELD { "on" } else { "off" }) == "on")
+                    .then(|| real("near_radius", defaults::NEAR_RADIUS)),
             },
             relight_rays: options.count("relight_rays").unwrap_or(defaults::RELIGHT_RAYS),
         };
@@ -329,6 +343,13 @@ pub fn run(
         "dense_bytes_per_receiver".into(),
         pre.dense_transport_bytes() as f64 / pre.surfels.surfels.len().max(1) as f64,
     );
+    if let Some(near) = &pre.near {
+        stats.insert("near_field_hits".into(), near.hits as f64);
+        stats.insert(
+            "near_field_bytes_per_receiver".into(),
+            pre.near_field_bytes() as f64 / pre.surfels.surfels.len().max(1) as f64,
+        );
+    }
     if method.drop_hidden_senders {
         let dropped = pre.drop_hidden_senders()?;
         stats.insert("hidden_sender_reads_dropped".into(), dropped as f64);
@@ -353,6 +374,11 @@ pub fn run(
         stats.insert("cpca_clusters".into(), c.clusters as f64);
         stats.insert("cpca_coefficients".into(), c.mean_coefficients);
         stats.insert("cpca_bytes_per_receiver".into(), c.bytes_per_receiver);
+        // What a frame reads per receiver: the compressed far field and the near field's list.
+        stats.insert(
+            "transport_bytes_per_receiver".into(),
+            c.bytes_per_receiver + pre.near_field_bytes() as f64 / pre.surfels.surfels.len().max(1) as f64,
+        );
     }
     // The camera is fixed for the comparison: its primary rays and lookups are traced once and
     // kept (a per-camera cost like the precompute's, so it goes to preprocess_s, not to the
@@ -430,6 +456,7 @@ pub fn run(
     stats.insert("cluster_projection_s".into(), times.cluster_projection_s);
     stats.insert("receiver_irradiance_s".into(), times.receiver_irradiance_s);
     stats.insert("projected_bounces_s".into(), times.projected_bounces_s);
+    stats.insert("near_field_s".into(), times.near_field_s);
     notes.push(format!(
         "frame split (first frame): scene relight {:.4} s, probe relight {:.4} s, cluster projection {:.4} s, receiver irradiance {:.4} s, projected bounces {:.4} s; {} bounces; image {:.4} s; the camera's lookups kept once in {:.4} s (in preprocess_s)",
         times.direct_s,
