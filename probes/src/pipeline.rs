@@ -219,10 +219,6 @@ pub fn projected_bounce(
     note: &mut dyn FnMut(String),
 ) -> Result<Option<(ProjectedBounce, ProjectedReport)>, ProbesError> {
     let Operator::Cpca(cpca) = op else { return Ok(None) };
-    if pre.near.is_some() {
-        note("the near field is gathered from the senders each bounce, outside CPCA's projected space: the bounces run in full".into());
-        return Ok(None);
-    }
     let size: usize = cpca.clusters.iter().map(|c| c.rank).sum();
     if size > MAX_PROJECTED {
         note(format!("{size} projected values (over {MAX_PROJECTED}): the bounces run in full"));
@@ -320,15 +316,16 @@ pub fn relit_frame(
         let direct_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let (out, split) = match bounces {
-            Bounces::Projected { .. } if pre.near.is_some() => {
-                return Err(ProbesError::parameter(
-                    "bounces",
-                    "the projected bounces cannot carry the near field: run them in full",
-                ));
-            }
-            Bounces::Projected { projected, cpca } => {
-                projected.indirect(cpca, &pre.table, &albedo, &direct, frame.start, frame.bounces, frame.tolerance)?
-            }
+            Bounces::Projected { projected, cpca } => projected.indirect_with_near(
+                cpca,
+                pre.near.as_ref(),
+                &pre.table,
+                &albedo,
+                &direct,
+                frame.start,
+                frame.bounces,
+                frame.tolerance,
+            )?,
             Bounces::Full(transport) => match &pre.near {
                 Some(near) => indirect_timed(
                     &WithNearField { far: *transport, near },

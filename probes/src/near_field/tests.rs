@@ -262,3 +262,49 @@ fn bad_near_settings_are_refused_by_name() {
     let ctx = context(&s, Some(0.5));
     assert!(NearField::build(&ctx, &s.surfels, &[true]).is_err());
 }
+
+#[test]
+fn the_projected_bounces_with_the_near_field_follow_the_full_ones() {
+    use crate::cpca::{Cpca, CpcaSettings};
+    use crate::frame::indirect_timed;
+    use crate::projected_bounce::ProjectedBounce;
+    // Two probes in the closed sphere, a lossy CPCA in small clusters, albedo and direct light
+    // that vary over the sphere: the first two bounces are the full loop's, the later ones
+    // differ only by the near field of the indirect light taken through U.
+    let s = sphere_scene();
+    let probes = [DVec3::ZERO, DVec3::new(0.3, -0.2, 0.1)];
+    let settings = TransportSettings { order: 3, directions: 96, near: Some(0.4), ..Default::default() };
+    let ctx = TransportContext::new(&s.accel, &probes, RADIUS, 2.0, settings).unwrap();
+    let far = ctx.all(&s.surfels);
+    let near = near_of(&s, &ctx);
+    assert!(near.hits > 0);
+    let mut table = RelightTable::build(&s.accel, &s.surfels, &probes, 2000, 3, 2.0).unwrap();
+    table.fit(0.01).unwrap();
+    let albedo: Vec<Vec3> =
+        s.surfels.surfels.iter().map(|x| Vec3::new(0.5 + 0.3 * x.position.x, 0.6, 0.4 + 0.2 * x.position.z)).collect();
+    let direct: Vec<Vec3> =
+        s.surfels.surfels.iter().map(|x| Vec3::new(1.0 + x.position.y, 2.0, 0.5 + x.position.x.abs())).collect();
+    let positions: Vec<Vec3> = s.surfels.surfels.iter().map(|x| x.position).collect();
+    let worst = |a: &[Vec3], b: &[Vec3]| {
+        let largest = b.iter().map(|v| v.max_element()).fold(0.0f32, f32::max);
+        a.iter().zip(b).map(|(x, y)| (*x - *y).abs().max_element()).fold(0.0f32, f32::max) / largest
+    };
+    let settings = CpcaSettings { cluster_limit: 64, tolerance: 0.02, max_coefficients: 6, ..Default::default() };
+    let cpca = Cpca::build(&far, &positions, table.coefficients, &settings).unwrap();
+    let op = ProjectedBounce::build(&cpca, &table, &albedo).unwrap();
+    let both = WithNearField { far: &cpca, near: &near };
+    for (k, bound) in [(1usize, 1e-4f32), (2, 1e-4), (5, 2e-2), (40, 2e-2)] {
+        let (full, _) = indirect_timed(&both, &table, &albedo, &direct, None, k, 0.0).unwrap();
+        let (fast, times) = op.indirect_with_near(&cpca, Some(&near), &table, &albedo, &direct, None, k, 0.0).unwrap();
+        assert_eq!((full.clamped, fast.clamped), (0, 0), "the comparison needs nothing clamped");
+        let err = worst(&fast.irradiance, &full.irradiance);
+        assert!(err < bound, "{k} bounces: {err}");
+        assert!(times.near_field_s > 0.0);
+    }
+    // Without the near field, exactly the projected loop.
+    let (a, _) = op.indirect(&cpca, &table, &albedo, &direct, None, 5, 0.0).unwrap();
+    let (b, _) = op.indirect_with_near(&cpca, None, &table, &albedo, &direct, None, 5, 0.0).unwrap();
+    assert_eq!(a, b);
+    let short = NearField { offsets: vec![0; 3], entries: Vec::new(), hits: 0, holes: 0 };
+    assert!(op.indirect_with_near(&cpca, Some(&short), &table, &albedo, &direct, None, 2, 0.0).is_err());
+}
