@@ -130,13 +130,13 @@ pub const OPTIONS: &[OptionSpec] = &[
     OptionSpec {
         key: "near_field",
         kind: ON_OFF,
-        default: "off",
+        default: "on",
         help: "gather the hits nearer than near_radius from their senders directly, the rest through the probes",
     },
     OptionSpec {
         key: "near_radius",
         kind: OptionKind::Interval { min: 0.0, min_open: true, max: 4.0, max_open: false },
-        default: "0.5",
+        default: "0.25",
         help: "the near field's radius, a share of the probes' support radius (needs near_field=on)",
     },
     OptionSpec {
@@ -196,6 +196,7 @@ impl ProbesMethod {
         let real = |key: &str, default: f64| {
             options.real(key).map_or(default, |x| x.to_string().parse().unwrap_or(f64::from(x)))
         };
+        let spatial = word("reconstruction", "visibility") == "spatial";
         let precompute = PrecomputeSettings {
             surfels: SurfelSettings { seed, budget: count("receivers", defaults::RECEIVERS), ..Default::default() },
             placement: PlacementSettings {
@@ -207,11 +208,9 @@ impl ProbesMethod {
                 seed,
                 order: count("order", defaults::ORDER),
                 directions: options.count("directions").unwrap_or(defaults::DIRECTIONS),
-                reconstruction: match word("reconstruction", "visibility") {
-                    "spatial" => Reconstruction::SpatialOnly,
-                    _ => Reconstruction::VisibilityAware,
-                },
-                near: (word("near_field", if defaults::NEAR_FIELD { "on" } else { "off" }) == "on")
+                reconstruction: if spatial { Reconstruction::SpatialOnly } else { Reconstruction::VisibilityAware },
+                // The spatial-only baseline traces no hits: no near field unless asked (then refused).
+                near: (word("near_field", if defaults::NEAR_FIELD && !spatial { "on" } else { "off" }) == "on")
                     .then(|| real("near_radius", defaults::NEAR_RADIUS)),
             },
             relight_rays: options.count("relight_rays").unwrap_or(defaults::RELIGHT_RAYS),
@@ -510,6 +509,8 @@ mod tests {
         assert_eq!(m.precompute.placement.probes, 29);
         assert_eq!(m.precompute.transport.order, 2);
         assert_eq!(m.precompute.transport.reconstruction, Reconstruction::SpatialOnly);
+        assert_eq!(m.precompute.transport.near, None, "the spatial-only baseline has no near field by default");
+        assert!(ProbesMethod::parse("probes:reconstruction=spatial:near_field=on", 1).is_err());
         assert_eq!(m.cpca, None);
         assert_eq!(m.miss_weight, 1.0);
         assert!(!m.drop_hidden_senders && !m.projected_bounces, "the dense transport has no projected space");

@@ -267,7 +267,9 @@ mod tests {
     fn the_near_field_flags_and_options_give_the_same_settings() {
         let seed = 2;
         for (flags, spec) in [
-            (&[][..], "probes:near_field=off"),
+            (&[][..], "probes"),
+            (&[][..], "probes:near_field=on:near_radius=0.25"),
+            (&["--near-field=off"][..], "probes:near_field=off"),
             (&["--near-field=off", "--near-radius", "0.3"][..], "probes:near_field=off:near_radius=0.3"),
             (&["--near-field", "--near-radius", "0.3"][..], "probes:near_field=on:near_radius=0.3"),
             (&["--near-field=on"][..], "probes:near_field=on"),
