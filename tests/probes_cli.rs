@@ -217,9 +217,11 @@ fn relight_runs_the_bounces_projected_or_in_full_to_the_same_image() {
         (dir.path().join("c.probes"), dir.path().join("a.exr"), dir.path().join("b.exr"), dir.path().join("r.json"));
     // Six bounces: the loops differ only in where negative irradiance is clamped (after every
     // bounce or once at the end). To convergence: each stops by its own test of the change,
-    // so they agree within the bounce tolerance (1e-3 of the largest irradiance).
+    // so they agree within the bounce tolerance (1e-3 of the largest irradiance). Without the
+    // near field, whose light of later bounces the projected loop takes through U (its own
+    // test, `near_field::tests`).
     for (bounces, within) in [("6", 1e-4f32), ("0", 2e-3)] {
-        let out = relight(&cache, &a, &j, &["--cpca", "--bounces", bounces]);
+        let out = relight(&cache, &a, &j, &["--cpca", "--near-field=off", "--bounces", bounces]);
         assert!(out.status.success(), "{}", stderr(&out));
         let r = json(&j);
         assert_eq!(r["bounce_loop"], "projected", "{r}");
@@ -227,7 +229,8 @@ fn relight_runs_the_bounces_projected_or_in_full_to_the_same_image() {
         assert!(size > 0 && r["projected"]["bytes"].as_u64().unwrap() == 12 * size * size, "{r}");
         assert!(r["times"]["projected_bounces_s"].as_f64().unwrap() >= 0.0);
         let projected_iterations = r["times"]["iterations"].as_u64().unwrap();
-        let out = relight(&cache, &b, &j, &["--cpca", "--bounces", bounces, "--bounce-loop", "full"]);
+        let out =
+            relight(&cache, &b, &j, &["--cpca", "--near-field=off", "--bounces", bounces, "--bounce-loop", "full"]);
         assert!(out.status.success(), "{}", stderr(&out));
         let r = json(&j);
         assert_eq!(r["bounce_loop"], "full");
@@ -598,35 +601,47 @@ fn compare_runs_probes_with_its_precompute_times_and_per_frame_verdicts() {
 
 /// The CLI and the harness run one pipeline (`probes::pipeline`): `lfr probes relight` with the
 /// scene's own lights and `lfr compare`'s `probes` with the same settings, seed, size and
-/// bounces give the same indirect image, bit for bit.
+/// bounces give the same indirect image, bit for bit; with the near field off, at its default
+/// and at another radius.
 #[test]
 fn relight_and_compare_give_the_same_image_for_the_same_settings() {
-    let dir = tempfile::tempdir().unwrap();
-    let relit = dir.path().join("relit.exr");
-    #[rustfmt::skip]
-    let out = lfr(&[
-        "probes", "relight", "--quiet", "--width", "32", "--height", "32", "--seed", "3",
-        "--probes", "4", "--receivers", "1500", "--directions", "32", "--relight-rays", "1024", "--order", "3",
-        "--pixel-samples", "1", "--cache", dir.path().join("c.probes").to_str().unwrap(), "--out", relit.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{}", stderr(&out));
-    let compared = dir.path().join("compare");
-    let spec = "probes:probes=4:receivers=1500:directions=32:relight_rays=1024:order=3:pixel_samples=1";
-    let out = probes_compare(&compared, &dir.path().join("cache"), spec, "indirect");
-    assert!(out.status.success(), "{}", stderr(&out));
-    let results = json(&compared.join("results.json"));
-    let run = results["runs"].as_array().unwrap().iter().find(|r| r["method"] != "pt").expect("the probes run");
-    let (w, h, harness) = tracer::output::read_exr(&compared.join(run["image"].as_str().unwrap())).unwrap();
-    let (_, _, cli) = tracer::output::read_exr(&relit).unwrap();
-    assert_eq!((w, h), (32, 32));
-    let layer = |list: &[(String, Vec<f32>)], c: &str| -> Vec<u32> {
-        let found = list.iter().find(|(name, _)| name == &format!("indirect.{c}")).unwrap_or_else(|| panic!("{c}"));
-        found.1.iter().map(|v| v.to_bits()).collect()
-    };
-    for c in ["R", "G", "B"] {
-        let (a, b) = (layer(&cli, c), layer(&harness, c));
-        assert!(a.iter().any(|&v| f32::from_bits(v) > 0.0), "a lit image");
-        assert!(a == b, "channel {c}: the relight's and the comparison's images differ");
+    for (flags, options) in [
+        (&["--near-field=off"][..], ":near_field=off"),
+        (&[][..], ""),
+        (&["--near-radius", "0.5"][..], ":near_radius=0.5"),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let relit = dir.path().join("relit.exr");
+        let cache = dir.path().join("c.probes");
+        #[rustfmt::skip]
+        let mut argv = vec![
+            "probes", "relight", "--quiet", "--width", "32", "--height", "32", "--seed", "3",
+            "--probes", "4", "--receivers", "1500", "--directions", "32", "--relight-rays", "1024", "--order", "3",
+            "--pixel-samples", "1", "--cache", cache.to_str().unwrap(), "--out", relit.to_str().unwrap(),
+        ];
+        argv.extend_from_slice(flags);
+        let out = lfr(&argv);
+        assert!(out.status.success(), "{}", stderr(&out));
+        let compared = dir.path().join("compare");
+        let spec =
+            format!("probes:probes=4:receivers=1500:directions=32:relight_rays=1024:order=3:pixel_samples=1{options}");
+        let out = probes_compare(&compared, &dir.path().join("cache"), &spec, "indirect");
+        assert!(out.status.success(), "{}", stderr(&out));
+        let results = json(&compared.join("results.json"));
+        let run = results["runs"].as_array().unwrap().iter().find(|r| r["method"] != "pt").expect("the probes run");
+        assert_eq!(run["stats"]["near_field_hits"].is_number(), !options.contains("off"), "{run}");
+        let (w, h, harness) = tracer::output::read_exr(&compared.join(run["image"].as_str().unwrap())).unwrap();
+        let (_, _, cli) = tracer::output::read_exr(&relit).unwrap();
+        assert_eq!((w, h), (32, 32));
+        let layer = |list: &[(String, Vec<f32>)], c: &str| -> Vec<u32> {
+            let found = list.iter().find(|(name, _)| name == &format!("indirect.{c}")).unwrap_or_else(|| panic!("{c}"));
+            found.1.iter().map(|v| v.to_bits()).collect()
+        };
+        for c in ["R", "G", "B"] {
+            let (a, b) = (layer(&cli, c), layer(&harness, c));
+            assert!(a.iter().any(|&v| f32::from_bits(v) > 0.0), "a lit image");
+            assert!(a == b, "{options}: channel {c}: the relight's and the comparison's images differ");
+        }
     }
 }
 

@@ -12,7 +12,7 @@
 //! | 32 | SHA-256 of the settings ([`CacheKey::settings`]) |
 //! | 8 | payload length in bytes |
 //! | 32 | SHA-256 of the payload |
-//! | … | payload: surfels and their grid, probes, radius, scale, transports, relight table |
+//! | … | payload: surfels and their grid, probes, radius, scale, transports, relight table, and the near field's lists when it is on |
 //!
 //! A file that is not a cache, of another version, truncated, with a wrong checksum or
 //! inconsistent contents, or built for other geometry or settings is an error naming the file
@@ -31,6 +31,7 @@ use tracer::Scene;
 use crate::cpca::{Cluster, Cpca, CpcaSettings, Precision, Values};
 use crate::error::CacheProblem;
 use crate::geometry::seed_points;
+use crate::near_field::NearField;
 use crate::placement::CandidateRule;
 use crate::precompute::{Precompute, PrecomputeSettings, PrecomputeTimings};
 use crate::relight::RelightTable;
@@ -135,6 +136,11 @@ impl CacheKey {
         for p in seeds {
             p.to_array().iter().for_each(|v| s.update(v.to_le_bytes()));
         }
+        // Only when on, so that a precompute without it keeps the key it always had.
+        if let Some(near) = transport.near {
+            s.update(b"near");
+            s.update(near.to_le_bytes());
+        }
         CacheKey { geometry: g.finalize().into(), settings: s.finalize().into() }
     }
 }
@@ -216,6 +222,18 @@ pub fn encode(key: &CacheKey, pre: &Precompute) -> Vec<u8> {
     put_u64(&mut w, table.holes);
     put_u64(&mut w, table.back_face_fraction.len() as u64);
     table.back_face_fraction.iter().for_each(|&v| put_f32(&mut w, v));
+    // The near field's lists, only when it is on (a file without it is byte for byte as before).
+    if let Some(near) = &pre.near {
+        put_u64(&mut w, near.hits);
+        put_u64(&mut w, near.holes);
+        put_u64(&mut w, near.offsets.len() as u64);
+        near.offsets.iter().for_each(|&o| put_u32(&mut w, o));
+        put_u64(&mut w, near.entries.len() as u64);
+        for &(s, wt) in &near.entries {
+            put_u32(&mut w, s);
+            put_f32(&mut w, wt);
+        }
+    }
 
     frame(MAGIC, key, &w)
 }
@@ -444,6 +462,28 @@ fn parse(payload: &[u8], settings: &PrecomputeSettings) -> Result<Precompute, St
     for _ in 0..nb {
         back_face_fraction.push(r.f32()?);
     }
+    let near = match settings.transport.near {
+        None => None,
+        Some(_) => {
+            let (hits, holes) = (r.u64()?, r.u64()?);
+            let no = r.count(4, "near-field offsets")?;
+            if no != n + 1 {
+                return Err(format!("{no} near-field offsets for {n} receivers"));
+            }
+            let mut offsets = Vec::with_capacity(no);
+            for _ in 0..no {
+                offsets.push(r.u32()?);
+            }
+            let ne = r.count(8, "near-field entries")?;
+            let mut entries = Vec::with_capacity(ne);
+            for _ in 0..ne {
+                entries.push((r.u32()?, r.f32()?));
+            }
+            let field = NearField { offsets, entries, hits, holes };
+            field.check(n)?;
+            Some(field)
+        }
+    };
     if r.pos != payload.len() {
         return Err(format!("{} bytes left over", payload.len() - r.pos));
     }
@@ -476,6 +516,7 @@ fn parse(payload: &[u8], settings: &PrecomputeSettings) -> Result<Precompute, St
             back_face_fraction,
             fit: None,
         },
+        near,
         timings: PrecomputeTimings::default(),
     })
 }

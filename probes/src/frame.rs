@@ -14,6 +14,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 use tracer::Scene;
 
+use crate::near_field::NearField;
 use crate::relight::RelightTable;
 use crate::surfels::Surfels;
 use crate::transport::Transport;
@@ -85,6 +86,33 @@ pub trait ReceiverTransport: Sync {
         times.receiver_irradiance_s += t.elapsed().as_secs_f64();
         e
     }
+    /// The near field added to every bounce's gather (`near_field`), if any: the transport
+    /// then carries the far hits only.
+    fn near_field(&self) -> Option<&NearField> {
+        None
+    }
+}
+
+/// A transport of the far hits (`far`, dense or CPCA) with the near field gathered from the
+/// senders beside it: each bounce E = far's gather + Σ_near w · B(sender).
+pub struct WithNearField<'a> {
+    pub far: &'a dyn ReceiverTransport,
+    pub near: &'a NearField,
+}
+
+impl ReceiverTransport for WithNearField<'_> {
+    fn receiver_count(&self) -> usize {
+        self.far.receiver_count()
+    }
+    fn gather(&self, lambda: &[Vec3], coefficients: usize) -> Vec<Vec3> {
+        self.far.gather(lambda, coefficients)
+    }
+    fn gather_timed(&self, lambda: &[Vec3], coefficients: usize, times: &mut BounceTimes) -> Vec<Vec3> {
+        self.far.gather_timed(lambda, coefficients, times)
+    }
+    fn near_field(&self) -> Option<&NearField> {
+        Some(self.near)
+    }
 }
 
 /// Seconds spent in each stage of the bounces, summed over the iterations: the paper's Table 2
@@ -101,11 +129,17 @@ pub struct BounceTimes {
     /// The bounces run in CPCA's projected space (`projected_bounce`), all three stages at
     /// once; 0 for the loop here.
     pub projected_bounces_s: f64,
+    /// The near field's gather from the senders (`near_field`), summed over the bounces.
+    pub near_field_s: f64,
 }
 
 impl BounceTimes {
     pub fn total_s(&self) -> f64 {
-        self.probe_relight_s + self.cluster_projection_s + self.receiver_irradiance_s + self.projected_bounces_s
+        self.probe_relight_s
+            + self.cluster_projection_s
+            + self.receiver_irradiance_s
+            + self.projected_bounces_s
+            + self.near_field_s
     }
 }
 
@@ -256,7 +290,18 @@ pub fn indirect_timed<T: ReceiverTransport + ?Sized>(
             albedo.iter().zip(direct).zip(&e).map(|((a, d), e)| *a * (*d + *e) / std::f32::consts::PI).collect();
         let lambda = table.project(&radiance);
         times.probe_relight_s += t.elapsed().as_secs_f64();
-        let gathered = transports.gather_timed(&lambda, nc, &mut times);
+        let mut gathered = transports.gather_timed(&lambda, nc, &mut times);
+        if let Some(near) = transports.near_field() {
+            if near.receivers() != n {
+                return Err(ProbesError::parameter(
+                    "near field",
+                    format!("{} receivers' lists for {n} receivers", near.receivers()),
+                ));
+            }
+            let t = Instant::now();
+            near.add_into(&radiance, &mut gathered);
+            times.near_field_s += t.elapsed().as_secs_f64();
+        }
         let t = Instant::now();
         let next: Vec<(Vec3, u64)> = gathered
             .into_iter()

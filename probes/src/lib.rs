@@ -17,6 +17,8 @@
 //!   sees: `visibility`.
 //! - ✓ Eq. 2 and 4–7, the visibility-aware local transport and the irradiance transport vector
 //!   α_x per receiver, and Eq. 1's spatial-only baseline: `transport` (phase 4, dense).
+//! - Not in the paper: the near field, the hits nearer than a share of the support radius left
+//!   out of α_x and gathered from their senders directly each bounce: `near_field`.
 //! - ✓ Section 4.2, "Probe Transport": relight rays and the per-frame probe SH λ: `relight`;
 //!   our extension, the SH fitted to the rays that hit a surface instead of projected with the
 //!   escaped ones read as zero (the paper's projection darkens every probe that sees the sky):
@@ -54,6 +56,7 @@ pub mod kernel;
 pub mod layout;
 pub mod lookup;
 pub mod memory;
+pub mod near_field;
 pub mod pipeline;
 pub mod placement;
 pub mod precompute;

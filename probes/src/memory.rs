@@ -10,7 +10,7 @@
 //!   not equal: Sponza 100k → 129,490, 40k → 55,244);
 //! - the dense transport (`transport::Transport`): per receiver N_overlap probes (the support
 //!   radius is chosen for that mean) × (coefficients × 4 B + a 4 B probe index) plus the
-//!   vectors' headers;
+//!   vectors' headers, and with the near field (`near_field`) one 8 B entry per direction;
 //! - the surfels and the area samples they are clustered from;
 //! - the voxel grid: [`VOXELS_PER_PROBE`] voxels a probe (the probe spacing's grid has about
 //!   one point per probe, `VOXELS_PER_SPACING`³ voxels each, padded and rounded up per axis),
@@ -78,7 +78,10 @@ impl MemoryEstimate {
         let nc = sh::coefficient_count(settings.transport.order) as u64;
         let overlap = settings.placement.overlap;
         let probes = settings.placement.probes as u64;
-        let per_receiver = (overlap * (nc * 4 + 4) as f64).ceil() as u64 + 64;
+        // With the near field, its list: at most one (sender, weight) entry per direction (a hit
+        // reads up to 4 senders, but neighbouring hits read the same ones), and an offset.
+        let near = settings.transport.near.map_or(0, |_| settings.transport.directions as u64 * 8 + 4);
+        let per_receiver = (overlap * (nc * 4 + 4) as f64).ceil() as u64 + 64 + near;
         let surfel = std::mem::size_of::<crate::surfels::Surfel>() as u64;
         let samples = (settings.surfels.samples_per_cell.ceil() as u64) * receivers * 32;
         let rays = settings.relight_rays as u64;

@@ -18,7 +18,7 @@ use crate::cache::CacheKey;
 use crate::cpca::{Cpca, CpcaSettings, Precision};
 use crate::direct::direct_irradiance;
 use crate::error::CacheProblem;
-use crate::frame::{indirect_timed, surfel_albedo, Indirect, ReceiverTransport};
+use crate::frame::{indirect_timed, surfel_albedo, Indirect, ReceiverTransport, WithNearField};
 use crate::image::{render_image, ImageSettings, ProbeImage};
 use crate::image_operator::ImageOperator;
 use crate::layout::Step;
@@ -249,6 +249,8 @@ pub struct FrameTimes {
     /// The bounces after the first in CPCA's projected space (all three stages at once), when
     /// they run there.
     pub projected_bounces_s: f64,
+    /// The near field's gather from the senders, summed over the bounces (0 when it is off).
+    pub near_field_s: f64,
     pub iterations: usize,
     /// The image from the receivers: the kept lookups' weighted sums when the camera's image
     /// operator was built, else primary rays and lookups.
@@ -314,12 +316,36 @@ pub fn relit_frame(
         let direct_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let (out, split) = match bounces {
-            Bounces::Projected { projected, cpca } => {
-                projected.indirect(cpca, &pre.table, &albedo, &direct, frame.start, frame.bounces, frame.tolerance)?
-            }
-            Bounces::Full(transport) => {
-                indirect_timed(*transport, &pre.table, &albedo, &direct, frame.start, frame.bounces, frame.tolerance)?
-            }
+            Bounces::Projected { projected, cpca } => projected.indirect_with_near(
+                cpca,
+                pre.near.as_ref(),
+                &pre.table,
+                &albedo,
+                &direct,
+                frame.start,
+                frame.bounces,
+                frame.tolerance,
+            )?,
+            Bounces::Full(transport) => match &pre.near {
+                Some(near) => indirect_timed(
+                    &WithNearField { far: *transport, near },
+                    &pre.table,
+                    &albedo,
+                    &direct,
+                    frame.start,
+                    frame.bounces,
+                    frame.tolerance,
+                )?,
+                None => indirect_timed(
+                    *transport,
+                    &pre.table,
+                    &albedo,
+                    &direct,
+                    frame.start,
+                    frame.bounces,
+                    frame.tolerance,
+                )?,
+            },
         };
         let bounces_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
@@ -335,6 +361,7 @@ pub fn relit_frame(
             cluster_projection_s: split.cluster_projection_s,
             receiver_irradiance_s: split.receiver_irradiance_s,
             projected_bounces_s: split.projected_bounces_s,
+            near_field_s: split.near_field_s,
             iterations: out.iterations,
             image_s,
             frame_s: direct_s + bounces_s,

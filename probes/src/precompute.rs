@@ -9,6 +9,7 @@ use glam::DVec3;
 use tracer::{Accel, Scene};
 
 use crate::layout::{Layout, Step};
+use crate::near_field::NearField;
 use crate::placement::PlacementSettings;
 use crate::relight::{RelightTable, MAX_RAYS};
 use crate::surfels::{SurfelSettings, Surfels};
@@ -88,6 +89,9 @@ pub struct Precompute {
     /// One per surfel, in surfel order; hidden receivers have [`Transport::empty`].
     pub transports: Vec<Transport>,
     pub hidden: usize,
+    /// The near field's senders per receiver (`near_field`), when `settings.transport.near`
+    /// is on; the transports' α then carries only the far hits.
+    pub near: Option<NearField>,
     pub table: RelightTable,
     /// How long the build took (zero when read from a cache).
     pub timings: PrecomputeTimings,
@@ -112,6 +116,14 @@ impl Precompute {
         let t = Instant::now();
         let ctx = TransportContext::new(&accel, &layout.placement.probes, layout.radius, scale, settings.transport)?;
         let (transports, hidden) = ctx.all_valid(&layout.surfels, &layout.placement.grid);
+        let near = match settings.transport.near {
+            None => None,
+            Some(_) => {
+                // A hidden receiver's transport is empty; every other one traced its directions.
+                let valid: Vec<bool> = transports.iter().map(|t| t.hits + t.escaped > 0).collect();
+                Some(NearField::build(&ctx, &layout.surfels, &valid)?)
+            }
+        };
         let transport_s = t.elapsed().as_secs_f64();
 
         progress(Stage::Relight);
@@ -133,12 +145,12 @@ impl Precompute {
             surfels: layout.surfels,
             transports,
             hidden,
+            near,
             table,
             timings: PrecomputeTimings { layout_s, transport_s, relight_s },
         })
     }
 
-    /// SH coefficients per probe.
     /// Drops hidden senders from the relight table's hits beside valid ones
     /// ([`RelightTable::drop_hidden_senders`]; a hidden receiver has an empty transport).
     pub fn drop_hidden_senders(&mut self) -> Result<u64, ProbesError> {
@@ -146,6 +158,7 @@ impl Precompute {
         self.table.drop_hidden_senders(&valid)
     }
 
+    /// SH coefficients per probe.
     pub fn coefficients(&self) -> usize {
         self.table.coefficients
     }
@@ -153,5 +166,10 @@ impl Precompute {
     /// Bytes of the dense transport as held (f32 α and u32 probe indices).
     pub fn dense_transport_bytes(&self) -> usize {
         self.transports.iter().map(|t| t.alpha.len() * 4 + t.probes.len() * 4).sum()
+    }
+
+    /// Bytes of the near field's lists as held (0 when it is off).
+    pub fn near_field_bytes(&self) -> usize {
+        self.near.as_ref().map_or(0, NearField::bytes)
     }
 }

@@ -33,6 +33,7 @@ use rayon::prelude::*;
 
 use crate::cpca::Cpca;
 use crate::frame::{converged, BounceTimes, Indirect};
+use crate::near_field::NearField;
 use crate::relight::RelightTable;
 use crate::ProbesError;
 
@@ -215,7 +216,40 @@ impl ProjectedBounce {
         max_iterations: usize,
         tolerance: f32,
     ) -> Result<(Indirect, BounceTimes), ProbesError> {
+        self.indirect_with_near(cpca, None, table, albedo, direct, start, max_iterations, tolerance)
+    }
+
+    /// [`ProjectedBounce::indirect`] with the near field (`near_field`) beside CPCA's far
+    /// transport: E_k = U p_k + q_k with q_k the near field's gather, exact every bounce
+    /// (q_{k+1} = N ρ/π ⊙ (D + E_k)). The far field's next projection is
+    /// p_{k+1} = p_D + M p_k + W·Fit·Project·ρ/π ⊙ q_k: the first bounce's near light q_1 goes
+    /// through the relight rays once per frame (exact), the rest, q_k − q_1 (the near field of
+    /// the indirect light), through M as its least-squares projection onto each cluster's U
+    /// (Uᵀ (q_k − q_1), U's columns orthonormal), the one approximation. So the first two
+    /// bounces equal the full loop's (but for the clamp), the later ones come close (test
+    /// `the_projected_bounces_with_the_near_field_follow_the_full_ones`). `None`: exactly
+    /// [`ProjectedBounce::indirect`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn indirect_with_near(
+        &self,
+        cpca: &Cpca,
+        near: Option<&NearField>,
+        table: &RelightTable,
+        albedo: &[Vec3],
+        direct: &[Vec3],
+        start: Option<&[Vec3]>,
+        max_iterations: usize,
+        tolerance: f32,
+    ) -> Result<(Indirect, BounceTimes), ProbesError> {
         let n = cpca.receivers;
+        if let Some(near) = near {
+            if near.receivers() != n {
+                return Err(ProbesError::parameter(
+                    "near field",
+                    format!("{} receivers' lists for {n} receivers", near.receivers()),
+                ));
+            }
+        }
         if albedo.len() != n || direct.len() != n {
             return Err(ProbesError::parameter(
                 "senders",
@@ -264,13 +298,47 @@ impl ProjectedBounce {
             None => p_direct.clone(),
             Some(start) => project(&|i| direct[i] + start[i], &mut times),
         };
+        // The near field: its first bounce q_1, exact, and q_1 through the relight rays once.
+        let gather_near = |near: &NearField, e: &dyn Fn(usize) -> Vec3, times: &mut BounceTimes| {
+            let t = Instant::now();
+            let radiance: Vec<Vec3> = (0..n).map(|i| albedo[i] * e(i) / std::f32::consts::PI).collect();
+            let mut q = vec![Vec3::ZERO; n];
+            near.add_into(&radiance, &mut q);
+            times.near_field_s += t.elapsed().as_secs_f64();
+            q
+        };
+        let (q_first, p_constant) = match near {
+            None => (Vec::new(), p_direct),
+            Some(near) => {
+                let q = match start {
+                    None => gather_near(near, &|i| direct[i], &mut times),
+                    Some(start) => gather_near(near, &|i| direct[i] + start[i], &mut times),
+                };
+                let through = project(&|i| q[i], &mut times);
+                (q, p_direct.iter().zip(&through).map(|(a, b)| *a + *b).collect())
+            }
+        };
+        let mut q = q_first.clone();
         out.iterations = 1;
         let t = Instant::now();
         let norm = |v: &[DVec3]| v.iter().map(|x| x.length_squared()).sum::<f64>().sqrt();
         // The first bounce changed the irradiance by p itself when it started from zero.
         let mut history = if start.is_none() { vec![norm(&p)] } else { Vec::new() };
         while out.iterations < max_iterations {
-            let next = self.step(&p_direct, &p);
+            let next = match near {
+                None => self.step(&p_constant, &p),
+                Some(near) => {
+                    // p + Uᵀ (q − q_1), then q's next bounce from this one's irradiance.
+                    let rest: Vec<Vec3> = q.iter().zip(&q_first).map(|(a, b)| *a - *b).collect();
+                    let shifted: Vec<DVec3> =
+                        p.iter().zip(self.flatten(&transpose_expand(cpca, &rest))).map(|(a, b)| *a + b).collect();
+                    let next = self.step(&p_constant, &shifted);
+                    let far = cpca.expand(&self.unflatten(cpca, &p));
+                    let e: Vec<Vec3> = far.iter().zip(&q).map(|(a, b)| *a + *b).collect();
+                    q = gather_near(near, &|i| direct[i] + e[i], &mut times);
+                    next
+                }
+            };
             let change = norm(&next.iter().zip(&p).map(|(a, b)| *a - *b).collect::<Vec<_>>());
             let size = norm(&next);
             out.change = if size > 0.0 { (change / size) as f32 } else { 0.0 };
@@ -283,12 +351,32 @@ impl ProjectedBounce {
         }
         times.projected_bounces_s += t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let e = cpca.expand(&self.unflatten(cpca, &p));
+        let mut e = cpca.expand(&self.unflatten(cpca, &p));
+        if near.is_some() {
+            e.iter_mut().zip(&q).for_each(|(a, b)| *a += *b);
+        }
         out.clamped = e.iter().map(|v| v.to_array().iter().filter(|&&c| c < 0.0).count() as u64).sum();
         out.irradiance = e.into_iter().map(|v| v.max(Vec3::ZERO)).collect();
         times.receiver_irradiance_s += t.elapsed().as_secs_f64();
         Ok((out, times))
     }
+}
+
+/// Uᵀ x per cluster: each cluster's projection of the receivers' values `x` onto its U.
+fn transpose_expand(cpca: &Cpca, x: &[Vec3]) -> Vec<Vec<DVec3>> {
+    cpca.clusters
+        .par_iter()
+        .map(|c| {
+            let mut s = vec![DVec3::ZERO; c.rank];
+            for (r, &receiver) in c.receivers.iter().enumerate() {
+                let v = x[receiver as usize].as_dvec3();
+                for (k, s) in s.iter_mut().enumerate() {
+                    *s += v * c.u.get(r * c.rank + k) as f64;
+                }
+            }
+            s
+        })
+        .collect()
 }
 
 /// `a · b` in f32 over eight lanes (vectorised), then the lanes and the tail in order.

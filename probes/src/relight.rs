@@ -38,6 +38,21 @@ pub fn fibonacci_directions(count: u32) -> Vec<Vec3> {
         .collect()
 }
 
+/// The senders a hit at `y` on the side facing `side` reads, into `found`: the lookup's
+/// surfels, the [`MAX_SENDERS`] heaviest (ties by index), their weights renormalised to sum 1.
+/// `false` (and `found` empty) on a lookup hole.
+pub fn read_senders(surfels: &Surfels, y: Vec3, side: Vec3, found: &mut Vec<(u32, f32)>) -> bool {
+    if lookup(surfels, y, side, found) == Found::Hole {
+        found.clear();
+        return false;
+    }
+    found.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    found.truncate(MAX_SENDERS);
+    let total: f32 = found.iter().map(|f| f.1).sum();
+    found.iter_mut().for_each(|f| f.1 /= total);
+    true
+}
+
 /// The share of back-face hits above which a probe is inside geometry (DDGI-style).
 pub const INSIDE_BACK_FACES: f32 = 0.25;
 
@@ -133,13 +148,10 @@ impl RelightTable {
                         }
                         let side = if ng.dot(d) > 0.0 { -ng } else { ng };
                         let y = origin + d * hit.distance;
-                        if lookup(surfels, y, side, &mut found) == Found::Hole {
-                            holes += 1;
+                        if read_senders(surfels, y, side, &mut found) {
+                            senders.extend_from_slice(&found);
                         } else {
-                            found.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
-                            found.truncate(MAX_SENDERS);
-                            let total: f32 = found.iter().map(|f| f.1).sum();
-                            senders.extend(found.iter().map(|&(s, w)| (s, w / total)));
+                            holes += 1;
                         }
                     } else {
                         escaped += 1;

@@ -45,6 +45,10 @@ pub struct TransportSettings {
     pub directions: u32,
     pub seed: u32,
     pub reconstruction: Reconstruction,
+    /// The near field's radius as a share of the probes' support radius, when on: hits nearer
+    /// than it are left out of α and gathered from their senders directly (`near_field`). `None`
+    /// (the default here, and the paper's transport): every hit goes through the probes.
+    pub near: Option<f64>,
 }
 
 impl Default for TransportSettings {
@@ -54,6 +58,7 @@ impl Default for TransportSettings {
             directions: crate::defaults::DIRECTIONS,
             seed: 0,
             reconstruction: Reconstruction::VisibilityAware,
+            near: None,
         }
     }
 }
@@ -69,9 +74,26 @@ impl TransportSettings {
                 format!("must be between 1 and {MAX_DIRECTIONS}, got {}", self.directions),
             ));
         }
+        if let Some(near) = self.near {
+            if !(near > 0.0 && near <= MAX_NEAR) {
+                return Err(ProbesError::parameter(
+                    "near-radius",
+                    format!("must be in (0, {MAX_NEAR}] (a share of the support radius), got {near}"),
+                ));
+            }
+            if self.reconstruction == Reconstruction::SpatialOnly {
+                return Err(ProbesError::parameter(
+                    "near-field",
+                    "needs the visibility-aware reconstruction (the spatial-only one traces no hits)",
+                ));
+            }
+        }
         Ok(())
     }
 }
+
+/// The largest near-field radius, in support radii.
+pub const MAX_NEAR: f64 = 4.0;
 
 /// α_x of one receiver over its covering probes.
 #[derive(Clone, Debug, PartialEq)]
@@ -160,6 +182,24 @@ impl<'a> TransportContext<'a> {
         self.basis.len()
     }
 
+    /// The near field's radius in scene units (hits nearer than it are the near field's), or
+    /// `None` when it is off.
+    pub fn near_distance(&self) -> Option<f32> {
+        self.settings.near.map(|f| (f * self.radius) as f32)
+    }
+
+    /// The ray origin of the receiver at `x` with unit normal `n`, offset along `n`.
+    pub fn origin(&self, x: Vec3, n: Vec3) -> Vec3 {
+        x + n * offset(x, self.scale)
+    }
+
+    /// Direction `k` of receiver `index` in its normal's `frame`: cosine-distributed,
+    /// Owen-scrambled Sobol'.
+    pub fn direction(&self, index: u32, frame: &Frame, k: u32) -> Vec3 {
+        let u = Sampler::new(self.settings.seed, index, 0x1fff_ffff, k).next_2d();
+        frame.to_world(sample_cosine_hemisphere(u)).normalize()
+    }
+
     /// The transport of the receiver at `x` with unit normal `n`: Eq. 4's kernel K_ij measured by
     /// the clamped cosine (Eq. 5–6) into α_ij; `index` seeds its directions.
     pub fn receiver(&self, index: u32, x: Vec3, n: Vec3) -> Transport {
@@ -178,11 +218,11 @@ impl<'a> TransportContext<'a> {
         let mut y = vec![0.0f32; nc];
         let mut visible = vec![false; covering.len()];
         let frame = Frame::new(n);
-        let origin = x + n * offset(x, self.scale);
+        let origin = self.origin(x, n);
+        let near = self.near_distance();
         let (mut hits, mut unseen, mut escaped, mut back_faces) = (0u32, 0u32, 0u32, 0u32);
         for k in 0..self.settings.directions {
-            let u = Sampler::new(self.settings.seed, index, 0x1fff_ffff, k).next_2d();
-            let dir = frame.to_world(sample_cosine_hemisphere(u)).normalize();
+            let dir = self.direction(index, &frame, k);
             match self.settings.reconstruction {
                 Reconstruction::SpatialOnly => {
                     let total: f64 = covering.iter().map(|c| c.1).sum();
@@ -207,6 +247,10 @@ impl<'a> TransportContext<'a> {
                     let ng = hit.geometric_normal.normalize_or_zero();
                     if ng.dot(dir) > 0.0 {
                         back_faces += 1;
+                    }
+                    if near.is_some_and(|r| hit.distance < r) {
+                        // The near field's (`near_field`): gathered from its senders directly.
+                        continue;
                     }
                     let side = if ng.dot(dir) > 0.0 { -ng } else { ng };
                     let point = origin + dir * hit.distance;

@@ -128,9 +128,21 @@ pub const OPTIONS: &[OptionSpec] = &[
                every bounce through the relight rays",
     },
     OptionSpec {
+        key: "near_field",
+        kind: ON_OFF,
+        default: "on",
+        help: "gather the hits nearer than near_radius from their senders directly, the rest through the probes",
+    },
+    OptionSpec {
+        key: "near_radius",
+        kind: OptionKind::Interval { min: 0.0, min_open: true, max: 4.0, max_open: false },
+        default: "0.25",
+        help: "the near field's radius, a share of the probes' support radius (needs near_field=on)",
+    },
+    OptionSpec {
         key: "hidden_senders",
-        kind: OptionKind::Choice(&["keep", "drop"]),
-        default: "keep",
+        kind: OptionKind::Choice(&["drop", "keep"]),
+        default: "drop",
         help: "drop: relight hits read no hidden sender beside a valid one",
     },
 ];
@@ -159,8 +171,8 @@ pub struct ProbesMethod {
     /// Run the bounces after the first in CPCA's projected space (`probes::projected_bounce`;
     /// the default with CPCA) or all through the relight rays and receivers (`bounces=full`).
     pub projected_bounces: bool,
-    /// Drop hidden senders from the relight rays' hits beside valid ones (`hidden_senders=drop`;
-    /// the default keeps the table as built: docs/probes.md, Sponza +0.6 dB, Cornell −0.14 dB).
+    /// Drop hidden senders from the relight rays' hits beside valid ones (`hidden_senders=drop`,
+    /// the default; `keep` keeps the table as built: docs/probes.md).
     pub drop_hidden_senders: bool,
 }
 
@@ -184,6 +196,7 @@ impl ProbesMethod {
         let real = |key: &str, default: f64| {
             options.real(key).map_or(default, |x| x.to_string().parse().unwrap_or(f64::from(x)))
         };
+        let spatial = word("reconstruction", "visibility") == "spatial";
         let precompute = PrecomputeSettings {
             surfels: SurfelSettings { seed, budget: count("receivers", defaults::RECEIVERS), ..Default::default() },
             placement: PlacementSettings {
@@ -195,10 +208,10 @@ impl ProbesMethod {
                 seed,
                 order: count("order", defaults::ORDER),
                 directions: options.count("directions").unwrap_or(defaults::DIRECTIONS),
-                reconstruction: match word("reconstruction", "visibility") {
-                    "spatial" => Reconstruction::SpatialOnly,
-                    _ => Reconstruction::VisibilityAware,
-                },
+                reconstruction: if spatial { Reconstruction::SpatialOnly } else { Reconstruction::VisibilityAware },
+                // The spatial-only baseline traces no hits: no near field unless asked (then refused).
+                near: (word("near_field", if defaults::NEAR_FIELD && !spatial { "on" } else { "off" }) == "on")
+                    .then(|| real("near_radius", defaults::NEAR_RADIUS)),
             },
             relight_rays: options.count("relight_rays").unwrap_or(defaults::RELIGHT_RAYS),
         };
@@ -225,7 +238,8 @@ impl ProbesMethod {
             pixel_samples: options.count("pixel_samples").unwrap_or(defaults::PIXEL_SAMPLES),
             tolerance: options.real("tolerance").unwrap_or(defaults::BOUNCE_TOLERANCE),
             kept_lookups: word("image", "kept") == "kept",
-            drop_hidden_senders: word("hidden_senders", "keep") == "drop",
+            drop_hidden_senders: word("hidden_senders", if defaults::DROP_HIDDEN_SENDERS { "drop" } else { "keep" })
+                == "drop",
             name: canonical,
         }))
     }
@@ -329,6 +343,13 @@ pub fn run(
         "dense_bytes_per_receiver".into(),
         pre.dense_transport_bytes() as f64 / pre.surfels.surfels.len().max(1) as f64,
     );
+    if let Some(near) = &pre.near {
+        stats.insert("near_field_hits".into(), near.hits as f64);
+        stats.insert(
+            "near_field_bytes_per_receiver".into(),
+            pre.near_field_bytes() as f64 / pre.surfels.surfels.len().max(1) as f64,
+        );
+    }
     if method.drop_hidden_senders {
         let dropped = pre.drop_hidden_senders()?;
         stats.insert("hidden_sender_reads_dropped".into(), dropped as f64);
@@ -353,6 +374,11 @@ pub fn run(
         stats.insert("cpca_clusters".into(), c.clusters as f64);
         stats.insert("cpca_coefficients".into(), c.mean_coefficients);
         stats.insert("cpca_bytes_per_receiver".into(), c.bytes_per_receiver);
+        // What a frame reads per receiver: the compressed far field and the near field's list.
+        stats.insert(
+            "transport_bytes_per_receiver".into(),
+            c.bytes_per_receiver + pre.near_field_bytes() as f64 / pre.surfels.surfels.len().max(1) as f64,
+        );
     }
     // The camera is fixed for the comparison: its primary rays and lookups are traced once and
     // kept (a per-camera cost like the precompute's, so it goes to preprocess_s, not to the
@@ -430,6 +456,7 @@ pub fn run(
     stats.insert("cluster_projection_s".into(), times.cluster_projection_s);
     stats.insert("receiver_irradiance_s".into(), times.receiver_irradiance_s);
     stats.insert("projected_bounces_s".into(), times.projected_bounces_s);
+    stats.insert("near_field_s".into(), times.near_field_s);
     notes.push(format!(
         "frame split (first frame): scene relight {:.4} s, probe relight {:.4} s, cluster projection {:.4} s, receiver irradiance {:.4} s, projected bounces {:.4} s; {} bounces; image {:.4} s; the camera's lookups kept once in {:.4} s (in preprocess_s)",
         times.direct_s,
@@ -483,13 +510,15 @@ mod tests {
         assert_eq!(m.precompute.placement.probes, 29);
         assert_eq!(m.precompute.transport.order, 2);
         assert_eq!(m.precompute.transport.reconstruction, Reconstruction::SpatialOnly);
+        assert_eq!(m.precompute.transport.near, None, "the spatial-only baseline has no near field by default");
+        assert!(ProbesMethod::parse("probes:reconstruction=spatial:near_field=on", 1).is_err());
         assert_eq!(m.cpca, None);
         assert_eq!(m.miss_weight, 1.0);
-        assert!(!m.drop_hidden_senders && !m.projected_bounces, "the dense transport has no projected space");
-        let m = ProbesMethod::parse("probes:hidden_senders=drop:bounces=full:image=lookups:tolerance=0.01", 1)
+        assert!(m.drop_hidden_senders && !m.projected_bounces, "the dense transport has no projected space");
+        let m = ProbesMethod::parse("probes:hidden_senders=keep:bounces=full:image=lookups:tolerance=0.01", 1)
             .unwrap()
             .unwrap();
-        assert!(m.drop_hidden_senders && !m.projected_bounces && !m.kept_lookups && m.tolerance == 0.01);
+        assert!(!m.drop_hidden_senders && !m.projected_bounces && !m.kept_lookups && m.tolerance == 0.01);
         assert_eq!(ProbesMethod::parse("probes:tolerance=0", 1).unwrap().unwrap().tolerance, 0.0, "0: every bounce");
         // Every error in recon's one format: "`SPEC`: what is wrong", naming the option.
         for (bad, names) in [

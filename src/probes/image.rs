@@ -79,11 +79,12 @@ pub(super) fn image_settings(trace: &TraceArgs, scene: &tracer::Scene, frame: &F
 /// The frame split as the paper's Table 2.
 pub(super) fn print_split(t: &FrameTimes) {
     println!(
-        "split       scene relight {:.4} s | probe relight {:.4} s | cluster projection {:.4} s | receiver irradiance {:.4} s | projected bounces {:.4} s ({} bounces) | image {:.4} s | frame with image {:.4} s",
+        "split       scene relight {:.4} s | probe relight {:.4} s | cluster projection {:.4} s | receiver irradiance {:.4} s | near field {:.4} s | projected bounces {:.4} s ({} bounces) | image {:.4} s | frame with image {:.4} s",
         t.direct_s,
         t.probe_relight_s,
         t.cluster_projection_s,
         t.receiver_irradiance_s,
+        t.near_field_s,
         t.projected_bounces_s,
         t.iterations,
         t.image_s,

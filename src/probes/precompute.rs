@@ -41,6 +41,11 @@ pub(super) struct PrecomputeReport {
     support_radius: f64,
     dense_transport_bytes: usize,
     dense_transport_bytes_per_receiver: f64,
+    /// The near field's lists (0 when it is off): hits, lookup holes among them, bytes.
+    near_field_hits: u64,
+    near_field_holes: u64,
+    near_field_bytes: usize,
+    near_field_bytes_per_receiver: f64,
 }
 
 pub(super) fn precompute_report(
@@ -66,6 +71,10 @@ pub(super) fn precompute_report(
         support_radius: pre.radius,
         dense_transport_bytes: pre.dense_transport_bytes(),
         dense_transport_bytes_per_receiver: pre.dense_transport_bytes() as f64 / n.max(1) as f64,
+        near_field_hits: pre.near.as_ref().map_or(0, |f| f.hits),
+        near_field_holes: pre.near.as_ref().map_or(0, |f| f.holes),
+        near_field_bytes: pre.near_field_bytes(),
+        near_field_bytes_per_receiver: pre.near_field_bytes() as f64 / n.max(1) as f64,
     }
 }
 
@@ -97,6 +106,15 @@ pub(super) fn print_precompute(r: &PrecomputeReport) {
         r.dense_transport_bytes as f64 / 1e6,
         r.dense_transport_bytes_per_receiver
     );
+    if r.near_field_bytes > 0 {
+        println!(
+            "near field  {} hits ({} lookup holes) in {:.1} MB = {:.0} B per receiver",
+            r.near_field_hits,
+            r.near_field_holes,
+            r.near_field_bytes as f64 / 1e6,
+            r.near_field_bytes_per_receiver
+        );
+    }
 }
 
 pub(super) fn run_precompute(args: &PrecomputeArgs) -> Result<()> {
