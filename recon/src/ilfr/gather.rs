@@ -102,8 +102,9 @@ pub struct GatherStats {
     /// With records ([`super::cache`]): (records, hits interpolated, hits gathered on their own).
     pub cache: Option<(u64, u64, u64)>,
     /// With the sparse gather ([`super::sparse`]): (grid pixels, pixels interpolated, pixels
-    /// refined by a gather of their own).
-    pub sparse: Option<(u64, u64, u64)>,
+    /// refined by a gather of their own, of those the ones refined for their corners'
+    /// disagreement rather than their geometry).
+    pub sparse: Option<(u64, u64, u64, u64)>,
 }
 
 impl GatherStats {
@@ -116,9 +117,9 @@ impl GatherStats {
             let (a, b, c) = self.cache.unwrap_or_default();
             self.cache = Some((a + r, b + i, c + u));
         }
-        if let Some((g, i, r)) = other.sparse {
-            let (a, b, c) = self.sparse.unwrap_or_default();
-            self.sparse = Some((a + g, b + i, c + r));
+        if let Some((g, i, r, l)) = other.sparse {
+            let (a, b, c, d) = self.sparse.unwrap_or_default();
+            self.sparse = Some((a + g, b + i, c + r, d + l));
         }
     }
 }

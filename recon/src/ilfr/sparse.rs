@@ -132,10 +132,12 @@ struct Grid {
     variance: Vec<f32>,
 }
 
-/// A pixel off the grid: interpolated, or to be gathered in full.
+/// A pixel off the grid: interpolated, or to be gathered in full for its geometry (too little
+/// similar light among its corners) or for its corners' disagreeing light.
 enum Decision {
     Interpolated([f32; 3]),
-    Refine,
+    RefineForGeometry,
+    RefineForLight,
 }
 
 /// The indirect light of `samples` by the sparse gather of `params` where it applies (an
@@ -225,11 +227,13 @@ fn gather_sparse(
             for (x, y) in tile_pixels(t).filter(|&p| !is_grid(p)) {
                 match decide(samples, albedo, &grid, &footprint, params, (x, y)) {
                     Decision::Interpolated(value) => interpolated.push(((x, y), value)),
-                    Decision::Refine => refine.push((x, y)),
+                    Decision::RefineForGeometry => refine.push(((x, y), false)),
+                    Decision::RefineForLight => refine.push(((x, y), true)),
                 }
             }
+            let pixels: Vec<(u32, u32)> = refine.iter().map(|r| r.0).collect();
             let refined =
-                gather_indirect_pixels(samples, reconstructor, Some(albedo), &refine, (grid_per_hit, settings));
+                gather_indirect_pixels(samples, reconstructor, Some(albedo), &pixels, (grid_per_hit, settings));
             crate::progress::advance(1);
             (interpolated, refine, refined)
         })
@@ -237,12 +241,13 @@ fn gather_sparse(
     crate::progress::end();
     let mut pixels = grid.value;
     let mut variance = grid.variance;
-    let (mut interpolated_count, mut refined_count) = (0u64, 0u64);
+    let (mut interpolated_count, mut refined_count, mut by_light) = (0u64, 0u64, 0u64);
     for (interpolated, refine, refined) in &decided {
         for &((x, y), value) in interpolated {
             pixels[(y * width + x) as usize] = value;
         }
-        for (k, &(x, y)) in refine.iter().enumerate() {
+        for (k, &((x, y), light)) in refine.iter().enumerate() {
+            by_light += light as u64;
             let p = (y * width + x) as usize;
             pixels[p] = refined.values[k];
             variance[p] = refined.variance[k];
@@ -251,12 +256,12 @@ fn gather_sparse(
         refined_count += refine.len() as u64;
         stats.add(&refined.stats);
     }
-    stats.sparse = Some((grid_pixels, interpolated_count, refined_count));
+    stats.sparse = Some((grid_pixels, interpolated_count, refined_count, by_light));
     (Image::from_pixels(width, height, pixels), stats, variance)
 }
 
 /// Pixel (x, y) off the grid: its value interpolated from its cell's corners, or
-/// [`Decision::Refine`] where the error estimate says so (module documentation).
+/// refined where the error estimate says so (module documentation).
 fn decide(
     samples: &IndirectSamples,
     albedo: &[[f32; 3]],
@@ -315,12 +320,12 @@ fn decide(
             }
         }
         if !(weight > 0.0) || covered < params.min_coverage as f64 * total {
-            return Decision::Refine;
+            return Decision::RefineForGeometry;
         }
         let mean = [0, 1, 2].map(|c| (sum[c] / weight) as f32);
         let noise = (high.1 * high.1 + low.1 * low.1).sqrt();
         if high.0 - low.0 > params.contrast * luminance(mean) + params.noise_sigmas * noise {
-            return Decision::Refine;
+            return Decision::RefineForLight;
         }
         for c in 0..3 {
             pixel[c] += (own_albedo[c] * mean[c]) as f64;

@@ -73,13 +73,13 @@ fn gathered_pixels_are_the_full_gathers_bit_for_bit() {
         let (_, sparse) = pair(16, everything);
         let result = reconstruct_samples(&samples, GatherTarget::Indirect, &sparse).unwrap();
         assert_eq!(bits(&result), bits(&oracle), "stride {stride}");
-        let (grid, interpolated, refined) = result.gather.sparse.unwrap();
+        let (grid, interpolated, refined, _) = result.gather.sparse.unwrap();
         assert_eq!((grid + refined, interpolated), (169, 0));
         assert_eq!(result.gather.reconstruct, oracle.gather.reconstruct);
 
         let (_, sparse) = pair(16, SparseParams { stride, ..SparseParams::default() });
         let result = reconstruct_samples(&samples, GatherTarget::Indirect, &sparse).unwrap();
-        let (grid, interpolated, refined) = result.gather.sparse.unwrap();
+        let (grid, interpolated, refined, _) = result.gather.sparse.unwrap();
         assert!(interpolated > 0 && grid + interpolated + refined == 169, "{:?}", result.gather.sparse);
         let lines = (0..13).filter(|&x| on_grid(x, 13, stride)).count() as u64;
         assert_eq!(grid, lines * lines);
@@ -107,7 +107,7 @@ fn gathered_pixels_are_the_full_gathers_bit_for_bit() {
             assert_eq!(result.image.get(x, y), oracle.image.get(x, y), "grid pixel ({x}, {y}) at 4× rays");
         }
     }
-    let (grid, _, refined) = result.gather.sparse.unwrap();
+    let (grid, _, refined, _) = result.gather.sparse.unwrap();
     assert_eq!(result.gather.reconstruct.rays, (grid + refined) * 64);
 }
 
@@ -137,7 +137,7 @@ fn constant_light_is_interpolated_within_rounding() {
                 }
                 let (_, sparse) = pair(16, SparseParams { stride, ..SparseParams::default() });
                 let result = reconstruct_samples(&samples, GatherTarget::Indirect, &sparse).unwrap();
-                let (grid, interpolated, refined) = result.gather.sparse.unwrap();
+                let (grid, interpolated, refined, _) = result.gather.sparse.unwrap();
                 assert!(result.image.pixels.iter().all(|p| close(*p)), "sky {sky}, scale {scale}, stride {stride}");
                 assert!(interpolated > 2 * (grid + refined) / 3, "{:?}", result.gather.sparse);
                 assert_eq!(refined, 0, "constant light on one plane: nothing to refine");
@@ -156,7 +156,7 @@ fn tiny_images_and_one_sample_per_pixel_stay_exact() {
     let one = box_samples(1, 1, SampleKind::Indirect, None, |_| l);
     let result = reconstruct_samples(&one, GatherTarget::Indirect, &sparse).unwrap();
     assert_eq!(result.image.pixels, vec![expected]);
-    assert_eq!(result.gather.sparse, Some((1, 0, 0)));
+    assert_eq!(result.gather.sparse, Some((1, 0, 0, 0)));
     for (w, h) in [(1u32, 7u32), (7, 1), (2, 2)] {
         // A w × h window of a 7 × 7 image's samples, at 1 spp.
         let full = box_samples(7, 1, SampleKind::Indirect, None, |_| l);
@@ -224,8 +224,8 @@ fn a_step_edge_is_gathered_in_full() {
             }
         }
     }
-    let (_, interpolated, refined) = result.gather.sparse.unwrap();
-    assert!(edge >= 16 && refined >= edge, "{edge} edge pixels, {refined} refined");
+    let (_, interpolated, refined, by_light) = result.gather.sparse.unwrap();
+    assert!(edge >= 16 && refined - by_light >= edge, "{edge} edge pixels, {refined} refined, {by_light} for light");
     assert!(flat_interpolated > 64 && interpolated >= flat_interpolated, "{flat_interpolated} {interpolated}");
 }
 
@@ -254,7 +254,7 @@ fn a_ramp_is_interpolated_within_the_stated_bound() {
     let (full_mean, full_worst) = errors(&reconstruct_samples(&samples, GatherTarget::Indirect, &full).unwrap());
     let result = reconstruct_samples(&samples, GatherTarget::Indirect, &sparse).unwrap();
     let (mean, worst) = errors(&result);
-    let (_, interpolated, _) = result.gather.sparse.unwrap();
+    let (_, interpolated, _, _) = result.gather.sparse.unwrap();
     assert!(interpolated > 100, "{:?}", result.gather.sparse);
     assert!(mean <= full_mean + 0.01 && worst < 0.1, "sparse {mean} / {worst}, full {full_mean} / {full_worst}");
 }
@@ -276,6 +276,6 @@ fn the_image_does_not_depend_on_the_thread_count() {
     let (one, two) = (run(1), run(2));
     assert_eq!(bits(&one), bits(&two));
     assert_eq!(one.gather, two.gather);
-    let (_, interpolated, refined) = one.gather.sparse.unwrap();
+    let (_, interpolated, refined, _) = one.gather.sparse.unwrap();
     assert!(interpolated > 0 && refined > 0, "{:?}", one.gather.sparse);
 }
