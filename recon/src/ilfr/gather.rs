@@ -101,10 +101,10 @@ pub struct GatherStats {
     pub unsupported_hits: u64,
     /// With records ([`super::cache`]): (records, hits interpolated, hits gathered on their own).
     pub cache: Option<(u64, u64, u64)>,
-    /// With the sparse gather ([`super::sparse`]): (grid pixels, pixels interpolated, pixels
-    /// refined by a gather of their own, of those the ones refined for their corners'
-    /// disagreement rather than their geometry).
-    pub sparse: Option<(u64, u64, u64, u64)>,
+    /// With the sparse gather ([`super::sparse`]): (grid pixels, pixels interpolated whole,
+    /// pixels with hits refined by a gather of their own, those hits, of those the ones refined
+    /// for their corners' disagreement rather than their geometry).
+    pub sparse: Option<(u64, u64, u64, u64, u64)>,
 }
 
 impl GatherStats {
@@ -117,9 +117,9 @@ impl GatherStats {
             let (a, b, c) = self.cache.unwrap_or_default();
             self.cache = Some((a + r, b + i, c + u));
         }
-        if let Some((g, i, r, l)) = other.sparse {
-            let (a, b, c, d) = self.sparse.unwrap_or_default();
-            self.sparse = Some((a + g, b + i, c + r, d + l));
+        if let Some((g, i, r, h, l)) = other.sparse {
+            let (a, b, c, d, e) = self.sparse.unwrap_or_default();
+            self.sparse = Some((a + g, b + i, c + r, d + h, e + l));
         }
     }
 }
@@ -519,6 +519,56 @@ pub(super) fn assemble_rows(width: u32, height: u32, rows: Vec<(Vec<[f32; 3]>, G
         stats.add(&row_stats);
     }
     (Image::from_pixels(width, height, pixels), stats)
+}
+
+/// Gathers the indirect light of single Lambertian primary hits (`hits`, sample indices, any
+/// set, in any order): their rays reconstructed together in direction order, then each hit's
+/// value formed from its own rays as the full gather forms it, bit for bit.
+pub(super) fn gather_indirect_hits(
+    samples: &IndirectSamples,
+    reconstructor: &Reconstructor,
+    albedo: &[[f32; 3]],
+    hits: &[usize],
+    (per_hit, settings): (u32, &GatherSettings),
+) -> (Vec<[f32; 3]>, GatherStats) {
+    let spp = samples.spp.max(1) as usize;
+    let (mut rays, mut ends) = (Vec::new(), Vec::with_capacity(hits.len()));
+    for &i in hits {
+        if samples.class[i] != SampleClass::CameraMiss {
+            rays.extend(
+                hit_rays(samples, i, per_hit, settings).map(|ray| WeightedRay { ray: Some(ray), weight: [1.0; 3] }),
+            );
+        }
+        ends.push(rays.len());
+    }
+    let (found, reconstruct) = trace_in_direction_order(&rays, |ray, scratch, stats| {
+        reconstructor.radiance(ray, scratch, stats).map(|f| f.radiance)
+    });
+    let mut stats = GatherStats { reconstruct, ..GatherStats::default() };
+    let (mut sky, mut spread) = (Vec::new(), RaySpread::default());
+    let mut values = Vec::with_capacity(hits.len());
+    let mut begin = 0;
+    for (k, &i) in hits.iter().enumerate() {
+        let pixel = (i / spp) as u32;
+        let (x, y) = (pixel % samples.width, pixel / samples.width);
+        let sky_spacing = sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky);
+        let min_cosine = sky_spacing.map(|spacing| {
+            let angle = (settings.sky_spacing_factor * spacing).min(std::f32::consts::PI);
+            angle.cos()
+        });
+        let end = ends[k];
+        let (value, _) = indirect_at(
+            samples,
+            i,
+            albedo[i],
+            (&rays[begin..end], &found[begin..end]),
+            (&sky, min_cosine),
+            (&mut stats, &mut spread),
+        );
+        begin = end;
+        values.push(value);
+    }
+    (values, stats)
 }
 
 /// Every ray the gather of the `indirect` target reconstructs (none where a BSDF direction

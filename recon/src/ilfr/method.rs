@@ -548,7 +548,8 @@ impl Reconstructed {
             ("cache_uncovered_fraction", self.gather.cache.map_or(0.0, |c| ratio(c.2, c.1 + c.2))),
             ("sparse_grid_fraction", self.gather.sparse.map_or(0.0, |s| ratio(s.0, s.0 + s.1 + s.2))),
             ("sparse_refined_fraction", self.gather.sparse.map_or(0.0, |s| ratio(s.2, s.0 + s.1 + s.2))),
-            ("sparse_refined_by_light_fraction", self.gather.sparse.map_or(0.0, |s| ratio(s.3, s.0 + s.1 + s.2))),
+            ("sparse_refined_hits", self.gather.sparse.map_or(0.0, |s| s.3 as f64)),
+            ("sparse_refined_by_light_hits", self.gather.sparse.map_or(0.0, |s| s.4 as f64)),
         ]
         .into_iter()
         .map(|(name, value)| (name.to_string(), value))
@@ -616,11 +617,11 @@ impl Reconstructed {
                 100.0 * self.robust.excess_fraction
             ),
         ];
-        if let Some((grid, interpolated, refined, by_light)) = self.gather.sparse {
+        if let Some((grid, interpolated, refined, hits, by_light)) = self.gather.sparse {
             notes.push(format!(
-                "sparse gather: {grid} grid pixels gathered, {interpolated} interpolated, {refined} refined by a gather of \
-                 their own ({} for their geometry, {by_light} for their corners' disagreeing light)",
-                refined - by_light
+                "sparse gather: {grid} grid pixels gathered, {interpolated} interpolated whole, {refined} with {hits} hits \
+                 refined by a gather of their own ({} for their geometry, {by_light} for their corners' disagreeing light)",
+                hits - by_light
             ));
         }
         for (pass, r) in self.recursive.iter().enumerate() {

@@ -7,7 +7,7 @@
 //!   the last column and row, so that every pixel lies in a cell of up to four grid corners.
 //!   Grid pixels gather [`SparseParams::grid_ray_factor`] times the pixel budget of rays,
 //!   exactly as the full gather does at that budget ([`super::gather::gather_indirect_pixels`]);
-//!   so do refined pixels (below), so that the gathered pixels share one noise level.
+//!   so do refined hits (below), so that the gathered values share one noise level.
 //! - What is interpolated is each Lambertian hit's mean radiance L̄ (the light before its albedo);
 //!   a hit x with normal m of another pixel takes L̄(x) = Σ b_k g(x, j) L̄_j / Σ b_k g(x, j) over the
 //!   hits j of its cell's corners k, b_k the bilinear weight of corner k and g the geometric
@@ -15,13 +15,14 @@
 //!   [`SparseParams::max_normal_degrees`], and each hit near the other's tangent plane, within
 //!   [`SparseParams::plane_tolerance`] pixel footprints per pixel of distance), and reflects its
 //!   own albedo times L̄(x): texture stays sharp.
-//! - The error estimate: a pixel is gathered in full (*refined*) where one of its hits finds too
+//! - The error estimate: a hit is gathered on its own (*refined*) where it finds too
 //!   little similar light among its corners (Σ b_k · mean_j g / Σ b_k below
 //!   [`SparseParams::min_coverage`]: an edge, a silhouette, a crease), or where the similar
 //!   corner hits disagree beyond their noise (max − min luminance of L̄ above
 //!   [`SparseParams::contrast`] times their weighted mean plus [`SparseParams::noise_sigmas`]
 //!   standard errors of the two, from the spread of their rays: a contact shadow, a light edge).
-//!   A refined pixel is the full gather's at the grid's budget, bit for bit.
+//!   A refined hit is the full gather's at the grid's budget, bit for bit, and a pixel all of
+//!   whose hits are refined is the full gather's pixel.
 //!
 //! Each pixel is a function of the grid and its own rays only, so the image is the same for any
 //! number of threads. Ambient occlusion and glossy primary hits keep the full gather.
@@ -30,7 +31,8 @@ use rayon::prelude::*;
 
 use super::disc::{dot, sub};
 use super::gather::{
-    gather_indirect_pixels, gather_with_spread, rays_per_hit, tile_side, GatherSettings, GatherStats, TILE,
+    gather_indirect_hits, gather_indirect_pixels, gather_with_spread, rays_per_hit, tile_side, GatherSettings,
+    GatherStats, TILE,
 };
 use super::reconstruct::Reconstructor;
 use super::robust::luminance;
@@ -132,8 +134,9 @@ struct Grid {
     variance: Vec<f32>,
 }
 
-/// A pixel off the grid: interpolated, or to be gathered in full for its geometry (too little
-/// similar light among its corners) or for its corners' disagreeing light.
+/// A primary hit off the grid: interpolated (its value), or to be gathered in full for its
+/// geometry (too little similar light among its corners) or for its corners' disagreeing light.
+#[derive(Clone, Copy)]
 enum Decision {
     Interpolated([f32; 3]),
     RefineForGeometry,
@@ -222,46 +225,64 @@ fn gather_sparse(
         .into_par_iter()
         .with_max_len(1)
         .map(|t| {
-            let mut interpolated = Vec::new();
-            let mut refine = Vec::new();
-            for (x, y) in tile_pixels(t).filter(|&p| !is_grid(p)) {
-                match decide(samples, albedo, &grid, &footprint, params, (x, y)) {
-                    Decision::Interpolated(value) => interpolated.push(((x, y), value)),
-                    Decision::RefineForGeometry => refine.push(((x, y), false)),
-                    Decision::RefineForLight => refine.push(((x, y), true)),
-                }
-            }
-            let pixels: Vec<(u32, u32)> = refine.iter().map(|r| r.0).collect();
-            let refined =
-                gather_indirect_pixels(samples, reconstructor, Some(albedo), &pixels, (grid_per_hit, settings));
+            let pixels: Vec<(u32, u32)> = tile_pixels(t).filter(|&p| !is_grid(p)).collect();
+            let decisions: Vec<Vec<Decision>> =
+                pixels.iter().map(|&pixel| decide(samples, albedo, &grid, &footprint, params, pixel)).collect();
+            let refine: Vec<usize> = (pixels.iter().zip(&decisions))
+                .flat_map(|(&(x, y), hits)| {
+                    let first = (y * width + x) as usize * spp as usize;
+                    (hits.iter().enumerate())
+                        .filter(|(_, d)| !matches!(d, Decision::Interpolated(_)))
+                        .map(move |(k, _)| first + k)
+                })
+                .collect();
+            let (refined, refined_stats) =
+                gather_indirect_hits(samples, reconstructor, albedo, &refine, (grid_per_hit, settings));
             crate::progress::advance(1);
-            (interpolated, refine, refined)
+            (pixels, decisions, refined, refined_stats)
         })
         .collect();
     crate::progress::end();
     let mut pixels = grid.value;
     let mut variance = grid.variance;
-    let (mut interpolated_count, mut refined_count, mut by_light) = (0u64, 0u64, 0u64);
-    for (interpolated, refine, refined) in &decided {
-        for &((x, y), value) in interpolated {
-            pixels[(y * width + x) as usize] = value;
+    let (mut interpolated_count, mut refined_count, mut refined_hits, mut by_light) = (0u64, 0u64, 0u64, 0u64);
+    for (tile_pixels, decisions, refined, refined_stats) in &decided {
+        let mut gathered = refined.iter();
+        for (&(x, y), hits) in tile_pixels.iter().zip(decisions) {
+            // The hits in their order, summed as the full gather sums them.
+            let mut sum = [0.0f64; 3];
+            let mut any = false;
+            for decision in hits {
+                let value = match decision {
+                    Decision::Interpolated(value) => *value,
+                    refine => {
+                        any = true;
+                        refined_hits += 1;
+                        by_light += matches!(refine, Decision::RefineForLight) as u64;
+                        *gathered.next().expect("one gathered value per refined hit")
+                    }
+                };
+                for c in 0..3 {
+                    sum[c] += value[c] as f64;
+                }
+            }
+            pixels[(y * width + x) as usize] = sum.map(|s| (s / spp as f64) as f32);
+            variance[(y * width + x) as usize] = f32::INFINITY;
+            if any {
+                refined_count += 1;
+            } else {
+                interpolated_count += 1;
+            }
         }
-        for (k, &((x, y), light)) in refine.iter().enumerate() {
-            by_light += light as u64;
-            let p = (y * width + x) as usize;
-            pixels[p] = refined.values[k];
-            variance[p] = refined.variance[k];
-        }
-        interpolated_count += interpolated.len() as u64;
-        refined_count += refine.len() as u64;
-        stats.add(&refined.stats);
+        stats.add(refined_stats);
     }
-    stats.sparse = Some((grid_pixels, interpolated_count, refined_count, by_light));
+    stats.sparse = Some((grid_pixels, interpolated_count, refined_count, refined_hits, by_light));
     (Image::from_pixels(width, height, pixels), stats, variance)
 }
 
-/// Pixel (x, y) off the grid: its value interpolated from its cell's corners, or
-/// refined where the error estimate says so (module documentation).
+/// The primary hits of pixel (x, y) off the grid: each one's value (albedo × L̄) interpolated
+/// from its cell's corners, or refined where the error estimate says so (module documentation);
+/// a camera miss is 0.
 fn decide(
     samples: &IndirectSamples,
     albedo: &[[f32; 3]],
@@ -269,7 +290,7 @@ fn decide(
     footprint: &[f32],
     params: &SparseParams,
     (x, y): (u32, u32),
-) -> Decision {
+) -> Vec<Decision> {
     let (width, height, spp) = (samples.width, samples.height, samples.spp.max(1) as usize);
     let cos_max = params.max_normal_degrees.to_radians().cos();
     let (columns, rows) = (cell(x, width, params.stride), cell(y, height, params.stride));
@@ -284,9 +305,10 @@ fn decide(
         }
     }
     let p = (y * width + x) as usize;
-    let mut pixel = [0.0f64; 3];
+    let mut out = Vec::with_capacity(spp);
     for (i, own_albedo) in albedo.iter().enumerate().take((p + 1) * spp).skip(p * spp) {
         if samples.class[i] == SampleClass::CameraMiss {
+            out.push(Decision::Interpolated([0.0; 3]));
             continue;
         }
         let here = (samples.primary_hit[i], samples.primary_normal[i]);
@@ -320,18 +342,18 @@ fn decide(
             }
         }
         if !(weight > 0.0) || covered < params.min_coverage as f64 * total {
-            return Decision::RefineForGeometry;
+            out.push(Decision::RefineForGeometry);
+            continue;
         }
         let mean = [0, 1, 2].map(|c| (sum[c] / weight) as f32);
         let noise = (high.1 * high.1 + low.1 * low.1).sqrt();
         if high.0 - low.0 > params.contrast * luminance(mean) + params.noise_sigmas * noise {
-            return Decision::RefineForLight;
+            out.push(Decision::RefineForLight);
+            continue;
         }
-        for c in 0..3 {
-            pixel[c] += (own_albedo[c] * mean[c]) as f64;
-        }
+        out.push(Decision::Interpolated([0, 1, 2].map(|c| own_albedo[c] * mean[c])));
     }
-    Decision::Interpolated(pixel.map(|s| (s / spp as f64) as f32))
+    out
 }
 
 #[cfg(test)]
