@@ -11,6 +11,7 @@ use crate::gif::filtered_indirect::{FilterOptions, FilteredIndirect};
 use crate::ilfr::method::{Ilfr, IlfrChoices, IlfrDof, IlfrRecursive, Variant};
 use crate::ilfr::robust::RobustMode;
 use crate::ilfr::shrink::Trim;
+use crate::ilfr::sparse::SparseParams;
 use crate::ilfr::surfaces::ConflictTest;
 use crate::method::{Effect, Method};
 use crate::options::{OptionKind, OptionSpec, Options};
@@ -158,6 +159,28 @@ const VARIANT: OptionSpec = OptionSpec {
            allows (records; irradiance caching); auto: records for indirect light (nearest-splat with grain=filter), \
            nearest-splat for ambient occlusion, paper for glossy reflections (ilfr-recursive: paper)",
 };
+const GATHER: OptionSpec = OptionSpec {
+    key: "gather",
+    kind: OptionKind::Choice(&["full", "sparse"]),
+    default: "full",
+    help: "where the final gather runs for indirect light at Lambertian hits: every pixel, or a grid of pixels \
+           `stride` apart (and the image's last row and column), the light before the albedo of the others \
+           interpolated from their cell's corners with geometry-aware weights and a full gather where the \
+           interpolation's error estimate says so (beyond the paper; with variant=auto the nearest splat)",
+};
+const STRIDE: OptionSpec = OptionSpec {
+    key: "stride",
+    kind: OptionKind::Count { min: 2, max: 16 },
+    default: "2",
+    help: "with gather=sparse (not read otherwise): pixels between the grid's columns and rows",
+};
+const GRID_RAYS: OptionSpec = OptionSpec {
+    key: "grid_rays",
+    kind: OptionKind::Count { min: 1, max: 16 },
+    default: "1",
+    help: "with gather=sparse (not read otherwise): the grid pixels' reconstruction rays as a multiple of the pixel \
+           budget",
+};
 const QUALITY: OptionSpec = OptionSpec {
     key: "quality",
     kind: OptionKind::Choice(&crate::baselines::oidn::QUALITIES),
@@ -299,9 +322,13 @@ pub const METHODS: &[MethodSpec] = &[
     MethodSpec {
         name: "ilfr",
         effects: INDIRECT_AND_AO,
-        options: &[VARIANT, CONFLICT, SHRINK, TRIM, ROBUST, SMALL, GRAIN],
+        options: &[VARIANT, CONFLICT, SHRINK, TRIM, ROBUST, SMALL, GRAIN, GATHER, STRIDE, GRID_RAYS],
         description: "indirect light field reconstruction (Lehtinen et al. 2012)",
-        build: |options| Ok(Box::new(Ilfr { choices: ilfr_choices(options) })),
+        build: |options| {
+            let choices = ilfr_choices(options);
+            check_sparse_gather(options, &choices)?;
+            Ok(Box::new(Ilfr { choices }))
+        },
     },
     MethodSpec {
         name: "ilfr-recursive",
@@ -414,7 +441,8 @@ fn tlfr_gi(options: &Options) -> Result<GiMode, Error> {
     }
 }
 
-/// The `conflict`, `shrink`, `trim`, `robust`, `small` and `grain` options of the ILFR methods.
+/// The `conflict`, `shrink`, `trim`, `robust`, `small`, `grain`, `variant` and sparse gather
+/// (`gather`, `stride`, `grid_rays`) options of the ILFR methods.
 fn ilfr_choices(options: &Options) -> IlfrChoices {
     let defaults = IlfrChoices::default();
     IlfrChoices {
@@ -450,7 +478,31 @@ fn ilfr_choices(options: &Options) -> IlfrChoices {
             Some("records") => Some(Variant::Records),
             _ => defaults.variant,
         },
+        sparse: (options.choice("gather") == Some("sparse")).then(|| {
+            let sparse = SparseParams::default();
+            SparseParams {
+                stride: options.count("stride").unwrap_or(sparse.stride),
+                grid_ray_factor: options.count("grid_rays").unwrap_or(sparse.grid_ray_factor),
+                ..sparse
+            }
+        }),
     }
+}
+
+/// `gather=sparse` is refused where it cannot apply: with records (which interpolate on their
+/// own) or with the grain filter (which needs every pixel's own spread). `stride` and
+/// `grid_rays` are read only with `gather=sparse` (spelled out with the default `gather=full`
+/// they are the declared defaults, which the listing's round trip needs accepted).
+fn check_sparse_gather(options: &Options, choices: &IlfrChoices) -> Result<(), Error> {
+    let refuse =
+        |message: &str| Err(Error::Option { spec: format!("ilfr:{}", options.canonical()), message: message.into() });
+    if choices.sparse.is_some() && choices.variant == Some(Variant::Records) {
+        return refuse("gather=sparse replaces the records' interpolation: choose variant=nearest-splat or paper");
+    }
+    if choices.sparse.is_some() && choices.filter_grain {
+        return refuse("grain=filter needs a gather at every pixel: it does not combine with gather=sparse");
+    }
+    Ok(())
 }
 
 /// A filter of the filtered path-tracing pipeline with `options` applied.
@@ -727,6 +779,19 @@ mod tests {
         assert_eq!(rays("ilfr:variant=paper", Effect::Indirect), [256]);
         assert_eq!(rays("ilfr:variant=records", Effect::Glossy), [16, 128]);
         assert_eq!(rays("ilfr+oidn", Effect::Indirect), [16, 128]);
+        // The sparse gather: off by default; with variant=auto over the nearest splat.
+        let indirect = |option: &str| {
+            let choices = ilfr_choices(&spec("ilfr").unwrap().parse_options(option).unwrap());
+            choices.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Indirect)
+        };
+        assert_eq!(indirect("variant=auto").sparse, None);
+        let sparse = indirect("gather=sparse:stride=3:grid_rays=4");
+        let params = sparse.sparse.unwrap();
+        assert_eq!((params.stride, params.grid_ray_factor), (3, 4));
+        assert_eq!((sparse.ray_model, sparse.cache), (NearestSplat, None));
+        assert_eq!(indirect("gather=sparse:variant=paper").ray_model, ApparentSurfaces);
+        assert_eq!(rays("ilfr:gather=sparse", Effect::Indirect), [16, 128]);
+        assert_eq!(rays("ilfr:gather=sparse:variant=paper", Effect::Indirect), [256]);
         let gi = |text: &str| tlfr_gi(&spec("tlfr").unwrap().parse_options(text).unwrap()).unwrap();
         assert_eq!(gi(""), GiMode::Split { radius: DEFAULT_GI_RADIUS });
         assert_eq!(gi("gi=whole"), GiMode::Whole);
@@ -772,6 +837,11 @@ mod tests {
             ("ilfr:shrink=some", "hit-rays"),
             ("ilfr:trim=some", "wedges"),
             ("ilfr:small=some", "keep"),
+            ("ilfr:gather=some", "sparse"),
+            ("ilfr:gather=sparse:stride=1", "at least 2"),
+            ("ilfr:gather=sparse:variant=records", "nearest-splat or paper"),
+            ("ilfr:gather=sparse:grain=filter", "every pixel"),
+            ("ilfr-recursive:gather=sparse", "does not apply"),
         ] {
             let error = find(spec).err().unwrap_or_else(|| panic!("{spec} must fail")).to_string();
             assert!(error.contains(needle) && error.contains(spec.split(':').next().unwrap()), "{spec}: {error}");

@@ -237,7 +237,7 @@ fn make_records(
 /// Per pixel, the world-space distance between its primary hits' mean and its neighbours'
 /// (the median over the four neighbours on the same surface, normals within 25°), or the
 /// image's median where a pixel has none; for a record's radius in pixels.
-fn pixel_footprints(samples: &IndirectSamples) -> Vec<f32> {
+pub(super) fn pixel_footprints(samples: &IndirectSamples) -> Vec<f32> {
     let (width, height, spp) = (samples.width as usize, samples.height as usize, samples.spp.max(1) as usize);
     let mean_hit: Vec<Option<([f32; 3], [f32; 3])>> = (0..width * height)
         .map(|p| {

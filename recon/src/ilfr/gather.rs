@@ -101,6 +101,10 @@ pub struct GatherStats {
     pub unsupported_hits: u64,
     /// With records ([`super::cache`]): (records, hits interpolated, hits gathered on their own).
     pub cache: Option<(u64, u64, u64)>,
+    /// With the sparse gather ([`super::sparse`]): (grid pixels, pixels interpolated whole,
+    /// pixels with hits refined by a gather of their own, those hits, of those the ones refined
+    /// for their corners' disagreement rather than their geometry).
+    pub sparse: Option<(u64, u64, u64, u64, u64)>,
 }
 
 impl GatherStats {
@@ -112,6 +116,10 @@ impl GatherStats {
         if let Some((r, i, u)) = other.cache {
             let (a, b, c) = self.cache.unwrap_or_default();
             self.cache = Some((a + r, b + i, c + u));
+        }
+        if let Some((g, i, r, h, l)) = other.sparse {
+            let (a, b, c, d, e) = self.sparse.unwrap_or_default();
+            self.sparse = Some((a + g, b + i, c + r, d + h, e + l));
         }
     }
 }
@@ -305,7 +313,7 @@ fn gather_cached(
 /// Pixels per side of the square tiles the gather works in: a tile's rays are reconstructed in
 /// direction order ([`trace_in_direction_order`]); 16 unless that would hold more than
 /// [`MAX_TILE_RAYS`] rays.
-const TILE: u32 = 16;
+pub(super) const TILE: u32 = 16;
 
 /// The most rays a tile holds at once (≈ 4 MB of rays and results), so that the tiles' memory
 /// stays bounded at any number of rays per pixel.
@@ -313,7 +321,7 @@ const MAX_TILE_RAYS: u64 = 1 << 16;
 
 /// The side of the gather's tiles for `rays_per_pixel`: [`TILE`], or less (at least 1) so
 /// that a tile holds at most [`MAX_TILE_RAYS`] rays where a pixel has fewer than that.
-fn tile_side(rays_per_pixel: u64) -> u32 {
+pub(super) fn tile_side(rays_per_pixel: u64) -> u32 {
     let rays = rays_per_pixel.max(1);
     (1..=TILE).rev().find(|&side| (side as u64 * side as u64).saturating_mul(rays) <= MAX_TILE_RAYS).unwrap_or(1)
 }
@@ -376,82 +384,115 @@ fn gather_tile(
     tile: Tile,
     (per_hit, settings): (u32, &GatherSettings),
 ) -> TileGather {
+    let pixel_list: Vec<(u32, u32)> = tile.pixels().collect();
+    let Some(ao_radius) = ao_radius else {
+        let gathered = gather_indirect_pixels(samples, reconstructor, albedo, &pixel_list, (per_hit, settings));
+        return TileGather { tile, pixels: gathered.values, variance: gathered.variance, stats: gathered.stats };
+    };
     let spp = samples.spp.max(1) as usize;
     let width = samples.width as usize;
-    let (rays, ends) = tile_rays(samples, &tile, ao_radius.is_some(), (per_hit, settings));
+    let (rays, ends) = tile_rays(samples, &pixel_list, true, (per_hit, settings));
     let mut stats = GatherStats::default();
-    let mut pixels = Vec::with_capacity(tile.xs.len() * tile.ys.len());
-    let mut variance = Vec::new();
-    match ao_radius {
-        None => {
-            let (found, reconstruct) = trace_in_direction_order(&rays, |ray, scratch, stats| {
-                reconstructor.radiance(ray, scratch, stats).map(|f| f.radiance)
-            });
-            stats.reconstruct = reconstruct;
-            let mut sky = Vec::new();
-            let mut begin = 0;
-            for (pixel, (x, y)) in tile.pixels().enumerate() {
-                let sky_spacing = sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky);
-                let min_cosine = sky_spacing.map(|spacing| {
-                    let angle = (settings.sky_spacing_factor * spacing).min(std::f32::consts::PI);
-                    angle.cos()
-                });
-                let mut spread = RaySpread::default();
-                let mut sum = [0.0f64; 3];
-                let first = (y as usize * width + x as usize) * spp;
-                for (k, i) in (first..first + spp).enumerate() {
-                    let end = ends[pixel * spp + k];
-                    let value = indirect_at(
-                        samples,
-                        i,
-                        albedo.map(|a| a[i]).unwrap_or([0.0; 3]),
-                        (&rays[begin..end], &found[begin..end]),
-                        (&sky, min_cosine),
-                        (&mut stats, &mut spread),
-                    );
-                    begin = end;
-                    for c in 0..3 {
-                        sum[c] += value[c] as f64;
-                    }
-                }
-                variance.push(spread.variance_of_mean());
-                pixels.push(sum.map(|s| (s / spp as f64) as f32));
-            }
+    let mut pixels = Vec::with_capacity(pixel_list.len());
+    let (visible, reconstruct) =
+        trace_in_direction_order(&rays, |ray, scratch, stats| reconstructor.visibility(ray, ao_radius, scratch, stats));
+    stats.reconstruct = reconstruct;
+    let mut begin = 0;
+    for (pixel, &(x, y)) in pixel_list.iter().enumerate() {
+        let mut sum = 0.0f64;
+        let first = (y as usize * width + x as usize) * spp;
+        for (k, i) in (first..first + spp).enumerate() {
+            let end = ends[pixel * spp + k];
+            sum += visibility_at(samples, i, &visible[begin..end], per_hit, &mut stats) as f64;
+            begin = end;
         }
-        Some(ao_radius) => {
-            let (visible, reconstruct) = trace_in_direction_order(&rays, |ray, scratch, stats| {
-                reconstructor.visibility(ray, ao_radius, scratch, stats)
-            });
-            stats.reconstruct = reconstruct;
-            let mut begin = 0;
-            for (pixel, (x, y)) in tile.pixels().enumerate() {
-                let mut sum = 0.0f64;
-                let first = (y as usize * width + x as usize) * spp;
-                for (k, i) in (first..first + spp).enumerate() {
-                    let end = ends[pixel * spp + k];
-                    sum += visibility_at(samples, i, &visible[begin..end], per_hit, &mut stats) as f64;
-                    begin = end;
-                }
-                pixels.push([(sum / spp as f64) as f32; 3]);
-            }
-        }
+        pixels.push([(sum / spp as f64) as f32; 3]);
     }
-    TileGather { tile, pixels, variance, stats }
+    TileGather { tile, pixels, variance: Vec::new(), stats }
 }
 
-/// The weighted rays of every primary hit of `tile` (its pixels row by row, each pixel's hits in
+/// The indirect light of a list of pixels, each gathered as the full gather gathers it.
+pub(super) struct IndirectPixels {
+    /// Per pixel of the list, in its order.
+    pub values: Vec<[f32; 3]>,
+    /// Per pixel, [`RaySpread::variance_of_mean`].
+    pub variance: Vec<f32>,
+    /// Per primary hit of each pixel (spp per pixel, in order): the mean radiance of its
+    /// supported cosine rays, the light before its albedo (`None`: a camera miss, a hit without
+    /// support, or a glossy hit).
+    pub hit_radiance: Vec<Option<[f32; 3]>>,
+    pub stats: GatherStats,
+}
+
+/// Gathers the indirect light of `pixels` (any set, in any order): their rays are generated
+/// first and reconstructed together in direction order, then each hit's estimate is formed
+/// from its own rays in their order, so that every pixel is the one the ray-by-ray gather
+/// gives it, bit for bit, whatever else is in the list.
+pub(super) fn gather_indirect_pixels(
+    samples: &IndirectSamples,
+    reconstructor: &Reconstructor,
+    albedo: Option<&[[f32; 3]]>,
+    pixels: &[(u32, u32)],
+    (per_hit, settings): (u32, &GatherSettings),
+) -> IndirectPixels {
+    let spp = samples.spp.max(1) as usize;
+    let width = samples.width as usize;
+    let (rays, ends) = tile_rays(samples, pixels, false, (per_hit, settings));
+    let (found, reconstruct) = trace_in_direction_order(&rays, |ray, scratch, stats| {
+        reconstructor.radiance(ray, scratch, stats).map(|f| f.radiance)
+    });
+    let mut out = IndirectPixels {
+        values: Vec::with_capacity(pixels.len()),
+        variance: Vec::with_capacity(pixels.len()),
+        hit_radiance: Vec::with_capacity(pixels.len() * spp),
+        stats: GatherStats { reconstruct, ..GatherStats::default() },
+    };
+    let mut sky = Vec::new();
+    let mut begin = 0;
+    for (pixel, &(x, y)) in pixels.iter().enumerate() {
+        let sky_spacing = sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky);
+        let min_cosine = sky_spacing.map(|spacing| {
+            let angle = (settings.sky_spacing_factor * spacing).min(std::f32::consts::PI);
+            angle.cos()
+        });
+        let mut spread = RaySpread::default();
+        let mut sum = [0.0f64; 3];
+        let first = (y as usize * width + x as usize) * spp;
+        for (k, i) in (first..first + spp).enumerate() {
+            let end = ends[pixel * spp + k];
+            let (value, mean) = indirect_at(
+                samples,
+                i,
+                albedo.map(|a| a[i]).unwrap_or([0.0; 3]),
+                (&rays[begin..end], &found[begin..end]),
+                (&sky, min_cosine),
+                (&mut out.stats, &mut spread),
+            );
+            out.hit_radiance.push(mean);
+            begin = end;
+            for c in 0..3 {
+                sum[c] += value[c] as f64;
+            }
+        }
+        out.variance.push(spread.variance_of_mean());
+        out.values.push(sum.map(|s| (s / spp as f64) as f32));
+    }
+    out
+}
+
+/// The weighted rays of every primary hit of `pixels` (in their order, each pixel's hits in
 /// order; for ambient occlusion `ao`, cosine rays at every hit), and where each hit's rays end
 /// in that list (camera misses have none).
 fn tile_rays(
     samples: &IndirectSamples,
-    tile: &Tile,
+    pixels: &[(u32, u32)],
     ao: bool,
     (per_hit, settings): (u32, &GatherSettings),
 ) -> (Vec<WeightedRay>, Vec<usize>) {
     let spp = samples.spp.max(1) as usize;
     let width = samples.width as usize;
     let (mut rays, mut ends) = (Vec::new(), Vec::new());
-    for (x, y) in tile.pixels() {
+    for &(x, y) in pixels {
         let first = (y as usize * width + x as usize) * spp;
         for i in first..first + spp {
             if samples.class[i] != SampleClass::CameraMiss {
@@ -480,6 +521,56 @@ pub(super) fn assemble_rows(width: u32, height: u32, rows: Vec<(Vec<[f32; 3]>, G
     (Image::from_pixels(width, height, pixels), stats)
 }
 
+/// Gathers the indirect light of single Lambertian primary hits (`hits`, sample indices, any
+/// set, in any order): their rays reconstructed together in direction order, then each hit's
+/// value formed from its own rays as the full gather forms it, bit for bit.
+pub(super) fn gather_indirect_hits(
+    samples: &IndirectSamples,
+    reconstructor: &Reconstructor,
+    albedo: &[[f32; 3]],
+    hits: &[usize],
+    (per_hit, settings): (u32, &GatherSettings),
+) -> (Vec<[f32; 3]>, GatherStats) {
+    let spp = samples.spp.max(1) as usize;
+    let (mut rays, mut ends) = (Vec::new(), Vec::with_capacity(hits.len()));
+    for &i in hits {
+        if samples.class[i] != SampleClass::CameraMiss {
+            rays.extend(
+                hit_rays(samples, i, per_hit, settings).map(|ray| WeightedRay { ray: Some(ray), weight: [1.0; 3] }),
+            );
+        }
+        ends.push(rays.len());
+    }
+    let (found, reconstruct) = trace_in_direction_order(&rays, |ray, scratch, stats| {
+        reconstructor.radiance(ray, scratch, stats).map(|f| f.radiance)
+    });
+    let mut stats = GatherStats { reconstruct, ..GatherStats::default() };
+    let (mut sky, mut spread) = (Vec::new(), RaySpread::default());
+    let mut values = Vec::with_capacity(hits.len());
+    let mut begin = 0;
+    for (k, &i) in hits.iter().enumerate() {
+        let pixel = (i / spp) as u32;
+        let (x, y) = (pixel % samples.width, pixel / samples.width);
+        let sky_spacing = sky_samples(samples, x, y, settings.sky_pixel_radius, &mut sky);
+        let min_cosine = sky_spacing.map(|spacing| {
+            let angle = (settings.sky_spacing_factor * spacing).min(std::f32::consts::PI);
+            angle.cos()
+        });
+        let end = ends[k];
+        let (value, _) = indirect_at(
+            samples,
+            i,
+            albedo[i],
+            (&rays[begin..end], &found[begin..end]),
+            (&sky, min_cosine),
+            (&mut stats, &mut spread),
+        );
+        begin = end;
+        values.push(value);
+    }
+    (values, stats)
+}
+
 /// Every ray the gather of the `indirect` target reconstructs (none where a BSDF direction
 /// points below the surface), in the order the gather reconstructs them — tile by tile, each
 /// tile's in `direction_order` — so that a benchmark tracing the same rays with another
@@ -489,7 +580,8 @@ pub fn reconstruction_rays(samples: &IndirectSamples, settings: &GatherSettings)
     let layout = TileLayout::of(samples, per_hit);
     let mut out = Vec::new();
     for t in 0..layout.count() {
-        let (rays, _) = tile_rays(samples, &layout.tile(t), false, (per_hit, settings));
+        let pixels: Vec<(u32, u32)> = layout.tile(t).pixels().collect();
+        let (rays, _) = tile_rays(samples, &pixels, false, (per_hit, settings));
         out.extend(direction_order(&rays).filter_map(|k| rays[k].ray));
     }
     out
@@ -574,7 +666,8 @@ fn hit_scramble(i: usize, settings: &GatherSettings) -> u32 {
 }
 
 /// Primary hit `i`'s indirect light from its weighted `rays` and what the reconstruction
-/// found along each (`found`, the same length; a sky sample where it found nothing).
+/// found along each (`found`, the same length; a sky sample where it found nothing), and at a
+/// Lambertian hit with support the mean radiance of its rays (the light before the albedo).
 fn indirect_at(
     samples: &IndirectSamples,
     i: usize,
@@ -582,10 +675,10 @@ fn indirect_at(
     (rays, found): (&[WeightedRay], &[Option<[f32; 3]>]),
     sky: (&[SkySample], Option<f32>),
     (stats, spread): (&mut GatherStats, &mut RaySpread),
-) -> [f32; 3] {
+) -> ([f32; 3], Option<[f32; 3]>) {
     let class = samples.class[i];
     if class == SampleClass::CameraMiss {
-        return [0.0; 3];
+        return ([0.0; 3], None);
     }
     stats.primary_hits += 1;
     let (mut sum, mut supported) = ([0.0f64; 3], 0u32);
@@ -611,7 +704,8 @@ fn indirect_at(
     // o's own BSDF's weights f·cos/p (`bsdf_rays`), already applied.
     let scale = if lambertian { albedo } else { [1.0; 3] };
     if supported > 0 {
-        return [0, 1, 2].map(|c| scale[c] * (sum[c] / supported as f64) as f32);
+        let mean = [0, 1, 2].map(|c| (sum[c] / supported as f64) as f32);
+        return ([0, 1, 2].map(|c| scale[c] * mean[c]), lambertian.then_some(mean));
     }
     // No support at all: the sample's own estimate, weight · L (the box value).
     stats.unsupported_hits += 1;
@@ -619,9 +713,9 @@ fn indirect_at(
         SampleClass::Hit | SampleClass::Escaped => {
             let weight = samples.weight.as_ref().map_or(albedo, |w| w[i]);
             let radiance = samples.radiance.as_ref().map_or([0.0; 3], |r| r[i]);
-            [0, 1, 2].map(|c| weight[c] * radiance[c])
+            ([0, 1, 2].map(|c| weight[c] * radiance[c]), None)
         }
-        SampleClass::CameraMiss | SampleClass::NoSecondaryRay => [0.0; 3],
+        SampleClass::CameraMiss | SampleClass::NoSecondaryRay => ([0.0; 3], None),
     }
 }
 

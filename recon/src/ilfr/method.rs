@@ -32,6 +32,7 @@ use super::recursive::{recursive_pass, RecursiveSettings, RecursiveStats};
 use super::robust::{robust_radiance_with_juries, RobustMode, RobustParams, RobustStats};
 use super::samples::{read_indirect, IndirectSamples};
 use super::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams, ShrinkStats, Trim};
+use super::sparse::SparseParams;
 use super::splats::{size_splats_with_juries, GatheredPoints, SplatParams, SplatStats};
 use super::surfaces::{ConflictTest, SurfaceParams};
 use crate::error::Error;
@@ -63,6 +64,8 @@ pub struct IlfrChoices {
     pub filter_grain: bool,
     /// The gather's design; `None`: [`variant_for`] the effect.
     pub variant: Option<Variant>,
+    /// The final gather at a sparse grid of pixels ([`super::sparse`]); `None`: at every pixel.
+    pub sparse: Option<SparseParams>,
 }
 
 /// The final gather's design (`ilfr:variant=…`; docs/ilfr.md measures each).
@@ -116,6 +119,7 @@ impl Default for IlfrChoices {
             merge_small_surfaces: None,
             filter_grain: false,
             variant: None,
+            sparse: None,
         }
     }
 }
@@ -160,7 +164,7 @@ impl IlfrChoices {
     pub fn apply(&self, settings: IlfrSettings, effect: Effect) -> IlfrSettings {
         let conflict_test = self.conflict_test.unwrap_or_else(|| conflict_test_for(effect));
         let merge_small_surfaces = self.merge_small_surfaces.unwrap_or_else(|| merge_small_surfaces_for(effect));
-        let variant = self.variant.unwrap_or_else(|| variant_for(effect, self.filter_grain));
+        let variant = self.resolved_variant(effect);
         IlfrSettings {
             surfaces: SurfaceParams { conflict_test, merge_small_surfaces, ..settings.surfaces },
             shrink: ShrinkParams {
@@ -175,7 +179,19 @@ impl IlfrChoices {
                 Variant::NearestSplat | Variant::Records => RayModelChoice::NearestSplat,
             },
             cache: (variant == Variant::Records).then(CacheParams::default),
+            sparse: self.sparse,
             ..settings
+        }
+    }
+
+    /// The variant that runs for `effect`: the chosen one, else [`variant_for`] the effect, with
+    /// the nearest splat in place of records under the sparse gather (records interpolate
+    /// themselves).
+    pub fn resolved_variant(&self, effect: Effect) -> Variant {
+        match (self.variant, variant_for(effect, self.filter_grain)) {
+            (Some(chosen), _) => chosen,
+            (None, Variant::Records) if self.sparse.is_some() => Variant::NearestSplat,
+            (None, auto) => auto,
         }
     }
 }
@@ -188,7 +204,7 @@ impl Method for Ilfr {
     /// 256 for the paper's gather; 16 and 128 otherwise (records gather 16 rays per ray of a
     /// pixel's budget, [`IlfrSettings::rays_per_record_ray`]).
     fn default_recon_rays(&self, effect: Effect) -> Vec<u32> {
-        match self.choices.variant.unwrap_or_else(|| variant_for(effect, self.choices.filter_grain)) {
+        match self.choices.resolved_variant(effect) {
             Variant::Paper => vec![256],
             Variant::NearestSplat | Variant::Records => vec![16, 128],
         }
@@ -399,6 +415,9 @@ pub struct IlfrSettings {
     /// [`Self::rays_per_record_ray`] × `recon_rays` rays per record; `None`: every hit gathers.
     pub cache: Option<CacheParams>,
     pub rays_per_record_ray: u32,
+    /// The final gather at a sparse grid of pixels for indirect light at Lambertian hits
+    /// ([`super::sparse`]); `None`: every pixel gathers.
+    pub sparse: Option<SparseParams>,
 }
 
 /// [`RayModel`] as a setting.
@@ -439,6 +458,7 @@ impl Default for IlfrSettings {
             prefilter: PrefilterParams::default(),
             cache: None,
             rays_per_record_ray: 16,
+            sparse: None,
         }
     }
 }
@@ -526,6 +546,10 @@ impl Reconstructed {
             ("grain_filter_s", t.grain_s),
             ("cache_records", self.gather.cache.map_or(0.0, |c| c.0 as f64)),
             ("cache_uncovered_fraction", self.gather.cache.map_or(0.0, |c| ratio(c.2, c.1 + c.2))),
+            ("sparse_grid_fraction", self.gather.sparse.map_or(0.0, |s| ratio(s.0, s.0 + s.1 + s.2))),
+            ("sparse_refined_fraction", self.gather.sparse.map_or(0.0, |s| ratio(s.2, s.0 + s.1 + s.2))),
+            ("sparse_refined_hits", self.gather.sparse.map_or(0.0, |s| s.3 as f64)),
+            ("sparse_refined_by_light_hits", self.gather.sparse.map_or(0.0, |s| s.4 as f64)),
         ]
         .into_iter()
         .map(|(name, value)| (name.to_string(), value))
@@ -593,6 +617,13 @@ impl Reconstructed {
                 100.0 * self.robust.excess_fraction
             ),
         ];
+        if let Some((grid, interpolated, refined, hits, by_light)) = self.gather.sparse {
+            notes.push(format!(
+                "sparse gather: {grid} grid pixels gathered, {interpolated} interpolated whole, {refined} with {hits} hits \
+                 refined by a gather of their own ({} for their geometry, {by_light} for their corners' disagreeing light)",
+                hits - by_light
+            ));
+        }
         for (pass, r) in self.recursive.iter().enumerate() {
             let rays = r.reconstruct.rays.max(1) as f64;
             notes.push(format!(
@@ -755,7 +786,10 @@ pub fn reconstruct_samples(
         GatherTarget::Lens(camera) => {
             gather_lens(samples, &reconstructor, &camera, &gather_settings).map(|(i, s)| (i, s, Vec::new()))
         }
-        GatherTarget::Indirect => gather_with_spread(samples, &reconstructor, None, &gather_settings),
+        GatherTarget::Indirect => match &settings.sparse {
+            Some(sparse) => super::sparse::gather_indirect(samples, &reconstructor, sparse, &gather_settings),
+            None => gather_with_spread(samples, &reconstructor, None, &gather_settings),
+        },
         GatherTarget::Visibility { ao_radius } => {
             gather_with_spread(samples, &reconstructor, Some(ao_radius), &gather_settings)
         }

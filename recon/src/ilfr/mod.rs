@@ -53,6 +53,11 @@
 //!   estimate allows and gathered in full where not (irradiance caching: `cache`). The sizing's
 //!   walk also finds each splat's jury, so that the robust radiance walks the kd-tree only for
 //!   its outliers (`splats::size_splats_with_juries`, the same radiance bit for bit).
+//! - Beyond the paper, the final gather of Eq. 3 at a sparse grid of pixels (`ilfr:gather=sparse`,
+//!   with `stride` and `grid_rays`), the mean radiance of the other pixels' Lambertian hits
+//!   interpolated from the grid with geometry-aware weights and multiplied by their own albedo,
+//!   and a full gather where the interpolation's error estimate (too little similar geometry
+//!   among the corners, or corners that disagree beyond their noise) says so: `sparse`.
 //! - ✓ Section 4, recursive filtering: at every secondary hit 16 rays reconstruct the incident
 //!   light, and the sample's radiance becomes `secondary_direct` + the reflected mean before the
 //!   final gather (cosine rays × `secondary_albedo` in diffuse files; h's own BSDF through
@@ -83,6 +88,7 @@ pub mod recursive;
 pub mod robust;
 pub mod samples;
 pub mod shrink;
+pub mod sparse;
 pub mod splats;
 pub mod surfaces;
 
