@@ -309,7 +309,7 @@ fn soft_shadows_keep_their_image_at_extreme_scales_and_on_one_pixel() {
 
 /// Reconstructs the soft shadows of `scene` from 4 spp at 32² and returns the image with the
 /// RMSE of it and of the box filter of its input against 4096 spp.
-fn soft_shadow_errors(scene: &Scene) -> (recon::method::Output, f64, f64) {
+fn soft_shadow_errors(scene: &Scene) -> (recon::tlfr::reconstruction::Reconstruction, f64, f64) {
     let reference = common::render(scene, 32, 32, 4096, 11);
     let run = soft_shadow_run(scene, (32, 32), 4, &reference.beauty, &vec![true; 32 * 32]);
     (run.output, run.tlfr_error, run.box_error)
@@ -317,7 +317,7 @@ fn soft_shadow_errors(scene: &Scene) -> (recon::method::Output, f64, f64) {
 
 /// One soft-shadow reconstruction (32 locations per pixel) against a converged image.
 struct SoftShadowRun {
-    output: recon::method::Output,
+    output: recon::tlfr::reconstruction::Reconstruction,
     tlfr_error: f64,
     box_error: f64,
     /// Mean over pixels and channels of the reconstruction and of the box filter.

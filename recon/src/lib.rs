@@ -7,7 +7,7 @@
 //! `metrics/` (PSNR, relative MSE, SSIM, error maps, HDR-FLIP). `method` is the interface the
 //! comparison harness runs them through, `progress` how far the running one is, `registry` the one list of the methods with their
 //! effects and options (parsed by `options`). `image`, `guide` (the per-pixel guide buffers),
-//! `octahedral`, `python` and `lcg` are the
+//! `octahedral`, `python`, `vector` (the maths on `[f32; 3]` records) and `lcg` are the
 //! shared pieces below them (`lcg` generates test data only).
 
 pub mod auxiliary;
@@ -27,6 +27,7 @@ pub mod pipeline;
 pub mod python;
 pub mod registry;
 pub mod tlfr;
+pub mod vector;
 
 pub use error::Error;
 pub use image::Image;

@@ -188,7 +188,7 @@ impl DiscBvh {
                     disc.radius
                 )));
             }
-            let l = super::disc::length(disc.normal);
+            let l = crate::vector::length(disc.normal);
             if !(l.is_finite() && (l - 1.0).abs() <= 1e-3) {
                 return Err(bad(format!(
                     "splat hierarchy: the normal of disc {i} is not a unit vector: {:?}",

@@ -30,10 +30,10 @@ use shading::sampling::hash_u32;
 
 use super::bsdf_rays::WeightedRay;
 use super::directions::cosine_rays;
-use super::disc::{dot, length, sub};
 use super::ray_order::trace_in_direction_order;
 use super::reconstruct::{or_sky, ReconstructStats, Reconstructor, Scratch, SkyFallbacks, SkySample};
 use super::samples::{IndirectSamples, SampleClass};
+use crate::vector::{dot, length, sub};
 
 /// How records are placed and interpolated (see the module documentation).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -255,7 +255,7 @@ pub(super) fn pixel_footprints(samples: &IndirectSamples) -> Vec<f32> {
                 }
                 m
             };
-            Some((mean(&samples.primary_hit), super::directions::normalize(mean(&samples.primary_normal))))
+            Some((mean(&samples.primary_hit), crate::vector::normalize(mean(&samples.primary_normal))))
         })
         .collect();
     let cos_limit = 25f32.to_radians().cos();

@@ -10,6 +10,7 @@ use shading::sampling::sobol_2d_scrambled;
 use shading::{sample_cosine_hemisphere, Frame};
 
 use super::disc::Ray;
+use crate::vector::normalize;
 
 /// `count` rays from `hit` lifted by `offset` along the unit `normal`, cosine-distributed about
 /// it: points `first`, …, `first + count − 1` of the 2D Sobol' sequence Owen-scrambled by
@@ -32,16 +33,6 @@ pub(super) fn cosine_rays(
         let direction = [0, 1, 2].map(|a| local[0] * tangent[a] + local[1] * bitangent[a] + local[2] * normal[a]);
         Ray { time: 0.0, origin, direction: normalize(direction) }
     })
-}
-
-/// `v / |v|`, or `v` itself when it has zero length.
-pub(super) fn normalize(v: [f32; 3]) -> [f32; 3] {
-    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    if l > 0.0 {
-        v.map(|c| c / l)
-    } else {
-        v
-    }
 }
 
 #[cfg(test)]
@@ -74,11 +65,5 @@ mod tests {
                 assert!((mean[a] / n - 2.0 / 3.0 * normal[a] as f64).abs() < 2e-3, "{normal:?}: {mean:?}");
             }
         }
-    }
-
-    #[test]
-    fn normalize_keeps_zero_and_scales_to_unit_length() {
-        assert_eq!(normalize([0.0; 3]), [0.0; 3]);
-        assert_eq!(normalize([0.0, 3.0, 4.0]), [0.0, 0.6, 0.8]);
     }
 }

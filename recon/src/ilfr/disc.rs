@@ -16,24 +16,11 @@
 //! (|n·d| ≤ 1e-7) never hits, so t is bounded by |h − p| / 1e-7, and every comparison is written
 //! so that a NaN fails it.
 
+use crate::vector::{dot, length, sub};
+
 /// Rays closer to the tangent plane than this (|n·d|, the cosine between the ray and the plane's
 /// normal) do not hit the disc: the plane intersection would be ill-conditioned.
 pub const GRAZING_COSINE: f32 = 1e-7;
-
-#[inline]
-pub fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-#[inline]
-pub fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-#[inline]
-pub fn length(a: [f32; 3]) -> f32 {
-    dot(a, a).sqrt()
-}
 
 /// A ray p + t·d with a unit direction d, at a time in [0, 1] over the shutter (only moving
 /// discs look at it; 0 where nothing moves).
@@ -300,11 +287,7 @@ fn inside_span(start: [f32; 2], end: [f32; 2], u: [f32; 2]) -> bool {
 mod tests {
     use super::*;
     use crate::lcg::Lcg;
-
-    fn normalize(v: [f32; 3]) -> [f32; 3] {
-        let l = length(v);
-        [v[0] / l, v[1] / l, v[2] / l]
-    }
+    use crate::vector::normalize;
 
     #[test]
     fn a_tilted_disc_is_hit_where_the_geometry_says() {

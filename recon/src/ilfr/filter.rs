@@ -23,8 +23,8 @@
 //! finite number in [0, 1]; a surface whose weights all vanish (a ray grazing every rim) falls
 //! back to the unweighted mean instead of dividing by zero.
 
-use super::disc::dot;
 use super::surfaces::{Candidate, Surface};
+use crate::vector::dot;
 
 /// κ from which a splat counts as glossy and its surface is filtered by nearest neighbour
 /// (κ_nn of the design; κ = 1 is a lobe whose half-width at A = 0.5 is 72°).

@@ -18,6 +18,8 @@
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
+use crate::vector::sub;
+
 /// Points per leaf.
 const LEAF_SIZE: usize = 8;
 
@@ -28,11 +30,6 @@ const LEAF_SIZE: usize = 8;
 pub fn metric_distance_squared(d: [f32; 3], normal: [f32; 3], alpha_squared_minus_one: f32) -> f32 {
     let along_normal = d[0] * normal[0] + d[1] * normal[1] + d[2] * normal[2];
     (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) + alpha_squared_minus_one * (along_normal * along_normal)
-}
-
-#[inline]
-pub fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 
 #[derive(Clone, Copy, Debug)]

@@ -18,9 +18,9 @@
 
 use rayon::prelude::*;
 
-use super::disc::{dot, length, sub};
 use super::splats::{Juries, SplatPoints};
 use super::surfaces::COPLANAR_DEGREES;
+use crate::vector::{dot, length, sub};
 
 /// Which neighbours a splat's filtered radiance takes.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -88,8 +88,8 @@ fn spread_bits(x: u32) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ilfr::directions::normalize;
     use crate::lcg::Lcg;
+    use crate::vector::normalize;
 
     /// Every existing ray is traced once, each run of [`RAYS_PER_JOB`] rays in non-decreasing
     /// direction key, runs one after another along the keys; its result comes back at its own

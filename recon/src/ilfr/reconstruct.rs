@@ -20,9 +20,10 @@
 //! filter weights are finite in [0, 1] and sums guard against zero.
 
 use super::bvh::{DiscBvh, Kept, SplatHit};
-use super::disc::{dot, Ray};
+use super::disc::Ray;
 use super::filter::{filter_radiance, filter_visibility, FilterMode, Filtered, SplatShading};
 use super::surfaces::{first_surface, prepare_candidates, Candidate, Surface, SurfaceParams};
+use crate::vector::dot;
 
 /// Per-thread scratch of one reconstruction, reused between rays.
 #[derive(Debug, Default)]

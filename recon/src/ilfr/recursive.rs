@@ -249,7 +249,6 @@ fn hit_scramble(i: usize, settings: &RecursiveSettings) -> u32 {
 mod tests {
     use super::*;
     use crate::ilfr::bvh::DiscBvh;
-    use crate::ilfr::directions::normalize;
     use crate::ilfr::disc::Disc;
     use crate::ilfr::filter::SplatShading;
     use crate::ilfr::method::tests::{box_exit, box_samples, settings};
@@ -259,6 +258,7 @@ mod tests {
     use crate::ilfr::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams};
     use crate::ilfr::splats::{size_splats, GatheredPoints, SplatParams};
     use crate::ilfr::surfaces::SurfaceParams;
+    use crate::vector::normalize;
     use sampleio::SampleKind;
 
     /// Sizes, indexes and shrinks the splats of `samples` (as `reconstruct_samples` does) and

@@ -406,7 +406,7 @@ fn read_primary_shading(
         // The tracer stores v along image +y (down): the lens point is p + r (u·right − v·up).
         let eye = [0, 1, 2].map(|a| position[a] + aperture * (lens_u * right[a] - lens_v * up[a]));
         let o = samples.primary_hit[i];
-        let to_eye = super::directions::normalize([0, 1, 2].map(|a| eye[a] - o[a]));
+        let to_eye = crate::vector::normalize([0, 1, 2].map(|a| eye[a] - o[a]));
         per_sample.push(PrimaryShading { bsdf, geometric_normal, to_eye });
     }
     Ok(Some(per_sample))

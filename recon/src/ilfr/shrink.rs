@@ -30,9 +30,10 @@ use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use rayon::prelude::*;
 
 use super::bvh::{DiscBvh, SplatHit};
-use super::disc::{dot, half_plane_wedge_radii, length, tangent_coordinates, Ray, WEDGES};
+use super::disc::{half_plane_wedge_radii, tangent_coordinates, Ray, WEDGES};
 use super::samples::{IndirectSamples, SampleClass};
 use crate::error::Error;
+use crate::vector::{dot, length};
 
 /// One traced secondary ray.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -118,7 +119,7 @@ pub fn input_rays(samples: &IndirectSamples, splat_sample_index: &[u32]) -> Vec<
             None
         };
         let length = match samples.class[i] {
-            SampleClass::Hit => length(super::disc::sub(samples.secondary_hit[i], samples.primary_hit[i])),
+            SampleClass::Hit => length(crate::vector::sub(samples.secondary_hit[i], samples.primary_hit[i])),
             SampleClass::Escaped => f32::INFINITY,
             SampleClass::CameraMiss | SampleClass::NoSecondaryRay => continue,
         };
@@ -167,7 +168,7 @@ pub fn scene_diagonal(bvh: &DiscBvh, rays: &[InputRay]) -> f32 {
         }
     }
     if lo[0] <= hi[0] {
-        length(super::disc::sub(hi, lo))
+        length(crate::vector::sub(hi, lo))
     } else {
         0.0
     }

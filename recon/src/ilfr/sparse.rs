@@ -29,7 +29,6 @@
 
 use rayon::prelude::*;
 
-use super::disc::{dot, sub};
 use super::gather::{
     gather_indirect_hits, gather_indirect_pixels, gather_with_spread, rays_per_hit, tile_side, GatherSettings,
     GatherStats, TILE,
@@ -39,6 +38,7 @@ use super::robust::luminance;
 use super::samples::{IndirectSamples, SampleClass};
 use crate::error::Error;
 use crate::image::Image;
+use crate::vector::{dot, sub};
 
 /// Where the sparse gather gathers and how it interpolates (see the module documentation).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -20,8 +20,9 @@
 
 use rayon::prelude::*;
 
-use super::neighbours::{sub, KdTree, MetricQuery, WalkScratch};
+use super::neighbours::{KdTree, MetricQuery, WalkScratch};
 use crate::error::Error;
+use crate::vector::sub;
 
 /// The parameters of splat sizing; `Default` is the paper's (k = 12, α = 3, τ = 0.5) with the
 /// authors' relaxation (×0.75 down to 0.01, after 1000 candidates).

@@ -37,7 +37,8 @@
 use std::ops::Range;
 
 use super::bvh::{DiscBvh, SplatHit};
-use super::disc::{dot, length, sub, DiscHit, Ray};
+use super::disc::{DiscHit, Ray};
+use crate::vector::{cross, dot, length, normalize, sub};
 
 /// Which visibility-conflict test groups splats.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -357,15 +358,6 @@ pub fn first_surface(ray: &Ray, candidates: &[Candidate], params: &SurfaceParams
         return Some(Surface { members, radiance_from_back_faces, merged_surfaces });
     }
     None
-}
-
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-
-fn normalize(a: [f32; 3]) -> [f32; 3] {
-    let l = length(a);
-    [a[0] / l, a[1] / l, a[2] / l]
 }
 
 /// Two unit vectors spanning the plane ⟂ the unit `d`.

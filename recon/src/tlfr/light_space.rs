@@ -23,6 +23,7 @@ use sampleio::SampleFile;
 
 use super::lens::LensModel;
 use crate::error::Error;
+use crate::vector::{add_scaled, dot, length, sub};
 
 type Vec3 = [f32; 3];
 
@@ -30,22 +31,6 @@ type Vec3 = [f32; 3];
 /// light's plane are outside it. The Lambertian term of a receiver there is below 5 % of its
 /// value at normal incidence (cos θ_light = z/r < 1/20).
 pub const GRAZING_LIMIT: f32 = 20.0;
-
-fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn add_scaled(a: Vec3, b: Vec3, s: f32) -> Vec3 {
-    [a[0] + b[0] * s, a[1] + b[1] * s, a[2] + b[2] * s]
-}
-
-pub fn dot(a: Vec3, b: Vec3) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn length(a: Vec3) -> f32 {
-    dot(a, a).sqrt()
-}
 
 /// The light's frame, from a `light` file's header.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -545,11 +545,11 @@ pub fn visible_point(
     let origin = pose.to_world(unproject(screen[0], screen[1], 0.0));
     let fallback = pose.to_world(unproject(screen[0], screen[1], z));
     let direction = [0, 1, 2].map(|k| fallback[k] - origin[k]); // B·z in world space
-    let along = super::light_space::dot(normal, direction);
-    let offset = super::light_space::dot(normal, [0, 1, 2].map(|k| on_surface[k] - origin[k]));
+    let along = crate::vector::dot(normal, direction);
+    let offset = crate::vector::dot(normal, [0, 1, 2].map(|k| on_surface[k] - origin[k]));
     let scale = offset / along;
     // Within a factor of 2 of the nearest sample's depth, else the slant is too steep to trust.
-    if along.abs() > 1e-6 * super::light_space::dot(direction, direction).sqrt() && (0.5..=2.0).contains(&scale) {
+    if along.abs() > 1e-6 * crate::vector::dot(direction, direction).sqrt() && (0.5..=2.0).contains(&scale) {
         [0, 1, 2].map(|k| origin[k] + scale * direction[k])
     } else {
         fallback
@@ -574,7 +574,7 @@ pub struct ReceiverPlane {
 
 impl ReceiverPlane {
     pub fn new(space: &LightSpace, position: [f32; 3], world_normal: [f32; 3], u: f32, v: f32) -> ReceiverPlane {
-        use super::light_space::dot;
+        use crate::vector::dot;
         let normal =
             [dot(world_normal, space.axis_u), dot(world_normal, space.axis_v), dot(world_normal, space.normal)];
         let (half_u, half_v) = (0.5 * space.width_u, 0.5 * space.width_v);
@@ -592,7 +592,7 @@ impl ReceiverPlane {
     /// sample reaches when it ends no nearer than `depth_at` (with `fallback`) less
     /// `SHADOW_BIAS_RELATIVE` of it and `SHADOW_BIAS_FOOTPRINTS` × `footprint`.
     pub fn lit_test(&self, fallback: f32, footprint: f32) -> LitTest {
-        use super::light_space::dot;
+        use crate::vector::dot;
         LitTest {
             normal: self.normal,
             numerator: self.offset - dot(self.normal, self.from),
@@ -609,7 +609,7 @@ impl ReceiverPlane {
     /// The depth at which the ray through `screen` (seen from the light point) meets the
     /// plane; `fallback` where the ray runs (nearly) parallel to it or meets it behind the light.
     pub fn depth_at(&self, screen: [f32; 2], fallback: f32) -> f32 {
-        use super::light_space::dot;
+        use crate::vector::dot;
         let on_pi = [
             (screen[0] + self.screen_offset[0]) * self.per_unit[0],
             (screen[1] + self.screen_offset[1]) * self.per_unit[1],
@@ -826,7 +826,7 @@ mod tests {
         let lens = space.lens_model();
         let planes = [([1.5, 0.2, 0.0], [-1.0, 0.0, 0.0]), ([0.2, 0.0, 0.1], [0.3, 0.9, 0.3])];
         for (point, normal) in planes {
-            let length = super::super::light_space::dot(normal, normal).sqrt();
+            let length = crate::vector::dot(normal, normal).sqrt();
             let normal = normal.map(|c| c / length);
             let receiver = space.to_light(point, 0.0);
             for (u, v) in [(0.0, 0.0), (-0.8, 0.6), (1.0, -1.0)] {

@@ -1,8 +1,8 @@
 //! The unit tests of `bvh.rs`, in a file of their own beside it for their length.
 
 use super::*;
-use crate::ilfr::disc::length;
 use crate::lcg::Lcg;
+use crate::vector::length;
 
 /// Discs on a bumpy surface and on a few random planes, with some duplicates and zero radii.
 fn random_discs(n: usize, seed: u64) -> Vec<Disc> {

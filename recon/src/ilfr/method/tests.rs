@@ -211,7 +211,7 @@ fn with_floor_bsdf(mut samples: IndirectSamples, bsdf: shading::Bsdf, eye: [f32;
         .map(|o| PrimaryShading {
             bsdf,
             geometric_normal: [0.0, 0.0, 1.0],
-            to_eye: crate::ilfr::directions::normalize([0, 1, 2].map(|a| eye[a] - o[a])),
+            to_eye: crate::vector::normalize([0, 1, 2].map(|a| eye[a] - o[a])),
         })
         .collect();
     samples.primary_shading = Some(shading);
@@ -363,7 +363,7 @@ fn scattered_single_sample_leaves_keep_every_pixel_within_the_input_range() {
             let t = 0.2 + 1.2 * rng.uniform();
             let d = samples.direction[i];
             samples.secondary_hit[i] = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
-            let n = crate::ilfr::directions::normalize([rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5]);
+            let n = crate::vector::normalize([rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5]);
             let facing = n[0] * d[0] + n[1] * d[1] + n[2] * d[2] < 0.0;
             samples.secondary_normal[i] = if facing { n } else { n.map(|c| -c) };
         }

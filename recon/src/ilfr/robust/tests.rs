@@ -212,9 +212,9 @@ fn juries_from_the_sizing_walk_give_the_same_radiance() {
             }
         };
         let tilt = rng.unit_vector();
-        let n = crate::ilfr::directions::normalize([0, 1, 2].map(|a| n[a] + 0.1 * tilt[a]));
+        let n = crate::vector::normalize([0, 1, 2].map(|a| n[a] + 0.1 * tilt[a]));
         let d = rng.unit_vector();
-        let d = if crate::ilfr::disc::dot(d, n) > 0.0 { d.map(|c| -c) } else { d };
+        let d = if crate::vector::dot(d, n) > 0.0 { d.map(|c| -c) } else { d };
         let (p, n, d) = if i % 41 == 40 { (position[i - 1], normal[i - 1], direction[i - 1]) } else { (p, n, d) };
         position.push(p);
         normal.push(n);

@@ -7,10 +7,7 @@ use crate::lcg::Lcg;
 
 const UP: [f32; 3] = [0.0, 0.0, 1.0];
 
-fn normalize(v: [f32; 3]) -> [f32; 3] {
-    let l = length(v);
-    [v[0] / l, v[1] / l, v[2] / l]
-}
+use crate::vector::normalize;
 
 #[test]
 fn a_blocking_splat_shrinks_until_the_ray_passes() {
@@ -118,7 +115,7 @@ fn two_planes() -> (Vec<Disc>, Vec<InputRay>, std::ops::Range<usize>) {
     }
     let shoot = |discs: &mut Vec<Disc>, rays: &mut Vec<InputRay>, hit: [f32; 3], normal: [f32; 3]| {
         let origin = discs[rays.len() % 1500].centre;
-        let offset = super::super::disc::sub(hit, origin);
+        let offset = crate::vector::sub(hit, origin);
         let l = length(offset);
         discs.push(Disc::new(hit, normal, radius));
         rays.push(InputRay {
@@ -305,7 +302,7 @@ fn random_scenes_match_the_definition_for_any_thread_count() {
         .map(|j| {
             let own = (j * 7 % discs.len()) as u32;
             let origin = [rng.uniform() * 3.0, rng.uniform() * 3.0, rng.uniform() * 3.0];
-            let offset = super::super::disc::sub(discs[own as usize].centre, origin);
+            let offset = crate::vector::sub(discs[own as usize].centre, origin);
             let l = length(offset);
             let direction = [offset[0] / l, offset[1] / l, offset[2] / l];
             if j % 5 == 0 {
@@ -370,7 +367,7 @@ fn shrinking_speed() {
             if j % 4 == 0 {
                 return InputRay { time: 0.0, origin, direction: UP, length: f32::INFINITY, own_splat: None };
             }
-            let offset = super::super::disc::sub(discs[j].centre, origin);
+            let offset = crate::vector::sub(discs[j].centre, origin);
             let l = length(offset);
             InputRay {
                 time: 0.0,

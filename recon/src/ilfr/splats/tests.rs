@@ -5,10 +5,7 @@ use crate::lcg::Lcg;
 
 const UP: [f32; 3] = [0.0, 0.0, 1.0];
 
-fn normalize(v: [f32; 3]) -> [f32; 3] {
-    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    [v[0] / l, v[1] / l, v[2] / l]
-}
+use crate::vector::normalize;
 
 struct Cloud {
     position: Vec<[f32; 3]>,
