@@ -326,26 +326,17 @@ pub fn relit_frame(
                 frame.bounces,
                 frame.tolerance,
             )?,
-            Bounces::Full(transport) => match &pre.near {
-                Some(near) => indirect_timed(
-                    &WithNearField { far: *transport, near },
-                    &pre.table,
-                    &albedo,
-                    &direct,
-                    frame.start,
-                    frame.bounces,
-                    frame.tolerance,
-                )?,
-                None => indirect_timed(
-                    *transport,
-                    &pre.table,
-                    &albedo,
-                    &direct,
-                    frame.start,
-                    frame.bounces,
-                    frame.tolerance,
-                )?,
-            },
+            Bounces::Full(far) => {
+                let with_near;
+                let transport: &dyn ReceiverTransport = match &pre.near {
+                    Some(near) => {
+                        with_near = WithNearField { far: *far, near };
+                        &with_near
+                    }
+                    None => *far,
+                };
+                indirect_timed(transport, &pre.table, &albedo, &direct, frame.start, frame.bounces, frame.tolerance)?
+            }
         };
         let bounces_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
