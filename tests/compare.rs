@@ -499,21 +499,29 @@ fn a_poisoned_reference_cache_is_traced_again() {
 /// ILFR runs carry their statistics as named numbers, consistent with the
 /// run: the paper's gather shoots `recon_rays` rays per pixel whose primary hit it gathers (in
 /// the Cornell box all but the lamp's pixels, a few percent); each splat is one input sample
-/// that hit; fractions are fractions. The default's records count themselves. Other methods
-/// have an empty `stats` object.
+/// that hit; fractions are fractions. The default's sparse grid and the full gather's records
+/// count themselves. Other methods have an empty `stats` object.
 #[test]
 fn ilfr_runs_report_their_statistics_as_named_numbers() {
     let dir = tempfile::tempdir().unwrap();
     let results = tiny_compare(
         &dir.path().join("out"),
         &dir.path().join("cache"),
-        &["--methods", "box,ilfr:variant=paper,ilfr", "--recon-rays", "8"],
+        &["--methods", "box,ilfr:variant=paper,ilfr,ilfr:gather=full", "--recon-rays", "8"],
     );
     check_schema(&results);
     assert!(!runs(&results, "ilfr").is_empty() && !runs(&results, "ilfr:variant=paper").is_empty());
     for run in runs(&results, "ilfr") {
         let stats = &run["stats"];
+        let (grid, refined) = (number(&stats["sparse_grid_fraction"]), number(&stats["sparse_refined_fraction"]));
+        assert!(grid > 0.0 && grid + refined <= 1.0 && number(&stats["rays"]) > 0.0, "{stats}");
+        assert_eq!(number(&stats["cache_records"]), 0.0, "{stats}");
+    }
+    assert!(!runs(&results, "ilfr:gather=full").is_empty());
+    for run in runs(&results, "ilfr:gather=full") {
+        let stats = &run["stats"];
         assert!(number(&stats["cache_records"]) >= 1.0 && number(&stats["rays"]) > 0.0, "{stats}");
+        assert_eq!(number(&stats["sparse_grid_fraction"]), 0.0, "{stats}");
     }
     for run in runs(&results, "ilfr:variant=paper") {
         let stats = &run["stats"];

@@ -66,7 +66,7 @@ fn ilfr_error_does_not_grow_with_the_input_on_a_scene_with_outliers() {
     assert!(result.status.success(), "lfr compare failed: {}", String::from_utf8_lossy(&result.stderr));
     let results: Value = serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
 
-    // The test above is the paper's gather (one gather set per primary hit); the default gather (records)
+    // The test above is the paper's gather (one gather set per primary hit); the default gather (sparse)
     // must not grow its error with the input either.
     let robust = runs(&results, "ilfr:variant=paper");
     let plain = runs(&results, "ilfr:variant=paper:robust=off");

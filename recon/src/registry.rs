@@ -8,7 +8,7 @@ use crate::baselines::box_filter::BoxFilter;
 use crate::baselines::oidn::Oidn;
 use crate::error::Error;
 use crate::gif::filtered_indirect::{FilterOptions, FilteredIndirect};
-use crate::ilfr::method::{Ilfr, IlfrChoices, IlfrDof, IlfrRecursive, Variant};
+use crate::ilfr::method::{GatherChoice, Ilfr, IlfrChoices, IlfrDof, IlfrRecursive, Variant};
 use crate::ilfr::robust::RobustMode;
 use crate::ilfr::shrink::Trim;
 use crate::ilfr::sparse::SparseParams;
@@ -156,30 +156,32 @@ const VARIANT: OptionSpec = OptionSpec {
            surfaces (paper); every hit gathers its own rays and each ray reads the nearest splat it meets, its \
            radiance prefiltered over its neighbours (nearest-splat); or, for indirect light at Lambertian hits, records \
            of nearest-splat rays at a subset of the hits, interpolated to the others where their error estimate \
-           allows (records; irradiance caching); auto: records for indirect light (nearest-splat with grain=filter), \
-           nearest-splat for ambient occlusion, paper for glossy reflections (ilfr-recursive: paper)",
+           allows (records; irradiance caching); auto: for indirect light nearest-splat under the sparse gather \
+           (gather=auto) or with grain=filter, records under gather=full; nearest-splat for ambient occlusion, \
+           paper for glossy reflections (ilfr-recursive: paper)",
 };
 const GATHER: OptionSpec = OptionSpec {
     key: "gather",
-    kind: OptionKind::Choice(&["full", "sparse"]),
-    default: "full",
-    help: "where the final gather runs for indirect light at Lambertian hits: every pixel, or a grid of pixels \
-           `stride` apart (and the image's last row and column), the light before the albedo of the others \
+    kind: OptionKind::Choice(&["auto", "full", "sparse"]),
+    default: "auto",
+    help: "where the final gather runs for indirect light at Lambertian hits: every pixel (full), or a grid of \
+           pixels `stride` apart (and the image's last row and column), the light before the albedo of the others \
            interpolated from their cell's corners with geometry-aware weights and a full gather where the \
-           interpolation's error estimate says so (beyond the paper; with variant=auto the nearest splat)",
+           interpolation's error estimate says so (sparse; beyond the paper; with variant=auto the nearest splat); \
+           auto: sparse for indirect light unless a variant or grain=filter is chosen, full otherwise",
 };
 const STRIDE: OptionSpec = OptionSpec {
     key: "stride",
     kind: OptionKind::Count { min: 2, max: 16 },
-    default: "2",
-    help: "with gather=sparse (not read otherwise): pixels between the grid's columns and rows",
+    default: "4",
+    help: "where the sparse gather runs (not read otherwise): pixels between the grid's columns and rows",
 };
 const GRID_RAYS: OptionSpec = OptionSpec {
     key: "grid_rays",
     kind: OptionKind::Count { min: 1, max: 16 },
-    default: "1",
-    help: "with gather=sparse (not read otherwise): the grid pixels' reconstruction rays as a multiple of the pixel \
-           budget",
+    default: "4",
+    help: "where the sparse gather runs (not read otherwise): the grid pixels' reconstruction rays as a multiple \
+           of the pixel budget",
 };
 const QUALITY: OptionSpec = OptionSpec {
     key: "quality",
@@ -478,28 +480,31 @@ fn ilfr_choices(options: &Options) -> IlfrChoices {
             Some("records") => Some(Variant::Records),
             _ => defaults.variant,
         },
-        sparse: (options.choice("gather") == Some("sparse")).then(|| {
-            let sparse = SparseParams::default();
-            SparseParams {
-                stride: options.count("stride").unwrap_or(sparse.stride),
-                grid_ray_factor: options.count("grid_rays").unwrap_or(sparse.grid_ray_factor),
-                ..sparse
-            }
-        }),
+        gather: match options.choice("gather") {
+            Some("full") => GatherChoice::Full,
+            Some("sparse") => GatherChoice::Sparse,
+            _ => defaults.gather,
+        },
+        sparse: SparseParams {
+            stride: options.count("stride").unwrap_or(defaults.sparse.stride),
+            grid_ray_factor: options.count("grid_rays").unwrap_or(defaults.sparse.grid_ray_factor),
+            ..defaults.sparse
+        },
     }
 }
 
 /// `gather=sparse` is refused where it cannot apply: with records (which interpolate on their
 /// own) or with the grain filter (which needs every pixel's own spread). `stride` and
-/// `grid_rays` are read only with `gather=sparse` (spelled out with the default `gather=full`
-/// they are the declared defaults, which the listing's round trip needs accepted).
+/// `grid_rays` are read only where the sparse gather runs (spelled out where it does not, they
+/// are accepted: the listing's round trip spells out every default).
 fn check_sparse_gather(options: &Options, choices: &IlfrChoices) -> Result<(), Error> {
     let refuse =
         |message: &str| Err(Error::Option { spec: format!("ilfr:{}", options.canonical()), message: message.into() });
-    if choices.sparse.is_some() && choices.variant == Some(Variant::Records) {
+    let sparse = choices.gather == GatherChoice::Sparse;
+    if sparse && choices.variant == Some(Variant::Records) {
         return refuse("gather=sparse replaces the records' interpolation: choose variant=nearest-splat or paper");
     }
-    if choices.sparse.is_some() && choices.filter_grain {
+    if sparse && choices.filter_grain {
         return refuse("grain=filter needs a gather at every pixel: it does not combine with gather=sparse");
     }
     Ok(())
@@ -759,7 +764,8 @@ mod tests {
         assert_eq!(find("ilfr-dof:trim=disc").unwrap().unwrap().name(), "ilfr-dof:trim=disc");
         use crate::ilfr::method::RayModelChoice::{ApparentSurfaces, NearestSplat};
         for (option, effect, model, records) in [
-            ("variant=auto", Effect::Indirect, NearestSplat, true),
+            ("variant=auto", Effect::Indirect, NearestSplat, false),
+            ("gather=full", Effect::Indirect, NearestSplat, true),
             ("grain=filter", Effect::Indirect, NearestSplat, false),
             ("variant=auto", Effect::Ao, NearestSplat, false),
             ("variant=auto", Effect::Glossy, ApparentSurfaces, false),
@@ -773,24 +779,35 @@ mod tests {
         }
         assert!(spec("ilfr").unwrap().parse_options("variant=fast").is_err());
         let rays = |name: &str, effect: Effect| find(name).unwrap().unwrap().default_recon_rays(effect);
-        assert_eq!(rays("ilfr", Effect::Indirect), [16, 128]);
+        assert_eq!(rays("ilfr", Effect::Indirect), [16, 64]);
+        assert_eq!(rays("ilfr:gather=full", Effect::Indirect), [16, 128]);
         assert_eq!(rays("ilfr", Effect::Ao), [16, 128]);
         assert_eq!(rays("ilfr", Effect::Glossy), [256]);
         assert_eq!(rays("ilfr:variant=paper", Effect::Indirect), [256]);
         assert_eq!(rays("ilfr:variant=records", Effect::Glossy), [16, 128]);
-        assert_eq!(rays("ilfr+oidn", Effect::Indirect), [16, 128]);
-        // The sparse gather: off by default; with variant=auto over the nearest splat.
+        assert_eq!(rays("ilfr+oidn", Effect::Indirect), [16, 64]);
+        // The sparse gather: on by default for indirect light (a 4-pixel grid at 4× the rays),
+        // over the nearest splat; off where a variant or the grain filter is chosen, and for
+        // other effects.
         let indirect = |option: &str| {
             let choices = ilfr_choices(&spec("ilfr").unwrap().parse_options(option).unwrap());
             choices.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Indirect)
         };
-        assert_eq!(indirect("variant=auto").sparse, None);
+        let grid = |option: &str| indirect(option).sparse.map(|p| (p.stride, p.grid_ray_factor));
+        assert_eq!(grid(""), Some((4, 4)));
+        assert_eq!(grid("variant=auto:gather=auto"), Some((4, 4)));
+        for chosen in ["gather=full", "variant=nearest-splat", "variant=records", "variant=paper", "grain=filter"] {
+            assert_eq!(grid(chosen), None, "{chosen}");
+        }
+        assert_eq!(grid("variant=paper:gather=sparse"), Some((4, 4)));
+        let ao = ilfr_choices(&spec("ilfr").unwrap().parse_options("").unwrap());
+        assert_eq!(ao.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Ao).sparse, None);
         let sparse = indirect("gather=sparse:stride=3:grid_rays=4");
         let params = sparse.sparse.unwrap();
         assert_eq!((params.stride, params.grid_ray_factor), (3, 4));
         assert_eq!((sparse.ray_model, sparse.cache), (NearestSplat, None));
         assert_eq!(indirect("gather=sparse:variant=paper").ray_model, ApparentSurfaces);
-        assert_eq!(rays("ilfr:gather=sparse", Effect::Indirect), [16, 128]);
+        assert_eq!(rays("ilfr:gather=sparse", Effect::Indirect), [16, 64]);
         assert_eq!(rays("ilfr:gather=sparse:variant=paper", Effect::Indirect), [256]);
         let gi = |text: &str| tlfr_gi(&spec("tlfr").unwrap().parse_options(text).unwrap()).unwrap();
         assert_eq!(gi(""), GiMode::Split { radius: DEFAULT_GI_RADIUS });

@@ -64,8 +64,8 @@ pub struct SparseParams {
 impl Default for SparseParams {
     fn default() -> Self {
         SparseParams {
-            stride: 2,
-            grid_ray_factor: 1,
+            stride: 4,
+            grid_ray_factor: 4,
             max_normal_degrees: 25.0,
             plane_tolerance: 1.0,
             min_coverage: 0.6,

@@ -12,6 +12,13 @@ fn pair(rays: u32, params: SparseParams) -> (IlfrSettings, IlfrSettings) {
     (full.clone(), IlfrSettings { sparse: Some(params), ..full })
 }
 
+/// The grid these tests measure: stride 2 at the pixel budget (grid pixels gather what the full
+/// gather's pixels do), with the default thresholds. The method's default grid (4 pixels, 4×
+/// the rays) is checked in `registry.rs`.
+fn unit_grid() -> SparseParams {
+    SparseParams { stride: 2, grid_ray_factor: 1, ..SparseParams::default() }
+}
+
 fn bits(r: &Reconstructed) -> Vec<u32> {
     r.image.pixels.iter().flatten().map(|v| v.to_bits()).collect()
 }
@@ -66,10 +73,10 @@ fn similar_hits_share_a_plane_and_a_normal() {
 #[test]
 fn gathered_pixels_are_the_full_gathers_bit_for_bit() {
     let samples = box_samples(13, 2, SampleKind::Indirect, None, ramp);
-    let (full, _) = pair(16, SparseParams::default());
+    let (full, _) = pair(16, unit_grid());
     let oracle = reconstruct_samples(&samples, GatherTarget::Indirect, &full).unwrap();
     for stride in [2, 3] {
-        let everything = SparseParams { stride, min_coverage: 2.0, ..SparseParams::default() };
+        let everything = SparseParams { stride, min_coverage: 2.0, ..unit_grid() };
         let (_, sparse) = pair(16, everything);
         let result = reconstruct_samples(&samples, GatherTarget::Indirect, &sparse).unwrap();
         assert_eq!(bits(&result), bits(&oracle), "stride {stride}");
@@ -77,7 +84,7 @@ fn gathered_pixels_are_the_full_gathers_bit_for_bit() {
         assert_eq!((grid + refined, interpolated, hits), (169, 0, 2 * refined));
         assert_eq!(result.gather.reconstruct, oracle.gather.reconstruct);
 
-        let (_, sparse) = pair(16, SparseParams { stride, ..SparseParams::default() });
+        let (_, sparse) = pair(16, SparseParams { stride, ..unit_grid() });
         let result = reconstruct_samples(&samples, GatherTarget::Indirect, &sparse).unwrap();
         let (grid, interpolated, refined, hits, _) = result.gather.sparse.unwrap();
         assert!(interpolated > 0 && grid + interpolated + refined == 169, "{:?}", result.gather.sparse);
@@ -98,7 +105,7 @@ fn gathered_pixels_are_the_full_gathers_bit_for_bit() {
     }
     // More rays at the grid pixels (and the refined ones): those are the full gather's at that
     // budget.
-    let (full, sparse) = pair(16, SparseParams { grid_ray_factor: 4, ..SparseParams::default() });
+    let (full, sparse) = pair(16, SparseParams { grid_ray_factor: 4, ..unit_grid() });
     let oracle =
         reconstruct_samples(&samples, GatherTarget::Indirect, &IlfrSettings { recon_rays: 64, ..full }).unwrap();
     let result = reconstruct_samples(&samples, GatherTarget::Indirect, &sparse).unwrap();
@@ -135,7 +142,7 @@ fn constant_light_is_interpolated_within_rounding() {
                         samples.secondary_normal[i] = [0.0; 3];
                     }
                 }
-                let (_, sparse) = pair(16, SparseParams { stride, ..SparseParams::default() });
+                let (_, sparse) = pair(16, SparseParams { stride, ..unit_grid() });
                 let result = reconstruct_samples(&samples, GatherTarget::Indirect, &sparse).unwrap();
                 let (grid, interpolated, refined, _, _) = result.gather.sparse.unwrap();
                 assert!(result.image.pixels.iter().all(|p| close(*p)), "sky {sky}, scale {scale}, stride {stride}");
@@ -152,7 +159,7 @@ fn constant_light_is_interpolated_within_rounding() {
 fn tiny_images_and_one_sample_per_pixel_stay_exact() {
     let l = [3.0f32, 0.5, 1e6];
     let expected = [0.5 * l[0], 0.25 * l[1], l[2]];
-    let (_, sparse) = pair(16, SparseParams::default());
+    let (_, sparse) = pair(16, unit_grid());
     let one = box_samples(1, 1, SampleKind::Indirect, None, |_| l);
     let result = reconstruct_samples(&one, GatherTarget::Indirect, &sparse).unwrap();
     assert_eq!(result.image.pixels, vec![expected]);
@@ -200,7 +207,7 @@ fn a_step_edge_is_gathered_in_full() {
             p[2] = 0.3;
         }
     }
-    let (full, sparse) = pair(16, SparseParams::default());
+    let (full, sparse) = pair(16, unit_grid());
     let oracle = reconstruct_samples(&samples, GatherTarget::Indirect, &full).unwrap();
     let result = reconstruct_samples(&samples, GatherTarget::Indirect, &sparse).unwrap();
     let raised = |x: u32, y: u32| samples.primary_hit[(y * 16 + x) as usize][2] > 0.0;
@@ -236,7 +243,7 @@ fn a_step_edge_is_gathered_in_full() {
 #[test]
 fn a_ramp_is_interpolated_within_the_stated_bound() {
     let samples = box_samples(16, 4, SampleKind::Indirect, None, ramp);
-    let (full, sparse) = pair(64, SparseParams::default());
+    let (full, sparse) = pair(64, unit_grid());
     let truth =
         reconstruct_samples(&samples, GatherTarget::Indirect, &IlfrSettings { recon_rays: 1024, ..full.clone() })
             .unwrap();
@@ -268,7 +275,7 @@ fn the_image_does_not_depend_on_the_thread_count() {
             p[2] = 0.2;
         }
     }
-    let (_, sparse) = pair(16, SparseParams { stride: 3, grid_ray_factor: 2, ..SparseParams::default() });
+    let (_, sparse) = pair(16, SparseParams { stride: 3, grid_ray_factor: 2, ..unit_grid() });
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| reconstruct_samples(&samples, GatherTarget::Indirect, &sparse).unwrap())
