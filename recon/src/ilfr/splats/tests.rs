@@ -203,6 +203,42 @@ fn results_do_not_depend_on_the_thread_count() {
     }
 }
 
+/// The sizing with juries: the same radii, statuses and juries on 1 and 3 threads, the radii
+/// those of the sizing alone; and an empty and a one-hit cloud.
+#[test]
+fn sizing_with_juries_does_not_depend_on_the_thread_count() {
+    use crate::ilfr::neighbours::KdTree;
+    let cloud = random_cloud(3000, 5);
+    let points = cloud.points();
+    let tree = KdTree::build(points.position);
+    let rule = JuryRule { size: 12, lobe_threshold: 0.5, max_candidates: 64 };
+    let run = |threads: usize, jury: Option<JuryRule>| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| size_splats_with_juries(&tree, &points, &SplatParams::default(), jury).unwrap())
+    };
+    let (one, one_juries) = run(1, Some(rule));
+    let (three, three_juries) = run(3, Some(rule));
+    let (one_juries, three_juries) = (one_juries.unwrap(), three_juries.unwrap());
+    assert!(one.radius.iter().zip(&three.radius).all(|(a, b)| a.to_bits() == b.to_bits()));
+    assert_eq!((one.status.clone(), one.stats.clone()), (three.status, three.stats));
+    assert_eq!((&one_juries.members, &one_juries.count), (&three_juries.members, &three_juries.count));
+    assert!(one_juries.count.contains(&12) && one_juries.count.iter().any(|&c| c < 12));
+    let (plain, none) = run(3, None);
+    assert!(none.is_none());
+    assert!(one.radius.iter().zip(&plain.radius).all(|(a, b)| a.to_bits() == b.to_bits()));
+    for n in [0, 1] {
+        let small = random_cloud(n, 2);
+        let points = small.points();
+        let tree = KdTree::build(points.position);
+        let (sized, juries) = size_splats_with_juries(&tree, &points, &SplatParams::default(), Some(rule)).unwrap();
+        let juries = juries.unwrap();
+        assert_eq!((sized.radius.len(), juries.count.len(), juries.members.len()), (n, n, 12 * n));
+        assert!(juries.count.iter().all(|&c| c == 0));
+        assert!(sized.radius.iter().all(|r| r.is_finite() && *r > 0.0));
+        assert_eq!(sized.status, vec![SplatStatus::Isolated; n]);
+    }
+}
+
 #[test]
 fn mirror_lobes_fall_back_to_direction_blind_radii() {
     // κ at the f16 clamp and random directions: nothing is in a 0.26° lobe, so the radius is
