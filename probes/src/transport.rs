@@ -24,6 +24,46 @@ use crate::ProbesError;
 
 /// The most directions per receiver.
 pub const MAX_DIRECTIONS: u32 = 1 << 20;
+/// The share of back-face hits at which a receiver is hidden ([`TransportContext::hidden`]).
+pub const HIDDEN_BACK_FACES: f64 = 0.3;
+/// Directions of [`side_hidden`], the test that decides which surface sides get surfels.
+pub const SIDE_TEST_RAYS: u32 = 64;
+
+/// Whether the surface side at `x` with unit normal `n` is hidden by the rule of
+/// [`TransportContext::hidden`], its back-face share measured over `rays` cosine-distributed
+/// directions of their own Sobol' stream (seeded by `seed` and `index`) instead of the
+/// transport's: its front voxel is empty and never reached by the flood fill, or at least
+/// [`HIDDEN_BACK_FACES`] of its hits are on back faces. What decides, before the transport,
+/// which sides get surfels (`surfels::Sides::Valid`).
+#[allow(clippy::too_many_arguments)]
+pub fn side_hidden(
+    accel: &Accel,
+    grid: &VoxelGrid,
+    x: Vec3,
+    n: Vec3,
+    index: u32,
+    seed: u32,
+    rays: u32,
+    scale: f32,
+) -> bool {
+    if grid.front_enclosed(x.as_dvec3(), n.as_dvec3()) {
+        return true;
+    }
+    let frame = Frame::new(n);
+    let origin = x + n * offset(x, scale);
+    let (mut hits, mut back_faces) = (0u32, 0u32);
+    for k in 0..rays {
+        let u = Sampler::new(seed, index, 0x4fff_ffff, k).next_2d();
+        let dir = frame.to_world(sample_cosine_hemisphere(u)).normalize();
+        if let Some(hit) = accel.intersect(origin, dir, 0.0, f32::INFINITY, 0.0) {
+            hits += 1;
+            if hit.geometric_normal.normalize_or_zero().dot(dir) > 0.0 {
+                back_faces += 1;
+            }
+        }
+    }
+    hits > 0 && back_faces as f64 >= HIDDEN_BACK_FACES * hits as f64
+}
 
 /// How the incident radiance is reconstructed from the probes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -297,7 +337,7 @@ impl<'a> TransportContext<'a> {
     /// voxel of the adjacent wall: 10 % of Cornell's receivers.)
     pub fn hidden(grid: &VoxelGrid, x: Vec3, n: Vec3, transport: Option<&Transport>) -> bool {
         grid.front_enclosed(x.as_dvec3(), n.as_dvec3())
-            || transport.is_some_and(|t| t.hits > 0 && t.back_faces as f64 >= 0.3 * t.hits as f64)
+            || transport.is_some_and(|t| t.hits > 0 && t.back_faces as f64 >= HIDDEN_BACK_FACES * t.hits as f64)
     }
 
     /// The transport of every surfel, hidden ones (see [`TransportContext::hidden`]) left empty
