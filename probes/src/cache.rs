@@ -121,6 +121,7 @@ impl CacheKey {
         s.update([match surfels.sides {
             Sides::All => 0u8,
             Sides::Valid => 1,
+            Sides::Seeing => 2,
         }]);
         s.update((placement.probes as u64).to_le_bytes());
         s.update(placement.overlap.to_le_bytes());

@@ -12,7 +12,7 @@ use crate::placement::{coverage, place, support_radius, Coverage, Placement, Pla
 use crate::relight::probes_inside;
 use crate::sh;
 use crate::surfels::{Sides, Surfel, SurfelSettings, Surfels};
-use crate::transport::{side_hidden, SIDE_TEST_RAYS};
+use crate::transport::{side_hidden, side_hits, HIDDEN_BACK_FACES, SIDE_TEST_RAYS};
 use crate::ProbesError;
 
 /// The steps [`Layout::build`] reports to its progress callback, in order.
@@ -81,6 +81,15 @@ impl Layout {
                 let seed = surfel_settings.seed;
                 let hidden = |i: u32, s: &Surfel| {
                     side_hidden(&accel, grid, s.position, s.normal, i, seed, SIDE_TEST_RAYS, scale)
+                };
+                Surfels::from_geometry_valid(scene, &geometry, surfel_settings, &hidden)?
+            }
+            Sides::Seeing => {
+                let grid = &placement.grid;
+                let seed = surfel_settings.seed;
+                let hidden = |i: u32, s: &Surfel| {
+                    side_hits(&accel, grid, s.position, s.normal, i, seed, SIDE_TEST_RAYS, scale)
+                        .map_or(true, |(hits, back)| hits == 0 || back as f64 >= HIDDEN_BACK_FACES * hits as f64)
                 };
                 Surfels::from_geometry_valid(scene, &geometry, surfel_settings, &hidden)?
             }

@@ -47,6 +47,9 @@ pub enum Sides {
     /// the layout, which has the flood fill and the rays ([`Surfels::from_geometry_valid`]);
     /// [`Surfels::build`] and [`Surfels::from_geometry`] build every side.
     Valid,
+    /// As [`Sides::Valid`], and the sides none of whose test rays hits anything are dropped too
+    /// (they see only the sky: E = 0 whatever the lights).
+    Seeing,
 }
 
 /// How surfels are built.

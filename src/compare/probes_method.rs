@@ -59,9 +59,9 @@ pub const OPTIONS: &[OptionSpec] = &[
     },
     OptionSpec {
         key: "sides",
-        kind: OptionKind::Choice(&["valid", "all"]),
+        kind: OptionKind::Choice(&["valid", "seeing", "all"]),
         default: "valid",
-        help: "valid: receivers only on the surface sides that are not hidden, the budget spent on their area",
+        help: "valid: receivers only on the sides that are not hidden, the budget spent on their area; seeing: nor on those whose test rays all escape; all: every side",
     },
     OptionSpec {
         key: "overlap",
@@ -207,7 +207,11 @@ impl ProbesMethod {
             surfels: SurfelSettings {
                 seed,
                 budget: count("receivers", defaults::RECEIVERS),
-                sides: if word("sides", "valid") == "valid" { Sides::Valid } else { Sides::All },
+                sides: match word("sides", "valid") {
+                    "all" => Sides::All,
+                    "seeing" => Sides::Seeing,
+                    _ => Sides::Valid,
+                },
                 ..Default::default()
             },
             placement: PlacementSettings {
