@@ -35,15 +35,16 @@ use crate::near_field::NearField;
 use crate::placement::CandidateRule;
 use crate::precompute::{Precompute, PrecomputeSettings, PrecomputeTimings};
 use crate::relight::RelightTable;
-use crate::surfels::{Surfel, SurfelStats, Surfels};
+use crate::surfels::{Sides, Surfel, SurfelStats, Surfels};
 use crate::transport::{Reconstruction, Transport};
 use crate::ProbesError;
 
 /// The first bytes of every cache file.
 pub const MAGIC: &[u8; 8] = b"LFRPROBE";
 /// The format version this build writes and reads; raised whenever the precompute's results
-/// change (2: receivers next to a concave edge are no longer hidden).
-pub const VERSION: u32 = 2;
+/// change (2: receivers next to a concave edge are no longer hidden; 3: the receivers of hidden
+/// sides dropped and the budget spent on the valid sides, `surfels::Sides`).
+pub const VERSION: u32 = 3;
 /// Bytes before the payload.
 pub const HEADER_BYTES: usize = 8 + 4 + 32 + 32 + 8 + 32;
 
@@ -117,6 +118,11 @@ impl CacheKey {
         s.update((surfels.budget as u64).to_le_bytes());
         s.update(surfels.samples_per_cell.to_le_bytes());
         s.update(surfels.seed.to_le_bytes());
+        s.update([match surfels.sides {
+            Sides::All => 0u8,
+            Sides::Valid => 1,
+            Sides::Seeing => 2,
+        }]);
         s.update((placement.probes as u64).to_le_bytes());
         s.update(placement.overlap.to_le_bytes());
         s.update([match placement.rule {
@@ -168,6 +174,7 @@ pub fn encode(key: &CacheKey, pre: &Precompute) -> Vec<u8> {
     put_u64(&mut w, st.samples as u64);
     put_u64(&mut w, st.triangles as u64);
     put_u64(&mut w, st.degenerate_triangles as u64);
+    put_u64(&mut w, st.dropped as u64);
     put_u64(&mut w, s.surfels.len() as u64);
     for x in &s.surfels {
         put_vec3(&mut w, x.position);
@@ -327,7 +334,7 @@ fn unframe<'a>(path: &Path, bytes: &'a [u8], magic: &[u8; 8], key: &CacheKey) ->
         return Err(cache_error(
             path,
             CacheProblem::OtherSettings,
-            "built with other settings (receivers, probes, overlap, candidates, order, directions, relight rays, \
+            "built with other settings (receivers, sides, probes, overlap, candidates, order, directions, relight rays, \
              seed, CPCA settings, or the camera and point-light positions that seed the flood fill); run \
              `lfr probes precompute` again",
         ));
@@ -346,6 +353,7 @@ fn parse(payload: &[u8], settings: &PrecomputeSettings) -> Result<Precompute, St
         samples: r.u64()? as usize,
         triangles: r.u64()? as usize,
         degenerate_triangles: r.u64()? as usize,
+        dropped: r.u64()? as usize,
     };
     let n = r.count(36, "surfels")?;
     let mut list = Vec::with_capacity(n);
@@ -832,6 +840,9 @@ mod tests {
         let mut other = settings;
         other.surfels.seed = 9;
         check("settings.probes", &good, &CacheKey::of(&scene, &other), CacheProblem::OtherSettings, "settings");
+        let mut sides = settings;
+        sides.surfels.sides = Sides::All;
+        check("sides.probes", &good, &CacheKey::of(&scene, &sides), CacheProblem::OtherSettings, "settings");
         // A payload with a matching checksum but an index out of range (a crafted file).
         let mut crafted = pre.clone();
         crafted.transports.iter_mut().find(|t| !t.probes.is_empty()).unwrap().probes[0] = 99;

@@ -11,14 +11,15 @@ use crate::geometry::{seed_points, Geometry};
 use crate::placement::{coverage, place, support_radius, Coverage, Placement, PlacementSettings};
 use crate::relight::probes_inside;
 use crate::sh;
-use crate::surfels::{SurfelSettings, Surfels};
+use crate::surfels::{Sides, Surfel, SurfelSettings, Surfels};
+use crate::transport::{side_hidden, side_hits, HIDDEN_BACK_FACES, SIDE_TEST_RAYS};
 use crate::ProbesError;
 
 /// The steps [`Layout::build`] reports to its progress callback, in order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Step {
-    Surfels,
     Placement,
+    Surfels,
     Radius,
     Coverage,
 }
@@ -60,20 +61,40 @@ impl Layout {
         let geometry = Geometry::from_scene(scene)?;
         let mut timings = Timings::default();
 
-        progress(Step::Surfels);
-        let t = Instant::now();
-        let surfels = Surfels::from_geometry(scene, &geometry, surfel_settings)?;
-        timings.surfels_s = t.elapsed().as_secs_f64();
-
         progress(Step::Placement);
         let t = Instant::now();
         let mut placement = place(&geometry, &seed_points(scene), placement_settings)?;
         let accel = Accel::build(scene).map_err(|e| ProbesError::Tracer(e.to_string()))?;
-        let probes_inside = drop_probes_inside(&accel, &mut placement.probes, geometry.scale() as f32);
+        let scale = geometry.scale() as f32;
+        let probes_inside = drop_probes_inside(&accel, &mut placement.probes, scale);
         if placement.probes.is_empty() {
             return Err(ProbesError::NoCandidates { voxel: placement.voxel });
         }
         timings.placement_s = t.elapsed().as_secs_f64();
+
+        progress(Step::Surfels);
+        let t = Instant::now();
+        let surfels = match surfel_settings.sides {
+            Sides::All => Surfels::from_geometry(scene, &geometry, surfel_settings)?,
+            Sides::Valid => {
+                let grid = &placement.grid;
+                let seed = surfel_settings.seed;
+                let hidden = |i: u32, s: &Surfel| {
+                    side_hidden(&accel, grid, s.position, s.normal, i, seed, SIDE_TEST_RAYS, scale)
+                };
+                Surfels::from_geometry_valid(scene, &geometry, surfel_settings, &hidden)?
+            }
+            Sides::Seeing => {
+                let grid = &placement.grid;
+                let seed = surfel_settings.seed;
+                let hidden = |i: u32, s: &Surfel| {
+                    side_hits(&accel, grid, s.position, s.normal, i, seed, SIDE_TEST_RAYS, scale)
+                        .map_or(true, |(hits, back)| hits == 0 || back as f64 >= HIDDEN_BACK_FACES * hits as f64)
+                };
+                Surfels::from_geometry_valid(scene, &geometry, surfel_settings, &hidden)?
+            }
+        };
+        timings.surfels_s = t.elapsed().as_secs_f64();
 
         progress(Step::Radius);
         let t = Instant::now();

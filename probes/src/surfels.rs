@@ -4,7 +4,11 @@
 //!
 //! Construction, deterministic for any thread count:
 //! 1. the cell size `h = √(A₂ / budget)` from the two-sided surface area `A₂` and the receiver
-//!    budget (every surface of lfr shades on both sides, so each side is a surface);
+//!    budget (every surface of lfr shades on both sides, so each side is a surface); with
+//!    [`Sides::Valid`] (the precompute's default, [`Surfels::from_geometry_valid`]) the budget is
+//!    spent on the valid sides only: a first build at that `h` measures the area `A_valid` of
+//!    the surfels a side test does not hide, the cell size becomes `h = √(A_valid / budget)`
+//!    (at most 4× finer), and the surfels of the second build that the test hides are dropped;
 //! 2. stratified area sampling at `samples_per_cell` samples per `h²`: per triangle
 //!    `x = area · density` samples, rounded when `x ≥ 1` (exact area), otherwise one sample with
 //!    probability `x` and weight `area / x` (unbiased area on triangles far smaller than a cell);
@@ -30,6 +34,24 @@ pub const MAX_RECEIVERS: usize = 20_000_000;
 /// The cosine of the largest angle between a cluster's normals (35°).
 pub const CLUSTER_COS: f64 = 0.819_152_044_288_992;
 
+/// The most the cell size shrinks when the budget goes to the valid sides only.
+pub const MAX_VALID_REFINEMENT: f64 = 4.0;
+
+/// Which surface sides get surfels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sides {
+    /// Both sides of every surface, the budget spread over the two-sided area.
+    All,
+    /// Only the sides a side test does not hide (`transport::side_hidden`: facing the inside
+    /// of closed geometry or mostly back faces), the budget spread over their area. Applied by
+    /// the layout, which has the flood fill and the rays ([`Surfels::from_geometry_valid`]);
+    /// [`Surfels::build`] and [`Surfels::from_geometry`] build every side.
+    Valid,
+    /// As [`Sides::Valid`], and the sides none of whose test rays hits anything are dropped too
+    /// (they see only the sky: E = 0 whatever the lights).
+    Seeing,
+}
+
 /// How surfels are built.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SurfelSettings {
@@ -38,11 +60,13 @@ pub struct SurfelSettings {
     /// Area samples per `h²` cell area (stratification of the clustering).
     pub samples_per_cell: f64,
     pub seed: u32,
+    /// Which sides the layout keeps (and spends the budget on).
+    pub sides: Sides,
 }
 
 impl Default for SurfelSettings {
     fn default() -> Self {
-        SurfelSettings { budget: crate::defaults::RECEIVERS, samples_per_cell: 8.0, seed: 0 }
+        SurfelSettings { budget: crate::defaults::RECEIVERS, samples_per_cell: 8.0, seed: 0, sides: Sides::Valid }
     }
 }
 
@@ -91,6 +115,8 @@ pub struct SurfelStats {
     pub triangles: usize,
     /// Triangles of zero area, skipped.
     pub degenerate_triangles: usize,
+    /// Surfels dropped as hidden sides ([`Sides::Valid`]; 0 with [`Sides::All`]).
+    pub dropped: usize,
 }
 
 /// The surfels, sorted by grid cell, with the grid for lookups.
@@ -135,6 +161,68 @@ impl Surfels {
             return Err(ProbesError::EmptyScene);
         }
         let h = (2.0 * one_sided / settings.budget as f64).sqrt();
+        Surfels::at_cell_size(scene, geometry, settings, h)
+    }
+
+    /// The surfels of the sides that `hidden(index, surfel)` does not hide, the budget spent on
+    /// their area (module docs, step 1): a first build at `h = √(A₂ / budget)` gives
+    /// `A_valid`, the sum of its valid surfels' areas; the second at
+    /// `h = √(A_valid / budget)` (no finer than `h / MAX_VALID_REFINEMENT`) keeps its valid
+    /// surfels. `hidden` must be a function of its arguments (the result is then the same for
+    /// any thread count). When nothing is valid, or nothing hidden, the first build is kept.
+    pub fn from_geometry_valid(
+        scene: &Scene,
+        geometry: &Geometry,
+        settings: &SurfelSettings,
+        hidden: &(dyn Fn(u32, &Surfel) -> bool + Sync),
+    ) -> Result<Surfels, ProbesError> {
+        let first = Surfels::from_geometry(scene, geometry, settings)?;
+        let flags = first.hidden_flags(hidden);
+        let valid_area: f64 = first.surfels.iter().zip(&flags).filter(|(_, &h)| !h).map(|(s, _)| s.area as f64).sum();
+        if !(valid_area > 0.0) || !flags.contains(&true) {
+            return Ok(first);
+        }
+        let h = (valid_area / settings.budget as f64).sqrt().max(first.h / MAX_VALID_REFINEMENT);
+        let second = Surfels::at_cell_size(scene, geometry, settings, h)?;
+        let flags = second.hidden_flags(hidden);
+        Ok(second.retain_valid(&flags))
+    }
+
+    /// `hidden` of every surfel, in surfel order.
+    fn hidden_flags(&self, hidden: &(dyn Fn(u32, &Surfel) -> bool + Sync)) -> Vec<bool> {
+        self.surfels.par_iter().enumerate().map(|(i, s)| hidden(i as u32, s)).collect()
+    }
+
+    /// The surfels whose flag is false, still sorted by cell, with the grid rebuilt.
+    fn retain_valid(self, hidden: &[bool]) -> Surfels {
+        let mut ranges: Vec<([i64; 3], (u32, u32))> = self.cells.into_iter().collect();
+        ranges.sort_unstable_by_key(|r| r.1);
+        let mut surfels = Vec::with_capacity(self.surfels.len());
+        let mut cells = HashMap::new();
+        for (c, (a, b)) in ranges {
+            let first = surfels.len() as u32;
+            surfels.extend((a..b).filter(|&i| !hidden[i as usize]).map(|i| self.surfels[i as usize]));
+            if surfels.len() as u32 > first {
+                cells.insert(c, (first, surfels.len() as u32));
+            }
+        }
+        let stats = SurfelStats {
+            surfels: surfels.len(),
+            area: surfels.iter().map(|s| s.area as f64).sum(),
+            dropped: self.surfels.len() - surfels.len(),
+            ..self.stats
+        };
+        Surfels { surfels, origin: self.origin, h: self.h, cells, stats }
+    }
+
+    /// Every side's surfels at cell size `h`.
+    fn at_cell_size(
+        scene: &Scene,
+        geometry: &Geometry,
+        settings: &SurfelSettings,
+        h: f64,
+    ) -> Result<Surfels, ProbesError> {
+        let one_sided: f64 = geometry.triangles.iter().map(Triangle::area).sum();
         let density = settings.samples_per_cell / (h * h);
         let expected_samples = one_sided * density;
         if expected_samples > 64.0 * MAX_RECEIVERS as f64 {
@@ -193,6 +281,7 @@ impl Surfels {
             samples: samples.len(),
             triangles: geometry.triangles.len(),
             degenerate_triangles,
+            dropped: 0,
         };
         Ok(Surfels { surfels, origin, h, cells, stats })
     }
@@ -421,6 +510,82 @@ mod tests {
             assert!(matched as f64 > 0.98 * n, "scale {s}: {matched} of {n} surfels match");
             assert!(other.surfels.iter().all(|x| x.position.is_finite() && x.normal.is_normalized() && x.area > 0.0));
         }
+    }
+
+    /// The valid-side surfels of a floor quad under a sealed slab, with the slab's box, the
+    /// sides' exact areas (two-sided, valid) and the all-sides build at the same budget.
+    fn floor_and_sealed_slab(budget: usize, threads: usize) -> (Surfels, Surfels, f64, f64) {
+        use crate::geometry::Geometry;
+        use crate::transport::{side_hidden, SIDE_TEST_RAYS};
+        use crate::voxel::VoxelGrid;
+        let (lo, hi) = (Vec3::new(0.2, 0.2, 0.4), Vec3::new(0.8, 0.8, 0.6));
+        let slab = tracer::scene::shapes::axis_aligned_box("slab", lo, hi, 0);
+        let scene = scene_of(vec![unit_quad(), slab], Vec3::new(0.5, 0.5, 2.0));
+        let geometry = Geometry::from_scene(&scene).unwrap();
+        let accel = tracer::Accel::build(&scene).unwrap();
+        let grid = VoxelGrid::build(&geometry, 0.05, &[DVec3::new(0.5, 0.5, 2.0)]).unwrap();
+        let settings = SurfelSettings { budget, ..Default::default() };
+        let hidden = |i: u32, s: &Surfel| side_hidden(&accel, &grid, s.position, s.normal, i, 0, SIDE_TEST_RAYS, 1.0);
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let valid = pool.install(|| Surfels::from_geometry_valid(&scene, &geometry, &settings, &hidden)).unwrap();
+        let all = Surfels::from_geometry(&scene, &geometry, &settings).unwrap();
+        // The slab's six faces, the floor's one; the slab's inside is never reached.
+        let slab_area = 2.0 * (0.6 * 0.6) + 4.0 * (0.6 * 0.2);
+        let two_sided = 2.0 * (slab_area + 1.0);
+        let valid_area = slab_area + 2.0;
+        (valid, all, two_sided, valid_area)
+    }
+
+    #[test]
+    fn the_budget_goes_to_the_valid_sides_only() {
+        let budget = 3000;
+        let (valid, all, two_sided, valid_area) = floor_and_sealed_slab(budget, 2);
+        let inside = |p: Vec3| p.cmpgt(Vec3::new(0.2, 0.2, 0.4)).all() && p.cmplt(Vec3::new(0.8, 0.8, 0.6)).all();
+        // Every side sampled at the old cell size; the slab's inner sides are among them.
+        assert!((all.h / (two_sided / budget as f64).sqrt() - 1.0).abs() < 1e-6);
+        assert!(all.surfels.iter().filter(|s| inside(s.position - s.normal * 0.01)).count() > 100);
+        // No surfel faces the slab's inside; the area kept is the valid sides' exactly.
+        for s in &valid.surfels {
+            assert!(!inside(s.position + s.normal * 0.01), "a surfel at {} faces the sealed inside", s.position);
+        }
+        assert!((valid.stats.area / valid_area - 1.0).abs() < 1e-4, "area {} vs {valid_area}", valid.stats.area);
+        // The budget lands on that area: h shrinks by √(A₂ / A_valid).
+        let expected = (valid_area / budget as f64).sqrt();
+        assert!((valid.h / expected - 1.0).abs() < 1e-4, "h {} vs {expected}", valid.h);
+        assert!((all.h / valid.h / (two_sided / valid_area).sqrt() - 1.0).abs() < 1e-4);
+        let n = valid.surfels.len() as f64;
+        assert!(n > 0.7 * budget as f64 && n < 1.6 * budget as f64, "{n} surfels for a budget of {budget}");
+        assert_eq!(valid.stats.surfels, valid.surfels.len());
+        assert!(valid.stats.dropped > 100 && all.stats.dropped == 0);
+        // The grid still finds every surfel in its cell.
+        for (i, s) in valid.surfels.iter().enumerate() {
+            let c = valid.cell_of(s.position.as_dvec3());
+            let first = valid.cell_start(c) as usize;
+            assert!((first..first + valid.in_cell(c).len()).contains(&i), "surfel {i} not in its cell");
+        }
+        // The same surfels for any thread count.
+        let (one, ..) = floor_and_sealed_slab(budget, 1);
+        assert_eq!(one.surfels, valid.surfels);
+        assert_eq!(one.cells, valid.cells);
+    }
+
+    #[test]
+    fn with_nothing_valid_every_side_is_kept_and_with_everything_valid_nothing_changes() {
+        let scene = scene_of(vec![unit_quad()], Vec3::new(0.5, 0.5, 2.0));
+        let geometry = Geometry::from_scene(&scene).unwrap();
+        let settings = SurfelSettings { budget: 400, ..Default::default() };
+        let all = Surfels::from_geometry(&scene, &geometry, &settings).unwrap();
+        for verdict in [true, false] {
+            let s = Surfels::from_geometry_valid(&scene, &geometry, &settings, &|_, _| verdict).unwrap();
+            assert_eq!(s.surfels, all.surfels);
+            assert_eq!(s.h, all.h);
+            assert_eq!(s.stats.dropped, 0);
+        }
+        // One side hidden: half the area, h shrinks by √2, no surfel of that side.
+        let s = Surfels::from_geometry_valid(&scene, &geometry, &settings, &|_, x| x.normal.z < 0.0).unwrap();
+        assert!((all.h / s.h / 2f64.sqrt() - 1.0).abs() < 1e-6);
+        assert!(s.surfels.iter().all(|x| x.normal.z > 0.0));
+        assert!((s.stats.area - 1.0).abs() < 1e-5);
     }
 
     #[test]

@@ -24,6 +24,63 @@ use crate::ProbesError;
 
 /// The most directions per receiver.
 pub const MAX_DIRECTIONS: u32 = 1 << 20;
+/// The share of back-face hits at which a receiver is hidden ([`TransportContext::hidden`]).
+pub const HIDDEN_BACK_FACES: f64 = 0.3;
+/// Directions of [`side_hidden`], the test that decides which surface sides get surfels.
+pub const SIDE_TEST_RAYS: u32 = 64;
+
+/// Whether the surface side at `x` with unit normal `n` is hidden by the rule of
+/// [`TransportContext::hidden`], its back-face share measured over `rays` cosine-distributed
+/// directions of their own Sobol' stream (seeded by `seed` and `index`) instead of the
+/// transport's: its front voxel is empty and never reached by the flood fill, or at least
+/// [`HIDDEN_BACK_FACES`] of its hits are on back faces. What decides, before the transport,
+/// which sides get surfels (`surfels::Sides::Valid`).
+#[allow(clippy::too_many_arguments)]
+pub fn side_hidden(
+    accel: &Accel,
+    grid: &VoxelGrid,
+    x: Vec3,
+    n: Vec3,
+    index: u32,
+    seed: u32,
+    rays: u32,
+    scale: f32,
+) -> bool {
+    side_hits(accel, grid, x, n, index, seed, rays, scale)
+        .map_or(true, |(hits, back_faces)| hits > 0 && back_faces as f64 >= HIDDEN_BACK_FACES * hits as f64)
+}
+
+/// The hits and back-face hits of [`side_hidden`]'s rays, `None` when the side's front voxel is
+/// empty and never reached (no ray traced).
+#[allow(clippy::too_many_arguments)]
+pub fn side_hits(
+    accel: &Accel,
+    grid: &VoxelGrid,
+    x: Vec3,
+    n: Vec3,
+    index: u32,
+    seed: u32,
+    rays: u32,
+    scale: f32,
+) -> Option<(u32, u32)> {
+    if grid.front_enclosed(x.as_dvec3(), n.as_dvec3()) {
+        return None;
+    }
+    let frame = Frame::new(n);
+    let origin = x + n * offset(x, scale);
+    let (mut hits, mut back_faces) = (0u32, 0u32);
+    for k in 0..rays {
+        let u = Sampler::new(seed, index, 0x4fff_ffff, k).next_2d();
+        let dir = frame.to_world(sample_cosine_hemisphere(u)).normalize();
+        if let Some(hit) = accel.intersect(origin, dir, 0.0, f32::INFINITY, 0.0) {
+            hits += 1;
+            if hit.geometric_normal.normalize_or_zero().dot(dir) > 0.0 {
+                back_faces += 1;
+            }
+        }
+    }
+    Some((hits, back_faces))
+}
 
 /// How the incident radiance is reconstructed from the probes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -297,7 +354,7 @@ impl<'a> TransportContext<'a> {
     /// voxel of the adjacent wall: 10 % of Cornell's receivers.)
     pub fn hidden(grid: &VoxelGrid, x: Vec3, n: Vec3, transport: Option<&Transport>) -> bool {
         grid.front_enclosed(x.as_dvec3(), n.as_dvec3())
-            || transport.is_some_and(|t| t.hits > 0 && t.back_faces as f64 >= 0.3 * t.hits as f64)
+            || transport.is_some_and(|t| t.hits > 0 && t.back_faces as f64 >= HIDDEN_BACK_FACES * t.hits as f64)
     }
 
     /// The transport of every surfel, hidden ones (see [`TransportContext::hidden`]) left empty
@@ -518,6 +575,44 @@ mod tests {
         let unseen: u32 = valid.iter().map(|t| t.unseen).sum();
         let hits: u32 = valid.iter().map(|t| t.hits).sum();
         assert!((unseen as f64) < 0.05 * hits as f64, "{unseen} of {hits} unseen");
+    }
+
+    #[test]
+    fn the_side_test_hides_the_sealed_inside_and_counts_the_sides_that_see_nothing() {
+        // A floor quad (facing +z) under a sealed slab, seen from above.
+        let slab =
+            tracer::scene::shapes::axis_aligned_box("slab", Vec3::new(0.2, 0.2, 0.4), Vec3::new(0.8, 0.8, 0.6), 0);
+        let scene = scene_of(vec![crate::test_scenes::unit_quad(), slab], Vec3::new(0.5, 0.5, 2.0));
+        let geometry = crate::geometry::Geometry::from_scene(&scene).unwrap();
+        let accel = Accel::build(&scene).unwrap();
+        let grid = VoxelGrid::build(&geometry, 0.05, &[DVec3::new(0.5, 0.5, 2.0)]).unwrap();
+        let hits = |x: Vec3, n: Vec3| side_hits(&accel, &grid, x, n, 7, 0, SIDE_TEST_RAYS, 1.0);
+        let hidden = |x: Vec3, n: Vec3| side_hidden(&accel, &grid, x, n, 7, 0, SIDE_TEST_RAYS, 1.0);
+        // The floor's underside sees only the sky: valid, and none of its rays hits.
+        assert_eq!(hits(Vec3::new(0.5, 0.5, 0.0), -Vec3::Z), Some((0, 0)));
+        assert!(!hidden(Vec3::new(0.5, 0.5, 0.0), -Vec3::Z));
+        // The floor's top under the slab sees the slab's outside, front faces only, in the
+        // slab's cosine-weighted solid angle: between its inscribed disc's (sin² θ = 0.36) and
+        // its circumscribed disc's (0.18 / 0.34 = 0.53), with Sobol' rays' slack.
+        let (h, back) = hits(Vec3::new(0.5, 0.5, 0.0), Vec3::Z).unwrap();
+        let share = h as f64 / SIDE_TEST_RAYS as f64;
+        assert!((0.3..0.6).contains(&share) && back == 0, "{h} hits, {back} back faces");
+        assert!(!hidden(Vec3::new(0.5, 0.5, 0.0), Vec3::Z));
+        // The slab's inside: its front voxel is sealed, no ray is traced.
+        assert_eq!(hits(Vec3::new(0.5, 0.5, 0.6), -Vec3::Z), None);
+        assert!(hidden(Vec3::new(0.5, 0.5, 0.6), -Vec3::Z));
+        // A side that faces a back face within a voxel (no enclosed front voxel) is hidden by
+        // its rays: the inside of a slab thinner than a voxel.
+        let thin =
+            tracer::scene::shapes::axis_aligned_box("thin", Vec3::new(0.2, 0.2, 0.5), Vec3::new(0.8, 0.8, 0.51), 0);
+        let scene = scene_of(vec![thin], Vec3::new(0.5, 0.5, 2.0));
+        let geometry = crate::geometry::Geometry::from_scene(&scene).unwrap();
+        let accel = Accel::build(&scene).unwrap();
+        let grid = VoxelGrid::build(&geometry, 0.05, &[DVec3::new(0.5, 0.5, 2.0)]).unwrap();
+        let (h, back) =
+            side_hits(&accel, &grid, Vec3::new(0.5, 0.5, 0.51), -Vec3::Z, 3, 0, SIDE_TEST_RAYS, 1.0).unwrap();
+        assert!(h > 0 && back == h, "{h} hits, {back} back faces");
+        assert!(side_hidden(&accel, &grid, Vec3::new(0.5, 0.5, 0.51), -Vec3::Z, 3, 0, SIDE_TEST_RAYS, 1.0));
     }
 
     #[test]

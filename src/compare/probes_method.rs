@@ -31,7 +31,7 @@ use probes::pipeline::{
 };
 use probes::placement::PlacementSettings;
 use probes::precompute::PrecomputeSettings;
-use probes::surfels::SurfelSettings;
+use probes::surfels::{Sides, SurfelSettings};
 use probes::transport::{Reconstruction, TransportSettings};
 use recon::options::{OptionKind, OptionSpec, Options};
 use recon::Image;
@@ -56,6 +56,12 @@ pub const OPTIONS: &[OptionSpec] = &[
         kind: OptionKind::Count { min: 1, max: probes::surfels::MAX_RECEIVERS as u32 },
         default: "20000",
         help: "receiver budget (surfels; the count comes close to it)",
+    },
+    OptionSpec {
+        key: "sides",
+        kind: OptionKind::Choice(&["valid", "seeing", "all"]),
+        default: "valid",
+        help: "valid: receivers only on the sides that are not hidden, the budget spent on their area; seeing: nor on those whose test rays all escape; all: every side",
     },
     OptionSpec {
         key: "overlap",
@@ -198,7 +204,16 @@ impl ProbesMethod {
         };
         let spatial = word("reconstruction", "visibility") == "spatial";
         let precompute = PrecomputeSettings {
-            surfels: SurfelSettings { seed, budget: count("receivers", defaults::RECEIVERS), ..Default::default() },
+            surfels: SurfelSettings {
+                seed,
+                budget: count("receivers", defaults::RECEIVERS),
+                sides: match word("sides", "valid") {
+                    "all" => Sides::All,
+                    "seeing" => Sides::Seeing,
+                    _ => Sides::Valid,
+                },
+                ..Default::default()
+            },
             placement: PlacementSettings {
                 probes: count("probes", defaults::PROBES),
                 overlap: real("overlap", defaults::OVERLAP),
@@ -338,6 +353,8 @@ pub fn run(
     stats.insert("precompute_read_s".into(), if from_cache { seconds } else { 0.0 });
     stats.insert("receivers".into(), pre.surfels.surfels.len() as f64);
     stats.insert("hidden_receivers".into(), pre.hidden as f64);
+    stats.insert("hidden_sides_dropped".into(), pre.surfels.stats.dropped as f64);
+    stats.insert("receiver_cell".into(), pre.surfels.h);
     stats.insert("probes".into(), pre.probes.len() as f64);
     stats.insert(
         "dense_bytes_per_receiver".into(),

@@ -181,8 +181,8 @@ pub(super) fn run_stats(args: &StatsArgs) -> Result<()> {
         .install(|| {
             Layout::build(&scene, &surfel_settings, &placement_settings, &mut |step| {
                 bar.set_message(match step {
-                    Step::Surfels => "receivers (surfels)",
                     Step::Placement => "voxels, flood fill and probe placement",
+                    Step::Surfels => "receivers (surfels)",
                     Step::Radius => "support radius",
                     Step::Coverage => "coverage",
                 });
