@@ -10,7 +10,7 @@ use probes::cpca::{CpcaSettings, Precision};
 use probes::defaults;
 use probes::placement::{CandidateRule, PlacementSettings};
 use probes::precompute::{Precompute, PrecomputeSettings};
-use probes::surfels::SurfelSettings;
+use probes::surfels::{Sides, SurfelSettings};
 use probes::transport::TransportSettings;
 
 /// Which empty voxels may hold a probe.
@@ -20,6 +20,17 @@ pub(super) enum Candidates {
     Front,
     /// Next to any surface (the paper's rule).
     Paper,
+}
+
+/// Which surface sides get receivers (`probes::surfels::Sides`).
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub(super) enum SidesArg {
+    /// The sides the side test does not hide, the budget spent on their area (default).
+    Valid,
+    /// As `valid`, and not the sides whose test rays all escape.
+    Seeing,
+    /// Both sides of every surface (before 2026-12-08).
+    All,
 }
 
 /// Receivers and probe placement, shared by `stats` and `precompute`.
@@ -37,6 +48,9 @@ pub struct PlacementArgs {
     /// Candidate rule for probe positions.
     #[arg(long, value_enum, default_value_t = Candidates::Front)]
     pub(super) candidates: Candidates,
+    /// Which surface sides get receivers.
+    #[arg(long, value_enum, default_value_t = SidesArg::Valid)]
+    pub(super) sides: SidesArg,
 }
 
 impl PlacementArgs {
@@ -47,7 +61,16 @@ impl PlacementArgs {
             Candidates::Paper => CandidateRule::Paper,
         };
         (
-            SurfelSettings { budget: self.receivers, seed, ..Default::default() },
+            SurfelSettings {
+                budget: self.receivers,
+                seed,
+                sides: match self.sides {
+                    SidesArg::Valid => Sides::Valid,
+                    SidesArg::Seeing => Sides::Seeing,
+                    SidesArg::All => Sides::All,
+                },
+                ..Default::default()
+            },
             PlacementSettings { probes: self.probes, overlap: self.overlap, rule },
         )
     }
@@ -286,6 +309,25 @@ mod tests {
         let on = ProbesMethod::parse("probes:near_field=on:near_radius=0.3", seed).unwrap().unwrap();
         assert_eq!(on.precompute.transport.near, Some(0.3));
         assert!(ProbesMethod::parse("probes:near_field=on:near_radius=5", seed).is_err());
+    }
+
+    #[test]
+    fn the_sides_flag_and_option_give_the_same_settings() {
+        let seed = 3;
+        for (flags, spec, sides) in [
+            (&[][..], "probes", Sides::Valid),
+            (&["--sides", "valid"][..], "probes:sides=valid", Sides::Valid),
+            (&["--sides", "seeing"][..], "probes:sides=seeing", Sides::Seeing),
+            (&["--sides", "all"][..], "probes:sides=all", Sides::All),
+        ] {
+            let mut argv = vec!["relight", "--cache", "c.probes"];
+            argv.extend_from_slice(flags);
+            let cli = RelightFlags::try_parse_from(argv).unwrap();
+            let method = ProbesMethod::parse(spec, seed).unwrap().unwrap();
+            assert_eq!(cli.pre.settings(seed), method.precompute, "{flags:?}");
+            assert_eq!(cli.pre.settings(seed).surfels.sides, sides, "{flags:?}");
+        }
+        assert!(RelightFlags::try_parse_from(["relight", "--cache", "c", "--sides", "front"]).is_err());
     }
 
     #[test]
