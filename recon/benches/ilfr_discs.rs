@@ -5,7 +5,7 @@
 //! `DiscBvh::collect_hits` does.
 //!
 //! Both hold the same discs: those `ilfr` makes from a sample file (`GatheredPoints::from_samples`,
-//! `size_splats`, `DiscBvh::build`, `shrink_splats`, as `ilfr::method` does), after shrinking.
+//! `size_splats`, `DiscBvh::build`, `shrink_splats`, as `ilfr::pipeline` does), after shrinking.
 //! The rays are reconstruction rays as the gather makes them: from every primary hit lifted by
 //! 1e-4 × the scene diagonal along its normal, cosine-distributed about it (a fixed seed), t in
 //! (0, ∞). Before timing, the hit sets are compared ray by ray; disagreements are counted and
@@ -52,7 +52,7 @@ fn embree_device(threads: u32) -> (Device, Arc<AtomicIsize>) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Input: a sample file or a synthetic Cornell box, through the pipeline of `ilfr::method`.
+// Input: a sample file or a synthetic Cornell box, through the pipeline of `ilfr::pipeline`.
 
 fn normalize(v: [f32; 3]) -> [f32; 3] {
     let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();

@@ -8,7 +8,8 @@ use crate::baselines::box_filter::BoxFilter;
 use crate::baselines::oidn::Oidn;
 use crate::error::Error;
 use crate::gif::filtered_indirect::{FilterOptions, FilteredIndirect};
-use crate::ilfr::method::{GatherChoice, Ilfr, IlfrChoices, IlfrDof, IlfrRecursive, Variant};
+use crate::ilfr::choices::{GatherChoice, IlfrChoices, Variant};
+use crate::ilfr::method::IlfrMethod;
 use crate::ilfr::robust::RobustMode;
 use crate::ilfr::shrink::Trim;
 use crate::ilfr::sparse::SparseParams;
@@ -329,7 +330,7 @@ pub const METHODS: &[MethodSpec] = &[
         build: |options| {
             let choices = ilfr_choices(options);
             check_sparse_gather(options, &choices)?;
-            Ok(Box::new(Ilfr { choices }))
+            Ok(Box::new(IlfrMethod::ilfr(choices)))
         },
     },
     MethodSpec {
@@ -340,7 +341,7 @@ pub const METHODS: &[MethodSpec] = &[
                       et al. 2012 §4)",
         build: |options| {
             let passes = options.count("passes").unwrap_or(1);
-            Ok(Box::new(IlfrRecursive { passes, choices: ilfr_choices(options) }))
+            Ok(Box::new(IlfrMethod::recursive(passes, ilfr_choices(options))))
         },
     },
     MethodSpec {
@@ -349,7 +350,7 @@ pub const METHODS: &[MethodSpec] = &[
         options: &[CONFLICT, SHRINK, TRIM],
         description: "indirect light field reconstruction's machinery on camera rays: defocus and motion blur \
                       (Lehtinen et al. 2012 §3.4)",
-        build: |options| Ok(Box::new(IlfrDof { choices: ilfr_choices(options) })),
+        build: |options| Ok(Box::new(IlfrMethod::dof(ilfr_choices(options)))),
     },
 ];
 
@@ -719,11 +720,11 @@ mod tests {
             (Some(ConflictTest::FacingOrCoplanar), false),
             "the options reach the reconstruction's settings"
         );
-        let settings = choices.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Indirect);
+        let settings = choices.apply(crate::ilfr::pipeline::IlfrSettings::default(), Effect::Indirect);
         assert_eq!(settings.robust.mode, RobustMode::Spread, "the default");
         assert!(!settings.filter_grain, "the paper's gather keeps its grain by default");
         let grain = ilfr_choices(&spec("ilfr").unwrap().parse_options("grain=filter").unwrap());
-        assert!(grain.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Indirect).filter_grain);
+        assert!(grain.apply(crate::ilfr::pipeline::IlfrSettings::default(), Effect::Indirect).filter_grain);
         assert!(spec("ilfr").unwrap().parse_options("grain=maybe").is_err());
         let filtered = find("ilfr:grain=filter").unwrap().unwrap();
         assert!(filtered.supports(Effect::Indirect), "diffuse indirect light");
@@ -731,7 +732,7 @@ mod tests {
         assert!(find("ilfr").unwrap().unwrap().supports(Effect::Glossy));
         for (option, mode) in [("robust=clamp", RobustMode::Clamp), ("robust=off", RobustMode::Off)] {
             let choices = ilfr_choices(&spec("ilfr-recursive").unwrap().parse_options(option).unwrap());
-            let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Glossy);
+            let applied = choices.apply(crate::ilfr::pipeline::IlfrSettings::default(), Effect::Glossy);
             assert_eq!(applied.robust.mode, mode, "{option}");
         }
         assert_eq!(
@@ -746,7 +747,7 @@ mod tests {
             ("small=auto", Effect::Glossy, true),
         ] {
             let choices = ilfr_choices(&spec("ilfr").unwrap().parse_options(option).unwrap());
-            let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), effect);
+            let applied = choices.apply(crate::ilfr::pipeline::IlfrSettings::default(), effect);
             assert_eq!(applied.surfaces.merge_small_surfaces, merge, "{option} for {effect:?}");
         }
         for (option, effect, trim) in [
@@ -758,11 +759,11 @@ mod tests {
             ("trim=disc", Effect::Glossy, Trim::Disc),
         ] {
             let choices = ilfr_choices(&spec("ilfr").unwrap().parse_options(option).unwrap());
-            let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), effect);
+            let applied = choices.apply(crate::ilfr::pipeline::IlfrSettings::default(), effect);
             assert_eq!(applied.shrink.trim, trim, "{option} for {effect:?}");
         }
         assert_eq!(find("ilfr-dof:trim=disc").unwrap().unwrap().name(), "ilfr-dof:trim=disc");
-        use crate::ilfr::method::RayModelChoice::{ApparentSurfaces, NearestSplat};
+        use crate::ilfr::pipeline::RayModelChoice::{ApparentSurfaces, NearestSplat};
         for (option, effect, model, records) in [
             ("variant=auto", Effect::Indirect, NearestSplat, false),
             ("gather=full", Effect::Indirect, NearestSplat, true),
@@ -774,7 +775,7 @@ mod tests {
             ("variant=records", Effect::Glossy, NearestSplat, true),
         ] {
             let choices = ilfr_choices(&spec("ilfr").unwrap().parse_options(option).unwrap());
-            let applied = choices.apply(crate::ilfr::method::IlfrSettings::default(), effect);
+            let applied = choices.apply(crate::ilfr::pipeline::IlfrSettings::default(), effect);
             assert_eq!((applied.ray_model, applied.cache.is_some()), (model, records), "{option} for {effect:?}");
         }
         assert!(spec("ilfr").unwrap().parse_options("variant=fast").is_err());
@@ -786,12 +787,16 @@ mod tests {
         assert_eq!(rays("ilfr:variant=paper", Effect::Indirect), [256]);
         assert_eq!(rays("ilfr:variant=records", Effect::Glossy), [16, 128]);
         assert_eq!(rays("ilfr+oidn", Effect::Indirect), [16, 64]);
+        // The other two keep theirs whatever the variant.
+        assert_eq!(rays("ilfr-recursive", Effect::Indirect), [256]);
+        assert_eq!(rays("ilfr-recursive:variant=nearest-splat", Effect::Indirect), [256]);
+        assert_eq!(rays("ilfr-dof", Effect::Dof), [128]);
         // The sparse gather: on by default for indirect light (a 4-pixel grid at 4× the rays),
         // over the nearest splat; off where a variant or the grain filter is chosen, and for
         // other effects.
         let indirect = |option: &str| {
             let choices = ilfr_choices(&spec("ilfr").unwrap().parse_options(option).unwrap());
-            choices.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Indirect)
+            choices.apply(crate::ilfr::pipeline::IlfrSettings::default(), Effect::Indirect)
         };
         let grid = |option: &str| indirect(option).sparse.map(|p| (p.stride, p.grid_ray_factor));
         assert_eq!(grid(""), Some((4, 4)));
@@ -801,7 +806,7 @@ mod tests {
         }
         assert_eq!(grid("variant=paper:gather=sparse"), Some((4, 4)));
         let ao = ilfr_choices(&spec("ilfr").unwrap().parse_options("").unwrap());
-        assert_eq!(ao.apply(crate::ilfr::method::IlfrSettings::default(), Effect::Ao).sparse, None);
+        assert_eq!(ao.apply(crate::ilfr::pipeline::IlfrSettings::default(), Effect::Ao).sparse, None);
         let sparse = indirect("gather=sparse:stride=3:grid_rays=4");
         let params = sparse.sparse.unwrap();
         assert_eq!((params.stride, params.grid_ray_factor), (3, 4));

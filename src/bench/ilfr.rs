@@ -16,9 +16,9 @@ use std::time::Instant;
 use crate::common::{RunArgs, SceneListArgs};
 use anyhow::{anyhow, bail, Context, Result};
 use rayon::prelude::*;
+use recon::ilfr::choices::{IlfrChoices, Variant};
 use recon::ilfr::gather::reconstruction_rays;
-use recon::ilfr::method::GatherTarget;
-use recon::ilfr::method::{reconstruct_samples, IlfrChoices, IlfrSettings, Variant};
+use recon::ilfr::pipeline::{reconstruct_samples, GatherTarget, IlfrSettings};
 use recon::ilfr::samples::read_indirect;
 use recon::method::Effect;
 use sampleio::SampleFile;
@@ -83,7 +83,7 @@ struct Row {
     reconstruction_ray_in_traced_paths: f64,
     /// ILFR total time over the first spp's on the same scene.
     time_over_first_spp: f64,
-    /// The reconstruction's statistics (`recon::ilfr::method::Reconstructed::stats`).
+    /// The reconstruction's statistics (`recon::ilfr::pipeline::Reconstructed::stats`).
     stats: recon::method::Stats,
 }
 

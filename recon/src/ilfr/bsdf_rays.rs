@@ -59,7 +59,7 @@ fn lobe_split(specular_probability: f32, per_hit: u32, scramble: u32) -> (u32, [
 /// sequence. With both lobes each hit's lobe takes a prefix of its block, and the prefixes of
 /// aligned blocks of a scrambled (0, 2)-sequence all lie in the same strip of the square (the
 /// points k·N of the sequence share their leading digits), so the pixel's specular directions
-/// would cluster: measured 3× the error of one set per hit (`method.rs`,
+/// would cluster: measured 3× the error of one set per hit (`pipeline.rs`,
 /// `glossy_hits_of_a_pixel_share_one_stratified_set_per_lobe`).
 pub fn single_lobe(primary: &PrimaryShading, normal: [f32; 3], per_hit: u32) -> bool {
     let frame = shading::Frame::new(Vec3::from(normal));

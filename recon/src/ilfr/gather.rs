@@ -735,7 +735,7 @@ mod tests {
     use crate::ilfr::bvh::DiscBvh;
     use crate::ilfr::disc::Disc;
     use crate::ilfr::filter::SplatShading;
-    use crate::ilfr::method::tests::box_samples;
+    use crate::ilfr::pipeline::tests::box_samples;
     use crate::ilfr::ray_order::direction_key;
     use crate::ilfr::reconstruct::RayModel;
     use crate::ilfr::surfaces::SurfaceParams;

@@ -319,8 +319,8 @@ pub fn gather_lens(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ilfr::method::GatherTarget;
-    use crate::ilfr::method::{reconstruct_samples, IlfrSettings};
+    use crate::ilfr::pipeline::GatherTarget;
+    use crate::ilfr::pipeline::{reconstruct_samples, IlfrSettings};
     use sampleio::{FieldSpec, FieldType, HeaderSpec, SampleWriter};
 
     const APERTURE: f32 = 0.4;

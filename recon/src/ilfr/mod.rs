@@ -40,11 +40,11 @@
 //!   are consecutive blocks of one scrambled Sobol' sequence per pixel (`gather`,
 //!   `directions`, `bsdf_rays`); ambient occlusion skips §2.5's small-surface
 //!   rule by default, which on Sponza turned more real occluders visible than it spared
-//!   spurious ones (`surfaces::SurfaceParams::merge_small_surfaces`, `method`); on request
+//!   spurious ones (`surfaces::SurfaceParams::merge_small_surfaces`, `choices`); on request
 //!   (`ilfr:grain=filter`), an edge-aware filter of the final gather's per-pixel grain in
 //!   diffuse indirect light (`grain`).
 //! - Beyond the paper, a cheaper final gather (`ilfr:variant=nearest-splat`, `ilfr:variant=records`;
-//!   `ilfr:variant=paper` is the paper's; `variant=auto` picks per effect, `method::variant_for`):
+//!   `ilfr:variant=paper` is the paper's; `variant=auto` picks per effect, `choices::variant_for`):
 //!   each splat's radiance filtered once over its jury
 //!   (`prefilter`), and a reconstruction ray reads the nearest splat it meets within 0.7 of its
 //!   radius, else the nearest at all (`reconstruct::RayModel::NearestSplat`, by the ordered walk
@@ -68,11 +68,15 @@
 //!   through pixel, lens and shutter: `lens`.
 //! - ✓ The `Method`s `ilfr` (effects `indirect`, `glossy`, `ao`), `ilfr-recursive` (`indirect`,
 //!   `glossy`, with Section 4) and `ilfr-dof` (`dof`, `motion`, `dof-motion`; Section 3.4) for
-//!   `lfr compare`, with the time split and counts in their notes: `method`.
+//!   `lfr compare`, one type described by data (`method::IlfrMethod`); the choices the paper
+//!   leaves open and their defaults per effect (`choices`); the pipeline they share, read,
+//!   sizing, hierarchy, shrinking, recursive passes and gather, with the time split and counts in
+//!   their notes (`pipeline::reconstruct_samples`, `pipeline::run_ilfr`, `pipeline::run_lens`).
 
 pub mod bsdf_rays;
 pub mod bvh;
 pub mod cache;
+pub mod choices;
 pub mod directions;
 pub mod disc;
 pub mod filter;
@@ -81,6 +85,7 @@ pub mod grain;
 pub mod lens;
 pub mod method;
 pub mod neighbours;
+pub mod pipeline;
 pub mod prefilter;
 pub mod ray_order;
 pub mod reconstruct;

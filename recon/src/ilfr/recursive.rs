@@ -251,9 +251,9 @@ mod tests {
     use crate::ilfr::bvh::DiscBvh;
     use crate::ilfr::disc::Disc;
     use crate::ilfr::filter::SplatShading;
-    use crate::ilfr::method::tests::{box_exit, box_samples, settings};
-    use crate::ilfr::method::GatherTarget;
-    use crate::ilfr::method::{reconstruct_samples, IlfrSettings};
+    use crate::ilfr::pipeline::tests::{box_exit, box_samples, settings};
+    use crate::ilfr::pipeline::GatherTarget;
+    use crate::ilfr::pipeline::{reconstruct_samples, IlfrSettings};
     use crate::ilfr::reconstruct::RayModel;
     use crate::ilfr::shrink::{input_rays, scene_diagonal, shrink_splats, ShrinkParams};
     use crate::ilfr::splats::{size_splats, GatheredPoints, SplatParams};

@@ -1,8 +1,8 @@
 //! The unit tests of `sparse.rs`, in a file of their own beside it for their length.
 
 use super::*;
-use crate::ilfr::method::tests::{box_samples, settings};
-use crate::ilfr::method::{reconstruct_samples, GatherTarget, IlfrSettings, Reconstructed};
+use crate::ilfr::pipeline::tests::{box_samples, settings};
+use crate::ilfr::pipeline::{reconstruct_samples, GatherTarget, IlfrSettings, Reconstructed};
 use sampleio::SampleKind;
 
 /// The full gather's settings (the oracle) with `rays` rays per pixel, and the same with the

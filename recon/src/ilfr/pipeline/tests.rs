@@ -1,6 +1,7 @@
-//! The unit tests of `method.rs`, in a file of their own beside it for their length.
+//! The unit tests of `pipeline.rs`, in a file of their own beside it for their length.
 
 use super::*;
+use crate::ilfr::choices::{IlfrChoices, Variant};
 use crate::ilfr::samples::{PrimaryShading, SampleClass};
 use crate::lcg::Lcg;
 use sampleio::SampleKind;
