@@ -73,14 +73,7 @@ pub fn run_ilfr(name: &str, inputs: &Inputs, settings: IlfrSettings) -> Result<O
     result.timings.read_s = read_s;
     let notes = result.notes(&samples, &settings);
     let stats = result.stats();
-    Ok(Output {
-        image: result.image,
-        preprocess_s: result.timings.preprocess_s(),
-        recon_s: result.timings.recon_s(),
-        external_peak_rss_mb: None,
-        notes,
-        stats,
-    })
+    Ok(output(result, notes, stats))
 }
 
 /// Reconstructs defocus and motion blur (effects `dof`, `motion`, `dof-motion`) from the camera
@@ -110,14 +103,19 @@ pub fn run_lens(name: &str, inputs: &Inputs, settings: IlfrSettings) -> Result<O
         settings.recon_rays,
         ray_stats.normals_from_the_ray
     );
-    Ok(Output {
+    Ok(output(result, notes, stats))
+}
+
+/// The method's output: the reconstruction's image and times with `notes` and `stats`.
+fn output(result: Reconstructed, notes: Vec<String>, stats: Stats) -> Output {
+    Output {
         image: result.image,
         preprocess_s: result.timings.preprocess_s(),
         recon_s: result.timings.recon_s(),
         external_peak_rss_mb: None,
         notes,
         stats,
-    })
+    }
 }
 
 /// What the gather computes.
