@@ -43,8 +43,9 @@ use crate::ProbesError;
 pub const MAGIC: &[u8; 8] = b"LFRPROBE";
 /// The format version this build writes and reads; raised whenever the precompute's results
 /// change (2: receivers next to a concave edge are no longer hidden; 3: the receivers of hidden
-/// sides dropped and the budget spent on the valid sides, `surfels::Sides`).
-pub const VERSION: u32 = 3;
+/// sides dropped and the budget spent on the valid sides, `surfels::Sides`; 4: the near field's
+/// weights in fp16, 6 B an entry).
+pub const VERSION: u32 = 4;
 /// Bytes before the payload.
 pub const HEADER_BYTES: usize = 8 + 4 + 32 + 32 + 8 + 32;
 
@@ -238,7 +239,7 @@ pub fn encode(key: &CacheKey, pre: &Precompute) -> Vec<u8> {
         put_u64(&mut w, near.entries.len() as u64);
         for &(s, wt) in &near.entries {
             put_u32(&mut w, s);
-            put_f32(&mut w, wt);
+            w.extend_from_slice(&half::f16::from_f32(wt).to_bits().to_le_bytes());
         }
     }
 
@@ -482,10 +483,10 @@ fn parse(payload: &[u8], settings: &PrecomputeSettings) -> Result<Precompute, St
             for _ in 0..no {
                 offsets.push(r.u32()?);
             }
-            let ne = r.count(8, "near-field entries")?;
+            let ne = r.count(6, "near-field entries")?;
             let mut entries = Vec::with_capacity(ne);
             for _ in 0..ne {
-                entries.push((r.u32()?, r.f32()?));
+                entries.push((r.u32()?, half::f16::from_bits(r.u16()?).to_f32()));
             }
             let field = NearField { offsets, entries, hits, holes };
             field.check(n)?;
@@ -678,6 +679,9 @@ impl Reader<'_> {
         let out = self.bytes[self.pos..end].try_into().expect("N bytes");
         self.pos = end;
         Ok(out)
+    }
+    fn u16(&mut self) -> Result<u16, String> {
+        self.take().map(u16::from_le_bytes)
     }
     fn u32(&mut self) -> Result<u32, String> {
         self.take().map(u32::from_le_bytes)

@@ -14,8 +14,14 @@
 //! and hits are the transport's own (the same sampler, seed and rays), so a direction is either
 //! the near field's or α's, never both and never neither. Sums run in f64 in a fixed order: the
 //! same list for any thread count.
+//!
+//! The weights are rounded to fp16 once built (stored 6 B an entry: u32 sender, fp16 weight;
+//! widened to f32 in memory for the gather): each within 2⁻¹¹ of itself relatively (normal
+//! fp16), or 2⁻²⁵ absolutely below fp16's normal range (2⁻¹⁴), so with non-negative radiance
+//! B a receiver's near light Σ w B moves by at most 2⁻¹¹ Σ w B + 2⁻²⁵ Σ B.
 
 use glam::Vec3;
+use half::f16;
 use rayon::prelude::*;
 use shading::Frame;
 
@@ -42,6 +48,17 @@ impl NearField {
     /// (not hidden) and keeps the hits nearer than the context's near distance. An empty list
     /// for every receiver when the near field is off.
     pub fn build(ctx: &TransportContext, surfels: &Surfels, valid: &[bool]) -> Result<NearField, ProbesError> {
+        let mut field = NearField::build_f32(ctx, surfels, valid)?;
+        field.entries.iter_mut().for_each(|e| e.1 = round_weight(e.1));
+        Ok(field)
+    }
+
+    /// As `build` with the weights left in f32 (the test of the fp16 rounding's bound).
+    pub(crate) fn build_f32(
+        ctx: &TransportContext,
+        surfels: &Surfels,
+        valid: &[bool],
+    ) -> Result<NearField, ProbesError> {
         let n = surfels.surfels.len();
         if valid.len() != n {
             return Err(ProbesError::parameter("valid", format!("{} flags for {n} receivers", valid.len())));
@@ -132,9 +149,9 @@ impl NearField {
         });
     }
 
-    /// Bytes as held: the offsets (u32) and the entries (u32 sender, f32 weight).
+    /// Bytes as stored: the offsets (u32) and the entries (u32 sender, fp16 weight).
     pub fn bytes(&self) -> usize {
-        self.offsets.len() * 4 + self.entries.len() * 8
+        self.offsets.len() * 4 + self.entries.len() * 6
     }
 
     /// Checks the list against `senders` surfels (for a list read from a cache).
@@ -155,6 +172,11 @@ impl NearField {
         }
         Ok(())
     }
+}
+
+/// A weight rounded to the nearest fp16 value (as stored), back in f32.
+pub(crate) fn round_weight(w: f32) -> f32 {
+    f16::from_f32(w).to_f32()
 }
 
 /// A hit's senders without the hidden ones (`valid` false) when it reads a valid one too, the

@@ -168,7 +168,7 @@ impl Precompute {
         self.transports.iter().map(|t| t.alpha.len() * 4 + t.probes.len() * 4).sum()
     }
 
-    /// Bytes of the near field's lists as held (0 when it is off).
+    /// Bytes of the near field's lists as stored, 6 B an entry (0 when it is off).
     pub fn near_field_bytes(&self) -> usize {
         self.near.as_ref().map_or(0, NearField::bytes)
     }

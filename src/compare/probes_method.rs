@@ -94,7 +94,7 @@ pub const OPTIONS: &[OptionSpec] = &[
         help: "visibility: Eq. 2; spatial: the spatial-only Eq. 1",
     },
     OptionSpec { key: "cpca", kind: ON_OFF, default: "on", help: "compress the transport with CPCA (Eq. 11)" },
-    OptionSpec { key: "fp16", kind: ON_OFF, default: "off", help: "store the CPCA-compressed transport in fp16" },
+    OptionSpec { key: "fp16", kind: ON_OFF, default: "on", help: "store the CPCA-compressed transport in fp16 (with cpca=on)" },
     OptionSpec {
         key: "miss_weight",
         kind: OptionKind::Interval { min: 0.0, min_open: true, max: 1.0, max_open: false },
@@ -232,7 +232,8 @@ impl ProbesMethod {
         };
         precompute.validate().map_err(|e| bad(e.to_string()))?;
         let cpca = word("cpca", if defaults::CPCA { "on" } else { "off" }) == "on";
-        let fp16 = word("fp16", "off") == "on";
+        // fp16 by default where there is a CPCA transport to store; asked for without one, refused.
+        let fp16 = word("fp16", if defaults::FP16 && cpca { "on" } else { "off" }) == "on";
         if fp16 && !cpca {
             return Err(bad("fp16 stores the CPCA-compressed transport; it needs cpca=on".into()).into());
         }
@@ -517,7 +518,10 @@ mod tests {
         assert_eq!(m.precompute.placement.probes, 64);
         assert_eq!(m.precompute.transport.order, 7);
         assert_eq!(m.precompute.surfels.seed, 3);
-        assert!(m.cpca.is_some());
+        assert_eq!(m.cpca.map(|c| c.precision), Some(Precision::F16), "fp16 by default (docs/probes.md)");
+        let f32 = ProbesMethod::parse("probes:fp16=off", 3).unwrap().unwrap();
+        assert_eq!(f32.cpca.map(|c| c.precision), Some(Precision::F32));
+        assert_eq!(ProbesMethod::parse("probes:cpca=off", 3).unwrap().unwrap().cpca, None, "no fp16 without CPCA");
         assert_eq!(m.pixel_samples, 16, "Cornell's edges need 16 rays per pixel (docs/probes.md)");
         let m = ProbesMethod::parse("probes:miss_weight=1:probes=29:cpca=off:order=2:reconstruction=spatial", 1)
             .unwrap()

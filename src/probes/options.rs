@@ -162,9 +162,10 @@ pub struct FrameOptions {
     /// CPCA: clusters hold fewer receivers than this.
     #[arg(long, default_value_t = CpcaSettings::default().cluster_limit)]
     pub(super) cpca_cluster_limit: usize,
-    /// CPCA: store the compressed transport in fp16.
-    #[arg(long)]
-    pub(super) fp16: bool,
+    /// CPCA: store the compressed transport in fp16 (`--fp16=off`: f32). Default: on with CPCA.
+    #[arg(long, value_name = "on|off", num_args = 0..=1, require_equals = true,
+        default_missing_value = "on", value_parser = clap::builder::BoolishValueParser::new())]
+    pub(super) fp16: Option<bool>,
     /// Weight of the relight rays that escape (or hit a lookup hole) in each probe's SH fit:
     /// 1 is the paper's projection (radiance zero along them); smaller fits the SH to the hit
     /// rays only, which are the only directions a receiver reads a probe in (docs/probes.md:
@@ -236,9 +237,10 @@ impl FrameOptions {
                 self.pixel_samples
             );
         }
-        if self.fp16 && !self.cpca {
+        if self.fp16 == Some(true) && !self.cpca {
             anyhow::bail!("fp16: stores the CPCA-compressed transport, which --cpca=off turns off");
         }
+        let fp16 = self.fp16.unwrap_or(defaults::FP16);
         if !(self.relight_miss_weight > 0.0 && self.relight_miss_weight <= 1.0) {
             anyhow::bail!(
                 "relight-miss-weight: must be in (0, 1] (1: the paper's projection), got {}",
@@ -252,7 +254,7 @@ impl FrameOptions {
             cluster_limit: self.cpca_cluster_limit,
             tolerance: self.cpca_tolerance,
             max_coefficients: self.cpca_coefficients,
-            precision: if self.fp16 { Precision::F16 } else { Precision::F32 },
+            precision: if fp16 { Precision::F16 } else { Precision::F32 },
         };
         cpca.validate()?;
         Ok((self.cpca.then_some(cpca), intensity))
@@ -338,5 +340,17 @@ mod tests {
             assert_eq!(RelightFlags::try_parse_from(argv).unwrap().frame.cpca, expected, "{flags:?}");
         }
         assert!(RelightFlags::try_parse_from(["relight", "--cache", "c", "--cpca=perhaps"]).is_err());
+        // fp16 by default with CPCA; --fp16=off gives f32; --cpca=off alone takes no fp16.
+        for (flags, expected) in [
+            (&[][..], Some(Precision::F16)),
+            (&["--fp16"][..], Some(Precision::F16)),
+            (&["--fp16=off"][..], Some(Precision::F32)),
+            (&["--cpca=off"][..], None),
+        ] {
+            let mut argv = vec!["relight", "--cache", "c.probes"];
+            argv.extend_from_slice(flags);
+            let cpca = RelightFlags::try_parse_from(argv).unwrap().frame.validated().unwrap().0;
+            assert_eq!(cpca.map(|c| c.precision), expected, "{flags:?}");
+        }
     }
 }

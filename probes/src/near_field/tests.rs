@@ -37,8 +37,53 @@ fn context(s: &Sphere, near: Option<f64>) -> TransportContext<'_> {
     TransportContext::new(&s.accel, &PROBES, RADIUS, 2.0, settings).unwrap()
 }
 
+/// The list with its weights in f32 (the gather's exact sums; `build` rounds them to fp16,
+/// bounded in `the_fp16_weights_move_the_near_light_by_at_most_their_rounding`).
 fn near_of(s: &Sphere, ctx: &TransportContext) -> NearField {
-    NearField::build(ctx, &s.surfels, &vec![true; s.surfels.surfels.len()]).unwrap()
+    NearField::build_f32(ctx, &s.surfels, &vec![true; s.surfels.surfels.len()]).unwrap()
+}
+
+#[test]
+fn the_fp16_weights_move_the_near_light_by_at_most_their_rounding() {
+    // Each fp16 weight is within 2⁻¹¹ of the f32 one relatively (half an ulp of an 11-bit
+    // significand), or 2⁻²⁵ absolutely below 2⁻¹⁴ (subnormal): with radiance B ≥ 0 a
+    // receiver's near light L = Σ w B moves by at most 2⁻¹¹ L + 2⁻²⁵ Σ B (f32 sums aside,
+    // 1e-6 L). Over the sphere and varied radiance, and at most 1e-3 of L wherever L is.
+    let s = sphere_scene();
+    let n = s.surfels.surfels.len();
+    let radiance: Vec<Vec3> = s
+        .surfels
+        .surfels
+        .iter()
+        .map(|x| Vec3::new(1.0 + x.position.x, 0.02 + (3.0 * x.position.y).sin().abs(), 5.0 * x.position.z.max(0.0)))
+        .collect();
+    for share in [0.25, 0.6, 4.0] {
+        let ctx = context(&s, Some(share));
+        let exact = near_of(&s, &ctx);
+        let stored = NearField::build(&ctx, &s.surfels, &vec![true; n]).unwrap();
+        assert_eq!(stored.offsets, exact.offsets);
+        assert!(!exact.entries.is_empty());
+        let (mut a, mut b) = (vec![Vec3::ZERO; n], vec![Vec3::ZERO; n]);
+        exact.add_into(&radiance, &mut a);
+        stored.add_into(&radiance, &mut b);
+        let step = 2f32.powi(-11);
+        let mut worst = 0.0f32;
+        for r in 0..n {
+            let sum_b = exact.row(r).iter().fold(Vec3::ZERO, |acc, &(x, _)| acc + radiance[x as usize]);
+            for (e, q) in exact.row(r).iter().zip(stored.row(r)) {
+                assert_eq!(e.0, q.0);
+                assert!((q.1 - e.1).abs() <= (step * e.1).max(2f32.powi(-25)), "{} against {}", q.1, e.1);
+            }
+            let bound = a[r] * (step + 1e-6) + sum_b * 2f32.powi(-25);
+            assert!((b[r] - a[r]).abs().cmple(bound).all(), "share {share}, receiver {r}: {} against {}", b[r], a[r]);
+            for c in 0..3 {
+                if a[r][c] > 0.0 {
+                    worst = worst.max((b[r][c] - a[r][c]).abs() / a[r][c]);
+                }
+            }
+        }
+        assert!(worst < 1e-3, "share {share}: {worst}");
+    }
 }
 
 #[test]
@@ -261,6 +306,7 @@ fn bad_near_settings_are_refused_by_name() {
     let s = sphere_scene();
     let ctx = context(&s, Some(0.5));
     assert!(NearField::build(&ctx, &s.surfels, &[true]).is_err());
+    assert!(NearField::build_f32(&ctx, &s.surfels, &[true]).is_err());
 }
 
 #[test]
