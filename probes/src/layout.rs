@@ -12,7 +12,7 @@ use crate::placement::{coverage, place, support_radius, Coverage, Placement, Pla
 use crate::relight::probes_inside;
 use crate::sh;
 use crate::surfels::{Sides, Surfel, SurfelSettings, Surfels};
-use crate::transport::{side_hidden, side_hits, HIDDEN_BACK_FACES, SIDE_TEST_RAYS};
+use crate::transport::{mostly_back_faces, side_hits, SIDE_TEST_RAYS};
 use crate::ProbesError;
 
 /// The steps [`Layout::build`] reports to its progress callback, in order.
@@ -76,20 +76,13 @@ impl Layout {
         let t = Instant::now();
         let surfels = match surfel_settings.sides {
             Sides::All => Surfels::from_geometry(scene, &geometry, surfel_settings)?,
-            Sides::Valid => {
-                let grid = &placement.grid;
-                let seed = surfel_settings.seed;
-                let hidden = |i: u32, s: &Surfel| {
-                    side_hidden(&accel, grid, s.position, s.normal, i, seed, SIDE_TEST_RAYS, scale)
-                };
-                Surfels::from_geometry_valid(scene, &geometry, surfel_settings, &hidden)?
-            }
-            Sides::Seeing => {
-                let grid = &placement.grid;
-                let seed = surfel_settings.seed;
+            Sides::Valid | Sides::Seeing => {
+                let (grid, seed) = (&placement.grid, surfel_settings.seed);
+                // `seeing` also drops the sides none of whose test rays hits anything.
+                let drop_sky_only = surfel_settings.sides == Sides::Seeing;
                 let hidden = |i: u32, s: &Surfel| {
                     side_hits(&accel, grid, s.position, s.normal, i, seed, SIDE_TEST_RAYS, scale)
-                        .map_or(true, |(hits, back)| hits == 0 || back as f64 >= HIDDEN_BACK_FACES * hits as f64)
+                        .map_or(true, |(hits, back)| (drop_sky_only && hits == 0) || mostly_back_faces(hits, back))
                 };
                 Surfels::from_geometry_valid(scene, &geometry, surfel_settings, &hidden)?
             }

@@ -29,6 +29,12 @@ pub const HIDDEN_BACK_FACES: f64 = 0.3;
 /// Directions of [`side_hidden`], the test that decides which surface sides get surfels.
 pub const SIDE_TEST_RAYS: u32 = 64;
 
+/// Whether `back_faces` of a side's `hits` hide it: at least [`HIDDEN_BACK_FACES`] of them
+/// (no hit hides nothing). The rule of [`TransportContext::hidden`] and [`side_hidden`].
+pub fn mostly_back_faces(hits: u32, back_faces: u32) -> bool {
+    hits > 0 && back_faces as f64 >= HIDDEN_BACK_FACES * hits as f64
+}
+
 /// Whether the surface side at `x` with unit normal `n` is hidden by the rule of
 /// [`TransportContext::hidden`], its back-face share measured over `rays` cosine-distributed
 /// directions of their own Sobol' stream (seeded by `seed` and `index`) instead of the
@@ -46,8 +52,7 @@ pub fn side_hidden(
     rays: u32,
     scale: f32,
 ) -> bool {
-    side_hits(accel, grid, x, n, index, seed, rays, scale)
-        .map_or(true, |(hits, back_faces)| hits > 0 && back_faces as f64 >= HIDDEN_BACK_FACES * hits as f64)
+    side_hits(accel, grid, x, n, index, seed, rays, scale).map_or(true, |(hits, back)| mostly_back_faces(hits, back))
 }
 
 /// The hits and back-face hits of [`side_hidden`]'s rays, `None` when the side's front voxel is
@@ -354,7 +359,7 @@ impl<'a> TransportContext<'a> {
     /// voxel of the adjacent wall: 10 % of Cornell's receivers.)
     pub fn hidden(grid: &VoxelGrid, x: Vec3, n: Vec3, transport: Option<&Transport>) -> bool {
         grid.front_enclosed(x.as_dvec3(), n.as_dvec3())
-            || transport.is_some_and(|t| t.hits > 0 && t.back_faces as f64 >= HIDDEN_BACK_FACES * t.hits as f64)
+            || transport.is_some_and(|t| mostly_back_faces(t.hits, t.back_faces))
     }
 
     /// The transport of every surfel, hidden ones (see [`TransportContext::hidden`]) left empty
